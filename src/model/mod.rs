@@ -1,0 +1,61 @@
+//! Calibration models and their fits: pure functions on plain data.
+//!
+//! - [`paper`]: the paper's model `s_x = a*x + b, s_y = y + d, |s| = r`, its
+//!   closed-form least squares (eq. 6) and its gradient descent (eqs. 7-21).
+//! - [`heading`]: where on the circle the samples lie (coverage of the turn).
+//! - [`fit`]: fitting a recording end to end, with the checks a user needs.
+
+pub mod fit;
+pub mod heading;
+pub mod paper;
+
+/// Why a fit could not produce a calibration. Messages say what was found
+/// and what to do; the caller adds which file or sensor it was.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FitError {
+    #[error(
+        "{found} samples are too few: the model has {unknowns} unknowns and needs at least {needed} samples"
+    )]
+    TooFewSamples {
+        found: usize,
+        unknowns: usize,
+        needed: usize,
+    },
+    #[error(
+        "the {axis} readings are all the same ({value}); the sensor must turn so that both axes change"
+    )]
+    ConstantAxis { axis: &'static str, value: f64 },
+    #[error(
+        "the readings are degenerate (they lie on a line or a single conic arc the model cannot pin down); turn the sensor a full rotation in a constant field"
+    )]
+    Degenerate,
+    #[error(
+        "the readings cover only {found_deg:.1}° of heading (the largest gap runs {gap_deg:.1}° from {gap_start_deg:.1}°); a fit needs at least {needed_deg:.1}°: turn the sensor a full rotation, or lower the required coverage"
+    )]
+    InsufficientCoverage {
+        found_deg: f64,
+        needed_deg: f64,
+        gap_deg: f64,
+        gap_start_deg: f64,
+    },
+    #[error(
+        "the points fit no ellipse of the paper's family (theta1 = {theta1:.6e} >= 0, so a = sqrt(-theta1) does not exist): the readings are not a sensor turning in a constant field, or the chosen x and y are not the turning axes"
+    )]
+    NotAnEllipse { theta1: f64 },
+    #[error(
+        "the fitted ellipse has no real radius (r^2 = {r_squared:.6e} <= 0): the readings are not a sensor turning in a constant field"
+    )]
+    NoRadius { r_squared: f64 },
+    #[error(
+        "gradient descent diverged at iteration {iteration} (theta grew without bound): the learning rate {learning_rate} is too large for these features, which happens when the offsets are large compared with the field; use the closed-form solver (--solver lsq) or a smaller --learning-rate"
+    )]
+    Diverged { iteration: u64, learning_rate: f64 },
+    #[error(
+        "gradient descent did not converge within {cap} iterations (the last step changed theta by {last_step:.3e}, the stop rule needs every change below {tolerance:.1e}); raise --max-iterations or use the closed-form solver (--solver lsq)"
+    )]
+    IterationCap {
+        cap: u64,
+        last_step: f64,
+        tolerance: f64,
+    },
+}

@@ -1,0 +1,402 @@
+//! The paper's model and its two solvers.
+//!
+//! Model: `s_x = a*x + b`, `s_y = y + d`, `|s| = r`, in the linear form of
+//! eq. (4): `y^2 = th1*x^2 + th2*x + th3*y + th4`, with
+//! `th1 = -a^2, th2 = -2ab, th3 = -2d, th4 = r^2 - b^2 - d^2`.
+
+use nalgebra::{DMatrix, DVector, Matrix4, Vector4};
+use serde::{Deserialize, Serialize};
+
+use super::FitError;
+
+/// Unknowns of the paper's model (a, b, d, r).
+pub const UNKNOWNS: usize = 4;
+/// The paper's learning rate (section IV).
+pub const PAPER_LEARNING_RATE: f64 = 0.73;
+/// The paper's stop rule, eq. (21): every |theta_j^n - theta_j^(n-1)| below this.
+pub const PAPER_TOLERANCE: f64 = 1e-7;
+
+/// The coefficients of eq. (4), in raw sensor units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Theta(pub [f64; 4]);
+
+/// The paper's calibration constants.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PaperCalibration {
+    /// Gain of x relative to y.
+    pub a: f64,
+    /// Offset of x, after the gain.
+    pub b: f64,
+    /// Offset of y.
+    pub d: f64,
+    /// Magnitude of the field, in y's units.
+    pub r: f64,
+}
+
+impl Theta {
+    /// Recovers a, b, d, r (section II, after eq. 6).
+    pub fn to_calibration(&self) -> Result<PaperCalibration, FitError> {
+        let [th1, th2, th3, th4] = self.0;
+        if !(th1 < 0.0) {
+            return Err(FitError::NotAnEllipse { theta1: th1 });
+        }
+        let d = -th3 / 2.0;
+        let a = (-th1).sqrt();
+        let b = -th2 / (2.0 * a);
+        let r_squared = th4 + b * b + d * d;
+        if !(r_squared > 0.0) || !r_squared.is_finite() {
+            return Err(FitError::NoRadius { r_squared });
+        }
+        Ok(PaperCalibration {
+            a,
+            b,
+            d,
+            r: r_squared.sqrt(),
+        })
+    }
+}
+
+impl PaperCalibration {
+    /// The inverse of [`Theta::to_calibration`].
+    pub fn to_theta(&self) -> Theta {
+        let PaperCalibration { a, b, d, r } = *self;
+        Theta([-a * a, -2.0 * a * b, -2.0 * d, r * r - b * b - d * d])
+    }
+
+    /// The calibrated reading of a raw sample.
+    #[inline]
+    pub fn apply(&self, x: f64, y: f64) -> (f64, f64) {
+        (self.a * x + self.b, y + self.d)
+    }
+
+    /// `|s|/r - 1`: the magnitude error as a fraction of the field.
+    #[inline]
+    pub fn magnitude_error(&self, x: f64, y: f64) -> f64 {
+        let (sx, sy) = self.apply(x, y);
+        sx.hypot(sy) / self.r - 1.0
+    }
+
+    /// Heading of the calibrated reading, in radians in (-pi, pi].
+    #[inline]
+    pub fn heading(&self, x: f64, y: f64) -> f64 {
+        let (sx, sy) = self.apply(x, y);
+        sy.atan2(sx)
+    }
+
+    /// Root mean square of the magnitude error over the samples.
+    pub fn rms(&self, x: &[f64], y: &[f64]) -> f64 {
+        if x.is_empty() {
+            return 0.0;
+        }
+        let sum: f64 = x
+            .iter()
+            .zip(y)
+            .map(|(&x, &y)| self.magnitude_error(x, y).powi(2))
+            .sum();
+        (sum / x.len() as f64).sqrt()
+    }
+}
+
+/// Mean and spread of a column, for centring and scaling.
+fn mean_and_spread(values: &[f64]) -> (f64, f64) {
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
+    (mean, var.sqrt())
+}
+
+fn check_inputs(x: &[f64], y: &[f64]) -> Result<(), FitError> {
+    // Five points fix a conic; with four unknowns, four points fit exactly.
+    if x.len() < UNKNOWNS || y.len() != x.len() {
+        return Err(FitError::TooFewSamples {
+            found: x.len().min(y.len()),
+            unknowns: UNKNOWNS,
+            needed: UNKNOWNS,
+        });
+    }
+    for (axis, values) in [("x", x), ("y", y)] {
+        let first = values[0];
+        if values.iter().all(|&v| v == first) {
+            return Err(FitError::ConstantAxis { axis, value: first });
+        }
+    }
+    Ok(())
+}
+
+/// Closed-form least squares of eq. (6).
+///
+/// Raw counts in the tens of thousands make `x^2` columns of 1e9 beside a
+/// column of ones: the normal equations would lose most of their digits.
+/// So the columns are centred and scaled first (an affine change of the same
+/// least-squares problem: its residual is the original one times a constant),
+/// solved by Householder QR, and mapped back to raw units.
+pub fn closed_form(x: &[f64], y: &[f64]) -> Result<Theta, FitError> {
+    check_inputs(x, y)?;
+    let (mx, sx) = mean_and_spread(x);
+    let (my, sy) = mean_and_spread(y);
+    let n = x.len();
+
+    let design = DMatrix::from_fn(n, UNKNOWNS, |i, j| {
+        let u = (x[i] - mx) / sx;
+        match j {
+            0 => u * u,
+            1 => u,
+            2 => (y[i] - my) / sy,
+            _ => 1.0,
+        }
+    });
+    let mut target = DVector::from_fn(n, |i, _| ((y[i] - my) / sy).powi(2));
+    let phi = solve_least_squares(design, &mut target)?;
+
+    // Back to raw units: substitute x = mx + sx*u, y = my + sy*v in
+    // v^2 = phi1*u^2 + phi2*u + phi3*v + phi4 and multiply by sy^2.
+    let [p1, p2, p3, p4] = [phi[0], phi[1], phi[2], phi[3]];
+    let k = sy * sy / (sx * sx);
+    Ok(Theta([
+        k * p1,
+        k * (p2 * sx - 2.0 * mx * p1),
+        sy * p3 + 2.0 * my,
+        k * (p1 * mx * mx - p2 * mx * sx) + sy * sy * (p4 - p3 * my / sy) - my * my,
+    ]))
+}
+
+/// Solves `min |A p - b|` for a tall `A` with four columns by Householder QR.
+/// `b` is overwritten. Fails if `A` is rank-deficient.
+pub(crate) fn solve_least_squares(
+    design: DMatrix<f64>,
+    target: &mut DVector<f64>,
+) -> Result<Vector4<f64>, FitError> {
+    let qr = design.qr();
+    qr.q_tr_mul(target);
+    let r = qr.r();
+    let r4: Matrix4<f64> = r.fixed_view::<4, 4>(0, 0).into_owned();
+    let largest = (0..4).map(|i| r4[(i, i)].abs()).fold(0.0, f64::max);
+    // Columns are scaled to unit spread, so a tiny pivot means a column is a
+    // combination of the others: the points do not determine the conic.
+    if (0..4).any(|i| !(r4[(i, i)].abs() > largest * 1e-10)) {
+        return Err(FitError::Degenerate);
+    }
+    let rhs = Vector4::new(target[0], target[1], target[2], target[3]);
+    r4.solve_upper_triangular(&rhs)
+        .filter(|p| p.iter().all(|v| v.is_finite()))
+        .ok_or(FitError::Degenerate)
+}
+
+/// Settings of the paper's gradient descent.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GradientDescentOptions {
+    pub learning_rate: f64,
+    pub tolerance: f64,
+    /// The run ends with [`FitError::IterationCap`] after this many iterations.
+    pub max_iterations: u64,
+}
+
+impl Default for GradientDescentOptions {
+    fn default() -> Self {
+        GradientDescentOptions {
+            learning_rate: PAPER_LEARNING_RATE,
+            tolerance: PAPER_TOLERANCE,
+            max_iterations: 1_000_000,
+        }
+    }
+}
+
+/// What gradient descent reached.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GradientDescentOutcome {
+    pub theta: Theta,
+    pub iterations: u64,
+}
+
+/// Reported every [`PROGRESS_EVERY`] iterations while gradient descent runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GradientDescentProgress {
+    pub iteration: u64,
+    /// The largest |theta_j^n - theta_j^(n-1)| of this iteration (scaled theta).
+    pub step: f64,
+}
+
+pub const PROGRESS_EVERY: u64 = 4096;
+
+/// Scaled theta beyond this means the iteration is running away.
+const DIVERGENCE_BOUND: f64 = 1e12;
+
+/// The paper's standard gradient descent, eqs. (7)-(21), exactly: features
+/// divided by their max-min ranges (12-19), theta from zero, the paper's
+/// learning rate and stop rule, and theta unscaled with (20).
+pub fn gradient_descent(
+    x: &[f64],
+    y: &[f64],
+    options: &GradientDescentOptions,
+    progress: &mut dyn FnMut(GradientDescentProgress),
+) -> Result<GradientDescentOutcome, FitError> {
+    check_inputs(x, y)?;
+    let range = |values: &mut dyn Iterator<Item = f64>| {
+        let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
+        hi - lo
+    };
+    let rho1 = range(&mut x.iter().map(|v| v * v));
+    let rho2 = range(&mut x.iter().copied());
+    let rho3 = range(&mut y.iter().copied());
+    let rho4 = range(&mut y.iter().map(|v| v * v));
+    if !(rho1 > 0.0 && rho4 > 0.0) {
+        // x or y symmetric about zero with a single magnitude: x^2 constant.
+        return Err(FitError::Degenerate);
+    }
+
+    // Scaled features, laid out for one pass per iteration.
+    let f1: Vec<f64> = x.iter().map(|v| v * v / rho1).collect();
+    let f2: Vec<f64> = x.iter().map(|v| v / rho2).collect();
+    let f3: Vec<f64> = y.iter().map(|v| v / rho3).collect();
+    let target: Vec<f64> = y.iter().map(|v| v * v / rho4).collect();
+    let inv_m = 1.0 / x.len() as f64;
+    let alpha = options.learning_rate;
+
+    let mut theta = [0.0f64; 4];
+    let mut step = f64::INFINITY;
+    for iteration in 1..=options.max_iterations {
+        let mut grad = [0.0f64; 4];
+        for i in 0..f1.len() {
+            let eps = theta[3] + theta[2] * f3[i] + theta[1] * f2[i] + theta[0] * f1[i] - target[i];
+            grad[0] += eps * f1[i];
+            grad[1] += eps * f2[i];
+            grad[2] += eps * f3[i];
+            grad[3] += eps;
+        }
+        step = 0.0;
+        for j in 0..4 {
+            let delta = alpha * grad[j] * inv_m;
+            theta[j] -= delta;
+            step = step.max(delta.abs());
+        }
+        if !theta
+            .iter()
+            .all(|t| t.is_finite() && t.abs() < DIVERGENCE_BOUND)
+        {
+            return Err(FitError::Diverged {
+                iteration,
+                learning_rate: alpha,
+            });
+        }
+        if step < options.tolerance {
+            let unscaled = Theta([
+                rho4 * theta[0] / rho1,
+                rho4 * theta[1] / rho2,
+                rho4 * theta[2] / rho3,
+                rho4 * theta[3],
+            ]);
+            return Ok(GradientDescentOutcome {
+                theta: unscaled,
+                iterations: iteration,
+            });
+        }
+        if iteration % PROGRESS_EVERY == 0 {
+            progress(GradientDescentProgress { iteration, step });
+        }
+    }
+    Err(FitError::IterationCap {
+        cap: options.max_iterations,
+        last_step: step,
+        tolerance: options.tolerance,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ellipse(cal: &PaperCalibration, n: usize) -> (Vec<f64>, Vec<f64>) {
+        (0..n)
+            .map(|i| {
+                let phi = i as f64 / n as f64 * std::f64::consts::TAU;
+                let (sx, sy) = (cal.r * phi.cos(), cal.r * phi.sin());
+                ((sx - cal.b) / cal.a, sy - cal.d)
+            })
+            .unzip()
+    }
+
+    #[test]
+    fn theta_and_calibration_are_inverse() {
+        let cal = PaperCalibration {
+            a: 1.3,
+            b: -40.0,
+            d: 12.5,
+            r: 480.0,
+        };
+        let back = cal.to_theta().to_calibration().unwrap();
+        for (u, v) in [
+            (back.a, cal.a),
+            (back.b, cal.b),
+            (back.d, cal.d),
+            (back.r, cal.r),
+        ] {
+            assert!((u - v).abs() <= 1e-12 * v.abs(), "{u} != {v}");
+        }
+    }
+
+    #[test]
+    fn closed_form_is_exact_on_noiseless_raw_counts() {
+        // Offsets of tens of thousands of counts: the conditioning case.
+        let cal = PaperCalibration {
+            a: 0.8,
+            b: -24_000.0,
+            d: 31_000.0,
+            r: 2_000.0,
+        };
+        let (x, y) = ellipse(&cal, 50);
+        let fit = closed_form(&x, &y).unwrap().to_calibration().unwrap();
+        assert!((fit.a - cal.a).abs() < 1e-9, "a {}", fit.a);
+        assert!((fit.b - cal.b).abs() < 1e-6, "b {}", fit.b);
+        assert!((fit.d - cal.d).abs() < 1e-6, "d {}", fit.d);
+        assert!((fit.r - cal.r).abs() < 1e-6, "r {}", fit.r);
+    }
+
+    #[test]
+    fn hyperbola_is_not_an_ellipse() {
+        let x: Vec<f64> = (1..40).map(|i| i as f64).collect();
+        let y: Vec<f64> = x.iter().map(|x| (x * x + 5.0).sqrt()).collect();
+        let err = closed_form(&x, &y).unwrap().to_calibration().unwrap_err();
+        assert!(
+            matches!(err, FitError::NotAnEllipse { theta1 } if theta1 >= 0.0),
+            "{err:?}"
+        );
+    }
+
+    #[test]
+    fn gradient_descent_matches_closed_form_on_a_centred_sensor() {
+        let cal = PaperCalibration {
+            a: 1.1,
+            b: 30.0,
+            d: -20.0,
+            r: 500.0,
+        };
+        let (x, y) = ellipse(&cal, 200);
+        let gd = gradient_descent(&x, &y, &GradientDescentOptions::default(), &mut |_| {}).unwrap();
+        let fit = gd.theta.to_calibration().unwrap();
+        assert!(gd.iterations > 10, "{}", gd.iterations);
+        assert!((fit.a - cal.a).abs() < 1e-4 * cal.a, "a {}", fit.a);
+        assert!((fit.r - cal.r).abs() < 1e-4 * cal.r, "r {}", fit.r);
+    }
+
+    #[test]
+    fn gradient_descent_stops_at_its_cap() {
+        let cal = PaperCalibration {
+            a: 1.1,
+            b: 30.0,
+            d: -20.0,
+            r: 500.0,
+        };
+        let (x, y) = ellipse(&cal, 100);
+        let options = GradientDescentOptions {
+            max_iterations: 5,
+            ..Default::default()
+        };
+        let err = gradient_descent(&x, &y, &options, &mut |_| {}).unwrap_err();
+        assert!(
+            matches!(err, FitError::IterationCap { cap: 5, .. }),
+            "{err:?}"
+        );
+    }
+}

@@ -1,0 +1,114 @@
+//! The report of `fieldcal fit`.
+
+use serde::Serialize;
+
+use super::significant;
+use crate::model::fit::{FitReport, PAPER_EFFECTS, Solver};
+use crate::model::paper::PaperCalibration;
+
+/// Where the fitted samples came from, for the report.
+#[derive(Debug, Clone, Copy)]
+pub struct FitSource<'a> {
+    pub file: &'a str,
+    pub x_column: &'a str,
+    pub y_column: &'a str,
+}
+
+/// The machine-readable report (`fieldcal fit --json`).
+#[derive(Debug, Serialize)]
+pub struct FitJson<'a> {
+    pub file: &'a str,
+    pub x_column: &'a str,
+    pub y_column: &'a str,
+    pub model: String,
+    pub effects: Vec<&'static str>,
+    pub solver: Solver,
+    pub params: PaperCalibration,
+    pub theta: [f64; 4],
+    pub rms: f64,
+    pub n: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub iterations: Option<u64>,
+    pub coverage_deg: f64,
+    pub largest_gap_deg: f64,
+    pub fit_seconds: f64,
+}
+
+impl<'a> FitJson<'a> {
+    pub fn new(report: &FitReport, source: FitSource<'a>) -> Self {
+        FitJson {
+            file: source.file,
+            x_column: source.x_column,
+            y_column: source.y_column,
+            model: PAPER_EFFECTS.join("+"),
+            effects: PAPER_EFFECTS.to_vec(),
+            solver: report.solver,
+            params: report.calibration,
+            theta: report.theta.0,
+            rms: report.rms,
+            n: report.n,
+            iterations: report.iterations,
+            coverage_deg: report.coverage.covered_deg,
+            largest_gap_deg: report.coverage.largest_gap_deg,
+            fit_seconds: report.elapsed.as_secs_f64(),
+        }
+    }
+}
+
+/// The report for a person.
+pub fn render_text(report: &FitReport, source: FitSource<'_>) -> String {
+    let c = &report.calibration;
+    let solver = match (report.solver, report.iterations) {
+        (Solver::PaperGd, Some(n)) => {
+            format!("paper-gd (the paper's gradient descent, {n} iterations)")
+        }
+        (Solver::PaperGd, None) => "paper-gd (the paper's gradient descent)".into(),
+        (Solver::Lsq, _) => "lsq (closed-form least squares, eq. 6)".into(),
+    };
+    let cov = &report.coverage;
+    let mut out = String::new();
+    let mut line = |label: &str, value: String, note: &str| {
+        out.push_str(format!("{label:<10}{value:<22}{note}").trim_end());
+        out.push('\n');
+    };
+    line("file", source.file.to_string(), "");
+    line(
+        "axes",
+        format!("x = {}, y = {}", source.x_column, source.y_column),
+        "",
+    );
+    line(
+        "model",
+        format!("paper ({})", PAPER_EFFECTS.join("+")),
+        "s_x = a*x + b, s_y = y + d, |s| = r",
+    );
+    line("solver", solver, "");
+    line("samples", report.n.to_string(), "");
+    line(
+        "coverage",
+        format!("{:.1}°", cov.covered_deg),
+        &format!("of heading (largest gap {:.1}°)", cov.largest_gap_deg),
+    );
+    line("a", significant(c.a, 7), "gain of x relative to y");
+    line(
+        "b",
+        significant(c.b, 7),
+        "offset of x, after the gain (y units)",
+    );
+    line("d", significant(c.d, 7), "offset of y");
+    line("r", significant(c.r, 7), "field magnitude (y units)");
+    line(
+        "rms",
+        significant(report.rms, 4),
+        &format!(
+            "{:.3} % of the field (|calibrated|/r - 1)",
+            report.rms * 100.0
+        ),
+    );
+    line(
+        "fit time",
+        format!("{:.3} ms", report.elapsed.as_secs_f64() * 1e3),
+        "",
+    );
+    out
+}

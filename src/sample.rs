@@ -1,0 +1,159 @@
+//! The data that flows through fieldcal: a recording of one sensor's two
+//! turning axes, with optional time and any logged covariates.
+//!
+//! Stored column-wise (one `Vec` per column) because every consumer — the
+//! fit, the residual analysis, the writers — walks whole columns.
+
+/// One extra numeric column of a recording (temperature, motor current...),
+/// kept by its header name so effects such as `covariate:temp_c` can use it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Covariate {
+    pub name: String,
+    pub values: Vec<f64>,
+}
+
+/// A recording of a sensor turning in a constant field.
+///
+/// Invariant: `x`, `y`, every covariate and `t` (when present) have the same
+/// length, and every value is finite. The readers enforce it; code that builds
+/// a `Dataset` by hand goes through [`Dataset::new`], which checks it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dataset {
+    /// Column names the two axes were read from (for messages and output).
+    pub x_name: String,
+    pub y_name: String,
+    /// Sample times in seconds, when the recording has them.
+    pub t: Option<Vec<f64>>,
+    pub x: Vec<f64>,
+    pub y: Vec<f64>,
+    pub covariates: Vec<Covariate>,
+}
+
+/// Why a set of columns cannot form a [`Dataset`].
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DatasetError {
+    #[error("column '{name}' has {found} values but '{reference}' has {expected}")]
+    LengthMismatch {
+        name: String,
+        found: usize,
+        reference: String,
+        expected: usize,
+    },
+    #[error("column '{name}' holds a non-finite value ({value}) at row {row}")]
+    NonFinite {
+        name: String,
+        row: usize,
+        value: f64,
+    },
+}
+
+impl Dataset {
+    /// Builds a dataset from plain columns, checking lengths and finiteness.
+    pub fn new(
+        x_name: impl Into<String>,
+        y_name: impl Into<String>,
+        t: Option<Vec<f64>>,
+        x: Vec<f64>,
+        y: Vec<f64>,
+        covariates: Vec<Covariate>,
+    ) -> Result<Self, DatasetError> {
+        let dataset = Dataset {
+            x_name: x_name.into(),
+            y_name: y_name.into(),
+            t,
+            x,
+            y,
+            covariates,
+        };
+        dataset.check()?;
+        Ok(dataset)
+    }
+
+    /// A dataset of just two axes, named `x` and `y`.
+    pub fn from_xy(x: Vec<f64>, y: Vec<f64>) -> Result<Self, DatasetError> {
+        Self::new("x", "y", None, x, y, Vec::new())
+    }
+
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// The covariate column of that name, if the recording has one.
+    pub fn covariate(&self, name: &str) -> Option<&Covariate> {
+        self.covariates.iter().find(|c| c.name == name)
+    }
+
+    fn columns(&self) -> impl Iterator<Item = (&str, &[f64])> {
+        let t = self.t.as_deref().map(|t| ("t", t));
+        [
+            (self.x_name.as_str(), &self.x[..]),
+            (self.y_name.as_str(), &self.y[..]),
+        ]
+        .into_iter()
+        .chain(t)
+        .chain(
+            self.covariates
+                .iter()
+                .map(|c| (c.name.as_str(), &c.values[..])),
+        )
+    }
+
+    fn check(&self) -> Result<(), DatasetError> {
+        let expected = self.x.len();
+        for (name, values) in self.columns() {
+            if values.len() != expected {
+                return Err(DatasetError::LengthMismatch {
+                    name: name.to_string(),
+                    found: values.len(),
+                    reference: self.x_name.clone(),
+                    expected,
+                });
+            }
+            if let Some((row, &value)) = values.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+                return Err(DatasetError::NonFinite {
+                    name: name.to_string(),
+                    row,
+                    value,
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn new_rejects_ragged_columns() {
+        let err = Dataset::new(
+            "x",
+            "y",
+            Some(vec![0.0]),
+            vec![1.0, 2.0],
+            vec![1.0, 2.0],
+            vec![],
+        )
+        .unwrap_err();
+        assert_eq!(
+            err,
+            DatasetError::LengthMismatch {
+                name: "t".into(),
+                found: 1,
+                reference: "x".into(),
+                expected: 2
+            }
+        );
+    }
+
+    #[test]
+    fn new_rejects_nan() {
+        let err = Dataset::from_xy(vec![1.0, f64::NAN], vec![1.0, 2.0]).unwrap_err();
+        assert!(matches!(err, DatasetError::NonFinite { row: 1, .. }));
+    }
+}

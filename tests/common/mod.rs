@@ -1,0 +1,73 @@
+//! Helpers shared by the integration tests: run the real binary.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+pub fn fieldcal() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_fieldcal"))
+}
+
+pub fn repo_path(relative: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(relative)
+}
+
+/// The shared folder beside the checkout (real recordings live there).
+pub fn shared_path(relative: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared")
+        .join(relative)
+}
+
+pub struct Run {
+    pub code: Option<i32>,
+    pub stdout: String,
+    pub stderr: String,
+}
+
+pub fn run(args: &[&str]) -> Run {
+    let Output {
+        status,
+        stdout,
+        stderr,
+    } = fieldcal().args(args).output().expect("run fieldcal");
+    Run {
+        code: status.code(),
+        stdout: String::from_utf8_lossy(&stdout).into_owned(),
+        stderr: String::from_utf8_lossy(&stderr).into_owned(),
+    }
+}
+
+/// Runs a command that must succeed and returns its stdout.
+pub fn run_ok(args: &[&str]) -> String {
+    let r = run(args);
+    assert_eq!(r.code, Some(0), "fieldcal {args:?} failed: {}", r.stderr);
+    r.stdout
+}
+
+/// Runs a command that must fail cleanly and returns its one-line message.
+pub fn run_err(args: &[&str]) -> String {
+    let r = run(args);
+    assert_eq!(
+        r.code,
+        Some(1),
+        "fieldcal {args:?} should fail with exit 1; stderr: {}",
+        r.stderr
+    );
+    assert!(!r.stderr.contains("panicked"), "panic: {}", r.stderr);
+    assert!(
+        r.stdout.is_empty(),
+        "a failed fit printed output: {}",
+        r.stdout
+    );
+    assert_eq!(
+        r.stderr.lines().count(),
+        1,
+        "expected one message line: {}",
+        r.stderr
+    );
+    // A computed NaN must never reach a message; a quoted input value may.
+    let unquoted = r.stderr.replace("'NaN'", "");
+    assert!(!unquoted.contains("NaN"), "NaN in message: {}", r.stderr);
+    r.stderr
+}
