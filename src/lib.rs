@@ -7,14 +7,24 @@
 //! - [`io`]: CSV in and out, atomic writes;
 //! - [`model`]: the paper's model, its solvers, coverage of the turn;
 //! - [`report`]: what a fit tells a person or a program;
+//! - [`protocol`]: wire protocols, sans-IO (Falcon-GX frames, USB-ISS, chips);
+//! - [`i2c`]: the I2C bus trait and its backends (USB-ISS bridge, Linux);
+//! - [`capture`]: the file format that keeps raw bytes with their timing;
+//! - [`source`]: the I/O tasks that own a port or a file;
+//! - [`mock`]: simulated devices that answer like real ones, for tests;
 //! - [`sim`]: a simulated sensor, for trying fieldcal with no hardware.
 
 // `!(x > 0.0)` is how this crate says "not positive, or NaN": the NaN case
 // matters for input checks, so clippy's preferred rewrite would be wrong.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod capture;
+pub mod i2c;
 pub mod io;
+pub mod mock;
 pub mod model;
+pub mod protocol;
 pub mod report;
 pub mod sample;
 pub mod sim;
+pub mod source;

@@ -157,3 +157,30 @@ mod tests {
         assert!(matches!(err, DatasetError::NonFinite { row: 1, .. }));
     }
 }
+
+/// What a device reported in one frame or one poll, in raw counts, stamped
+/// with the host's receive time. Devices fill the fields they have.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub struct Reading {
+    /// Host receive time in seconds: since the Unix epoch for a live source,
+    /// since the start of the capture for a replay.
+    pub time: f64,
+    /// Magnetometer x, y, z in counts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mag: Option<[i16; 3]>,
+    /// Accelerometer x, y, z in counts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub accel: Option<[i16; 3]>,
+    /// Angular rate x, y, z in counts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gyro: Option<[i16; 3]>,
+    /// Temperature register, in counts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub temp_raw: Option<i16>,
+    /// Temperature in degrees Celsius, where the chip's conversion is known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub temp_c: Option<f64>,
+    /// The device's own frame timer (Falcon-GX), which wraps at 65536.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub timer: Option<u16>,
+}
