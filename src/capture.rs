@@ -1,1 +1,1430 @@
-//! (being written)
+//! The capture file format: raw bytes exactly as they came off the wire,
+//! each chunk stamped with its receive time, so that a replay reproduces the
+//! timing and any garbage.
+//!
+//! One capture records one source. A source has one or more byte streams,
+//! numbered by a `u8` id: stream 0 for a Falcon-GX serial line; for an I2C
+//! bridge one stream per polled chip, each chunk the data bytes of one poll.
+//! `docs/capture-format.md` is the full specification, written for someone
+//! implementing a reader in another language; this is its summary.
+//!
+//! # Layout (all integers little-endian, offsets 0-based)
+//!
+//! ```text
+//! offset  size  field
+//! 0       16    magic: the ASCII bytes "FIELDCAL-CAPTURE"      (MAGIC)
+//! 16      4     header length H, u32, at most 1 MiB             (MAX_HEADER_LEN)
+//! 20      H     header: one UTF-8 JSON object                   (CaptureHeader)
+//! 20+H    ...   records, one after another, to the end of the file
+//!
+//! record:
+//! 0       8     time since the start, u64 nanoseconds
+//! 8       1     stream id, u8 (declared in the header)
+//! 9       4     data length L, u32
+//! 13      L     data: the bytes exactly as received
+//! 13+L    4     CRC-32 (zlib / ISO-HDLC) of bytes 0 .. 13+L of the record
+//! ```
+//!
+//! The header, serialised from [`CaptureHeader`] (absent options omitted):
+//!
+//! ```json
+//! {"version":1,
+//!  "streams":[{"id":0,"kind":"falcon"},
+//!             {"id":1,"kind":"chip","chip":"mpu6050","address":104}],
+//!  "port":"/dev/ttyUSB0","baud":38400,
+//!  "started_unix":1700000000.25,"nominal_period_s":0.05,"note":"bench"}
+//! ```
+//!
+//! Record time 0 is the instant `started_unix` (seconds since the Unix
+//! epoch); a recorder sets it when the first byte arrives. Records come in
+//! the order they were written, which is not necessarily sorted by time
+//! across streams.
+//!
+//! # Reading rules
+//!
+//! - A file that does not start with [`MAGIC`] is a plain raw dump
+//!   ([`CaptureFile::Raw`]); the caller decides whether it holds frames. An
+//!   empty file, a file cut inside the magic or the header, a damaged header
+//!   (length, JSON, fields), an unknown version, or an intact record of a
+//!   stream the header does not declare, are [`CaptureError`]s.
+//! - Reading stops at the first record that is not intact: one that runs
+//!   past the end of the file (a torn tail: the recorder was killed, the
+//!   disk filled up) or one whose CRC does not match (damaged bytes: a power
+//!   cut can leave zeros at the end of a file). The chunks before it are
+//!   returned with a [`Truncation`] saying where and why; a replay plays
+//!   them and then warns. There is no resynchronisation after a damaged
+//!   record: everything from it to the end of the file is dropped.
+//! - Every length read from the file is checked against the bytes left
+//!   before anything is sliced or allocated; no input makes the reader panic.
+//!
+//! # Writing
+//!
+//! [`CaptureWriter`] writes the magic and header in [`CaptureWriter::new`]
+//! (and flushes them), then one record per [`CaptureWriter::write_chunk`],
+//! each in a single `write_all`. Put a `BufWriter` under it and call
+//! [`CaptureWriter::flush`] periodically: a recorder killed at any byte
+//! leaves a file whose flushed records all read back, followed at most by a
+//! torn tail the reader reports. After any write error the writer refuses
+//! further chunks, so a failed write can never be followed by a good record.
+
+use std::fmt;
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::protocol::chips::Chip;
+
+/// The first bytes of every capture file.
+pub const MAGIC: &[u8] = b"FIELDCAL-CAPTURE";
+
+/// The format version this module writes, and the only one it reads.
+pub const VERSION: u32 = 1;
+
+/// The largest header a reader accepts, in bytes. A larger length field
+/// means the file is damaged (real headers are a few hundred bytes).
+pub const MAX_HEADER_LEN: u32 = 1 << 20;
+
+/// Bytes a record takes besides its data: the 13-byte head (time, stream,
+/// length) and the 4-byte CRC.
+pub const RECORD_OVERHEAD: usize = RECORD_HEAD_LEN + CRC_LEN;
+
+const LENGTH_FIELD_LEN: usize = 4;
+const RECORD_HEAD_LEN: usize = 13;
+const CRC_LEN: usize = 4;
+const NANOS_PER_SECOND: f64 = 1e9;
+/// 2^64 as an `f64`: the first value that does not fit a `u64`.
+const U64_LIMIT: f64 = 18_446_744_073_709_551_616.0;
+
+/// The JSON header of a capture: what was recorded, from where, and when.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CaptureHeader {
+    /// Format version; [`VERSION`] for files this module writes.
+    pub version: u32,
+    /// The byte streams of the source, each id declared once.
+    pub streams: Vec<StreamInfo>,
+    /// The device the bytes came from (`/dev/ttyUSB0`), when known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub port: Option<String>,
+    /// The line speed, when the port has one that matters.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub baud: Option<u32>,
+    /// Seconds since the Unix epoch at record time 0 (the first byte).
+    pub started_unix: f64,
+    /// The period the device was expected to send or be polled at, seconds.
+    pub nominal_period_s: f64,
+    /// Free text from whoever recorded it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+}
+
+/// One byte stream of a capture.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StreamInfo {
+    /// The id records of this stream carry.
+    pub id: u8,
+    #[serde(flatten)]
+    pub kind: StreamKind,
+}
+
+/// What a stream's bytes are.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum StreamKind {
+    /// The bytes of a Falcon-GX-style serial line, as read (any split).
+    Falcon,
+    /// The data bytes of polls of one I2C chip, one chunk per poll.
+    Chip {
+        chip: Chip,
+        /// The chip's 7-bit I2C address.
+        address: u8,
+    },
+}
+
+impl CaptureHeader {
+    /// The declaration of stream `id`, if the header has one.
+    pub fn stream(&self, id: u8) -> Option<&StreamInfo> {
+        self.streams.iter().find(|s| s.id == id)
+    }
+
+    /// Why this header cannot go into a capture, if it cannot: a version
+    /// other than [`VERSION`], no streams, an id declared twice, an address
+    /// above 0x7F, a non-finite start time, or a period that is not positive.
+    pub fn problem(&self) -> Option<String> {
+        if self.version != VERSION {
+            return Some(format!(
+                "version {} is not the supported version {VERSION}",
+                self.version
+            ));
+        }
+        fields_problem(self)
+    }
+
+    fn declared(&self) -> [bool; 256] {
+        let mut declared = [false; 256];
+        for s in &self.streams {
+            declared[usize::from(s.id)] = true;
+        }
+        declared
+    }
+}
+
+/// Checks every field but the version (the reader reports that separately).
+fn fields_problem(h: &CaptureHeader) -> Option<String> {
+    if h.streams.is_empty() {
+        return Some("it declares no streams".into());
+    }
+    let mut seen = [false; 256];
+    for s in &h.streams {
+        if std::mem::replace(&mut seen[usize::from(s.id)], true) {
+            return Some(format!("it declares stream {} twice", s.id));
+        }
+        match s.kind {
+            StreamKind::Chip { address, .. } if address > 0x7F => {
+                return Some(format!(
+                    "stream {}: address {address:#04x} is not a 7-bit I2C address",
+                    s.id
+                ));
+            }
+            _ => {}
+        }
+    }
+    if !h.started_unix.is_finite() {
+        return Some(format!("started_unix is {}, not a time", h.started_unix));
+    }
+    if !(h.nominal_period_s > 0.0 && h.nominal_period_s.is_finite()) {
+        return Some(format!(
+            "nominal_period_s is {}, not a positive number of seconds",
+            h.nominal_period_s
+        ));
+    }
+    None
+}
+
+/// One chunk of bytes of one stream, as received.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Chunk {
+    /// Receive time in seconds since the start of the capture: the stored
+    /// nanoseconds divided by 1e9.
+    pub time: f64,
+    pub stream: u8,
+    pub bytes: Vec<u8>,
+}
+
+/// Seconds to whole nanoseconds, rounded to nearest; `None` for a negative,
+/// non-finite or too large (beyond 584 years) time.
+pub fn seconds_to_nanos(time: f64) -> Option<u64> {
+    if !(time >= 0.0) {
+        return None;
+    }
+    let ns = (time * NANOS_PER_SECOND).round();
+    (ns < U64_LIMIT).then_some(ns as u64)
+}
+
+/// Stored nanoseconds to the seconds a [`Chunk`] carries.
+pub fn nanos_to_seconds(ns: u64) -> f64 {
+    ns as f64 / NANOS_PER_SECOND
+}
+
+/// Writes a capture: the header at once, then one record per chunk.
+///
+/// Give it a `BufWriter` and call [`flush`](Self::flush) every second or so:
+/// whatever was flushed reads back even if the process dies mid-record.
+#[derive(Debug)]
+pub struct CaptureWriter<W: Write> {
+    out: W,
+    declared: [bool; 256],
+    record: Vec<u8>,
+    chunks: u64,
+    failed: bool,
+}
+
+fn invalid(message: String) -> io::Error {
+    io::Error::new(io::ErrorKind::InvalidInput, message)
+}
+
+impl<W: Write> CaptureWriter<W> {
+    /// Writes the magic and the header and flushes them, so that even a
+    /// capture that gets no chunk at all is a readable file.
+    ///
+    /// Fails with `InvalidInput` for a header that [`CaptureHeader::problem`]
+    /// rejects, or with the error of `out`.
+    pub fn new(mut out: W, header: &CaptureHeader) -> io::Result<Self> {
+        if let Some(problem) = header.problem() {
+            return Err(invalid(format!(
+                "cannot write this capture header: {problem}"
+            )));
+        }
+        let json = serde_json::to_vec(header).map_err(io::Error::other)?;
+        let len = u32::try_from(json.len())
+            .ok()
+            .filter(|&len| len <= MAX_HEADER_LEN)
+            .ok_or_else(|| {
+                invalid(format!(
+                    "the capture header is {} bytes of JSON, more than the limit of {MAX_HEADER_LEN}; shorten the note",
+                    json.len()
+                ))
+            })?;
+        let mut start = Vec::with_capacity(MAGIC.len() + LENGTH_FIELD_LEN + json.len());
+        start.extend_from_slice(MAGIC);
+        start.extend_from_slice(&len.to_le_bytes());
+        start.extend_from_slice(&json);
+        out.write_all(&start)?;
+        out.flush()?;
+        Ok(CaptureWriter {
+            out,
+            declared: header.declared(),
+            record: Vec::new(),
+            chunks: 0,
+            failed: false,
+        })
+    }
+
+    /// Appends one chunk received `time` seconds after the start.
+    ///
+    /// `InvalidInput` for a negative or non-finite time, a stream the header
+    /// does not declare or more than `u32::MAX` bytes; nothing is written
+    /// then and the writer stays usable.
+    pub fn write_chunk(&mut self, time: f64, stream: u8, bytes: &[u8]) -> io::Result<()> {
+        let ns = seconds_to_nanos(time).ok_or_else(|| {
+            invalid(format!(
+                "chunk time {time} s is not a time since the start of the capture (it must be finite and not negative); use a monotonic clock"
+            ))
+        })?;
+        self.write_chunk_ns(ns, stream, bytes)
+    }
+
+    /// Appends one chunk received `time_ns` nanoseconds after the start:
+    /// exact, for a recorder that measures with `Instant`/`Duration`.
+    pub fn write_chunk_ns(&mut self, time_ns: u64, stream: u8, bytes: &[u8]) -> io::Result<()> {
+        self.check_usable()?;
+        if !self.declared[usize::from(stream)] {
+            return Err(invalid(format!(
+                "stream {stream} is not declared in the capture header"
+            )));
+        }
+        let len = u32::try_from(bytes.len()).map_err(|_| {
+            invalid(format!(
+                "a chunk of {} bytes is too long for one record (limit {})",
+                bytes.len(),
+                u32::MAX
+            ))
+        })?;
+        self.record.clear();
+        self.record.extend_from_slice(&time_ns.to_le_bytes());
+        self.record.push(stream);
+        self.record.extend_from_slice(&len.to_le_bytes());
+        self.record.extend_from_slice(bytes);
+        let crc = crc32(&self.record);
+        self.record.extend_from_slice(&crc.to_le_bytes());
+        let result = self.out.write_all(&self.record);
+        self.note_result(result)?;
+        self.chunks += 1;
+        Ok(())
+    }
+
+    /// Pushes buffered records down to `out` (and flushes `out`).
+    pub fn flush(&mut self) -> io::Result<()> {
+        self.check_usable()?;
+        let result = self.out.flush();
+        self.note_result(result)
+    }
+
+    /// Flushes and hands back the underlying writer.
+    pub fn into_inner(mut self) -> io::Result<W> {
+        self.flush()?;
+        Ok(self.out)
+    }
+
+    /// Chunks written so far.
+    pub fn chunks_written(&self) -> u64 {
+        self.chunks
+    }
+
+    /// The underlying writer, e.g. to `sync_data` the file it wraps.
+    pub fn get_ref(&self) -> &W {
+        &self.out
+    }
+
+    /// The underlying writer. Writing to it directly corrupts the capture.
+    pub fn get_mut(&mut self) -> &mut W {
+        &mut self.out
+    }
+
+    fn check_usable(&self) -> io::Result<()> {
+        if self.failed {
+            return Err(io::Error::other(
+                "an earlier write to this capture failed; it ends at its last complete record, start a new capture",
+            ));
+        }
+        Ok(())
+    }
+
+    fn note_result(&mut self, result: io::Result<()>) -> io::Result<()> {
+        if result.is_err() {
+            // A part of a record may be out: nothing may follow it.
+            self.failed = true;
+        }
+        result
+    }
+}
+
+/// Why a capture cannot be read. Offsets are 0-based bytes from the start
+/// of the file.
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureError {
+    #[error("{path}: cannot read the capture: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: io::Error,
+    },
+    #[error(
+        "{name}: the file is empty, nothing to replay; record again and check that the device sends data"
+    )]
+    Empty { name: String },
+    #[error(
+        "{name}: byte {offset}: the capture ends inside its {part} ({present} of {needed} bytes present); the recorder stopped before writing any data, record again"
+    )]
+    TruncatedHeader {
+        name: String,
+        offset: u64,
+        /// "magic", "header length" or "header".
+        part: &'static str,
+        present: u64,
+        needed: u64,
+    },
+    #[error(
+        "{name}: byte {offset}: the capture header is damaged: {problem}; the recording cannot be replayed, record again (or repair the header by hand, see docs/capture-format.md)"
+    )]
+    BadHeader {
+        name: String,
+        offset: u64,
+        problem: String,
+    },
+    #[error(
+        "{name}: byte {offset}: capture format version {found}, but this fieldcal reads only version {supported}; use the fieldcal that recorded it, or a newer one"
+    )]
+    UnsupportedVersion {
+        name: String,
+        offset: u64,
+        found: u64,
+        supported: u32,
+    },
+    #[error(
+        "{name}: byte {offset}: record {index} belongs to stream {stream}, which the header does not declare (declared: {declared}); the file was written by a faulty recorder or edited, so its streams cannot be trusted: record again and report the recorder bug"
+    )]
+    UndeclaredStream {
+        name: String,
+        offset: u64,
+        /// 0-based index of the record.
+        index: usize,
+        stream: u8,
+        declared: String,
+    },
+}
+
+/// A capture or a plain raw byte dump (`cat /dev/ttyUSB0 > file`).
+#[derive(Debug, Clone, PartialEq)]
+pub enum CaptureFile {
+    Capture {
+        header: CaptureHeader,
+        chunks: Vec<Chunk>,
+        /// Set when reading stopped before the end of the file.
+        truncated: Option<Truncation>,
+    },
+    /// The file does not start with [`MAGIC`]: its bytes, whole.
+    Raw { bytes: Vec<u8> },
+}
+
+/// Where and why reading a capture stopped before the end of the file. Its
+/// `Display` is a warning for the user (it does not name the file).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Truncation {
+    /// Byte offset of the first record not read.
+    pub offset: u64,
+    /// Chunks read intact before it (all of them returned).
+    pub chunks_intact: usize,
+    /// Bytes from `offset` to the end of the file, dropped.
+    pub bytes_dropped: u64,
+    pub reason: TruncationReason,
+}
+
+/// What was wrong with the first record not read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TruncationReason {
+    /// The file ends before the record does: a torn tail, left when the
+    /// recorder is killed or the disk fills up (or a damaged length field).
+    Torn,
+    /// The record is complete by its length but its CRC does not match: the
+    /// bytes were damaged (a power cut can leave zeros at the end of a file).
+    BadChecksum,
+}
+
+impl fmt::Display for Truncation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let Truncation {
+            offset,
+            chunks_intact,
+            bytes_dropped,
+            reason,
+        } = self;
+        match reason {
+            TruncationReason::Torn => write!(
+                f,
+                "the capture is cut off at byte {offset}: its last record is incomplete \
+                 ({bytes_dropped} bytes dropped), as when the recorder is killed or the disk \
+                 fills up; the {chunks_intact} chunks before it are intact"
+            ),
+            TruncationReason::BadChecksum => write!(
+                f,
+                "the record at byte {offset} fails its checksum, so reading stopped there and \
+                 the last {bytes_dropped} bytes were dropped; the {chunks_intact} chunks before \
+                 it are intact (a power cut can damage the end of a file; damage far from the \
+                 end means the file was corrupted after recording)"
+            ),
+        }
+    }
+}
+
+/// Reads a capture, or a raw dump, from a file.
+pub fn read_capture(path: &Path) -> Result<CaptureFile, CaptureError> {
+    let bytes = std::fs::read(path).map_err(|source| CaptureError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    match parse(&bytes, &path.display().to_string())? {
+        Some(capture) => Ok(capture),
+        None => Ok(CaptureFile::Raw { bytes }),
+    }
+}
+
+/// Parses a capture, or recognises a raw dump, from its bytes; `name` (the
+/// file's name) is for messages. Does no I/O.
+pub fn parse_capture(bytes: &[u8], name: &str) -> Result<CaptureFile, CaptureError> {
+    match parse(bytes, name)? {
+        Some(capture) => Ok(capture),
+        None => Ok(CaptureFile::Raw {
+            bytes: bytes.to_vec(),
+        }),
+    }
+}
+
+/// The parse: `None` for a raw dump (the caller owns the bytes).
+fn parse(bytes: &[u8], name: &str) -> Result<Option<CaptureFile>, CaptureError> {
+    if bytes.is_empty() {
+        return Err(CaptureError::Empty { name: name.into() });
+    }
+    let file_len = bytes.len() as u64;
+    let cut = |part, start: usize, needed: usize| CaptureError::TruncatedHeader {
+        name: name.into(),
+        offset: file_len,
+        part,
+        present: file_len.saturating_sub(start as u64),
+        needed: needed as u64,
+    };
+    if !bytes.starts_with(MAGIC) {
+        if MAGIC.starts_with(bytes) {
+            return Err(cut("magic", 0, MAGIC.len()));
+        }
+        return Ok(None);
+    }
+
+    let len_at = MAGIC.len();
+    let Some(&[l0, l1, l2, l3]) = bytes.get(len_at..len_at + LENGTH_FIELD_LEN) else {
+        return Err(cut("header length", len_at, LENGTH_FIELD_LEN));
+    };
+    let header_len = u32::from_le_bytes([l0, l1, l2, l3]);
+    let bad = |offset: usize, problem: String| CaptureError::BadHeader {
+        name: name.into(),
+        offset: offset as u64,
+        problem,
+    };
+    if header_len > MAX_HEADER_LEN {
+        return Err(bad(
+            len_at,
+            format!(
+                "its length field says {header_len} bytes, more than the limit of {MAX_HEADER_LEN}"
+            ),
+        ));
+    }
+    let json_at = len_at + LENGTH_FIELD_LEN;
+    // header_len <= 1 MiB: no overflow.
+    let json_end = json_at + header_len as usize;
+    let Some(json) = bytes.get(json_at..json_end) else {
+        return Err(cut("header", json_at, header_len as usize));
+    };
+    let header = parse_header(json).map_err(|e| match e {
+        HeaderFault::Version(found) => CaptureError::UnsupportedVersion {
+            name: name.into(),
+            offset: json_at as u64,
+            found,
+            supported: VERSION,
+        },
+        HeaderFault::Problem(problem, at) => bad(json_at + at, problem),
+    })?;
+
+    let declared = header.declared();
+    let mut chunks = Vec::new();
+    let mut pos = json_end;
+    let mut truncated = None;
+    while let Some(rest) = bytes.get(pos..).filter(|rest| !rest.is_empty()) {
+        let reason = match read_record(rest) {
+            Record::Intact {
+                time_ns,
+                stream,
+                data,
+                size,
+            } => {
+                if !declared[usize::from(stream)] {
+                    return Err(CaptureError::UndeclaredStream {
+                        name: name.into(),
+                        offset: pos as u64,
+                        index: chunks.len(),
+                        stream,
+                        declared: header
+                            .streams
+                            .iter()
+                            .map(|s| s.id.to_string())
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                    });
+                }
+                chunks.push(Chunk {
+                    time: nanos_to_seconds(time_ns),
+                    stream,
+                    bytes: data.to_vec(),
+                });
+                pos += size;
+                continue;
+            }
+            Record::Torn => TruncationReason::Torn,
+            Record::BadChecksum => TruncationReason::BadChecksum,
+        };
+        truncated = Some(Truncation {
+            offset: pos as u64,
+            chunks_intact: chunks.len(),
+            bytes_dropped: rest.len() as u64,
+            reason,
+        });
+        break;
+    }
+    Ok(Some(CaptureFile::Capture {
+        header,
+        chunks,
+        truncated,
+    }))
+}
+
+enum HeaderFault {
+    Version(u64),
+    /// What is wrong, and where in the JSON when that is known.
+    Problem(String, usize),
+}
+
+/// The header JSON to a checked header. The version is looked at first, so
+/// that a newer file is reported as such rather than as bad JSON fields.
+fn parse_header(json: &[u8]) -> Result<CaptureHeader, HeaderFault> {
+    let value: serde_json::Value = serde_json::from_slice(json).map_err(|e| {
+        HeaderFault::Problem(
+            format!("it is not valid JSON ({e})"),
+            json_error_offset(json, &e),
+        )
+    })?;
+    let whole = |problem: &str| Err(HeaderFault::Problem(problem.into(), 0));
+    if !value.is_object() {
+        return whole("it is not a JSON object");
+    }
+    match value.get("version").map(serde_json::Value::as_u64) {
+        None => return whole("it has no `version` field"),
+        Some(None) => return whole("its `version` is not a whole number"),
+        Some(Some(v)) if v != u64::from(VERSION) => return Err(HeaderFault::Version(v)),
+        Some(Some(_)) => {}
+    }
+    // Parsed again from the text, for the position of a misfit field.
+    let mut header: CaptureHeader = serde_json::from_slice(json).map_err(|e| {
+        HeaderFault::Problem(
+            format!("its fields do not fit ({e})"),
+            json_error_offset(json, &e),
+        )
+    })?;
+    if let Ok(text) = std::str::from_utf8(json) {
+        header.started_unix = exact_number(text, "started_unix", header.started_unix);
+        header.nominal_period_s = exact_number(text, "nominal_period_s", header.nominal_period_s);
+    }
+    match fields_problem(&header) {
+        Some(problem) => whole(&problem),
+        None => Ok(header),
+    }
+}
+
+/// `approx` read again exactly from its text after `"key":`.
+///
+/// serde_json without its `float_roundtrip` feature (not enabled here) reads
+/// some 17-digit numbers one unit in the last place off: about one time in
+/// ten a `started_unix` would not read back as written. Rust's own parser is
+/// exact. The text is found by its key; it is used only if it is the same
+/// number give or take two units in the last place, so a look-alike key
+/// elsewhere (in a nested object) can never change the value.
+fn exact_number(json: &str, key: &str, approx: f64) -> f64 {
+    let pattern = format!("\"{key}\"");
+    for (at, _) in json.match_indices(&pattern) {
+        let Some(rest) = json
+            .get(at + pattern.len()..)
+            .and_then(|rest| rest.trim_start().strip_prefix(':'))
+        else {
+            continue;
+        };
+        let rest = rest.trim_start();
+        let end = rest
+            .find(|c: char| !matches!(c, '0'..='9' | '-' | '+' | '.' | 'e' | 'E'))
+            .unwrap_or(rest.len());
+        let Some(Ok(exact)) = rest.get(..end).map(str::parse::<f64>) else {
+            continue;
+        };
+        let same_sign = exact.is_sign_negative() == approx.is_sign_negative();
+        if exact.is_finite() && same_sign && exact.to_bits().abs_diff(approx.to_bits()) <= 2 {
+            return exact;
+        }
+    }
+    approx
+}
+
+/// The byte offset in `json` of serde_json's 1-based line and column.
+fn json_error_offset(json: &[u8], e: &serde_json::Error) -> usize {
+    let line_start = json
+        .split_inclusive(|&b| b == b'\n')
+        .take(e.line().saturating_sub(1))
+        .map(<[u8]>::len)
+        .sum::<usize>();
+    (line_start + e.column().saturating_sub(1)).min(json.len())
+}
+
+enum Record<'a> {
+    Intact {
+        time_ns: u64,
+        stream: u8,
+        data: &'a [u8],
+        /// Bytes the whole record takes.
+        size: usize,
+    },
+    Torn,
+    BadChecksum,
+}
+
+/// Reads the record at the start of `rest` (which is not empty).
+fn read_record(rest: &[u8]) -> Record<'_> {
+    let Some((head, after)) = rest.split_first_chunk::<RECORD_HEAD_LEN>() else {
+        return Record::Torn;
+    };
+    let [t0, t1, t2, t3, t4, t5, t6, t7, stream, l0, l1, l2, l3] = *head;
+    let time_ns = u64::from_le_bytes([t0, t1, t2, t3, t4, t5, t6, t7]);
+    let len = u32::from_le_bytes([l0, l1, l2, l3]);
+    // Checked against the bytes present before slicing; nothing is allocated
+    // from `len`.
+    let Some((data, tail)) = usize::try_from(len)
+        .ok()
+        .and_then(|len| after.split_at_checked(len))
+    else {
+        return Record::Torn;
+    };
+    let Some((&stored, _)) = tail.split_first_chunk::<CRC_LEN>() else {
+        return Record::Torn;
+    };
+    let size = RECORD_OVERHEAD + data.len();
+    if crc32_finish(crc32_update(crc32_update(CRC32_INIT, head), data))
+        != u32::from_le_bytes(stored)
+    {
+        return Record::BadChecksum;
+    }
+    Record::Intact {
+        time_ns,
+        stream,
+        data,
+        size,
+    }
+}
+
+/// CRC-32 as in zlib, PNG and Ethernet (CRC-32/ISO-HDLC: reflected
+/// polynomial 0xEDB88320, initial value and final xor 0xFFFFFFFF).
+fn crc32(bytes: &[u8]) -> u32 {
+    crc32_finish(crc32_update(CRC32_INIT, bytes))
+}
+
+const CRC32_INIT: u32 = !0;
+
+const CRC32_TABLE: [u32; 256] = {
+    let mut table = [0u32; 256];
+    let mut i = 0;
+    while i < 256 {
+        let mut c = i as u32;
+        let mut k = 0;
+        while k < 8 {
+            c = if c & 1 != 0 {
+                0xEDB8_8320 ^ (c >> 1)
+            } else {
+                c >> 1
+            };
+            k += 1;
+        }
+        table[i] = c;
+        i += 1;
+    }
+    table
+};
+
+fn crc32_update(mut crc: u32, bytes: &[u8]) -> u32 {
+    for &b in bytes {
+        crc = CRC32_TABLE[usize::from((crc as u8) ^ b)] ^ (crc >> 8);
+    }
+    crc
+}
+
+fn crc32_finish(crc: u32) -> u32 {
+    !crc
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn header() -> CaptureHeader {
+        CaptureHeader {
+            version: VERSION,
+            streams: vec![
+                StreamInfo {
+                    id: 0,
+                    kind: StreamKind::Falcon,
+                },
+                StreamInfo {
+                    id: 3,
+                    kind: StreamKind::Chip {
+                        chip: Chip::Mpu6050,
+                        address: 0x68,
+                    },
+                },
+            ],
+            port: Some("/dev/ttyUSB0".into()),
+            baud: Some(38400),
+            started_unix: 1_700_000_000.25,
+            nominal_period_s: 0.05,
+            note: Some("bench, turned by hand".into()),
+        }
+    }
+
+    fn chunks() -> Vec<Chunk> {
+        vec![
+            Chunk {
+                time: nanos_to_seconds(0),
+                stream: 0,
+                bytes: vec![0x02, 0xFF, 0x00],
+            },
+            Chunk {
+                time: nanos_to_seconds(1_234_567_891),
+                stream: 3,
+                bytes: (0..14).collect(),
+            },
+            Chunk {
+                time: nanos_to_seconds(1_234_567_891),
+                stream: 0,
+                bytes: vec![],
+            },
+            Chunk {
+                time: nanos_to_seconds(86_400_000_000_001),
+                stream: 0,
+                bytes: vec![0x10; 23],
+            },
+        ]
+    }
+
+    fn write(header: &CaptureHeader, chunks: &[Chunk]) -> Vec<u8> {
+        let mut w = CaptureWriter::new(Vec::new(), header).unwrap();
+        for c in chunks {
+            w.write_chunk(c.time, c.stream, &c.bytes).unwrap();
+        }
+        w.into_inner().unwrap()
+    }
+
+    /// Where each record starts, and the end of the file.
+    fn record_starts(header: &CaptureHeader, chunks: &[Chunk]) -> Vec<usize> {
+        let json = serde_json::to_vec(header).unwrap();
+        let mut at = MAGIC.len() + 4 + json.len();
+        let mut starts = vec![at];
+        for c in chunks {
+            at += RECORD_OVERHEAD + c.bytes.len();
+            starts.push(at);
+        }
+        starts
+    }
+
+    /// A record with a correct CRC, whatever its stream.
+    fn record(time_ns: u64, stream: u8, data: &[u8]) -> Vec<u8> {
+        let mut r = time_ns.to_le_bytes().to_vec();
+        r.push(stream);
+        r.extend_from_slice(&(data.len() as u32).to_le_bytes());
+        r.extend_from_slice(data);
+        let crc = crc32(&r);
+        r.extend_from_slice(&crc.to_le_bytes());
+        r
+    }
+
+    fn with_header_json(json: &str) -> Vec<u8> {
+        let mut f = MAGIC.to_vec();
+        f.extend_from_slice(&(json.len() as u32).to_le_bytes());
+        f.extend_from_slice(json.as_bytes());
+        f
+    }
+
+    fn capture(file: CaptureFile) -> (CaptureHeader, Vec<Chunk>, Option<Truncation>) {
+        match file {
+            CaptureFile::Capture {
+                header,
+                chunks,
+                truncated,
+            } => (header, chunks, truncated),
+            CaptureFile::Raw { .. } => panic!("read as a raw dump"),
+        }
+    }
+
+    #[test]
+    fn crc32_matches_the_standard_check_value() {
+        assert_eq!(crc32(b"123456789"), 0xCBF4_3926);
+        assert_eq!(crc32(b""), 0);
+    }
+
+    #[test]
+    fn header_json_has_the_documented_shape() {
+        let json = serde_json::to_string(&header()).unwrap();
+        assert_eq!(
+            json,
+            r#"{"version":1,"streams":[{"id":0,"kind":"falcon"},{"id":3,"kind":"chip","chip":"mpu6050","address":104}],"port":"/dev/ttyUSB0","baud":38400,"started_unix":1700000000.25,"nominal_period_s":0.05,"note":"bench, turned by hand"}"#
+        );
+        let bare = CaptureHeader {
+            port: None,
+            baud: None,
+            note: None,
+            ..header()
+        };
+        let json = serde_json::to_string(&bare).unwrap();
+        assert!(!json.contains("port") && !json.contains("null"), "{json}");
+    }
+
+    #[test]
+    fn round_trip_keeps_header_bytes_and_nanoseconds() {
+        let file = write(&header(), &chunks());
+        assert!(file.starts_with(MAGIC));
+        assert_eq!(
+            file.len(),
+            *record_starts(&header(), &chunks()).last().unwrap()
+        );
+        let (h, c, t) = capture(parse_capture(&file, "rt.cap").unwrap());
+        assert_eq!(h, header());
+        assert_eq!(c, chunks());
+        assert_eq!(t, None);
+        assert_eq!(seconds_to_nanos(c[3].time), Some(86_400_000_000_001));
+    }
+
+    #[test]
+    fn write_chunk_ns_is_exact_and_counts() {
+        let mut w = CaptureWriter::new(Vec::new(), &header()).unwrap();
+        w.write_chunk_ns(u64::MAX, 3, b"x").unwrap();
+        w.write_chunk_ns(7, 0, b"y").unwrap();
+        assert_eq!(w.chunks_written(), 2);
+        let file = w.into_inner().unwrap();
+        let (_, c, _) = capture(parse_capture(&file, "ns.cap").unwrap());
+        assert_eq!(c[0].time, nanos_to_seconds(u64::MAX));
+        assert_eq!(c[1].time, 7e-9);
+    }
+
+    #[test]
+    fn a_capture_with_no_chunks_is_valid() {
+        let file = write(&header(), &[]);
+        let (h, c, t) = capture(parse_capture(&file, "none.cap").unwrap());
+        assert_eq!((h, c.len(), t), (header(), 0, None));
+    }
+
+    #[test]
+    fn header_times_read_back_exactly() {
+        // serde_json alone reads these one unit in the last place off.
+        for started_unix in [1_609_942_654.659_391_9, 195_678_736.821_979_46, -4.0e-7] {
+            let h = CaptureHeader {
+                started_unix,
+                nominal_period_s: 0.030_000_000_000_000_002,
+                ..header()
+            };
+            let (back, _, _) = capture(parse_capture(&write(&h, &[]), "t.cap").unwrap());
+            assert_eq!(back, h);
+        }
+        // A look-alike key elsewhere does not change the value.
+        let json = r#"{"version":1,"streams":[{"id":0,"kind":"falcon","started_unix":5}],"started_unix":1609942654.6593919,"nominal_period_s":0.05}"#;
+        let (h, _, _) = capture(parse_capture(&with_header_json(json), "k.cap").unwrap());
+        assert_eq!(h.started_unix, 1_609_942_654.659_391_9);
+    }
+
+    #[test]
+    fn seconds_to_nanos_rounds_and_rejects_non_times() {
+        assert_eq!(seconds_to_nanos(0.0), Some(0));
+        assert_eq!(seconds_to_nanos(1.5e-9), Some(2));
+        assert_eq!(seconds_to_nanos(0.05), Some(50_000_000));
+        assert_eq!(seconds_to_nanos(-1e-12), None);
+        assert_eq!(seconds_to_nanos(f64::NAN), None);
+        assert_eq!(seconds_to_nanos(f64::INFINITY), None);
+        assert_eq!(seconds_to_nanos(1.9e10), None);
+    }
+
+    #[test]
+    fn other_files_are_raw_dumps() {
+        for bytes in [
+            &b"\x02\x00\x01garbage"[..],
+            b"x",
+            b"FIELDCAL-CAPTURX and more",
+            b"fieldcal-capture",
+        ] {
+            match parse_capture(bytes, "dump.bin").unwrap() {
+                CaptureFile::Raw { bytes: b } => assert_eq!(b, bytes),
+                other => panic!("{other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn empty_file_is_an_error_naming_it() {
+        let err = parse_capture(b"", "empty.cap").unwrap_err();
+        assert!(matches!(err, CaptureError::Empty { .. }));
+        let msg = err.to_string();
+        assert!(
+            msg.starts_with("empty.cap: ") && msg.contains("nothing to replay"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn bad_header_json_names_file_and_offset() {
+        let json = "{\"version\": 1,";
+        let err = parse_capture(&with_header_json(json), "bad.cap").unwrap_err();
+        // Where serde_json noticed: at the end of the text.
+        assert!(
+            matches!(err, CaptureError::BadHeader { offset: 33, .. }),
+            "{err:?}"
+        );
+        let msg = err.to_string();
+        assert!(
+            msg.starts_with("bad.cap: byte 33: ") && msg.contains("not valid JSON"),
+            "{msg}"
+        );
+        assert!(msg.contains("record again"), "{msg}");
+    }
+
+    #[test]
+    fn damaged_headers_are_errors() {
+        let cases: &[(&str, &str)] = &[
+            ("[1, 2]", "not a JSON object"),
+            ("{}", "no `version`"),
+            (r#"{"version": "1"}"#, "not a whole number"),
+            (r#"{"version": 1}"#, "missing field `streams`"),
+            (
+                r#"{"version":1,"streams":[],"started_unix":0,"nominal_period_s":0.05}"#,
+                "no streams",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":0,"kind":"falcon"},{"id":0,"kind":"falcon"}],"started_unix":0,"nominal_period_s":0.05}"#,
+                "stream 0 twice",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":0,"kind":"telepathy"}],"started_unix":0,"nominal_period_s":0.05}"#,
+                "telepathy",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":1,"kind":"chip","chip":"bmp280","address":118}],"started_unix":0,"nominal_period_s":0.05}"#,
+                "bmp280",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":1,"kind":"chip","chip":"adxl345","address":166}],"started_unix":0,"nominal_period_s":0.05}"#,
+                "not a 7-bit",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":0,"kind":"falcon"}],"started_unix":0,"nominal_period_s":0}"#,
+                "not a positive",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":0,"kind":"falcon"}],"started_unix":null,"nominal_period_s":0.05}"#,
+                "expected f64",
+            ),
+        ];
+        for (json, expected) in cases {
+            let err = parse_capture(&with_header_json(json), "h.cap").unwrap_err();
+            let msg = err.to_string();
+            let CaptureError::BadHeader { offset, .. } = err else {
+                panic!("{json}: {err:?}");
+            };
+            assert!(msg.contains(expected), "{json}: {msg}");
+            assert!((20..=20 + json.len() as u64).contains(&offset), "{msg}");
+            assert!(msg.starts_with(&format!("h.cap: byte {offset}: ")), "{msg}");
+        }
+        // A misfit field is located: here just after the `null`.
+        let json = r#"{"version":1,"streams":[{"id":0,"kind":"falcon"}],"started_unix":null,"nominal_period_s":0.05}"#;
+        let null_end = 20 + json.find("null").unwrap() + 4;
+        match parse_capture(&with_header_json(json), "h.cap") {
+            Err(CaptureError::BadHeader { offset, .. }) => {
+                assert!(
+                    offset.abs_diff(null_end as u64) <= 1,
+                    "{offset} vs {null_end}"
+                )
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn header_length_over_the_limit_is_damage_not_a_cut() {
+        let mut file = MAGIC.to_vec();
+        file.extend_from_slice(&u32::MAX.to_le_bytes());
+        file.extend_from_slice(b"{}");
+        let err = parse_capture(&file, "len.cap").unwrap_err();
+        assert!(
+            matches!(err, CaptureError::BadHeader { offset: 16, .. }),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains("4294967295"), "{err}");
+    }
+
+    #[test]
+    fn unknown_version_is_reported_as_such() {
+        // Even when the rest of the header no longer fits version 1.
+        for json in [
+            r#"{"version":2,"streams":[{"id":0,"kind":"falcon"}],"started_unix":0,"nominal_period_s":0.05}"#,
+            r#"{"version":2,"channels":{}}"#,
+        ] {
+            let err = parse_capture(&with_header_json(json), "v2.cap").unwrap_err();
+            assert!(
+                matches!(
+                    err,
+                    CaptureError::UnsupportedVersion {
+                        offset: 20,
+                        found: 2,
+                        supported: 1,
+                        ..
+                    }
+                ),
+                "{err:?}"
+            );
+            let msg = err.to_string();
+            assert!(
+                msg.starts_with("v2.cap: byte 20: ") && msg.contains("version 2"),
+                "{msg}"
+            );
+        }
+    }
+
+    #[test]
+    fn undeclared_stream_is_an_error_at_its_record() {
+        let mut file = write(&header(), &chunks()[..1]);
+        let at = file.len();
+        file.extend(record(5, 7, b"abc"));
+        file.extend(record(6, 0, b"def"));
+        let err = parse_capture(&file, "u.cap").unwrap_err();
+        match &err {
+            CaptureError::UndeclaredStream {
+                offset,
+                index,
+                stream,
+                declared,
+                ..
+            } => {
+                assert_eq!((*offset, *index, *stream), (at as u64, 1, 7));
+                assert_eq!(declared, "0, 3");
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(err.to_string().starts_with(&format!("u.cap: byte {at}: ")));
+    }
+
+    #[test]
+    fn undeclared_stream_in_a_torn_tail_is_only_truncation() {
+        let mut file = write(&header(), &chunks()[..1]);
+        let mut bad = record(5, 7, b"abc");
+        bad.pop();
+        file.extend(bad);
+        let (_, c, t) = capture(parse_capture(&file, "t.cap").unwrap());
+        assert_eq!(c.len(), 1);
+        assert_eq!(t.unwrap().reason, TruncationReason::Torn);
+    }
+
+    /// The writer killed at any byte: each prefix either is an error about
+    /// the header (cut inside the magic or header) or reads back every
+    /// complete record, and reports a torn tail exactly when there is one.
+    #[test]
+    fn every_prefix_reads_back_its_complete_records() {
+        let file = write(&header(), &chunks());
+        let starts = record_starts(&header(), &chunks());
+        let records_at = starts[0];
+        for cut in 0..=file.len() {
+            let result = parse_capture(&file[..cut], "cut.cap");
+            if cut == 0 {
+                assert!(matches!(result, Err(CaptureError::Empty { .. })));
+                continue;
+            }
+            if cut < records_at {
+                let part = match result {
+                    Err(CaptureError::TruncatedHeader {
+                        offset,
+                        part,
+                        needed,
+                        present,
+                        ..
+                    }) => {
+                        assert_eq!(offset, cut as u64);
+                        assert!(present < needed);
+                        part
+                    }
+                    other => panic!("cut at {cut}: {other:?}"),
+                };
+                let expected = if cut < 16 {
+                    "magic"
+                } else if cut < 20 {
+                    "header length"
+                } else {
+                    "header"
+                };
+                assert_eq!(part, expected, "cut at {cut}");
+                let msg = parse_capture(&file[..cut], "cut.cap")
+                    .unwrap_err()
+                    .to_string();
+                assert!(msg.starts_with(&format!("cut.cap: byte {cut}: ")), "{msg}");
+                continue;
+            }
+            let (h, c, t) = capture(result.unwrap_or_else(|e| panic!("cut at {cut}: {e}")));
+            assert_eq!(h, header());
+            let complete = starts.iter().filter(|&&s| s <= cut).count() - 1;
+            assert_eq!(c, chunks()[..complete], "cut at {cut}");
+            if starts.contains(&cut) {
+                assert_eq!(t, None, "cut at {cut}");
+            } else {
+                let start = starts[complete];
+                assert_eq!(
+                    t,
+                    Some(Truncation {
+                        offset: start as u64,
+                        chunks_intact: complete,
+                        bytes_dropped: (cut - start) as u64,
+                        reason: TruncationReason::Torn,
+                    }),
+                    "cut at {cut}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn zero_filled_tail_fails_its_checksum() {
+        // What a power cut can leave: the file grew, its last blocks did not land.
+        let mut file = write(&header(), &chunks());
+        let end = file.len();
+        file.extend([0u8; 40]);
+        let (_, c, t) = capture(parse_capture(&file, "z.cap").unwrap());
+        assert_eq!(c, chunks());
+        assert_eq!(
+            t,
+            Some(Truncation {
+                offset: end as u64,
+                chunks_intact: 4,
+                bytes_dropped: 40,
+                reason: TruncationReason::BadChecksum,
+            })
+        );
+    }
+
+    #[test]
+    fn a_damaged_record_ends_the_read_there() {
+        let mut file = write(&header(), &chunks());
+        let starts = record_starts(&header(), &chunks());
+        // One flipped bit in the data of the second record.
+        file[starts[1] + 13 + 5] ^= 0x10;
+        let (_, c, t) = capture(parse_capture(&file, "flip.cap").unwrap());
+        assert_eq!(c, chunks()[..1]);
+        let t = t.unwrap();
+        assert_eq!((t.offset, t.chunks_intact), (starts[1] as u64, 1));
+        assert_eq!(t.bytes_dropped, (file.len() - starts[1]) as u64);
+        assert_eq!(t.reason, TruncationReason::BadChecksum);
+        // A damaged length that runs past the end reads as a torn record.
+        let mut file = write(&header(), &chunks());
+        file[starts[1] + 12] = 0x7F;
+        let (_, c, t) = capture(parse_capture(&file, "len.cap").unwrap());
+        assert_eq!((c.len(), t.unwrap().reason), (1, TruncationReason::Torn));
+    }
+
+    #[test]
+    fn truncation_message_says_where_and_what_is_kept() {
+        let t = Truncation {
+            offset: 1234,
+            chunks_intact: 56,
+            bytes_dropped: 7,
+            reason: TruncationReason::Torn,
+        };
+        let msg = t.to_string();
+        assert!(
+            msg.contains("byte 1234") && msg.contains("56 chunks") && msg.contains("killed"),
+            "{msg}"
+        );
+        let msg = Truncation {
+            reason: TruncationReason::BadChecksum,
+            ..t
+        }
+        .to_string();
+        assert!(
+            msg.contains("byte 1234") && msg.contains("checksum"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn writer_rejects_what_it_could_not_read_back_and_stays_usable() {
+        for bad in [
+            CaptureHeader {
+                version: 2,
+                ..header()
+            },
+            CaptureHeader {
+                streams: vec![],
+                ..header()
+            },
+            CaptureHeader {
+                nominal_period_s: f64::NAN,
+                ..header()
+            },
+            CaptureHeader {
+                started_unix: f64::INFINITY,
+                ..header()
+            },
+        ] {
+            let err = CaptureWriter::new(Vec::new(), &bad).unwrap_err();
+            assert_eq!(err.kind(), io::ErrorKind::InvalidInput, "{bad:?}");
+        }
+        let mut w = CaptureWriter::new(Vec::new(), &header()).unwrap();
+        let before = w.get_ref().len();
+        for (time, stream) in [(0.0, 1), (-0.001, 0), (f64::NAN, 0), (f64::INFINITY, 3)] {
+            let err = w.write_chunk(time, stream, b"abc").unwrap_err();
+            assert_eq!(err.kind(), io::ErrorKind::InvalidInput);
+        }
+        assert_eq!(w.get_ref().len(), before);
+        w.write_chunk(0.5, 3, b"ok").unwrap();
+        let (_, c, t) = capture(parse_capture(&w.into_inner().unwrap(), "w.cap").unwrap());
+        assert_eq!((c.len(), t), (1, None));
+    }
+
+    /// A disk that fills up after `room` bytes: it takes what fits, then fails.
+    struct FullDisk {
+        data: Vec<u8>,
+        room: usize,
+    }
+
+    impl Write for FullDisk {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            let n = buf.len().min(self.room - self.data.len());
+            if n == 0 && !buf.is_empty() {
+                return Err(io::Error::new(io::ErrorKind::StorageFull, "disk full"));
+            }
+            self.data.extend_from_slice(&buf[..n]);
+            Ok(n)
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// The recorder's way of writing (through a `BufWriter`, flushing now and
+    /// then) on a disk that fills up at any byte: what landed reads back.
+    #[test]
+    fn disk_full_at_any_byte_leaves_a_readable_capture() {
+        let full = write(&header(), &chunks());
+        let records_at = record_starts(&header(), &chunks())[0];
+        for room in 0..=full.len() {
+            let disk = FullDisk {
+                data: Vec::new(),
+                room,
+            };
+            let Ok(mut w) = CaptureWriter::new(io::BufWriter::with_capacity(16, disk), &header())
+            else {
+                assert!(room < records_at, "room {room}");
+                continue;
+            };
+            let mut failed = false;
+            for (i, c) in chunks().iter().enumerate() {
+                let result = w
+                    .write_chunk(c.time, c.stream, &c.bytes)
+                    .and_then(|()| if i % 2 == 1 { w.flush() } else { Ok(()) });
+                if failed {
+                    assert!(result.is_err(), "a write after a failure must fail too");
+                }
+                failed |= result.is_err();
+            }
+            let _ = w.flush();
+            let landed = &w.get_ref().get_ref().data;
+            assert!(full.starts_with(landed));
+            let (_, c, _) = capture(parse_capture(landed, "full.cap").unwrap());
+            assert_eq!(c, chunks()[..c.len()]);
+        }
+    }
+
+    #[test]
+    fn read_capture_reads_files_and_names_missing_ones() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bench.cap");
+        std::fs::write(&path, write(&header(), &chunks())).unwrap();
+        let (h, c, _) = capture(read_capture(&path).unwrap());
+        assert_eq!((h, c), (header(), chunks()));
+
+        let raw = dir.path().join("dump.bin");
+        std::fs::write(&raw, b"\x02\x00").unwrap();
+        assert_eq!(
+            read_capture(&raw).unwrap(),
+            CaptureFile::Raw {
+                bytes: b"\x02\x00".to_vec()
+            }
+        );
+
+        let missing = dir.path().join("missing.cap");
+        let err = read_capture(&missing).unwrap_err();
+        assert!(matches!(err, CaptureError::Io { .. }));
+        assert!(err.to_string().contains("missing.cap"), "{err}");
+    }
+
+    fn hex_lines(bytes: &[u8]) -> String {
+        bytes
+            .chunks(16)
+            .map(|line| {
+                line.iter()
+                    .map(|b| format!("{b:02x}"))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            })
+            .collect::<Vec<_>>()
+            .join("\n")
+    }
+
+    /// The worked example of docs/capture-format.md is what the writer writes.
+    #[test]
+    fn documented_example_matches_the_writer() {
+        let header = CaptureHeader {
+            version: 1,
+            streams: vec![StreamInfo {
+                id: 0,
+                kind: StreamKind::Falcon,
+            }],
+            port: Some("/dev/ttyUSB0".into()),
+            baud: Some(38400),
+            started_unix: 1_700_000_000.25,
+            nominal_period_s: 0.05,
+            note: None,
+        };
+        let mut w = CaptureWriter::new(Vec::new(), &header).unwrap();
+        w.write_chunk_ns(1_500_000, 0, &[0x02, 0x01, 0x2C]).unwrap();
+        let file = w.into_inner().unwrap();
+        let doc = include_str!("../docs/capture-format.md");
+        let hex = hex_lines(&file);
+        assert!(
+            doc.contains(&hex),
+            "the example in the doc should read:\n{hex}"
+        );
+    }
+}
