@@ -1,7 +1,21 @@
 //! I2C sensor chips: their register maps, init sequences, identity checks
 //! and burst reads (see ../shared/docs/protocols.md §3).
+//!
+//! The tables and [`Chip::decode`] are sans-IO. [`init_chip`] and
+//! [`read_chip`] run them over any [`I2cBus`]. A poll's data bytes (the
+//! bursts of [`Chip::data_reads`], concatenated) are what a capture keeps, so
+//! [`Chip::decode`] turns a recording into the same readings as the live run.
+
+pub mod adxl345;
+pub mod lsm303dlhc;
+pub mod mpu6050;
+
+use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
+
+use crate::i2c::{Access, I2cBus, I2cError};
+use crate::sample::Reading;
 
 /// The chips fieldcal can poll, by the names used on the command line, in
 /// configuration and in capture headers.
@@ -19,6 +33,14 @@ pub enum Chip {
 }
 
 impl Chip {
+    /// Every chip, in declaration order.
+    pub const ALL: [Chip; 4] = [
+        Chip::Adxl345,
+        Chip::Mpu6050,
+        Chip::Lsm303dlhcAccel,
+        Chip::Lsm303dlhcMag,
+    ];
+
     /// The name used on the command line and in files.
     pub fn name(self) -> &'static str {
         match self {
@@ -37,5 +59,525 @@ impl Chip {
             Chip::Lsm303dlhcAccel => 0x19,
             Chip::Lsm303dlhcMag => 0x1E,
         }
+    }
+
+    /// The chip as a person names it, for messages.
+    pub fn label(self) -> &'static str {
+        match self {
+            Chip::Adxl345 => "ADXL345 accelerometer",
+            Chip::Mpu6050 => "MPU-6050 accelerometer/gyroscope",
+            Chip::Lsm303dlhcAccel => "LSM303DLHC accelerometer",
+            Chip::Lsm303dlhcMag => "LSM303DLHC magnetometer",
+        }
+    }
+
+    /// (register, value) writes that configure the chip, in order, one byte
+    /// each.
+    pub fn init_writes(self) -> &'static [(u8, u8)] {
+        match self {
+            Chip::Adxl345 => adxl345::INIT,
+            Chip::Mpu6050 => mpu6050::INIT,
+            Chip::Lsm303dlhcAccel => lsm303dlhc::accel::INIT,
+            Chip::Lsm303dlhcMag => lsm303dlhc::mag::INIT,
+        }
+    }
+
+    /// (register, expected value) pairs that identify the chip, read one
+    /// register at a time; empty where the chip has no documented ID
+    /// (the LSM303DLHC accelerometer: its init writes still have to be ACKed).
+    pub fn identity(self) -> &'static [(u8, u8)] {
+        match self {
+            Chip::Adxl345 => adxl345::IDENTITY,
+            Chip::Mpu6050 => mpu6050::IDENTITY,
+            Chip::Lsm303dlhcAccel => lsm303dlhc::accel::IDENTITY,
+            Chip::Lsm303dlhcMag => lsm303dlhc::mag::IDENTITY,
+        }
+    }
+
+    /// (first register, length) of the burst reads of one poll, in order.
+    /// The register byte is sent as is (it includes the LSM303DLHC
+    /// accelerometer's auto-increment bit).
+    pub fn data_reads(self) -> &'static [(u8, usize)] {
+        match self {
+            Chip::Adxl345 => adxl345::DATA_READS,
+            Chip::Mpu6050 => mpu6050::DATA_READS,
+            Chip::Lsm303dlhcAccel => lsm303dlhc::accel::DATA_READS,
+            Chip::Lsm303dlhcMag => lsm303dlhc::mag::DATA_READS,
+        }
+    }
+
+    /// Bytes of one poll: the sum of the [`Chip::data_reads`] lengths.
+    pub fn data_len(self) -> usize {
+        self.data_reads().iter().map(|&(_, len)| len).sum()
+    }
+
+    /// The datasheet name of `register`, or "register" for one fieldcal
+    /// does not use.
+    pub fn register_name(self, register: u8) -> &'static str {
+        match self {
+            Chip::Adxl345 => adxl345::register_name(register),
+            Chip::Mpu6050 => mpu6050::register_name(register),
+            Chip::Lsm303dlhcAccel => lsm303dlhc::accel::register_name(register),
+            Chip::Lsm303dlhcMag => lsm303dlhc::mag::register_name(register),
+        }
+        .unwrap_or("register")
+    }
+
+    /// Decodes one poll's data bytes (the [`Chip::data_reads`] bursts,
+    /// concatenated) into a reading stamped `time`.
+    pub fn decode(self, data: &[u8], time: f64) -> Result<Reading, ChipError> {
+        let length_error = || ChipError::DataLength {
+            chip: self,
+            expected: self.data_len(),
+            found: data.len(),
+        };
+        let mut reading = Reading {
+            time,
+            ..Reading::default()
+        };
+        match self {
+            Chip::Adxl345 => {
+                let data = data.try_into().map_err(|_| length_error())?;
+                reading.accel = Some(adxl345::decode(data));
+            }
+            Chip::Mpu6050 => {
+                let data = data.try_into().map_err(|_| length_error())?;
+                let sample = mpu6050::decode(data);
+                reading.accel = Some(sample.accel);
+                reading.gyro = Some(sample.gyro);
+                reading.temp_raw = Some(sample.temp_raw);
+                reading.temp_c = Some(mpu6050::temp_c(sample.temp_raw));
+            }
+            Chip::Lsm303dlhcAccel => {
+                let data = data.try_into().map_err(|_| length_error())?;
+                reading.accel = Some(lsm303dlhc::accel::decode(data));
+            }
+            Chip::Lsm303dlhcMag => {
+                let data = data.try_into().map_err(|_| length_error())?;
+                let (field, temp_raw) = lsm303dlhc::mag::decode(data);
+                reading.mag = Some(field);
+                reading.temp_raw = Some(temp_raw);
+            }
+        }
+        Ok(reading)
+    }
+
+    /// The data bytes a chip would return for `reading`: the inverse of
+    /// [`Chip::decode`], for simulated chips and tests. Fields the chip does
+    /// not have are ignored; missing ones read as 0. The MPU-6050 takes its
+    /// temperature from `temp_raw`, else from `temp_c`.
+    pub fn encode(self, reading: &Reading) -> Vec<u8> {
+        let zero = [0i16; 3];
+        match self {
+            Chip::Adxl345 => adxl345::encode(reading.accel.unwrap_or(zero)).to_vec(),
+            Chip::Mpu6050 => {
+                let temp_raw = reading
+                    .temp_raw
+                    .or(reading.temp_c.map(mpu6050::temp_raw))
+                    .unwrap_or(0);
+                mpu6050::encode(&mpu6050::Sample {
+                    accel: reading.accel.unwrap_or(zero),
+                    temp_raw,
+                    gyro: reading.gyro.unwrap_or(zero),
+                })
+                .to_vec()
+            }
+            Chip::Lsm303dlhcAccel => {
+                lsm303dlhc::accel::encode(reading.accel.unwrap_or(zero)).to_vec()
+            }
+            Chip::Lsm303dlhcMag => {
+                lsm303dlhc::mag::encode(reading.mag.unwrap_or(zero), reading.temp_raw.unwrap_or(0))
+                    .to_vec()
+            }
+        }
+    }
+}
+
+/// Why a chip could not be set up or read. Every message names the chip and
+/// its address and says what to check.
+#[derive(Debug, thiserror::Error)]
+pub enum ChipError {
+    #[error(
+        "{} at 0x{address:02X}: no ACK {access} {} (0x{register:02X}): \
+         check the wiring and the address",
+        chip.label(),
+        chip.register_name(*register)
+    )]
+    Nack {
+        chip: Chip,
+        address: u8,
+        register: u8,
+        access: Access,
+    },
+    #[error(
+        "{} at 0x{address:02X}: {bus} did not answer {access} {} (0x{register:02X}) \
+         within {} ms: check that the bridge is plugged in and powered",
+        chip.label(),
+        chip.register_name(*register),
+        waited.as_millis()
+    )]
+    Timeout {
+        chip: Chip,
+        address: u8,
+        register: u8,
+        access: Access,
+        bus: String,
+        waited: Duration,
+    },
+    #[error(
+        "{} at 0x{address:02X}: {access} {} (0x{register:02X}) failed: {source}",
+        chip.label(),
+        chip.register_name(*register)
+    )]
+    Bus {
+        chip: Chip,
+        address: u8,
+        register: u8,
+        access: Access,
+        #[source]
+        source: I2cError,
+    },
+    #[error(
+        "{} at 0x{address:02X}: {} (0x{register:02X}) reads 0x{found:02X}, expected \
+         0x{expected:02X}: another chip answers at this address; check the chip type and the address",
+        chip.label(),
+        chip.register_name(*register)
+    )]
+    WrongIdentity {
+        chip: Chip,
+        address: u8,
+        register: u8,
+        expected: u8,
+        found: u8,
+    },
+    #[error(
+        "{} at 0x{address:02X}: {} (0x{register:02X}) reads only 0xFF bytes, so the chip is \
+         probably not answering (a bridge does not report a refused read): \
+         check the wiring and the address",
+        chip.label(),
+        chip.register_name(*register)
+    )]
+    NotAnswering {
+        chip: Chip,
+        address: u8,
+        register: u8,
+    },
+    #[error(
+        "{}: {found} data bytes where a poll has {expected}: \
+         the recording does not match this chip",
+        chip.label()
+    )]
+    DataLength {
+        chip: Chip,
+        expected: usize,
+        found: usize,
+    },
+}
+
+impl ChipError {
+    /// Wraps a bus error with the chip and register it happened on.
+    pub fn from_bus(
+        chip: Chip,
+        address: u8,
+        register: u8,
+        access: Access,
+        error: I2cError,
+    ) -> Self {
+        match error {
+            I2cError::Nack { .. } => ChipError::Nack {
+                chip,
+                address,
+                register,
+                access,
+            },
+            I2cError::Timeout { bus, waited, .. } => ChipError::Timeout {
+                chip,
+                address,
+                register,
+                access,
+                bus,
+                waited,
+            },
+            source => ChipError::Bus {
+                chip,
+                address,
+                register,
+                access,
+                source,
+            },
+        }
+    }
+}
+
+/// Checks the chip's identity registers, then writes its configuration,
+/// each write ACKed. A chip that reads 0xFF where its ID should be is
+/// reported as not answering rather than as another chip.
+pub fn init_chip(bus: &mut dyn I2cBus, chip: Chip, address: u8) -> Result<(), ChipError> {
+    for &(register, expected) in chip.identity() {
+        let mut found = [0u8; 1];
+        bus.read_registers(address, register, &mut found)
+            .map_err(|e| ChipError::from_bus(chip, address, register, Access::Read, e))?;
+        let [found] = found;
+        if found == expected {
+            continue;
+        }
+        return Err(if found == 0xFF {
+            ChipError::NotAnswering {
+                chip,
+                address,
+                register,
+            }
+        } else {
+            ChipError::WrongIdentity {
+                chip,
+                address,
+                register,
+                expected,
+                found,
+            }
+        });
+    }
+    for &(register, value) in chip.init_writes() {
+        bus.write_register(address, register, &[value])
+            .map_err(|e| ChipError::from_bus(chip, address, register, Access::Write, e))?;
+    }
+    Ok(())
+}
+
+/// Runs one poll's burst reads and puts the data bytes in `buf` (cleared
+/// first), ready for [`Chip::decode`].
+///
+/// A poll of nothing but 0xFF bytes is an error: it is what a bridge returns
+/// when no chip drives the bus, and no supported chip produces it while
+/// powered (it would be -1 count on every axis at once, gravity included).
+pub fn read_chip(
+    bus: &mut dyn I2cBus,
+    chip: Chip,
+    address: u8,
+    buf: &mut Vec<u8>,
+) -> Result<(), ChipError> {
+    buf.clear();
+    for &(register, len) in chip.data_reads() {
+        let start = buf.len();
+        buf.resize(start + len, 0);
+        bus.read_registers(address, register, &mut buf[start..])
+            .map_err(|e| ChipError::from_bus(chip, address, register, Access::Read, e))?;
+    }
+    if !buf.is_empty() && buf.iter().all(|&b| b == 0xFF) {
+        return Err(ChipError::NotAnswering {
+            chip,
+            address,
+            register: chip
+                .data_reads()
+                .first()
+                .map_or(0, |&(register, _)| register),
+        });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::i2c::usb_iss::UsbIssBus;
+    use crate::mock::usb_iss::{MockUsbIss, MockUsbIssPort};
+
+    fn bus(mock: MockUsbIss) -> UsbIssBus<MockUsbIssPort> {
+        UsbIssBus::new(
+            MockUsbIssPort::new(mock),
+            "USB-ISS on test",
+            Duration::from_millis(50),
+        )
+    }
+
+    #[test]
+    fn data_len_matches_the_reads() {
+        assert_eq!(Chip::Adxl345.data_len(), 6);
+        assert_eq!(Chip::Mpu6050.data_len(), 14);
+        assert_eq!(Chip::Lsm303dlhcAccel.data_len(), 6);
+        assert_eq!(Chip::Lsm303dlhcMag.data_len(), 8);
+    }
+
+    #[test]
+    fn decode_fills_the_chip_fields() {
+        let r = Chip::Adxl345
+            .decode(&[0x00, 0x01, 0xF6, 0xFF, 0x00, 0x80], 1.5)
+            .unwrap();
+        assert_eq!(
+            r,
+            Reading {
+                time: 1.5,
+                accel: Some([256, -10, -32768]),
+                ..Reading::default()
+            }
+        );
+
+        let mut mpu = [0u8; 14];
+        mpu[6..8].copy_from_slice(&(-3556i16).to_be_bytes());
+        mpu[8..10].copy_from_slice(&131i16.to_be_bytes());
+        let r = Chip::Mpu6050.decode(&mpu, 2.0).unwrap();
+        assert_eq!(r.accel, Some([0, 0, 0]));
+        assert_eq!(r.gyro, Some([131, 0, 0]));
+        assert_eq!(r.temp_raw, Some(-3556));
+        assert!((r.temp_c.unwrap() - 26.071_176).abs() < 1e-5);
+        assert_eq!(r.mag, None);
+
+        let r = Chip::Lsm303dlhcAccel
+            .decode(&[0x80, 0x3E, 0xF0, 0xFF, 0x00, 0x80], 0.0)
+            .unwrap();
+        assert_eq!(r.accel, Some([1000, -1, -2048]));
+
+        let r = Chip::Lsm303dlhcMag
+            .decode(&[0x01, 0x02, 0xFF, 0x00, 0x03, 0x04, 0x01, 0x90], 0.0)
+            .unwrap();
+        assert_eq!(r.mag, Some([258, 772, -256]));
+        assert_eq!(r.temp_raw, Some(25));
+        assert_eq!(r.temp_c, None);
+        assert_eq!(r.accel, None);
+    }
+
+    #[test]
+    fn decode_rejects_a_wrong_length_naming_the_chip() {
+        let err = Chip::Lsm303dlhcMag.decode(&[0; 6], 0.0).unwrap_err();
+        assert!(matches!(
+            err,
+            ChipError::DataLength {
+                expected: 8,
+                found: 6,
+                ..
+            }
+        ));
+        assert!(err.to_string().contains("LSM303DLHC magnetometer"), "{err}");
+    }
+
+    #[test]
+    fn encode_inverts_decode() {
+        let reading = Reading {
+            time: 0.0,
+            mag: Some([-300, 120, 4000]),
+            accel: Some([-1000, 2, 1500]),
+            gyro: Some([7, -8, 9]),
+            temp_raw: Some(-40),
+            temp_c: None,
+            timer: None,
+        };
+        for chip in Chip::ALL {
+            let bytes = chip.encode(&reading);
+            assert_eq!(bytes.len(), chip.data_len(), "{chip:?}");
+            let back = chip.decode(&bytes, 0.0).unwrap();
+            match chip {
+                Chip::Adxl345 | Chip::Lsm303dlhcAccel => assert_eq!(back.accel, reading.accel),
+                Chip::Mpu6050 => {
+                    assert_eq!(back.accel, reading.accel);
+                    assert_eq!(back.gyro, reading.gyro);
+                    assert_eq!(back.temp_raw, reading.temp_raw);
+                }
+                Chip::Lsm303dlhcMag => {
+                    assert_eq!(back.mag, reading.mag);
+                    assert_eq!(back.temp_raw, reading.temp_raw);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn init_and_read_every_chip_through_the_mock() {
+        let mut mock = MockUsbIss::new();
+        for chip in Chip::ALL {
+            mock.add_chip(chip);
+        }
+        let mut bus = bus(mock);
+        let mut buf = Vec::new();
+        for chip in Chip::ALL {
+            let address = chip.default_address();
+            init_chip(&mut bus, chip, address).unwrap();
+            for &(register, value) in chip.init_writes() {
+                let stored = bus
+                    .get_ref()
+                    .mock()
+                    .register(address, register & 0x7F)
+                    .unwrap();
+                assert_eq!(stored, value, "{chip:?} register 0x{register:02X}");
+            }
+            let sample = Reading {
+                accel: Some([100, -200, 300]),
+                mag: Some([-5, 6, -7]),
+                gyro: Some([1, 2, 3]),
+                temp_raw: Some(12),
+                ..Reading::default()
+            };
+            bus.get_mut().mock_mut().push_sample(address, sample);
+            read_chip(&mut bus, chip, address, &mut buf).unwrap();
+            assert_eq!(buf, chip.encode(&sample), "{chip:?}");
+        }
+    }
+
+    #[test]
+    fn a_missing_chip_is_reported_by_name_and_address() {
+        let mut bus = bus(MockUsbIss::new());
+        let err = init_chip(&mut bus, Chip::Lsm303dlhcAccel, 0x19).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "LSM303DLHC accelerometer at 0x19: no ACK writing CTRL_REG1_A (0x20): \
+             check the wiring and the address"
+        );
+        let err = init_chip(&mut bus, Chip::Lsm303dlhcMag, 0x1E).unwrap_err();
+        assert!(matches!(err, ChipError::NotAnswering { .. }), "{err}");
+        assert!(
+            err.to_string()
+                .starts_with("LSM303DLHC magnetometer at 0x1E: IRA_REG_M (0x0A)"),
+            "{err}"
+        );
+        let mut buf = Vec::new();
+        let err = read_chip(&mut bus, Chip::Mpu6050, 0x68, &mut buf).unwrap_err();
+        assert!(matches!(err, ChipError::NotAnswering { .. }), "{err}");
+    }
+
+    #[test]
+    fn a_nacked_mag_write_names_the_register() {
+        let mut mock = MockUsbIss::new();
+        mock.add_chip(Chip::Lsm303dlhcMag);
+        let mut bus = bus(mock);
+        // The identity reads pass; then the chip stops acknowledging.
+        bus.get_mut().mock_mut().set_nack_writes(0x1E, true);
+        let err = init_chip(&mut bus, Chip::Lsm303dlhcMag, 0x1E).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "LSM303DLHC magnetometer at 0x1E: no ACK writing CRA_REG_M (0x00): \
+             check the wiring and the address"
+        );
+    }
+
+    #[test]
+    fn another_chip_at_the_address_is_a_wrong_identity() {
+        let mut mock = MockUsbIss::new();
+        mock.add_chip_at(Chip::Adxl345, 0x68);
+        let mut bus = bus(mock);
+        let err = init_chip(&mut bus, Chip::Mpu6050, 0x68).unwrap_err();
+        assert!(matches!(
+            err,
+            ChipError::WrongIdentity {
+                register: 0x75,
+                expected: 0x68,
+                ..
+            }
+        ));
+        assert!(err.to_string().contains("WHO_AM_I (0x75)"), "{err}");
+    }
+
+    #[test]
+    fn a_silent_bridge_is_a_timeout_naming_the_chip() {
+        let mut mock = MockUsbIss::new();
+        mock.add_chip(Chip::Adxl345);
+        mock.set_silent(true);
+        let mut bus = bus(mock);
+        let mut buf = Vec::new();
+        let err = read_chip(&mut bus, Chip::Adxl345, 0x53, &mut buf).unwrap_err();
+        assert!(matches!(err, ChipError::Timeout { .. }), "{err}");
+        let text = err.to_string();
+        assert!(
+            text.starts_with("ADXL345 accelerometer at 0x53: USB-ISS on test did not answer"),
+            "{text}"
+        );
     }
 }
