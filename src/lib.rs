@@ -11,6 +11,7 @@
 //! - [`i2c`]: the I2C bus trait and its backends (USB-ISS bridge, Linux);
 //! - [`capture`]: the file format that keeps raw bytes with their timing;
 //! - [`source`]: the I/O tasks that own a port or a file;
+//! - [`record`]: writing a source's raw bytes to a capture;
 //! - [`mock`]: simulated devices that answer like real ones, for tests;
 //! - [`sim`]: a simulated sensor, for trying fieldcal with no hardware.
 
@@ -24,6 +25,7 @@ pub mod io;
 pub mod mock;
 pub mod model;
 pub mod protocol;
+pub mod record;
 pub mod report;
 pub mod sample;
 pub mod sim;

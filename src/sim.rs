@@ -140,8 +140,9 @@ impl SimSensor {
         let a = self.gain_y / self.gain_x;
         PaperCalibration {
             a,
-            b: -a * self.offset_x,
-            d: -self.offset_y,
+            // `+ 0.0` so a zero offset reads 0, not -0.
+            b: -a * self.offset_x + 0.0,
+            d: -self.offset_y + 0.0,
             r: self.gain_y * self.field,
         }
     }
@@ -222,5 +223,123 @@ mod tests {
             s.simulate().unwrap_err().to_string(),
             "--period must be a positive number of seconds, got 0"
         );
+    }
+}
+
+/// How a simulated Falcon-GX-style IMU puts the simulated sensor on the wire.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FalconWire {
+    /// Fraction of extra garbage bytes spliced between frames (0.01 = 1 %).
+    pub garbage: f64,
+    /// Timer ticks per frame (the device's clock; 50 for a 1 ms tick).
+    pub ticks_per_frame: u16,
+    /// Counts the accelerometer reads for gravity, on its z axis.
+    pub gravity_counts: i16,
+}
+
+impl Default for FalconWire {
+    fn default() -> Self {
+        FalconWire {
+            garbage: 0.0,
+            ticks_per_frame: 50,
+            gravity_counts: 4096,
+        }
+    }
+}
+
+/// Why a simulated recording cannot be put in Falcon-GX frames.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum WireError {
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    #[error(
+        "sample {index} reads {value:.0} counts, outside the i16 range of a Falcon-GX frame; lower --field, the gains or the offsets"
+    )]
+    OutOfRange { index: usize, value: f64 },
+    #[error("--garbage must be a fraction from 0 up to (not including) 1, got {0}")]
+    Garbage(f64),
+}
+
+impl SimSensor {
+    /// Simulates a Falcon-GX-style IMU whose magnetometer x, y are this
+    /// sensor (turning about z, so mag z and gravity stay constant), one
+    /// frame per `period`, as a capture: header and chunks.
+    pub fn falcon_capture(
+        &self,
+        wire: &FalconWire,
+    ) -> Result<(crate::capture::CaptureHeader, Vec<crate::capture::Chunk>), WireError> {
+        use crate::capture::{CaptureHeader, Chunk, StreamInfo, StreamKind};
+        use crate::protocol::falcon::{BAUD, FalconFrame};
+        use rand::RngExt as _;
+
+        if !(0.0..1.0).contains(&wire.garbage) {
+            return Err(WireError::Garbage(wire.garbage));
+        }
+        let data = self.simulate()?;
+        let to_counts = |index: usize, value: f64| -> Result<i16, WireError> {
+            let rounded = value.round();
+            if rounded >= i16::MIN as f64 && rounded <= i16::MAX as f64 {
+                Ok(rounded as i16)
+            } else {
+                Err(WireError::OutOfRange { index, value })
+            }
+        };
+        // A separate stream of randomness, so adding garbage does not change
+        // the sensor's noise.
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ 0x6761_7262_6167_65);
+        let rate_counts = (360.0 / self.turn_seconds * 10.0).round() as i16;
+        let t = data.t.as_deref().unwrap_or(&[]);
+        let mut chunks = Vec::with_capacity(data.len());
+        let mut debt = 0.0f64;
+        for i in 0..data.len() {
+            let frame = FalconFrame {
+                mag: [to_counts(i, data.x[i])?, to_counts(i, data.y[i])?, 200],
+                accel: [0, 0, wire.gravity_counts],
+                rate: [0, 0, rate_counts],
+                timer: (i as u64 * wire.ticks_per_frame as u64 % 65_536) as u16,
+            };
+            let mut bytes = frame.encode().to_vec();
+            if wire.garbage > 0.0 {
+                // Garbage bytes make up `garbage` of the stream on average;
+                // the fractional remainder carries over so small rates still
+                // produce some garbage.
+                debt += wire.garbage / (1.0 - wire.garbage).max(1e-9)
+                    * 23.0
+                    * 2.0
+                    * rng.random::<f64>();
+                let burst = debt.floor() as usize;
+                debt -= burst as f64;
+                let mut junk: Vec<u8> = (0..burst).map(|_| rng.random::<u8>()).collect();
+                junk.extend_from_slice(&bytes);
+                bytes = junk;
+            }
+            chunks.push(Chunk {
+                time: t.get(i).copied().unwrap_or(i as f64 * self.period),
+                stream: 0,
+                bytes,
+            });
+        }
+        let header = CaptureHeader {
+            version: crate::capture::VERSION,
+            streams: vec![StreamInfo {
+                id: 0,
+                kind: StreamKind::Falcon,
+            }],
+            port: None,
+            baud: Some(BAUD),
+            started_unix: 0.0,
+            nominal_period_s: self.period,
+            note: Some(format!(
+                "simulated: field {} gains {} {} offsets {} {} noise {} seed {}",
+                self.field,
+                self.gain_x,
+                self.gain_y,
+                self.offset_x,
+                self.offset_y,
+                self.noise,
+                self.seed
+            )),
+        };
+        Ok((header, chunks))
     }
 }

@@ -1,1 +1,235 @@
-//! (being written)
+//! Replay: plays a capture (or a plain raw dump) back through the same
+//! decoders a live source uses, at the pace it was recorded, faster, or as
+//! fast as the machine allows.
+//!
+//! Synchronous on purpose: `--speed max` is a hot path, and a blocking loop
+//! over an in-memory file is the fastest way through it. A daemon runs it on
+//! a blocking thread.
+
+use std::str::FromStr;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+
+use crate::capture::{CaptureFile, StreamKind};
+use crate::protocol::chips::Chip;
+use crate::protocol::falcon::{DecoderCounters, FalconDecoder, NOMINAL_PERIOD};
+use crate::sample::Reading;
+
+/// How fast a replay runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Speed {
+    /// N times real time (1 = as recorded).
+    Times(f64),
+    /// As fast as the machine allows.
+    Max,
+}
+
+impl FromStr for Speed {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        if text == "max" {
+            return Ok(Speed::Max);
+        }
+        match text.parse::<f64>() {
+            Ok(v) if v > 0.0 && v.is_finite() => Ok(Speed::Times(v)),
+            _ => Err(format!(
+                "'{text}' is not a speed: give a positive factor (1 = real time, 10 = ten times faster) or 'max'"
+            )),
+        }
+    }
+}
+
+/// Why a file cannot be replayed.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error(
+        "{name}: neither a fieldcal capture nor a raw dump of Falcon-GX frames (no valid frame in {bytes} bytes); record one with `fieldcal record`"
+    )]
+    NotACapture { name: String, bytes: usize },
+}
+
+/// What a replay went through.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct ReplaySummary {
+    /// Readings handed on.
+    pub readings: u64,
+    /// Chunks of bytes (records of a capture) replayed.
+    pub chunks: u64,
+    /// The Falcon-GX decoder's counters, over every Falcon stream.
+    pub falcon: DecoderCounters,
+    /// Chip polls whose bytes did not decode.
+    pub chip_errors: u64,
+    /// Seconds of recording covered.
+    pub span_s: f64,
+    /// A torn tail, described, when the capture ended mid-record.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub truncated: Option<String>,
+    /// The replay was stopped before the end.
+    pub stopped: bool,
+}
+
+/// Waits until each recorded time comes round, scaled by the speed.
+struct Pacer {
+    started: Instant,
+    speed: Speed,
+}
+
+impl Pacer {
+    fn new(speed: Speed) -> Self {
+        Pacer {
+            started: Instant::now(),
+            speed,
+        }
+    }
+
+    fn wait_for(&self, time: f64, stop: &AtomicBool) {
+        let Speed::Times(factor) = self.speed else {
+            return;
+        };
+        let due = self.started + Duration::from_secs_f64((time / factor).max(0.0));
+        // Sleep in slices so a stop request is honoured promptly.
+        loop {
+            let now = Instant::now();
+            if now >= due || stop.load(Ordering::Relaxed) {
+                return;
+            }
+            std::thread::sleep((due - now).min(Duration::from_millis(100)));
+        }
+    }
+}
+
+enum StreamDecoder {
+    Falcon(Box<FalconDecoder>),
+    Chip(Chip),
+}
+
+/// Replays `file`, calling `emit` for every reading in order. `name` is used
+/// in messages. Stops early when `stop` turns true.
+pub fn replay(
+    file: &CaptureFile,
+    name: &str,
+    speed: Speed,
+    stop: &AtomicBool,
+    emit: &mut dyn FnMut(Reading),
+) -> Result<ReplaySummary, ReplayError> {
+    match file {
+        CaptureFile::Raw { bytes } => replay_raw(bytes, name, speed, stop, emit),
+        CaptureFile::Capture {
+            header,
+            chunks,
+            truncated,
+        } => {
+            let mut decoders: Vec<(u8, StreamDecoder)> = header
+                .streams
+                .iter()
+                .map(|s| {
+                    let decoder = match s.kind {
+                        StreamKind::Falcon => StreamDecoder::Falcon(Box::default()),
+                        StreamKind::Chip { chip, .. } => StreamDecoder::Chip(chip),
+                    };
+                    (s.id, decoder)
+                })
+                .collect();
+            let mut summary = ReplaySummary {
+                truncated: truncated.as_ref().map(|t| t.to_string()),
+                ..Default::default()
+            };
+            let pacer = Pacer::new(speed);
+            for chunk in chunks {
+                if stop.load(Ordering::Relaxed) {
+                    summary.stopped = true;
+                    break;
+                }
+                pacer.wait_for(chunk.time, stop);
+                summary.chunks += 1;
+                summary.span_s = chunk.time;
+                let decoder = decoders
+                    .iter_mut()
+                    .find(|(id, _)| *id == chunk.stream)
+                    .map(|(_, d)| d);
+                match decoder {
+                    Some(StreamDecoder::Falcon(decoder)) => decoder.decode(&chunk.bytes, |frame| {
+                        summary.readings += 1;
+                        emit(frame.to_reading(chunk.time));
+                    }),
+                    Some(StreamDecoder::Chip(chip)) => {
+                        match chip.decode(&chunk.bytes, chunk.time) {
+                            Ok(reading) => {
+                                summary.readings += 1;
+                                emit(reading);
+                            }
+                            Err(e) => {
+                                summary.chip_errors += 1;
+                                tracing::warn!("{name}: record at {:.3} s: {e}", chunk.time);
+                            }
+                        }
+                    }
+                    // The reader refuses records of undeclared streams.
+                    None => {}
+                }
+            }
+            for (_, decoder) in &decoders {
+                if let StreamDecoder::Falcon(d) = decoder {
+                    add_counters(&mut summary.falcon, d.counters());
+                }
+            }
+            Ok(summary)
+        }
+    }
+}
+
+/// A plain dump has no timing: frames are replayed at the nominal period.
+fn replay_raw(
+    bytes: &[u8],
+    name: &str,
+    speed: Speed,
+    stop: &AtomicBool,
+    emit: &mut dyn FnMut(Reading),
+) -> Result<ReplaySummary, ReplayError> {
+    let mut decoder = FalconDecoder::new();
+    let mut frames = Vec::new();
+    decoder.decode(bytes, |frame| frames.push(frame));
+    if frames.is_empty() {
+        return Err(ReplayError::NotACapture {
+            name: name.to_string(),
+            bytes: bytes.len(),
+        });
+    }
+    let period = NOMINAL_PERIOD.as_secs_f64();
+    let pacer = Pacer::new(speed);
+    let mut summary = ReplaySummary {
+        falcon: decoder.counters(),
+        chunks: 1,
+        ..Default::default()
+    };
+    for (k, frame) in frames.iter().enumerate() {
+        if stop.load(Ordering::Relaxed) {
+            summary.stopped = true;
+            break;
+        }
+        // Rounded to the nanosecond, as capture times are.
+        let time = (k as f64 * period * 1e9).round() / 1e9;
+        pacer.wait_for(time, stop);
+        summary.readings += 1;
+        summary.span_s = time;
+        emit(frame.to_reading(time));
+    }
+    if decoder.pending() > 0 {
+        summary.truncated = Some(format!(
+            "{name}: the last {} bytes are an incomplete frame",
+            decoder.pending()
+        ));
+    }
+    Ok(summary)
+}
+
+fn add_counters(total: &mut DecoderCounters, more: DecoderCounters) {
+    total.bytes_skipped += more.bytes_skipped;
+    total.frames_good += more.frames_good;
+    total.frames_bad += more.frames_bad;
+    total.frames_lost += more.frames_lost;
+    total.timer_resets += more.timer_resets;
+}

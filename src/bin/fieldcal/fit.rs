@@ -1,0 +1,82 @@
+//! `fieldcal fit`: read a CSV, fit, report.
+
+use std::io::IsTerminal;
+
+use anyhow::{Context, Result};
+
+use fieldcal::io::csv::{ColumnSpec, read_dataset, write_calibrated};
+use fieldcal::model::fit::{FitOptions, fit_paper};
+use fieldcal::model::paper::{GradientDescentOptions, GradientDescentProgress};
+use fieldcal::report::fit::{FitJson, FitSource, render_text};
+
+use crate::FitArgs;
+use crate::output::write_stdout;
+
+pub fn fit(args: FitArgs) -> Result<()> {
+    let spec = ColumnSpec {
+        x: args.x,
+        y: args.y,
+        t: args.t,
+    };
+    let data = read_dataset(&args.file, &spec)?;
+    let options = FitOptions {
+        solver: args.solver,
+        gradient_descent: GradientDescentOptions {
+            learning_rate: args.learning_rate,
+            max_iterations: args.max_iterations,
+            ..Default::default()
+        },
+        min_coverage_deg: args.min_coverage,
+    };
+    let file = args.file.display().to_string();
+    let mut progress = progress_printer();
+    let report = fit_paper(&data.x, &data.y, &options, &mut progress);
+    finish_progress();
+    let report = report.with_context(|| format!("{file}: no calibration"))?;
+
+    if let Some(output) = &args.output {
+        let (cx, cy): (Vec<f64>, Vec<f64>) = data
+            .x
+            .iter()
+            .zip(&data.y)
+            .map(|(&x, &y)| report.calibration.apply(x, y))
+            .unzip();
+        write_calibrated(output, data.t.as_deref(), &cx, &cy).with_context(|| {
+            format!(
+                "cannot write the calibrated samples to {}",
+                output.display()
+            )
+        })?;
+    }
+
+    let source = FitSource {
+        file: &file,
+        x_column: &data.x_name,
+        y_column: &data.y_name,
+    };
+    let text = if args.json {
+        serde_json::to_string(&FitJson::new(&report, source))? + "\n"
+    } else {
+        render_text(&report, source)
+    };
+    write_stdout(text.as_bytes())
+}
+
+/// Reports gradient-descent progress on a terminal; silent otherwise.
+fn progress_printer() -> impl FnMut(GradientDescentProgress) {
+    let terminal = std::io::stderr().is_terminal();
+    move |p: GradientDescentProgress| {
+        if terminal {
+            eprint!(
+                "\rgradient descent: iteration {:>9}, step {:.2e}   ",
+                p.iteration, p.step
+            );
+        }
+    }
+}
+
+fn finish_progress() {
+    if std::io::stderr().is_terminal() {
+        eprint!("\r{:60}\r", "");
+    }
+}

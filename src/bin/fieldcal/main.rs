@@ -1,0 +1,272 @@
+//! The `fieldcal` command: parses arguments and wires the library together.
+//! One module per subcommand; the work itself lives in the library.
+
+mod fit;
+mod output;
+mod record;
+mod replay;
+mod simulate;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+use fieldcal::model::fit::{DEFAULT_MIN_COVERAGE_DEG, Solver};
+use fieldcal::model::paper::PAPER_LEARNING_RATE;
+use fieldcal::protocol::chips::Chip;
+use fieldcal::source::replay::Speed;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "fieldcal",
+    version,
+    about = "Calibrates 2-axis field sensors (magnetometers, accelerometers) turned in a constant field",
+    long_about = None
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Fit the paper's calibration to a CSV recording of one full turn.
+    Fit(FitArgs),
+    /// Write a simulated sensor turned in a constant field: a CSV, or a Falcon-GX capture.
+    Simulate(SimulateArgs),
+    /// Capture a device's bytes, exactly as they come off the wire, to a file.
+    Record(RecordArgs),
+    /// Decode a capture (or a raw dump) and print its samples as JSON lines.
+    Replay(ReplayArgs),
+}
+
+/// The kind of device on a port.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum DeviceKind {
+    /// A Falcon-GX-style IMU streaming 23-byte frames over RS-232.
+    Falcon,
+    /// A Devantech USB-ISS I2C bridge with chips behind it, polled.
+    UsbIss,
+}
+
+#[derive(Debug, Args)]
+struct RecordArgs {
+    /// Serial port of the device (for example /dev/ttyUSB0).
+    #[arg(long, value_name = "PATH")]
+    port: PathBuf,
+    /// What is on the port.
+    #[arg(long, value_enum, default_value_t = DeviceKind::Falcon)]
+    device: DeviceKind,
+    /// Line speed (Falcon-GX; the USB-ISS ignores it).
+    #[arg(long, default_value_t = fieldcal::protocol::falcon::BAUD)]
+    baud: u32,
+    /// usb-iss: a chip to poll, as NAME or NAME@ADDRESS (7-bit, e.g. mpu6050@0x69); repeat for several.
+    #[arg(long, value_name = "CHIP[@ADDR]", value_parser = parse_chip)]
+    chip: Vec<(Chip, u8)>,
+    /// usb-iss: poll period in milliseconds.
+    #[arg(long, value_name = "MS", default_value_t = 30, value_parser = clap::value_parser!(u64).range(1..=60_000))]
+    poll_ms: u64,
+    /// Stop after this many seconds (default: until Ctrl-C or SIGTERM).
+    #[arg(long, value_name = "SECS", value_parser = parse_positive)]
+    duration: Option<f64>,
+    /// Capture file to write.
+    #[arg(long, short, value_name = "FILE")]
+    output: PathBuf,
+    /// Print a JSON summary on stdout at the end.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Debug, Args)]
+struct ReplayArgs {
+    /// A capture written by `fieldcal record` or `fieldcal simulate --format falcon`, or a raw byte dump of Falcon-GX frames.
+    file: PathBuf,
+    /// N times real time (1 = as recorded), or max.
+    #[arg(long, default_value = "1", value_parser = parse_speed)]
+    speed: Speed,
+    /// Print a JSON summary line (class SUMMARY) after the samples.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Debug, Args)]
+struct FitArgs {
+    /// CSV file: a header line, then one sample per line.
+    file: PathBuf,
+    /// Column holding the x axis.
+    #[arg(long, default_value = "x", value_name = "COL")]
+    x: String,
+    /// Column holding the y axis.
+    #[arg(long, default_value = "y", value_name = "COL")]
+    y: String,
+    /// Column holding time in seconds [default: the first of t, t_s, time, time_s]
+    #[arg(long, value_name = "COL")]
+    t: Option<String>,
+    /// Solver: closed-form least squares, or the paper's gradient descent.
+    #[arg(long, value_enum, default_value_t = Solver::Lsq)]
+    solver: Solver,
+    /// Print one JSON object on stdout instead of the text report.
+    #[arg(long)]
+    json: bool,
+    /// Write every sample's calibrated x, y (and t when the input has it) to this CSV.
+    #[arg(long, value_name = "FILE")]
+    output: Option<PathBuf>,
+    /// Heading coverage the turn must reach, in degrees.
+    #[arg(long, value_name = "DEG", default_value_t = DEFAULT_MIN_COVERAGE_DEG, value_parser = parse_coverage)]
+    min_coverage: f64,
+    /// paper-gd: iterations before giving up.
+    #[arg(long, value_name = "N", default_value_t = 1_000_000, value_parser = clap::value_parser!(u64).range(1..))]
+    max_iterations: u64,
+    /// paper-gd: learning rate (the paper's is 0.73).
+    #[arg(long, value_name = "ALPHA", default_value_t = PAPER_LEARNING_RATE, value_parser = parse_positive)]
+    learning_rate: f64,
+}
+
+#[derive(Debug, Args)]
+struct SimulateArgs {
+    /// Write here instead of stdout (a capture needs a file).
+    #[arg(long, short, value_name = "FILE")]
+    output: Option<PathBuf>,
+    /// What to write: a CSV of x, y, or a capture of a Falcon-GX-style IMU whose magnetometer turns.
+    #[arg(long, value_enum, default_value_t = SimFormat::Csv)]
+    format: SimFormat,
+    /// falcon: fraction of garbage bytes spliced between frames (0.01 = 1 %).
+    #[arg(long, default_value_t = 0.0)]
+    garbage: f64,
+    /// Print the simulated sensor and its true calibration as JSON on stdout (needs --output).
+    #[arg(long)]
+    json: bool,
+    /// Field magnitude, in counts at unit gain.
+    #[arg(long, default_value_t = 1000.0)]
+    field: f64,
+    /// Gain of the x axis.
+    #[arg(long, default_value_t = 1.0)]
+    gain_x: f64,
+    /// Gain of the y axis.
+    #[arg(long, default_value_t = 1.0)]
+    gain_y: f64,
+    /// Offset of the x axis, in counts.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    offset_x: f64,
+    /// Offset of the y axis, in counts.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    offset_y: f64,
+    /// Standard deviation of Gaussian noise on each axis, in counts.
+    #[arg(long, default_value_t = 0.0)]
+    noise: f64,
+    /// Sample period in seconds (0.05 for the Falcon-GX, 0.03 for I2C polling).
+    #[arg(long, default_value_t = 0.05)]
+    period: f64,
+    /// Number of rotations.
+    #[arg(long, default_value_t = 1.0)]
+    turns: f64,
+    /// Seconds one rotation takes.
+    #[arg(long, default_value_t = 10.0)]
+    turn_seconds: f64,
+    /// Heading of the first sample, in degrees.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    start_heading: f64,
+    /// Seed of the noise generator.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum SimFormat {
+    /// CSV with columns t, x, y.
+    Csv,
+    /// A capture of Falcon-GX-style frames with their timing (replay it with `fieldcal replay`).
+    Falcon,
+    /// The same frames as a plain byte dump with no timing, as `cat /dev/ttyUSB0 > file` gives.
+    FalconRaw,
+}
+
+fn parse_speed(text: &str) -> Result<Speed, String> {
+    text.parse()
+}
+
+/// `mpu6050` or `mpu6050@0x69` (or `@105`).
+fn parse_chip(text: &str) -> Result<(Chip, u8), String> {
+    let (name, address) = match text.split_once('@') {
+        Some((name, address)) => (name, Some(address)),
+        None => (text, None),
+    };
+    let chip = Chip::from_str(name, true).map_err(|_| {
+        let names: Vec<&str> = Chip::value_variants().iter().map(|c| c.name()).collect();
+        format!(
+            "'{name}' is not a chip fieldcal knows; choose one of {}",
+            names.join(", ")
+        )
+    })?;
+    let address = match address {
+        None => chip.default_address(),
+        Some(a) => {
+            let parsed = match a.strip_prefix("0x").or_else(|| a.strip_prefix("0X")) {
+                Some(hex) => u8::from_str_radix(hex, 16),
+                None => a.parse::<u8>(),
+            };
+            match parsed {
+                Ok(v) if v <= 0x7F => v,
+                _ => return Err(format!("'{a}' is not a 7-bit I2C address (0x00 to 0x7f)")),
+            }
+        }
+    };
+    Ok((chip, address))
+}
+
+fn parse_coverage(text: &str) -> Result<f64, String> {
+    let v: f64 = text
+        .parse()
+        .map_err(|_| format!("'{text}' is not a number"))?;
+    if (0.0..=360.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} is not between 0 and 360 degrees"))
+    }
+}
+
+fn parse_positive(text: &str) -> Result<f64, String> {
+    let v: f64 = text
+        .parse()
+        .map_err(|_| format!("'{text}' is not a number"))?;
+    if v > 0.0 && v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("{v} must be a positive number"))
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_logging();
+    let result = match cli.command {
+        Command::Fit(args) => fit::fit(args),
+        Command::Simulate(args) => simulate::simulate(args),
+        Command::Record(args) => record::record(args),
+        Command::Replay(args) => replay::replay(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            let mut message = format!("fieldcal: error: {err}");
+            for cause in err.chain().skip(1) {
+                message.push_str(&format!(": {cause}"));
+            }
+            eprintln!("{message}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Logs go to stderr, filtered by RUST_LOG (default: info).
+fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_target(false)
+        .try_init();
+}

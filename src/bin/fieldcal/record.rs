@@ -1,0 +1,179 @@
+//! `fieldcal record`: capture a device's bytes to a file until stopped.
+
+use std::fs::OpenOptions;
+use std::io::BufWriter;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use tokio::sync::{mpsc, watch};
+
+use fieldcal::capture::{CaptureHeader, CaptureWriter, StreamInfo, StreamKind, VERSION};
+use fieldcal::protocol::falcon::NOMINAL_PERIOD;
+use fieldcal::record::record as run_recorder;
+use fieldcal::source::SourceCounters;
+use fieldcal::source::bridge::{BridgeConfig, spawn_bridge_source};
+use fieldcal::source::serial::{SerialConfig, run_serial_source, unix_now};
+
+use crate::{DeviceKind, RecordArgs};
+
+pub fn record(args: RecordArgs) -> Result<()> {
+    if args.device == DeviceKind::UsbIss && args.chip.is_empty() {
+        bail!("--device usb-iss needs at least one --chip to poll (for example --chip mpu6050)");
+    }
+    if args.device == DeviceKind::Falcon && !args.chip.is_empty() {
+        bail!("--chip is for --device usb-iss; a Falcon-GX sends its own frames");
+    }
+    // Never overwrite a recording: it may be the only copy of a run.
+    let file = OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&args.output)
+        .with_context(|| {
+            format!(
+                "cannot create {} (it must not exist yet)",
+                args.output.display()
+            )
+        })?;
+
+    let poll_period = Duration::from_millis(args.poll_ms);
+    let (streams, nominal) = match args.device {
+        DeviceKind::Falcon => (
+            vec![StreamInfo {
+                id: 0,
+                kind: StreamKind::Falcon,
+            }],
+            NOMINAL_PERIOD,
+        ),
+        DeviceKind::UsbIss => (
+            args.chip
+                .iter()
+                .enumerate()
+                .map(|(i, &(chip, address))| StreamInfo {
+                    id: i as u8,
+                    kind: StreamKind::Chip { chip, address },
+                })
+                .collect(),
+            poll_period,
+        ),
+    };
+    if streams.len() > u8::MAX as usize {
+        bail!("at most 255 chips can be recorded at once");
+    }
+    let started_unix = unix_now();
+    let header = CaptureHeader {
+        version: VERSION,
+        streams,
+        port: Some(args.port.display().to_string()),
+        baud: (args.device == DeviceKind::Falcon).then_some(args.baud),
+        started_unix,
+        nominal_period_s: nominal.as_secs_f64(),
+        note: None,
+    };
+    let mut writer = CaptureWriter::new(BufWriter::new(file), &header)
+        .with_context(|| format!("cannot write {}", args.output.display()))?;
+
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the runtime")?;
+    let summary = runtime.block_on(async {
+        let (events_tx, events_rx) = mpsc::channel(1024);
+        let counters = Arc::new(SourceCounters::default());
+        let (stop_tx, stop_rx) = watch::channel(false);
+        let stop_flag = Arc::new(AtomicBool::new(false));
+
+        let source = match args.device {
+            DeviceKind::Falcon => {
+                let config = SerialConfig {
+                    baud: args.baud,
+                    raw: true,
+                    ..SerialConfig::new(&args.port)
+                };
+                let task = tokio::spawn(run_serial_source(
+                    config,
+                    events_tx,
+                    counters.clone(),
+                    stop_rx.clone(),
+                ));
+                Source::Task(task)
+            }
+            DeviceKind::UsbIss => {
+                let config = BridgeConfig {
+                    period: poll_period,
+                    ..BridgeConfig::new(&args.port, args.chip.clone())
+                };
+                let thread =
+                    spawn_bridge_source(config, events_tx, counters.clone(), stop_flag.clone())
+                        .context("cannot start the bridge thread")?;
+                Source::Thread(thread)
+            }
+        };
+        tokio::spawn(forward_signals(stop_tx.clone()));
+        let duration = args.duration.map(Duration::from_secs_f64);
+        let result = run_recorder(events_rx, &mut writer, started_unix, duration, stop_rx).await;
+        // Stop the source whatever ended the recording; it sends the
+        // device's stop command on its way out.
+        let _ = stop_tx.send(true);
+        stop_flag.store(true, Ordering::Relaxed);
+        match source {
+            Source::Task(task) => {
+                let _ = task.await;
+            }
+            Source::Thread(thread) => {
+                let _ = tokio::task::spawn_blocking(move || thread.join()).await;
+            }
+        }
+        let summary =
+            result.with_context(|| format!("recording to {} failed", args.output.display()))?;
+        anyhow::Ok((summary, counters.snapshot()))
+    })?;
+    let (summary, counters) = summary;
+    eprintln!(
+        "recorded {} chunks ({} bytes, {} readings) to {}; frames good {}, bad {}, lost {}, reconnects {}",
+        summary.chunks,
+        summary.bytes,
+        summary.readings,
+        args.output.display(),
+        counters.frames_good,
+        counters.frames_bad,
+        counters.frames_lost,
+        counters.reconnects
+    );
+    if args.json {
+        let line = serde_json::json!({ "class": "SUMMARY", "file": args.output.display().to_string(), "record": summary, "counters": counters });
+        crate::output::write_stdout(format!("{line}\n").as_bytes())?;
+    }
+    Ok(())
+}
+
+enum Source {
+    Task(tokio::task::JoinHandle<()>),
+    Thread(std::thread::JoinHandle<()>),
+}
+
+/// Turns Ctrl-C and SIGTERM into a stop request.
+async fn forward_signals(stop: watch::Sender<bool>) {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+    }
+    let _ = stop.send(true);
+}

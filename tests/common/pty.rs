@@ -1,0 +1,123 @@
+//! A mock Falcon-GX-style device on a real pseudo-terminal pair. The port
+//! the code under test opens is a symlink to the pty's slave, so the device
+//! can be unplugged (the pty closed, the path gone) and plugged back (a new
+//! pty behind the same path), as a USB adapter does.
+
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use fieldcal::mock::falcon::MockFalcon;
+use serialport::{SerialPort, TTYPort};
+
+pub struct FalconPty {
+    _dir: tempfile::TempDir,
+    link: PathBuf,
+    device: Arc<Mutex<MockFalcon>>,
+    period: Duration,
+    running: Option<(Arc<AtomicBool>, JoinHandle<()>)>,
+}
+
+impl FalconPty {
+    /// Plugs in a device that sends one chunk per `period` once started.
+    pub fn plug_in(chunks: Vec<Vec<u8>>, period: Duration) -> Self {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let link = dir.path().join("ttyFALCON");
+        let mut pty = FalconPty {
+            _dir: dir,
+            link,
+            device: Arc::new(Mutex::new(MockFalcon::new(chunks))),
+            period,
+            running: None,
+        };
+        pty.plug();
+        pty
+    }
+
+    /// The port path the code under test opens.
+    pub fn path(&self) -> &Path {
+        &self.link
+    }
+
+    /// Pulls the cable: the pty closes and the path disappears.
+    pub fn unplug(&mut self) {
+        if let Some((run, thread)) = self.running.take() {
+            run.store(false, Ordering::Relaxed);
+            thread.join().expect("pty thread");
+        }
+        let _ = std::fs::remove_file(&self.link);
+        self.device.lock().unwrap().power_cycle();
+    }
+
+    /// Plugs the device (back) in, behind the same path.
+    pub fn plug(&mut self) {
+        assert!(self.running.is_none(), "already plugged in");
+        let (mut master, slave) = TTYPort::pair().expect("pty pair");
+        let slave_name = slave.name().expect("pty slave name");
+        let _ = std::fs::remove_file(&self.link);
+        std::os::unix::fs::symlink(&slave_name, &self.link).expect("symlink to pty");
+        master
+            .set_timeout(Duration::from_millis(2))
+            .expect("pty timeout");
+        let run = Arc::new(AtomicBool::new(true));
+        let device = self.device.clone();
+        let period = self.period;
+        let thread = {
+            let run = run.clone();
+            std::thread::spawn(move || {
+                // Keep the slave open so the master never sees EIO while
+                // the code under test reopens the port.
+                let _slave = slave;
+                let mut buf = [0u8; 256];
+                let mut next = Instant::now() + period;
+                while run.load(Ordering::Relaxed) {
+                    match master.read(&mut buf) {
+                        Ok(n) if n > 0 => device.lock().unwrap().receive(&buf[..n]),
+                        _ => {}
+                    }
+                    if Instant::now() >= next {
+                        next += period;
+                        let chunk = device.lock().unwrap().tick().map(<[u8]>::to_vec);
+                        if let Some(chunk) = chunk {
+                            let _ = master.write_all(&chunk);
+                        }
+                    }
+                }
+            })
+        };
+        self.running = Some((run, thread));
+    }
+
+    pub fn sent(&self) -> usize {
+        self.device.lock().unwrap().sent()
+    }
+
+    pub fn commands_seen(&self) -> (u32, u32) {
+        self.device.lock().unwrap().commands_seen()
+    }
+
+    /// Waits until the device has sent `n` chunks in all.
+    pub fn wait_sent(&self, n: usize, timeout: Duration) {
+        let deadline = Instant::now() + timeout;
+        while self.sent() < n {
+            assert!(
+                Instant::now() < deadline,
+                "device sent only {} of {n} chunks in {timeout:?}",
+                self.sent()
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+}
+
+impl Drop for FalconPty {
+    fn drop(&mut self) {
+        if let Some((run, thread)) = self.running.take() {
+            run.store(false, Ordering::Relaxed);
+            let _ = thread.join();
+        }
+    }
+}

@@ -1,0 +1,235 @@
+//! The Falcon-GX-style serial source end to end, over real pseudo-terminal
+//! pairs: a mock device streams a simulated rotation every 50 ms.
+
+mod common;
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use common::pty::FalconPty;
+use fieldcal::protocol::falcon::{FalconDecoder, FalconFrame};
+use fieldcal::sample::Reading;
+use fieldcal::sim::{FalconWire, SimSensor};
+use fieldcal::source::serial::{SerialConfig, run_serial_source};
+use fieldcal::source::{SourceCounters, SourceEvent};
+use tokio::sync::{mpsc, watch};
+
+const PERIOD: Duration = Duration::from_millis(50);
+
+/// Chunks a simulated device sends, and the frames a decoder must find in them.
+fn simulated(frames: usize, garbage: f64, seed: u64) -> (Vec<Vec<u8>>, Vec<FalconFrame>) {
+    let sensor = SimSensor {
+        turns: frames as f64 / 200.0,
+        noise: 2.0,
+        offset_x: 150.0,
+        seed,
+        ..Default::default()
+    };
+    let (_, chunks) = sensor
+        .falcon_capture(&FalconWire {
+            garbage,
+            ..Default::default()
+        })
+        .unwrap();
+    let chunks: Vec<Vec<u8>> = chunks.into_iter().map(|c| c.bytes).collect();
+    let mut decoder = FalconDecoder::new();
+    let mut expected = Vec::new();
+    for c in &chunks {
+        decoder.decode(c, |f| expected.push(f));
+    }
+    assert_eq!(expected.len(), frames);
+    (chunks, expected)
+}
+
+fn fields(r: &Reading) -> ([i16; 3], [i16; 3], [i16; 3], u16) {
+    (
+        r.mag.unwrap(),
+        r.accel.unwrap(),
+        r.gyro.unwrap(),
+        r.timer.unwrap(),
+    )
+}
+
+fn frame_fields(f: &FalconFrame) -> ([i16; 3], [i16; 3], [i16; 3], u16) {
+    (f.mag, f.accel, f.rate, f.timer)
+}
+
+struct Running {
+    events: mpsc::Receiver<SourceEvent>,
+    counters: Arc<SourceCounters>,
+    stop: watch::Sender<bool>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+fn start(pty: &FalconPty) -> Running {
+    let (tx, events) = mpsc::channel(4096);
+    let counters = Arc::new(SourceCounters::default());
+    let (stop, stop_rx) = watch::channel(false);
+    let config = SerialConfig {
+        retry_interval: Duration::from_millis(100),
+        ..SerialConfig::new(pty.path())
+    };
+    let task = tokio::spawn(run_serial_source(config, tx, counters.clone(), stop_rx));
+    Running {
+        events,
+        counters,
+        stop,
+        task,
+    }
+}
+
+/// Collects events until `done` says so, or fails after `timeout`.
+async fn collect(
+    events: &mut mpsc::Receiver<SourceEvent>,
+    readings: &mut Vec<Reading>,
+    others: &mut Vec<SourceEvent>,
+    timeout: Duration,
+    mut done: impl FnMut(&[Reading], &[SourceEvent]) -> bool,
+) {
+    let deadline = tokio::time::Instant::now() + timeout;
+    while !done(readings, others) {
+        match tokio::time::timeout_at(deadline, events.recv()).await {
+            Ok(Some(SourceEvent::Reading(r))) => readings.push(r),
+            Ok(Some(other)) => others.push(other),
+            Ok(None) => panic!("the source ended"),
+            Err(_) => panic!(
+                "timed out with {} readings and events {others:?}",
+                readings.len()
+            ),
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frames_from_the_device_come_out_decoded_in_order() {
+    let (chunks, expected) = simulated(60, 0.01, 7);
+    let pty = FalconPty::plug_in(chunks, PERIOD);
+    let mut run = start(&pty);
+    let (mut readings, mut others) = (Vec::new(), Vec::new());
+    collect(
+        &mut run.events,
+        &mut readings,
+        &mut others,
+        Duration::from_secs(15),
+        |r, _| r.len() >= expected.len(),
+    )
+    .await;
+    run.stop.send(true).unwrap();
+    run.task.await.unwrap();
+
+    let got: Vec<_> = readings.iter().map(fields).collect();
+    let want: Vec<_> = expected.iter().map(frame_fields).collect();
+    assert_eq!(got, want);
+    assert!(
+        matches!(others.first(), Some(SourceEvent::Connected { .. })),
+        "{others:?}"
+    );
+    // Host receive times: increasing, about one period apart.
+    let span = readings.last().unwrap().time - readings[0].time;
+    let mean = span / (readings.len() - 1) as f64;
+    assert!((0.040..0.065).contains(&mean), "mean period {mean}");
+    assert!(readings.windows(2).all(|w| w[1].time >= w[0].time));
+
+    let c = run.counters.snapshot();
+    assert_eq!(c.frames_good, 60);
+    assert_eq!(c.frames_lost, 0);
+    assert_eq!(c.reconnects, 0);
+    assert!(c.bytes_skipped > 0, "1 % garbage was spliced in: {c:?}");
+    // The device was started, and told to stop when the source stopped.
+    let deadline = Instant::now() + Duration::from_secs(2);
+    while pty.commands_seen() != (1, 1) {
+        assert!(
+            Instant::now() < deadline,
+            "commands seen {:?}",
+            pty.commands_seen()
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unplugged_device_comes_back_and_samples_resume() {
+    let (chunks, expected) = simulated(70, 0.0, 11);
+    let mut pty = FalconPty::plug_in(chunks, PERIOD);
+    let mut run = start(&pty);
+    let (mut readings, mut others) = (Vec::new(), Vec::new());
+    collect(
+        &mut run.events,
+        &mut readings,
+        &mut others,
+        Duration::from_secs(15),
+        |r, _| r.len() >= 20,
+    )
+    .await;
+
+    pty.unplug();
+    let sent_before = pty.sent();
+    collect(
+        &mut run.events,
+        &mut readings,
+        &mut others,
+        Duration::from_secs(5),
+        |_, o| {
+            o.iter()
+                .any(|e| matches!(e, SourceEvent::Disconnected { .. }))
+        },
+    )
+    .await;
+    // Stay unplugged for a few retry intervals: the path is gone meanwhile.
+    tokio::time::sleep(Duration::from_millis(400)).await;
+    pty.plug();
+    collect(
+        &mut run.events,
+        &mut readings,
+        &mut others,
+        Duration::from_secs(20),
+        |r, _| r.last().and_then(|r| r.timer) == expected.last().map(|f| f.timer),
+    )
+    .await;
+    run.stop.send(true).unwrap();
+    run.task.await.unwrap();
+
+    // Nothing twice, nothing out of order.
+    let timers: Vec<u16> = readings.iter().map(|r| r.timer.unwrap()).collect();
+    assert!(timers.windows(2).all(|w| w[1] > w[0]), "{timers:?}");
+    // Every frame sent after the plug came back arrived; at most the one
+    // frame in flight when the cable was pulled is lost, as on a real line.
+    let want: Vec<_> = expected.iter().map(frame_fields).collect();
+    let got: Vec<_> = readings.iter().map(fields).collect();
+    assert_eq!(&got[got.len() - (70 - sent_before)..], &want[sent_before..]);
+    assert!(got.len() >= 69, "lost {} frames", 70 - got.len());
+    for g in &got {
+        assert!(want.contains(g));
+    }
+
+    let connects = others
+        .iter()
+        .filter(|e| matches!(e, SourceEvent::Connected { .. }))
+        .count();
+    assert_eq!(connects, 2, "{others:?}");
+    assert_eq!(run.counters.snapshot().reconnects, 1);
+    // The source sent the start command again to the replugged device.
+    assert_eq!(pty.commands_seen().0, 2);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_missing_port_is_retried_without_spinning_and_stops_promptly() {
+    let dir = tempfile::tempdir().unwrap();
+    let (tx, mut events) = mpsc::channel(16);
+    let counters = Arc::new(SourceCounters::default());
+    let (stop, stop_rx) = watch::channel(false);
+    let config = SerialConfig {
+        retry_interval: Duration::from_millis(100),
+        ..SerialConfig::new(dir.path().join("ttyNOPE"))
+    };
+    let started = Instant::now();
+    let task = tokio::spawn(run_serial_source(config, tx, counters, stop_rx));
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert!(events.try_recv().is_err(), "no device, no events");
+    stop.send(true).unwrap();
+    tokio::time::timeout(Duration::from_secs(1), task)
+        .await
+        .expect("source stops within a second")
+        .unwrap();
+    assert!(started.elapsed() < Duration::from_secs(2));
+}

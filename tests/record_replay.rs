@@ -1,0 +1,280 @@
+//! `fieldcal record`, `fieldcal replay` and `fieldcal simulate --format
+//! falcon`, as a user runs them.
+
+mod common;
+
+use std::fs;
+use std::time::{Duration, Instant};
+
+use common::pty::FalconPty;
+use common::{fieldcal, repo_path, run, run_err, run_ok};
+use fieldcal::protocol::falcon::FalconDecoder;
+use fieldcal::sim::{FalconWire, SimSensor};
+use serde_json::Value;
+
+fn samples(stdout: &str) -> Vec<Value> {
+    stdout
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .filter(|v| v["class"] == "SAMPLE")
+        .collect()
+}
+
+fn mag(v: &Value) -> Vec<i64> {
+    v["mag"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_i64().unwrap())
+        .collect()
+}
+
+#[test]
+fn a_capture_recorded_from_the_device_replays_to_the_same_samples() {
+    let sensor = SimSensor {
+        turns: 40.0 / 200.0,
+        noise: 2.0,
+        offset_y: -80.0,
+        seed: 5,
+        ..Default::default()
+    };
+    let (_, chunks) = sensor
+        .falcon_capture(&FalconWire {
+            garbage: 0.02,
+            ..Default::default()
+        })
+        .unwrap();
+    let chunks: Vec<Vec<u8>> = chunks.into_iter().map(|c| c.bytes).collect();
+    let mut expected = Vec::new();
+    let mut decoder = FalconDecoder::new();
+    for c in &chunks {
+        decoder.decode(c, |f| expected.push(f));
+    }
+    let pty = FalconPty::plug_in(chunks, Duration::from_millis(50));
+
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("run.fcap");
+    let capture = capture.to_str().unwrap();
+    let out = run_ok(&[
+        "record",
+        "--port",
+        pty.path().to_str().unwrap(),
+        "--output",
+        capture,
+        "--duration",
+        "3.5",
+        "--json",
+    ]);
+    let summary: Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
+    assert_eq!(summary["counters"]["frames_good"], 40, "{summary}");
+    assert_eq!(pty.sent(), 40);
+
+    let replayed = samples(&run_ok(&["replay", capture, "--speed", "max"]));
+    assert_eq!(replayed.len(), 40);
+    for (v, f) in replayed.iter().zip(&expected) {
+        assert_eq!(mag(v), f.mag.map(i64::from).to_vec());
+        assert_eq!(v["timer"], f.timer);
+        assert_eq!(v["accel"][2], f.accel[2]);
+    }
+    // Receive times are relative to the start of the recording, one period apart.
+    let t: Vec<f64> = replayed
+        .iter()
+        .map(|v| v["time"].as_f64().unwrap())
+        .collect();
+    let mean = (t[39] - t[0]) / 39.0;
+    assert!((0.040..0.065).contains(&mean), "mean period {mean}");
+}
+
+#[test]
+fn simulated_capture_replays_in_real_time_faster_and_at_max() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("sim.fcap");
+    let capture = capture.to_str().unwrap();
+    // 40 frames at 50 ms: 1.95 s of recording.
+    run_ok(&[
+        "simulate", "--format", "falcon", "--turns", "0.2", "--noise", "1", "-o", capture,
+    ]);
+    let timed = |speed: &str| {
+        let started = Instant::now();
+        let out = run_ok(&["replay", capture, "--speed", speed]);
+        (started.elapsed(), samples(&out).len())
+    };
+    let (real, n) = timed("1");
+    assert_eq!(n, 40);
+    assert!(
+        real >= Duration::from_millis(1900) && real < Duration::from_millis(3500),
+        "{real:?}"
+    );
+    let (fast, _) = timed("4");
+    assert!(
+        fast >= Duration::from_millis(480) && fast < Duration::from_millis(1500),
+        "{fast:?}"
+    );
+    let (max, n) = timed("max");
+    assert_eq!(n, 40);
+    assert!(max < Duration::from_millis(480), "{max:?}");
+}
+
+#[test]
+fn simulated_capture_with_garbage_recovers_every_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("g.fcap");
+    let capture = capture.to_str().unwrap();
+    run_ok(&[
+        "simulate",
+        "--format",
+        "falcon",
+        "--garbage",
+        "0.05",
+        "--seed",
+        "3",
+        "-o",
+        capture,
+    ]);
+    let out = run_ok(&["replay", capture, "--speed", "max", "--json"]);
+    assert_eq!(samples(&out).len(), 200);
+    let summary: Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
+    assert_eq!(summary["class"], "SUMMARY");
+    assert_eq!(summary["summary"]["falcon"]["frames_good"], 200);
+    assert!(
+        summary["summary"]["falcon"]["bytes_skipped"]
+            .as_u64()
+            .unwrap()
+            > 100
+    );
+}
+
+#[test]
+fn a_raw_dump_replays_at_the_nominal_period() {
+    let sensor = SimSensor {
+        turns: 0.1,
+        ..Default::default()
+    };
+    let (_, chunks) = sensor.falcon_capture(&FalconWire::default()).unwrap();
+    let mut raw: Vec<u8> = b"\x00\xffline noise before the first frame".to_vec();
+    for c in &chunks {
+        raw.extend_from_slice(&c.bytes);
+    }
+    raw.extend_from_slice(&chunks[0].bytes[..10]); // cut mid-frame, as `cat` does
+    let dir = tempfile::tempdir().unwrap();
+    let dump = dir.path().join("ttyUSB0.bin");
+    fs::write(&dump, &raw).unwrap();
+    let r = run(&["replay", dump.to_str().unwrap(), "--speed", "max"]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    let s = samples(&r.stdout);
+    assert_eq!(s.len(), 20);
+    assert_eq!(s[1]["time"], 0.05);
+    assert_eq!(s[19]["time"], 0.95);
+    assert!(r.stderr.contains("incomplete frame"), "{}", r.stderr);
+}
+
+#[test]
+fn a_truncated_capture_replays_what_is_intact_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("cut.fcap");
+    run_ok(&[
+        "simulate",
+        "--format",
+        "falcon",
+        "--turns",
+        "0.1",
+        "-o",
+        capture.to_str().unwrap(),
+    ]);
+    let bytes = fs::read(&capture).unwrap();
+    fs::write(&capture, &bytes[..bytes.len() - 7]).unwrap(); // tear the last record
+    let r = run(&["replay", capture.to_str().unwrap(), "--speed", "max"]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    assert_eq!(samples(&r.stdout).len(), 19);
+    assert!(r.stderr.contains("cut.fcap"), "{}", r.stderr);
+}
+
+#[test]
+fn a_file_that_is_not_a_capture_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let junk = dir.path().join("notes.txt");
+    fs::write(&junk, "these are my notes, not a capture\n".repeat(20)).unwrap();
+    let msg = run_err(&["replay", junk.to_str().unwrap()]);
+    assert!(
+        msg.contains("notes.txt") && msg.contains("neither a fieldcal capture nor a raw dump"),
+        "{msg}"
+    );
+    let msg = run_err(&["replay", "/no/such/capture.fcap"]);
+    assert!(msg.contains("/no/such/capture.fcap"), "{msg}");
+}
+
+#[test]
+fn record_on_a_missing_port_says_which_and_keeps_trying() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("none.fcap");
+    let r = run(&[
+        "record",
+        "--port",
+        "/dev/ttyNOPE42",
+        "--output",
+        out.to_str().unwrap(),
+        "--duration",
+        "1",
+    ]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    assert!(
+        r.stderr
+            .contains("/dev/ttyNOPE42: no such device: check the cable and the port path"),
+        "{}",
+        r.stderr
+    );
+    assert!(r.stderr.contains("recorded 0 chunks"), "{}", r.stderr);
+    // Said once, not once per retry.
+    assert_eq!(
+        r.stderr.matches("no such device").count(),
+        1,
+        "{}",
+        r.stderr
+    );
+}
+
+#[test]
+fn record_never_overwrites_a_capture() {
+    let existing = repo_path("tests/data/sim_mild.csv");
+    let msg = run_err(&[
+        "record",
+        "--port",
+        "/dev/null",
+        "--output",
+        existing.to_str().unwrap(),
+        "--duration",
+        "1",
+    ]);
+    assert!(msg.contains("it must not exist yet"), "{msg}");
+}
+
+#[test]
+fn record_stops_cleanly_on_sigterm() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("term.fcap");
+    let mut child = fieldcal()
+        .args([
+            "record",
+            "--port",
+            "/dev/ttyNOPE43",
+            "--output",
+            out.to_str().unwrap(),
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    let pid = child.id().to_string();
+    assert!(
+        std::process::Command::new("kill")
+            .args(["-TERM", &pid])
+            .status()
+            .unwrap()
+            .success()
+    );
+    let started = Instant::now();
+    let status = child.wait().unwrap();
+    assert!(status.success(), "{status:?}");
+    assert!(started.elapsed() < Duration::from_secs(3));
+    assert!(out.exists(), "the capture file stays, with its header");
+}
