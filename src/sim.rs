@@ -286,7 +286,7 @@ impl SimSensor {
         };
         // A separate stream of randomness, so adding garbage does not change
         // the sensor's noise.
-        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ 0x6761_7262_6167_65);
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ 0x0067_6172_6261_6765);
         let rate_counts = (360.0 / self.turn_seconds * 10.0).round() as i16;
         let t = data.t.as_deref().unwrap_or(&[]);
         let mut chunks = Vec::with_capacity(data.len());
