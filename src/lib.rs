@@ -11,6 +11,7 @@
 //! - [`i2c`]: the I2C bus trait and its backends (USB-ISS bridge, Linux);
 //! - [`capture`]: the file format that keeps raw bytes with their timing;
 //! - [`source`]: the I/O tasks that own a port or a file;
+//! - [`daemon`]: rotation buffer, live fit, publishing, state, systemd;
 //! - [`record`]: writing a source's raw bytes to a capture;
 //! - [`mock`]: simulated devices that answer like real ones, for tests;
 //! - [`sim`]: a simulated sensor, for trying fieldcal with no hardware.
@@ -20,6 +21,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod capture;
+pub mod daemon;
 pub mod i2c;
 pub mod io;
 pub mod mock;

@@ -165,6 +165,10 @@ pub struct Reading {
     /// Host receive time in seconds: since the Unix epoch for a live source,
     /// since the start of the capture for a replay.
     pub time: f64,
+    /// Which byte stream of its source the reading came from: 0 for a
+    /// Falcon-GX, the chip's place in the poll list for an I2C bridge.
+    #[serde(default)]
+    pub stream: u8,
     /// Magnetometer x, y, z in counts.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mag: Option<[i16; 3]>,

@@ -29,6 +29,7 @@ use crate::i2c::I2cError;
 use crate::i2c::usb_iss::UsbIssBus;
 use crate::protocol::chips::{Chip, ChipError, init_chip, read_chip};
 pub use crate::protocol::usb_iss::I2cSpeed;
+use crate::sample::Reading;
 
 /// One poll per 30 ms: 33 Hz, fast enough for a hand-turned sensor.
 pub const DEFAULT_PERIOD: Duration = Duration::from_millis(30);
@@ -268,9 +269,12 @@ impl Runner {
                 read_chip(bus, chip, address, &mut buf)?;
                 let time = unix_time();
                 SourceCounters::add(&self.counters.bytes_read, buf.len() as u64);
-                let reading = chip.decode(&buf, time)?;
                 // `validate` keeps the chip count within u8 streams.
                 let stream = u8::try_from(stream).unwrap_or(u8::MAX);
+                let reading = Reading {
+                    stream,
+                    ..chip.decode(&buf, time)?
+                };
                 let raw = SourceEvent::Raw {
                     time,
                     stream,

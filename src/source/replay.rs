@@ -153,7 +153,10 @@ pub fn replay(
                 match decoder {
                     Some(StreamDecoder::Falcon(decoder)) => decoder.decode(&chunk.bytes, |frame| {
                         summary.readings += 1;
-                        emit(frame.to_reading(chunk.time));
+                        emit(Reading {
+                            stream: chunk.stream,
+                            ..frame.to_reading(chunk.time)
+                        });
                     }),
                     Some(StreamDecoder::Chip(chip)) => {
                         match chip.decode(&chunk.bytes, chunk.time) {
