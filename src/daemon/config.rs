@@ -1,1 +1,1467 @@
-//! (being written)
+//! The configuration of `fieldcal run`: one TOML file naming the sources
+//! (ports, bridges, replayed captures), the sensors calibrated on them, the
+//! outputs and the daemon's own settings.
+//!
+//! [`load`] only reads and checks: nothing is opened, bound or started, so a
+//! configuration error stops the daemon before it touches any device. Every
+//! error names the file, the key as a dotted path (`sensor[1].axes`, indices
+//! from 0 in file order), what was found and what is allowed, with the line
+//! and column where the key or value is in the file.
+//!
+//! # Example, every key
+//!
+//! ```toml
+//! [daemon]
+//! # Where calibrations are kept, one JSON file per sensor. Default:
+//! # $STATE_DIRECTORY (set by systemd's StateDirectory=), else ./state in
+//! # the working directory.
+//! state_dir = "/var/lib/fieldcal"
+//! # Seconds between STATUS messages (and systemd status lines). Default 1.
+//! status_interval_s = 1.0
+//! # Log lines on stderr: "text" (default) or "json".
+//! log_format = "text"
+//!
+//! [outputs]
+//! # Newline-delimited JSON on standard output. Default true.
+//! stdout = true
+//! # A TCP listener, as IP:PORT. Optional. Only loopback addresses unless
+//! # tcp_public = true (readings are not authenticated).
+//! tcp = "127.0.0.1:2948"
+//! tcp_public = false
+//! # A Unix-socket listener. Optional.
+//! unix = "/run/fieldcal/fieldcal.sock"
+//! # Lines queued per subscriber before a slow one is dropped. Default 4096.
+//! queue = 4096
+//!
+//! [[source]]
+//! name = "imu"              # letters, digits, '-', '_'
+//! kind = "falcon"           # falcon | usb-iss | replay
+//! port = "/dev/ttyUSB0"     # falcon, usb-iss: the serial device
+//! baud = 38400              # falcon only; default 38400
+//! retry_s = 2.0             # seconds between tries after a failure; default 2
+//!
+//! [[source]]
+//! name = "bridge"
+//! kind = "usb-iss"
+//! port = "/dev/ttyACM0"
+//! # NAME or NAME@ADDR (7-bit address, 0x.. hex or decimal); the default
+//! # address is the chip's usual one. Chips: adxl345, mpu6050,
+//! # lsm303dlhc-accel, lsm303dlhc-mag.
+//! chips = ["mpu6050", "lsm303dlhc-mag@0x1e"]
+//! poll_ms = 30              # 1..=60000; default 30
+//! i2c_khz = 100             # 100 (default) or 400
+//!
+//! [[source]]
+//! name = "bench"
+//! kind = "replay"
+//! file = "captures/turn.fcap"  # relative to this file's directory
+//! speed = 1.0               # a positive factor, or "max"; default 1
+//!
+//! [[sensor]]
+//! name = "compass"          # letters, digits, '-', '_'; names the state file
+//! source = "bridge"
+//! chip = "lsm303dlhc-mag"   # which chip of a usb-iss source (or of a replayed
+//!                           # bridge capture); optional when it has one
+//! field = "mag"             # mag | accel | gyro
+//! axes = ["x", "y"]         # the two axes that turn, two different of x, y, z
+//! model = "paper"           # or ["offset", "scale"], or "offset+scale"
+//! [sensor.rotation]         # the rotation buffer's settings
+//! [sensor.limits]           # the acceptance limits of a fit
+//! ```
+//!
+//! Relative paths in the file (`file`, `state_dir`, `unix`) are relative to
+//! the file's own directory, so a configuration works from any working
+//! directory.
+
+use std::collections::HashMap;
+use std::fmt;
+use std::io::Read;
+use std::net::SocketAddr;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use toml::Spanned;
+use toml::de::{DeTable, DeValue};
+
+use crate::capture::{self, CaptureFile, StreamKind};
+use crate::protocol::chips::Chip;
+use crate::protocol::falcon;
+use crate::source::bridge::{BridgeConfig, I2cSpeed};
+use crate::source::replay::Speed;
+
+// replaced by RotationConfig / Limits at merge
+pub type RotationSettings = toml::Table;
+// replaced by RotationConfig / Limits at merge
+pub type LimitSettings = toml::Table;
+
+/// Stand-in for the `validate` of `RotationConfig` and `Limits` while the
+/// settings are raw tables. Once the aliases name those types, their
+/// inherent `validate` is called instead (inherent methods win), and this
+/// trait and its impl can be deleted.
+trait ValidateSettings {
+    fn validate(&self) -> Result<(), String>;
+}
+
+impl ValidateSettings for toml::Table {
+    fn validate(&self) -> Result<(), String> {
+        Ok(())
+    }
+}
+
+/// Polls per second are bounded by what a USB-ISS can do; a minute between
+/// polls is already useless for a turning sensor.
+const POLL_MS_MAX: u64 = 60_000;
+/// Names become file names and JSON values: keep them short.
+const NAME_MAX: usize = 64;
+/// The effects the fits implement.
+const AVAILABLE_EFFECTS: [&str; 2] = ["offset", "scale"];
+/// The rest of product.md's catalogue: known names, not implemented yet.
+const PLANNED_EFFECTS: [&str; 5] = [
+    "cross-axis",
+    "drift",
+    "covariate:<column>",
+    "cubic",
+    "outliers",
+];
+
+/// A checked configuration.
+#[derive(Debug, Clone)]
+pub struct Config {
+    pub daemon: DaemonConfig,
+    pub outputs: OutputsConfig,
+    /// In file order.
+    pub sources: Vec<SourceConfig>,
+    /// In file order; at least one.
+    pub sensors: Vec<SensorConfig>,
+    /// The file it was read from, as given.
+    pub path: PathBuf,
+}
+
+/// `[daemon]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DaemonConfig {
+    /// Where the calibrations are kept.
+    pub state_dir: PathBuf,
+    /// Time between STATUS messages.
+    pub status_interval: Duration,
+    pub log_format: LogFormat,
+}
+
+/// How log lines are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LogFormat {
+    /// For people (journalctl, a terminal).
+    #[default]
+    Text,
+    /// One JSON object a line, for log collectors.
+    Json,
+}
+
+/// `[outputs]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OutputsConfig {
+    pub stdout: bool,
+    /// Loopback unless the file said `tcp_public = true`.
+    pub tcp: Option<SocketAddr>,
+    pub unix: Option<PathBuf>,
+    /// Lines queued per subscriber.
+    pub queue: usize,
+}
+
+/// One `[[source]]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SourceConfig {
+    pub name: String,
+    pub kind: SourceKind,
+    /// Time between tries after a failure.
+    pub retry: Duration,
+}
+
+/// What a source reads, with the settings of that kind.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SourceKind {
+    /// A Falcon-GX-style IMU on a serial line: one stream (0).
+    Falcon { port: PathBuf, baud: u32 },
+    /// Chips behind a USB-ISS bridge, polled in this order: stream k is
+    /// `chips[k]`.
+    UsbIss {
+        port: PathBuf,
+        chips: Vec<(Chip, u8)>,
+        poll: Duration,
+        i2c_khz: u32,
+    },
+    /// A capture (or raw Falcon dump) played back.
+    Replay { file: PathBuf, speed: Speed },
+}
+
+impl SourceConfig {
+    /// The bridge settings of a `usb-iss` source, `None` for other kinds.
+    pub fn bridge_config(&self) -> Option<BridgeConfig> {
+        let SourceKind::UsbIss {
+            port,
+            chips,
+            poll,
+            i2c_khz,
+        } = &self.kind
+        else {
+            return None;
+        };
+        let mut config = BridgeConfig::new(port.clone(), chips.clone());
+        config.period = *poll;
+        config.speed = if *i2c_khz == 400 {
+            I2cSpeed::Khz400
+        } else {
+            I2cSpeed::Khz100
+        };
+        config.retry_interval = self.retry;
+        Some(config)
+    }
+}
+
+/// Which quantity of a reading a sensor calibrates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Field {
+    Mag,
+    Accel,
+    Gyro,
+}
+
+impl Field {
+    pub fn name(self) -> &'static str {
+        match self {
+            Field::Mag => "mag",
+            Field::Accel => "accel",
+            Field::Gyro => "gyro",
+        }
+    }
+}
+
+/// An axis of a 3-axis reading.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Axis {
+    X,
+    Y,
+    Z,
+}
+
+impl Axis {
+    pub fn name(self) -> &'static str {
+        match self {
+            Axis::X => "x",
+            Axis::Y => "y",
+            Axis::Z => "z",
+        }
+    }
+
+    /// The index into a reading's `[x, y, z]`.
+    pub fn index(self) -> usize {
+        match self {
+            Axis::X => 0,
+            Axis::Y => 1,
+            Axis::Z => 2,
+        }
+    }
+}
+
+/// One `[[sensor]]`: two axes of one field of one stream of a source.
+#[derive(Debug, Clone)]
+pub struct SensorConfig {
+    pub name: String,
+    /// The name of its source (present in [`Config::sources`]).
+    pub source: String,
+    /// The stream of the source: the chip's place in a usb-iss `chips`
+    /// list, the stream id of a replayed capture, 0 for a Falcon.
+    pub stream: u8,
+    pub field: Field,
+    /// The raw x and y of the paper's model, in that order; different.
+    pub axes: [Axis; 2],
+    /// The model's effects, in catalogue order (the paper's: offset, scale).
+    pub effects: Vec<String>,
+    pub rotation: RotationSettings,
+    pub limits: LimitSettings,
+}
+
+impl Config {
+    /// The source named `name`.
+    pub fn source(&self, name: &str) -> Option<&SourceConfig> {
+        self.sources.iter().find(|s| s.name == name)
+    }
+}
+
+/// Where in the file: 1-based line and column.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Position {
+    pub line: usize,
+    pub column: usize,
+}
+
+impl fmt::Display for Position {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}:{}", self.line, self.column)
+    }
+}
+
+/// Why a configuration was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read the configuration {}: {source}", path.display())]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}:{position}: not valid TOML: {message}", path.display())]
+    Syntax {
+        path: PathBuf,
+        position: Position,
+        message: String,
+    },
+    /// A key with a wrong, missing or unknown value.
+    #[error("{}: {key}: {problem}", located(path, position))]
+    Invalid {
+        path: PathBuf,
+        /// Dotted path, e.g. `sensor[1].axes`; empty for the whole file.
+        key: String,
+        position: Option<Position>,
+        problem: String,
+    },
+}
+
+fn located(path: &Path, position: &Option<Position>) -> String {
+    match position {
+        Some(p) => format!("{}:{p}", path.display()),
+        None => path.display().to_string(),
+    }
+}
+
+impl ConfigError {
+    /// The dotted key the error is about, if it is about one.
+    pub fn key(&self) -> Option<&str> {
+        match self {
+            ConfigError::Invalid { key, .. } => Some(key),
+            _ => None,
+        }
+    }
+
+    /// The line and column, where known.
+    pub fn position(&self) -> Option<Position> {
+        match self {
+            ConfigError::Read { .. } => None,
+            ConfigError::Syntax { position, .. } => Some(*position),
+            ConfigError::Invalid { position, .. } => *position,
+        }
+    }
+}
+
+/// Reads and checks the configuration at `path`. Starts nothing.
+pub fn load(path: &Path) -> Result<Config, ConfigError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    parse(&text, path)
+}
+
+/// Checks a configuration's text; `path` is named in errors and anchors
+/// relative paths. Reads nothing but replayed captures' headers.
+pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
+    let doc = match DeTable::parse(text) {
+        Ok(doc) => doc,
+        Err(e) => {
+            return Err(ConfigError::Syntax {
+                path: path.to_path_buf(),
+                position: e
+                    .span()
+                    .map(|s| position_of(text, s.start))
+                    .unwrap_or(Position { line: 1, column: 1 }),
+                message: e.message().trim_end().to_string(),
+            });
+        }
+    };
+    let checker = Checker {
+        text,
+        path,
+        doc: &doc,
+        base: match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        },
+    };
+    let raw: RawConfig = toml::from_str(text).map_err(|e| checker.serde_error(&e))?;
+    checker.check(raw)
+}
+
+// ---------------------------------------------------------------------------
+// The file as written: every key optional where it has a default, unknown
+// keys refused (naming the key and the allowed ones).
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawConfig {
+    #[serde(default)]
+    daemon: RawDaemon,
+    #[serde(default)]
+    outputs: RawOutputs,
+    #[serde(default)]
+    source: Vec<RawSource>,
+    #[serde(default)]
+    sensor: Vec<RawSensor>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+struct RawDaemon {
+    state_dir: Option<PathBuf>,
+    status_interval_s: Option<f64>,
+    log_format: LogFormat,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+struct RawOutputs {
+    stdout: Option<bool>,
+    tcp: Option<String>,
+    tcp_public: bool,
+    unix: Option<PathBuf>,
+    queue: Option<u64>,
+}
+
+#[derive(Deserialize, Clone, Copy, PartialEq)]
+#[serde(rename_all = "kebab-case")]
+enum RawKind {
+    Falcon,
+    UsbIss,
+    Replay,
+}
+
+impl RawKind {
+    fn name(self) -> &'static str {
+        match self {
+            RawKind::Falcon => "falcon",
+            RawKind::UsbIss => "usb-iss",
+            RawKind::Replay => "replay",
+        }
+    }
+
+    /// The keys a source of this kind takes, besides name, kind, retry_s.
+    fn keys(self) -> &'static [&'static str] {
+        match self {
+            RawKind::Falcon => &["port", "baud"],
+            RawKind::UsbIss => &["port", "chips", "poll_ms", "i2c_khz"],
+            RawKind::Replay => &["file", "speed"],
+        }
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSource {
+    name: String,
+    kind: RawKind,
+    port: Option<PathBuf>,
+    baud: Option<u32>,
+    chips: Option<Vec<String>>,
+    poll_ms: Option<u64>,
+    i2c_khz: Option<u32>,
+    file: Option<PathBuf>,
+    speed: Option<toml::Value>,
+    retry_s: Option<f64>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSensor {
+    name: String,
+    source: String,
+    chip: Option<String>,
+    field: Field,
+    axes: Vec<Axis>,
+    model: Option<toml::Value>,
+    #[serde(default)]
+    rotation: RotationSettings,
+    #[serde(default)]
+    limits: LimitSettings,
+}
+
+/// One byte stream of a source: its id and, for a chip, which one.
+#[derive(Debug, Clone, Copy)]
+struct StreamDesc {
+    id: u8,
+    /// `None` for a Falcon-GX stream.
+    chip: Option<(Chip, u8)>,
+}
+
+impl StreamDesc {
+    fn fields(self) -> Vec<Field> {
+        match self.chip {
+            None => vec![Field::Mag, Field::Accel, Field::Gyro],
+            Some((chip, _)) => chip_fields(chip),
+        }
+    }
+
+    fn describe(self) -> String {
+        match self.chip {
+            None => "a Falcon-GX stream".into(),
+            Some((chip, address)) => format!("{}@0x{address:02x}", chip.name()),
+        }
+    }
+}
+
+/// The fields a chip reports: decoding a poll of zeros shows which it
+/// fills, so this cannot drift from the chip drivers.
+fn chip_fields(chip: Chip) -> Vec<Field> {
+    let Ok(reading) = chip.decode(&vec![0; chip.data_len()], 0.0) else {
+        return Vec::new();
+    };
+    let mut fields = Vec::new();
+    if reading.mag.is_some() {
+        fields.push(Field::Mag);
+    }
+    if reading.accel.is_some() {
+        fields.push(Field::Accel);
+    }
+    if reading.gyro.is_some() {
+        fields.push(Field::Gyro);
+    }
+    fields
+}
+
+// ---------------------------------------------------------------------------
+// Checking, with positions looked up in the spanned document.
+
+struct Checker<'a> {
+    text: &'a str,
+    path: &'a Path,
+    doc: &'a Spanned<DeTable<'a>>,
+    base: PathBuf,
+}
+
+impl Checker<'_> {
+    fn error(&self, key: &str, problem: impl Into<String>) -> ConfigError {
+        ConfigError::Invalid {
+            path: self.path.to_path_buf(),
+            key: key.to_string(),
+            position: self.span_of(key).map(|s| position_of(self.text, s.start)),
+            problem: problem.into(),
+        }
+    }
+
+    /// A deserialisation error, with the key found from its span.
+    fn serde_error(&self, e: &toml::de::Error) -> ConfigError {
+        let message = e.message().trim_end().to_string();
+        let span = e.span();
+        let mut key = span
+            .as_ref()
+            .and_then(|s| path_at(self.doc, s.start))
+            .unwrap_or_default();
+        // "missing field `x`" points at the table; name the missing key.
+        if let Some(missing) = message
+            .strip_prefix("missing field `")
+            .and_then(|m| m.split('`').next())
+        {
+            key = if key.is_empty() {
+                missing.to_string()
+            } else {
+                format!("{key}.{missing}")
+            };
+        }
+        ConfigError::Invalid {
+            path: self.path.to_path_buf(),
+            key,
+            position: span.map(|s| position_of(self.text, s.start)),
+            problem: message,
+        }
+    }
+
+    /// The span of the value at a dotted key such as `sensor[1].axes`, or
+    /// of the nearest enclosing one that is in the file.
+    fn span_of(&self, key: &str) -> Option<Range<usize>> {
+        let mut best: Option<Range<usize>> = None;
+        let mut table: &DeTable = self.doc.get_ref();
+        let mut value: Option<&Spanned<DeValue>> = None;
+        for part in key.split('.').filter(|p| !p.is_empty()) {
+            let (name, index) = match part.split_once('[') {
+                Some((name, rest)) => (name, rest.trim_end_matches(']').parse::<usize>().ok()),
+                None => (part, None),
+            };
+            if let Some(v) = value {
+                match v.get_ref() {
+                    DeValue::Table(t) => table = t,
+                    _ => return best,
+                }
+            }
+            let Some(v) = table.get(name) else {
+                return best;
+            };
+            best = Some(v.span());
+            value = Some(v);
+            if let Some(i) = index {
+                let DeValue::Array(items) = v.get_ref() else {
+                    return best;
+                };
+                let Some(item) = items.get(i) else {
+                    return best;
+                };
+                best = Some(item.span());
+                value = Some(item);
+            }
+        }
+        best
+    }
+
+    fn resolve(&self, path: &Path) -> PathBuf {
+        if path.is_absolute() {
+            path.to_path_buf()
+        } else {
+            self.base.join(path)
+        }
+    }
+
+    fn check(&self, raw: RawConfig) -> Result<Config, ConfigError> {
+        let daemon = self.check_daemon(raw.daemon)?;
+        let outputs = self.check_outputs(raw.outputs)?;
+
+        let mut sources = Vec::with_capacity(raw.source.len());
+        let mut streams: Vec<Vec<StreamDesc>> = Vec::with_capacity(raw.source.len());
+        let mut source_index: HashMap<String, usize> = HashMap::new();
+        for (i, s) in raw.source.into_iter().enumerate() {
+            let key = format!("source[{i}]");
+            self.check_name(&format!("{key}.name"), &s.name)?;
+            if let Some(j) = source_index.get(&s.name) {
+                return Err(self.error(
+                    &format!("{key}.name"),
+                    format!(
+                        "'{}' is already the name of source[{j}]: give every source its own name",
+                        s.name
+                    ),
+                ));
+            }
+            source_index.insert(s.name.clone(), i);
+            let (source, desc) = self.check_source(&key, s)?;
+            sources.push(source);
+            streams.push(desc);
+        }
+
+        if raw.sensor.is_empty() {
+            return Err(self.error(
+                "sensor",
+                "no [[sensor]] in the file: `fieldcal run` needs at least one sensor to \
+                 calibrate (name, source, field, axes)",
+            ));
+        }
+        let mut sensors = Vec::with_capacity(raw.sensor.len());
+        let mut sensor_index: HashMap<String, usize> = HashMap::new();
+        for (i, s) in raw.sensor.into_iter().enumerate() {
+            let key = format!("sensor[{i}]");
+            self.check_name(&format!("{key}.name"), &s.name)?;
+            if let Some(j) = sensor_index.get(&s.name) {
+                return Err(self.error(
+                    &format!("{key}.name"),
+                    format!(
+                        "'{}' is already the name of sensor[{j}]: give every sensor its own \
+                         name (it names the sensor's calibration file)",
+                        s.name
+                    ),
+                ));
+            }
+            sensor_index.insert(s.name.clone(), i);
+            let Some(&src) = source_index.get(&s.source) else {
+                let names: Vec<&str> = sources.iter().map(|s| s.name.as_str()).collect();
+                return Err(self.error(
+                    &format!("{key}.source"),
+                    if names.is_empty() {
+                        format!(
+                            "no source named '{}': the file has no [[source]]; add one",
+                            s.source
+                        )
+                    } else {
+                        format!(
+                            "no source named '{}': the sources are {}",
+                            s.source,
+                            names.join(", ")
+                        )
+                    },
+                ));
+            };
+            let (src_name, src_kind) = match sources.get(src) {
+                Some(source) => (source.name.as_str(), kind_name(&source.kind)),
+                None => ("", ""),
+            };
+            let stream_list = streams.get(src).map(Vec::as_slice).unwrap_or(&[]);
+            let stream =
+                self.resolve_stream(&key, s.chip.as_deref(), src_name, src_kind, stream_list)?;
+            let fields = stream.fields();
+            if !fields.contains(&s.field) {
+                let names: Vec<&str> = fields.iter().map(|f| f.name()).collect();
+                return Err(self.error(
+                    &format!("{key}.field"),
+                    format!(
+                        "'{}' is not measured by {} of source '{src_name}': it gives {}",
+                        s.field.name(),
+                        stream.describe(),
+                        names.join(", ")
+                    ),
+                ));
+            }
+            let axes = match s.axes.as_slice() {
+                [a, b] if a == b => {
+                    return Err(self.error(
+                        &format!("{key}.axes"),
+                        format!(
+                            "both axes are \"{}\": give the two axes that turn, two different \
+                             of \"x\", \"y\", \"z\"",
+                            a.name()
+                        ),
+                    ));
+                }
+                [a, b] => [*a, *b],
+                other => {
+                    return Err(self.error(
+                        &format!("{key}.axes"),
+                        format!(
+                            "{} axes given: give exactly two different of \"x\", \"y\", \"z\" \
+                             (the two that turn)",
+                            other.len()
+                        ),
+                    ));
+                }
+            };
+            let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
+            if let Err(problem) = s.rotation.validate() {
+                return Err(self.error(&format!("{key}.rotation"), problem));
+            }
+            if let Err(problem) = s.limits.validate() {
+                return Err(self.error(&format!("{key}.limits"), problem));
+            }
+            sensors.push(SensorConfig {
+                name: s.name,
+                source: s.source,
+                stream: stream.id,
+                field: s.field,
+                axes,
+                effects,
+                rotation: s.rotation,
+                limits: s.limits,
+            });
+        }
+
+        Ok(Config {
+            daemon,
+            outputs,
+            sources,
+            sensors,
+            path: self.path.to_path_buf(),
+        })
+    }
+
+    fn check_daemon(&self, raw: RawDaemon) -> Result<DaemonConfig, ConfigError> {
+        let state_dir = match raw.state_dir {
+            Some(dir) if dir.as_os_str().is_empty() => {
+                return Err(self.error(
+                    "daemon.state_dir",
+                    "empty: give a directory, or leave the key out for the default",
+                ));
+            }
+            Some(dir) => self.resolve(&dir),
+            None => default_state_dir(),
+        };
+        let status_interval = match raw.status_interval_s {
+            None => Duration::from_secs(1),
+            Some(s) => self.seconds("daemon.status_interval_s", s, 86_400.0)?,
+        };
+        Ok(DaemonConfig {
+            state_dir,
+            status_interval,
+            log_format: raw.log_format,
+        })
+    }
+
+    fn check_outputs(&self, raw: RawOutputs) -> Result<OutputsConfig, ConfigError> {
+        let tcp = match raw.tcp {
+            None => None,
+            Some(text) => {
+                let addr: SocketAddr = text.trim().parse().map_err(|_| {
+                    self.error(
+                        "outputs.tcp",
+                        format!(
+                            "'{text}' is not a socket address: give IP:PORT, such as \
+                             \"127.0.0.1:2948\" or \"[::1]:2948\" (host names are not resolved)"
+                        ),
+                    )
+                })?;
+                if !addr.ip().is_loopback() && !raw.tcp_public {
+                    return Err(self.error(
+                        "outputs.tcp",
+                        format!(
+                            "{addr} is not a loopback address, so other machines could read \
+                             the readings (there is no authentication): use 127.0.0.1 or ::1, \
+                             or set outputs.tcp_public = true to allow it"
+                        ),
+                    ));
+                }
+                Some(addr)
+            }
+        };
+        let unix = match raw.unix {
+            Some(p) if p.as_os_str().is_empty() => {
+                return Err(self.error(
+                    "outputs.unix",
+                    "empty: give a socket path, or leave the key out",
+                ));
+            }
+            Some(p) => Some(self.resolve(&p)),
+            None => None,
+        };
+        let queue = match raw.queue {
+            None => 4096,
+            Some(q) if (1..=1_000_000).contains(&q) => usize::try_from(q).unwrap_or(4096),
+            Some(q) => {
+                return Err(self.error(
+                    "outputs.queue",
+                    format!("{q} lines: give 1 to 1000000 lines per subscriber"),
+                ));
+            }
+        };
+        Ok(OutputsConfig {
+            stdout: raw.stdout.unwrap_or(true),
+            tcp,
+            unix,
+            queue,
+        })
+    }
+
+    fn check_source(
+        &self,
+        key: &str,
+        s: RawSource,
+    ) -> Result<(SourceConfig, Vec<StreamDesc>), ConfigError> {
+        let kind = s.kind;
+        let present = [
+            ("port", s.port.is_some()),
+            ("baud", s.baud.is_some()),
+            ("chips", s.chips.is_some()),
+            ("poll_ms", s.poll_ms.is_some()),
+            ("i2c_khz", s.i2c_khz.is_some()),
+            ("file", s.file.is_some()),
+            ("speed", s.speed.is_some()),
+        ];
+        if let Some((name, _)) = present
+            .iter()
+            .find(|(name, given)| *given && !kind.keys().contains(name))
+        {
+            return Err(self.error(
+                &format!("{key}.{name}"),
+                format!(
+                    "a {} source has no `{name}`: its keys are name, kind, {}, retry_s",
+                    kind.name(),
+                    kind.keys().join(", ")
+                ),
+            ));
+        }
+        let retry = match s.retry_s {
+            None => Duration::from_secs(2),
+            Some(v) => self.seconds(&format!("{key}.retry_s"), v, 3600.0)?,
+        };
+        let require_port = |port: Option<PathBuf>| match port {
+            Some(p) if !p.as_os_str().is_empty() => Ok(p),
+            _ => Err(self.error(
+                &format!("{key}.port"),
+                format!(
+                    "a {} source needs `port`, its serial device (such as \"{}\")",
+                    kind.name(),
+                    if kind == RawKind::Falcon {
+                        "/dev/ttyUSB0"
+                    } else {
+                        "/dev/ttyACM0"
+                    }
+                ),
+            )),
+        };
+        let (source_kind, streams) = match kind {
+            RawKind::Falcon => {
+                let port = require_port(s.port)?;
+                let baud = s.baud.unwrap_or(falcon::BAUD);
+                if baud == 0 {
+                    return Err(self.error(
+                        &format!("{key}.baud"),
+                        format!(
+                            "0 is not a line speed: give the device's, such as {}",
+                            falcon::BAUD
+                        ),
+                    ));
+                }
+                (
+                    SourceKind::Falcon { port, baud },
+                    vec![StreamDesc { id: 0, chip: None }],
+                )
+            }
+            RawKind::UsbIss => {
+                let port = require_port(s.port)?;
+                let chips = self.check_chips(key, s.chips.unwrap_or_default())?;
+                let poll_ms = s.poll_ms.unwrap_or(30);
+                if !(1..=POLL_MS_MAX).contains(&poll_ms) {
+                    return Err(self.error(
+                        &format!("{key}.poll_ms"),
+                        format!("{poll_ms} ms: give 1 to {POLL_MS_MAX} ms between polls"),
+                    ));
+                }
+                let i2c_khz = s.i2c_khz.unwrap_or(100);
+                if i2c_khz != 100 && i2c_khz != 400 {
+                    return Err(self.error(
+                        &format!("{key}.i2c_khz"),
+                        format!("{i2c_khz} kHz: the USB-ISS runs the bus at 100 or 400 kHz"),
+                    ));
+                }
+                let streams = chips
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &chip)| StreamDesc {
+                        id: u8::try_from(k).unwrap_or(u8::MAX),
+                        chip: Some(chip),
+                    })
+                    .collect();
+                (
+                    SourceKind::UsbIss {
+                        port,
+                        chips,
+                        poll: Duration::from_millis(poll_ms),
+                        i2c_khz,
+                    },
+                    streams,
+                )
+            }
+            RawKind::Replay => {
+                let Some(file) = s.file.filter(|f| !f.as_os_str().is_empty()) else {
+                    return Err(self.error(
+                        &format!("{key}.file"),
+                        "a replay source needs `file`, a capture or raw dump (relative to the \
+                         configuration's directory)",
+                    ));
+                };
+                let file = self.resolve(&file);
+                let streams = self.replay_streams(&format!("{key}.file"), &file)?;
+                let speed = self.check_speed(&format!("{key}.speed"), s.speed.as_ref())?;
+                (SourceKind::Replay { file, speed }, streams)
+            }
+        };
+        Ok((
+            SourceConfig {
+                name: s.name,
+                kind: source_kind,
+                retry,
+            },
+            streams,
+        ))
+    }
+
+    fn check_chips(&self, key: &str, chips: Vec<String>) -> Result<Vec<(Chip, u8)>, ConfigError> {
+        if chips.is_empty() {
+            return Err(self.error(
+                &format!("{key}.chips"),
+                format!(
+                    "a usb-iss source needs `chips`, the chips to poll as NAME or NAME@ADDR \
+                     (such as [\"mpu6050\", \"lsm303dlhc-mag@0x1e\"]); chips: {}",
+                    chip_names()
+                ),
+            ));
+        }
+        if chips.len() > usize::from(u8::MAX) + 1 {
+            return Err(self.error(
+                &format!("{key}.chips"),
+                format!("{} chips: at most 256 can be polled", chips.len()),
+            ));
+        }
+        let mut parsed: Vec<(Chip, u8)> = Vec::with_capacity(chips.len());
+        for (k, text) in chips.iter().enumerate() {
+            let item = format!("{key}.chips[{k}]");
+            let (chip, address) = parse_chip(text).map_err(|problem| self.error(&item, problem))?;
+            let address = address.unwrap_or(chip.default_address());
+            if let Some((other, _)) = parsed.iter().find(|(_, a)| *a == address) {
+                return Err(self.error(
+                    &item,
+                    format!(
+                        "{} and {} are both at 0x{address:02x}: two chips on one bus need \
+                         different addresses; give this one's as NAME@ADDR",
+                        other.name(),
+                        chip.name()
+                    ),
+                ));
+            }
+            parsed.push((chip, address));
+        }
+        Ok(parsed)
+    }
+
+    fn check_speed(&self, key: &str, value: Option<&toml::Value>) -> Result<Speed, ConfigError> {
+        let factor = match value {
+            None => return Ok(Speed::Times(1.0)),
+            Some(toml::Value::String(s)) => {
+                return s
+                    .parse::<Speed>()
+                    .map_err(|problem| self.error(key, problem));
+            }
+            Some(toml::Value::Integer(i)) => *i as f64,
+            Some(toml::Value::Float(f)) => *f,
+            Some(other) => {
+                return Err(self.error(
+                    key,
+                    format!(
+                        "found {}: give a positive factor (1 = as recorded) or \"max\"",
+                        type_name(other)
+                    ),
+                ));
+            }
+        };
+        if factor > 0.0 && factor.is_finite() {
+            Ok(Speed::Times(factor))
+        } else {
+            Err(self.error(
+                key,
+                format!(
+                    "{factor} is not a speed: give a positive factor (1 = as recorded) or \"max\""
+                ),
+            ))
+        }
+    }
+
+    /// The streams of a replayed file: those its capture header declares,
+    /// or one Falcon stream for a raw dump. Reads the header only.
+    fn replay_streams(&self, key: &str, file: &Path) -> Result<Vec<StreamDesc>, ConfigError> {
+        let meta = std::fs::metadata(file).map_err(|e| {
+            self.error(
+                key,
+                format!(
+                    "{}: {e}: give an existing capture (relative paths are relative to {})",
+                    file.display(),
+                    self.base.display()
+                ),
+            )
+        })?;
+        if !meta.is_file() {
+            return Err(self.error(
+                key,
+                format!(
+                    "{} is not a file: give a capture or raw dump",
+                    file.display()
+                ),
+            ));
+        }
+        let prefix = read_capture_prefix(file)
+            .map_err(|e| self.error(key, format!("cannot read {}: {e}", file.display())))?;
+        if prefix.is_empty() {
+            return Err(self.error(
+                key,
+                format!("{} is empty: there is nothing to replay", file.display()),
+            ));
+        }
+        if !prefix.starts_with(capture::MAGIC) {
+            return Ok(vec![StreamDesc { id: 0, chip: None }]);
+        }
+        match capture::parse_capture(&prefix, &file.display().to_string()) {
+            Ok(CaptureFile::Capture { header, .. }) => Ok(header
+                .streams
+                .iter()
+                .map(|s| StreamDesc {
+                    id: s.id,
+                    chip: match s.kind {
+                        StreamKind::Falcon => None,
+                        StreamKind::Chip { chip, address } => Some((chip, address)),
+                    },
+                })
+                .collect()),
+            Ok(CaptureFile::Raw { .. }) => Ok(vec![StreamDesc { id: 0, chip: None }]),
+            Err(e) => Err(self.error(key, e.to_string())),
+        }
+    }
+
+    fn resolve_stream(
+        &self,
+        key: &str,
+        chip: Option<&str>,
+        source: &str,
+        kind: &str,
+        streams: &[StreamDesc],
+    ) -> Result<StreamDesc, ConfigError> {
+        let listed = || {
+            streams
+                .iter()
+                .map(|s| s.describe())
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let Some(text) = chip else {
+            return match streams {
+                [only] => Ok(*only),
+                _ => Err(self.error(
+                    &format!("{key}.chip"),
+                    format!(
+                        "source '{source}' has several streams ({}): say which this sensor \
+                         reads with chip = \"NAME\" or \"NAME@ADDR\"",
+                        listed()
+                    ),
+                )),
+            };
+        };
+        let key = format!("{key}.chip");
+        let (want, address) = parse_chip(text).map_err(|problem| self.error(&key, problem))?;
+        let matches: Vec<StreamDesc> = streams
+            .iter()
+            .filter(|s| match s.chip {
+                Some((c, a)) => c == want && address.is_none_or(|want_a| want_a == a),
+                None => false,
+            })
+            .copied()
+            .collect();
+        match matches.as_slice() {
+            [one] => Ok(*one),
+            [] if streams.iter().all(|s| s.chip.is_none()) => Err(self.error(
+                &key,
+                format!(
+                    "'{text}' is not on source '{source}': a {kind} source of Falcon-GX \
+                     frames has no chips; leave `chip` out"
+                ),
+            )),
+            [] => Err(self.error(
+                &key,
+                format!(
+                    "'{text}' is not on source '{source}': its chips are {}",
+                    listed()
+                ),
+            )),
+            _ => Err(self.error(
+                &key,
+                format!(
+                    "'{text}' is ambiguous on source '{source}' ({}): give NAME@ADDR",
+                    listed()
+                ),
+            )),
+        }
+    }
+
+    fn check_model(
+        &self,
+        key: &str,
+        model: Option<&toml::Value>,
+    ) -> Result<Vec<String>, ConfigError> {
+        let mut names: Vec<(String, String)> = Vec::new(); // (key, name)
+        match model {
+            None => names.push((key.to_string(), "paper".into())),
+            Some(toml::Value::String(s)) => {
+                names.extend(
+                    s.split('+')
+                        .map(|n| (key.to_string(), n.trim().to_string())),
+                );
+            }
+            Some(toml::Value::Array(items)) => {
+                if items.is_empty() {
+                    return Err(self.error(
+                        key,
+                        "an empty list: give \"paper\" or a list of effects such as \
+                         [\"offset\", \"scale\"]",
+                    ));
+                }
+                for (k, item) in items.iter().enumerate() {
+                    let item_key = format!("{key}[{k}]");
+                    match item {
+                        toml::Value::String(s) => names.push((item_key, s.trim().to_string())),
+                        other => {
+                            return Err(self.error(
+                                &item_key,
+                                format!("found {}: effect names are strings", type_name(other)),
+                            ));
+                        }
+                    }
+                }
+            }
+            Some(other) => {
+                return Err(self.error(
+                    key,
+                    format!(
+                        "found {}: give \"paper\" or a list of effect names",
+                        type_name(other)
+                    ),
+                ));
+            }
+        }
+        let mut effects: Vec<&str> = Vec::new();
+        for (item_key, name) in &names {
+            match name.as_str() {
+                "paper" => effects.extend(AVAILABLE_EFFECTS),
+                n if AVAILABLE_EFFECTS.contains(&n) => {
+                    if let Some(&e) = AVAILABLE_EFFECTS.iter().find(|&&e| e == n) {
+                        effects.push(e);
+                    }
+                }
+                n if PLANNED_EFFECTS.contains(&n) || n.starts_with("covariate:") => {
+                    return Err(self.error(
+                        item_key,
+                        format!(
+                            "the effect '{n}' is not available yet: only the paper's model \
+                             (offset, scale) can be fitted; {} are planned",
+                            PLANNED_EFFECTS.join(", ")
+                        ),
+                    ));
+                }
+                n => {
+                    return Err(self.error(
+                        item_key,
+                        format!(
+                            "'{n}' is not an effect: give \"paper\" or effects from offset, \
+                             scale (available) and {} (not available yet)",
+                            PLANNED_EFFECTS.join(", ")
+                        ),
+                    ));
+                }
+            }
+        }
+        let missing: Vec<&str> = AVAILABLE_EFFECTS
+            .iter()
+            .filter(|e| !effects.contains(e))
+            .copied()
+            .collect();
+        if !missing.is_empty() {
+            return Err(self.error(
+                key,
+                format!(
+                    "the model lacks {}: every model is the paper's (offset, scale) plus \
+                     effects, so include both, or write \"paper\"",
+                    missing.join(" and ")
+                ),
+            ));
+        }
+        // Catalogue order, each once.
+        Ok(AVAILABLE_EFFECTS.iter().map(|e| e.to_string()).collect())
+    }
+
+    fn check_name(&self, key: &str, name: &str) -> Result<(), ConfigError> {
+        let problem = if name.is_empty() {
+            Some("empty".to_string())
+        } else if name.len() > NAME_MAX {
+            Some(format!(
+                "{} characters long, at most {NAME_MAX}",
+                name.len()
+            ))
+        } else {
+            name.chars()
+                .find(|c| !(c.is_ascii_alphanumeric() || *c == '-' || *c == '_'))
+                .map(|c| format!("it contains {c:?}"))
+        };
+        match problem {
+            None => Ok(()),
+            Some(p) => Err(self.error(
+                key,
+                format!(
+                    "'{name}' is not a usable name ({p}): use letters, digits, '-' and '_' \
+                     (it names files and appears in messages)"
+                ),
+            )),
+        }
+    }
+
+    fn seconds(&self, key: &str, value: f64, max: f64) -> Result<Duration, ConfigError> {
+        if value > 0.0 && value <= max {
+            if let Ok(d) = Duration::try_from_secs_f64(value) {
+                return Ok(d);
+            }
+        }
+        Err(self.error(
+            key,
+            format!("{value} seconds: give a number of seconds above 0 and at most {max}"),
+        ))
+    }
+}
+
+fn kind_name(kind: &SourceKind) -> &'static str {
+    match kind {
+        SourceKind::Falcon { .. } => "falcon",
+        SourceKind::UsbIss { .. } => "usb-iss",
+        SourceKind::Replay { .. } => "replay",
+    }
+}
+
+fn chip_names() -> String {
+    Chip::ALL
+        .iter()
+        .map(|c| c.name())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// `NAME` or `NAME@ADDR` (7-bit; `0x..` hex or decimal); the address is
+/// `None` when not given.
+fn parse_chip(text: &str) -> Result<(Chip, Option<u8>), String> {
+    let (name, address) = match text.split_once('@') {
+        Some((name, address)) => (name.trim(), Some(address.trim())),
+        None => (text.trim(), None),
+    };
+    let chip = Chip::ALL
+        .into_iter()
+        .find(|c| c.name().eq_ignore_ascii_case(name))
+        .ok_or_else(|| {
+            format!(
+                "'{name}' is not a chip fieldcal knows: choose one of {}",
+                chip_names()
+            )
+        })?;
+    let address = match address {
+        None => None,
+        Some(a) => {
+            let parsed = match a.strip_prefix("0x").or_else(|| a.strip_prefix("0X")) {
+                Some(hex) => u8::from_str_radix(hex, 16),
+                None => a.parse::<u8>(),
+            };
+            match parsed {
+                Ok(v) if v <= 0x7F => Some(v),
+                _ => {
+                    return Err(format!(
+                        "'{a}' in '{text}' is not a 7-bit I2C address: give 0x00 to 0x7f \
+                         (or 0 to 127)"
+                    ));
+                }
+            }
+        }
+    };
+    Ok((chip, address))
+}
+
+/// The magic, length and header of a capture, or the first bytes of a raw
+/// dump: enough to tell its streams without reading the whole file.
+fn read_capture_prefix(file: &Path) -> std::io::Result<Vec<u8>> {
+    let mut f = std::fs::File::open(file)?;
+    let mut head = Vec::new();
+    (&mut f)
+        .take(capture::MAGIC.len() as u64 + 4)
+        .read_to_end(&mut head)?;
+    if head.len() < capture::MAGIC.len() + 4 || !head.starts_with(capture::MAGIC) {
+        return Ok(head);
+    }
+    let len_bytes: [u8; 4] = head[capture::MAGIC.len()..].try_into().unwrap_or([0; 4]);
+    let len = u32::from_le_bytes(len_bytes).min(capture::MAX_HEADER_LEN);
+    f.take(u64::from(len)).read_to_end(&mut head)?;
+    Ok(head)
+}
+
+/// `$STATE_DIRECTORY` (systemd's `StateDirectory=`; the first if several),
+/// else `./state`.
+fn default_state_dir() -> PathBuf {
+    std::env::var_os("STATE_DIRECTORY")
+        .and_then(|v| {
+            let first = v.to_string_lossy().split(':').next().map(str::to_string)?;
+            (!first.is_empty()).then(|| PathBuf::from(first))
+        })
+        .unwrap_or_else(|| PathBuf::from("./state"))
+}
+
+fn type_name(value: &toml::Value) -> &'static str {
+    match value {
+        toml::Value::String(_) => "a string",
+        toml::Value::Integer(_) => "an integer",
+        toml::Value::Float(_) => "a float",
+        toml::Value::Boolean(_) => "a boolean",
+        toml::Value::Datetime(_) => "a date-time",
+        toml::Value::Array(_) => "an array",
+        toml::Value::Table(_) => "a table",
+    }
+}
+
+/// 1-based line and column (in characters) of a byte offset.
+fn position_of(text: &str, offset: usize) -> Position {
+    let mut offset = offset.min(text.len());
+    while !text.is_char_boundary(offset) {
+        offset -= 1;
+    }
+    let before = &text[..offset];
+    let line = before.matches('\n').count() + 1;
+    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+    let column = text[line_start..offset].chars().count() + 1;
+    Position { line, column }
+}
+
+/// The dotted key whose key or value span holds byte `pos`: the smallest
+/// such span wins, so an error inside `axes = ["x", "w"]` is `axes[1]`.
+fn path_at(doc: &Spanned<DeTable>, pos: usize) -> Option<String> {
+    let mut best: Option<(usize, String)> = None;
+    let mut path = String::new();
+    walk_table(doc.get_ref(), &mut path, pos, &mut best);
+    best.map(|(_, p)| p)
+}
+
+fn contains(span: &Range<usize>, pos: usize) -> bool {
+    span.contains(&pos) || (span.is_empty() && span.start == pos)
+}
+
+fn consider(best: &mut Option<(usize, String)>, span: Range<usize>, path: &str, pos: usize) {
+    if !contains(&span, pos) {
+        return;
+    }
+    let len = span.len();
+    // Ties go to the later (deeper) candidate.
+    if best.as_ref().is_none_or(|(l, _)| len <= *l) {
+        *best = Some((len, path.to_string()));
+    }
+}
+
+fn walk_table(table: &DeTable, path: &mut String, pos: usize, best: &mut Option<(usize, String)>) {
+    for (key, value) in table.iter() {
+        let saved = path.len();
+        if !path.is_empty() {
+            path.push('.');
+        }
+        path.push_str(key.get_ref());
+        consider(best, key.span(), path, pos);
+        walk_value(value, path, pos, best);
+        path.truncate(saved);
+    }
+}
+
+fn walk_value(
+    value: &Spanned<DeValue>,
+    path: &mut String,
+    pos: usize,
+    best: &mut Option<(usize, String)>,
+) {
+    match value.get_ref() {
+        DeValue::Table(t) => {
+            // A table's own span (a header, or an inline table) loses to
+            // any of its keys that also holds the position.
+            consider(best, value.span(), path, pos);
+            walk_table(t, path, pos, best);
+        }
+        DeValue::Array(items) => {
+            consider(best, value.span(), path, pos);
+            for (i, item) in items.iter().enumerate() {
+                let saved = path.len();
+                path.push_str(&format!("[{i}]"));
+                walk_value(item, path, pos, best);
+                path.truncate(saved);
+            }
+        }
+        _ => consider(best, value.span(), path, pos),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn positions_are_one_based() {
+        let text = "a = 1\nbé = 2\n";
+        assert_eq!(position_of(text, 0), Position { line: 1, column: 1 });
+        let at = text.find("= 2").unwrap_or(0);
+        assert_eq!(position_of(text, at), Position { line: 2, column: 4 });
+        assert_eq!(position_of(text, 10_000).line, 3);
+    }
+
+    #[test]
+    fn chip_fields_follow_the_drivers() {
+        assert_eq!(chip_fields(Chip::Lsm303dlhcMag), vec![Field::Mag]);
+        assert_eq!(chip_fields(Chip::Mpu6050), vec![Field::Accel, Field::Gyro]);
+        assert_eq!(chip_fields(Chip::Adxl345), vec![Field::Accel]);
+    }
+}

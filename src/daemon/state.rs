@@ -1,1 +1,374 @@
-//! (being written)
+//! The calibration store: one JSON file per sensor in the state directory,
+//! so the last good calibration survives restarts.
+//!
+//! Writes go through [`AtomicFile`] (temporary file, fsync, rename, fsync of
+//! the directory): a crash or a full disk leaves the old file or the new
+//! one, never a torn one. A file that cannot be trusted on load is moved
+//! aside (never overwritten, never used) so a person can look at it later,
+//! and the daemon carries on as if the sensor had no calibration yet.
+//!
+//! File layout (format 1):
+//!
+//! ```json
+//! {"format":1,"calibration":{"sensor":"compass","id":3,"model":"offset+scale",
+//!  "params":{"a":1.02,"b":-31.5,"d":12.25,"r":412.0},"rms":0.004,
+//!  "coverage_deg":358.0,"n":412,"time":1700000000.5}}
+//! ```
+
+use std::fs;
+use std::io::{self, Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use serde::{Deserialize, Serialize};
+
+use crate::daemon::Calibration;
+use crate::io::atomic::AtomicFile;
+
+/// The version of the file layout this module reads and writes.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// A calibration file is a few hundred bytes; anything far larger is not
+/// one of ours, and is not read whole into memory.
+const MAX_FILE_LEN: u64 = 64 * 1024;
+
+/// The calibrations of all sensors, kept in one directory.
+#[derive(Debug, Clone)]
+pub struct StateStore {
+    dir: PathBuf,
+}
+
+/// Why the store could not be opened, or a calibration loaded or saved.
+/// Every message names the file or directory and says what to do.
+#[derive(Debug, thiserror::Error)]
+pub enum StateError {
+    #[error(
+        "state directory {}: a file that is not a directory is in its place: \
+         remove it, or set daemon.state_dir to a directory",
+        dir.display()
+    )]
+    NotADirectory { dir: PathBuf },
+    #[error(
+        "cannot create the state directory {}: {source}: create it and let the user \
+         fieldcal runs as write to it, or set daemon.state_dir",
+        dir.display()
+    )]
+    CreateDir {
+        dir: PathBuf,
+        #[source]
+        source: io::Error,
+    },
+    #[error(
+        "state directory {} is not usable ({source}): calibrations could not be kept; \
+         let the user fieldcal runs as read and write it, or set daemon.state_dir",
+        dir.display()
+    )]
+    NotWritable {
+        dir: PathBuf,
+        #[source]
+        source: io::Error,
+    },
+    #[error(
+        "stored calibration {} cannot be trusted ({problem}): it was moved aside to {} \
+         and the sensor starts uncalibrated; a new calibration is stored after the next \
+         full turn",
+        path.display(),
+        moved_to.display()
+    )]
+    Corrupt {
+        path: PathBuf,
+        moved_to: PathBuf,
+        problem: String,
+    },
+    #[error(
+        "stored calibration {} cannot be trusted ({problem}) and could not be moved aside \
+         ({source}): it is ignored; move or delete it by hand",
+        path.display()
+    )]
+    CorruptNotMoved {
+        path: PathBuf,
+        problem: String,
+        #[source]
+        source: io::Error,
+    },
+    #[error(
+        "cannot write {}: {source}; the calibration stored before is unchanged: check that \
+         the state directory is writable and the disk is not full",
+        path.display()
+    )]
+    Write {
+        path: PathBuf,
+        #[source]
+        source: io::Error,
+    },
+    #[error(
+        "refusing to store the calibration of sensor '{sensor}' in {}: {problem} \
+         (the calibration stored before is unchanged)",
+        path.display()
+    )]
+    Invalid {
+        sensor: String,
+        path: PathBuf,
+        problem: String,
+    },
+}
+
+/// The file as written.
+#[derive(Serialize)]
+struct StoredRef<'a> {
+    format: u32,
+    calibration: &'a Calibration,
+}
+
+/// The file as read: the version first, so a newer layout is recognised as
+/// such rather than reported as a mismatch of fields.
+#[derive(Deserialize)]
+struct StoredVersion {
+    format: u32,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Stored {
+    #[allow(dead_code)] // checked through `StoredVersion`
+    format: u32,
+    calibration: Calibration,
+}
+
+impl StateStore {
+    /// Opens (creating if needed) the state directory. The directory must
+    /// exist or be creatable and be writable: a store that cannot keep a
+    /// calibration would lose every one at the next restart, so that is an
+    /// error at start, not at the first save.
+    pub fn open(dir: &Path) -> Result<StateStore, StateError> {
+        match fs::metadata(dir) {
+            Ok(meta) if !meta.is_dir() => {
+                return Err(StateError::NotADirectory {
+                    dir: dir.to_path_buf(),
+                });
+            }
+            Ok(_) => {}
+            // NotADirectory: a parent is a regular file; creating says so.
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::NotFound | io::ErrorKind::NotADirectory
+                ) =>
+            {
+                fs::create_dir_all(dir).map_err(|source| StateError::CreateDir {
+                    dir: dir.to_path_buf(),
+                    source,
+                })?;
+            }
+            Err(source) => {
+                return Err(StateError::NotWritable {
+                    dir: dir.to_path_buf(),
+                    source,
+                });
+            }
+        }
+        // Probe: can we list it and create a file in it? The probe file is
+        // removed when dropped uncommitted.
+        let probe = fs::read_dir(dir)
+            .and_then(|_| AtomicFile::create(&dir.join(".fieldcal-probe")).map(drop));
+        if let Err(source) = probe {
+            return Err(StateError::NotWritable {
+                dir: dir.to_path_buf(),
+                source,
+            });
+        }
+        Ok(StateStore {
+            dir: dir.to_path_buf(),
+        })
+    }
+
+    /// The state directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The file of `sensor`: `<dir>/<sensor>.json`. Names outside the
+    /// configuration's charset (letters, digits, `-`, `_`) are escaped
+    /// byte-wise as `%XX`, so no name leaves the directory (`/`, `..`) or
+    /// hides (a leading `.`), and two names never share a file.
+    pub fn path_for(&self, sensor: &str) -> PathBuf {
+        let mut stem = String::with_capacity(sensor.len());
+        for byte in sensor.bytes() {
+            if byte.is_ascii_alphanumeric() || byte == b'-' || byte == b'_' {
+                stem.push(char::from(byte));
+            } else {
+                stem.push_str(&format!("%{byte:02X}"));
+            }
+        }
+        if stem.is_empty() {
+            // No valid name is empty, and no escaped one is a lone "%".
+            stem.push('%');
+        }
+        self.dir.join(format!("{stem}.json"))
+    }
+
+    /// The stored calibration of `sensor`, if any.
+    ///
+    /// A file that is unreadable, not JSON of this layout, of another format
+    /// version, holds non-finite or impossible numbers, or belongs to another
+    /// sensor, is moved aside to `<name>.corrupt-<unix seconds>` and
+    /// reported as [`StateError::Corrupt`]; the caller logs it and goes on
+    /// uncalibrated. Moving it keeps it for a person to inspect and keeps a
+    /// later save from overwriting the evidence.
+    pub fn load(&self, sensor: &str) -> Result<Option<Calibration>, StateError> {
+        let path = self.path_for(sensor);
+        let problem = match read_bounded(&path) {
+            Ok(None) => return Ok(None),
+            Ok(Some(bytes)) => match decode(&bytes, sensor) {
+                Ok(calibration) => return Ok(Some(calibration)),
+                Err(problem) => problem,
+            },
+            Err(e) => format!("unreadable: {e}"),
+        };
+        Err(self.move_aside(path, problem))
+    }
+
+    /// Atomically replaces the sensor's file. On any error the old file is
+    /// intact, and the error says so.
+    pub fn save(&self, calibration: &Calibration) -> Result<(), StateError> {
+        let path = self.path_for(&calibration.sensor);
+        if let Some(problem) = calibration_problem(calibration) {
+            return Err(StateError::Invalid {
+                sensor: calibration.sensor.clone(),
+                path,
+                problem,
+            });
+        }
+        let stored = StoredRef {
+            format: FORMAT_VERSION,
+            calibration,
+        };
+        let mut json = serde_json::to_vec_pretty(&stored)
+            .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e))
+            .map_err(|source| StateError::Write {
+                path: path.clone(),
+                source,
+            })?;
+        json.push(b'\n');
+        let write = || -> io::Result<()> {
+            let mut file = AtomicFile::create(&path)?;
+            file.as_file_mut().write_all(&json)?;
+            file.commit()
+        };
+        write().map_err(|source| StateError::Write {
+            path: path.clone(),
+            source,
+        })
+    }
+
+    fn move_aside(&self, path: PathBuf, problem: String) -> StateError {
+        let seconds = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        // Two corruptions within one second must not overwrite each other.
+        let mut moved_to = self.dir.join(format!("{name}.corrupt-{seconds}"));
+        let mut n = 1u32;
+        while fs::symlink_metadata(&moved_to).is_ok() && n < 1000 {
+            moved_to = self.dir.join(format!("{name}.corrupt-{seconds}-{n}"));
+            n += 1;
+        }
+        match fs::rename(&path, &moved_to) {
+            Ok(()) => StateError::Corrupt {
+                path,
+                moved_to,
+                problem,
+            },
+            Err(source) => StateError::CorruptNotMoved {
+                path,
+                problem,
+                source,
+            },
+        }
+    }
+}
+
+/// The file's bytes, `None` when there is no file; a file above
+/// [`MAX_FILE_LEN`] is an error rather than a large allocation.
+fn read_bounded(path: &Path) -> io::Result<Option<Vec<u8>>> {
+    let file = match fs::File::open(path) {
+        Ok(f) => f,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(e),
+    };
+    let mut bytes = Vec::new();
+    file.take(MAX_FILE_LEN + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > MAX_FILE_LEN {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidData,
+            format!("larger than {MAX_FILE_LEN} bytes, not a calibration file"),
+        ));
+    }
+    Ok(Some(bytes))
+}
+
+/// Parses and checks a stored file; the error is the problem, for a person.
+fn decode(bytes: &[u8], sensor: &str) -> Result<Calibration, String> {
+    if bytes.is_empty() {
+        return Err("empty file".into());
+    }
+    let version: StoredVersion =
+        serde_json::from_slice(bytes).map_err(|e| format!("not a calibration file: {e}"))?;
+    if version.format != FORMAT_VERSION {
+        return Err(format!(
+            "format version {}, this fieldcal reads version {FORMAT_VERSION}",
+            version.format
+        ));
+    }
+    let stored: Stored =
+        serde_json::from_slice(bytes).map_err(|e| format!("not a calibration file: {e}"))?;
+    let calibration = stored.calibration;
+    if calibration.sensor != sensor {
+        return Err(format!(
+            "it holds the calibration of sensor '{}', not of '{sensor}'",
+            calibration.sensor
+        ));
+    }
+    if let Some(problem) = calibration_problem(&calibration) {
+        return Err(problem);
+    }
+    Ok(calibration)
+}
+
+/// What makes a calibration unusable for correcting readings: a number
+/// that is not finite (the corrector would publish NaN), a gain or field
+/// magnitude that is not positive (it divides by them), or an rms or
+/// coverage outside its range.
+fn calibration_problem(c: &Calibration) -> Option<String> {
+    let p = &c.params;
+    let numbers = [
+        ("params.a", p.a),
+        ("params.b", p.b),
+        ("params.d", p.d),
+        ("params.r", p.r),
+        ("rms", c.rms),
+        ("coverage_deg", c.coverage_deg),
+        ("time", c.time),
+    ];
+    if let Some((name, v)) = numbers.iter().find(|(_, v)| !v.is_finite()) {
+        return Some(format!("{name} is {v}, not a finite number"));
+    }
+    for (name, v) in [("params.a", p.a), ("params.r", p.r)] {
+        if !(v > 0.0) {
+            return Some(format!("{name} is {v}, it must be above zero"));
+        }
+    }
+    if c.rms < 0.0 {
+        return Some(format!("rms is {}, it cannot be negative", c.rms));
+    }
+    if !(0.0..=360.0).contains(&c.coverage_deg) {
+        return Some(format!(
+            "coverage_deg is {}, not between 0 and 360",
+            c.coverage_deg
+        ));
+    }
+    None
+}

@@ -1,0 +1,647 @@
+//! The daemon's TOML configuration: a full file parses to the right
+//! structures, and every kind of mistake is refused with a message naming
+//! the file, the key, what was found and what is allowed, at its line.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use fieldcal::capture::{CaptureHeader, CaptureWriter, StreamInfo, StreamKind};
+use fieldcal::daemon::config::{Axis, ConfigError, Field, LogFormat, SourceKind, load, parse};
+use fieldcal::protocol::chips::Chip;
+use fieldcal::source::replay::Speed;
+
+/// The repository's config directory stands in for the file's place, so
+/// `../tests/data/...` reaches the checked-in captures.
+fn config_path() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("config/test.toml")
+}
+
+const SOURCES: &str = r#"
+[[source]]
+name = "imu"
+kind = "falcon"
+port = "/dev/ttyUSB0"
+
+[[source]]
+name = "bridge"
+kind = "usb-iss"
+port = "/dev/ttyACM0"
+chips = ["mpu6050", "lsm303dlhc-mag@0x1e"]
+"#;
+
+const FULL: &str = r#"
+[daemon]
+state_dir = "/var/lib/fieldcal"
+status_interval_s = 0.5
+log_format = "json"
+
+[outputs]
+stdout = false
+tcp = "127.0.0.1:2948"
+unix = "/run/fieldcal/fieldcal.sock"
+queue = 100
+
+[[source]]
+name = "imu"
+kind = "falcon"
+port = "/dev/ttyUSB0"
+baud = 115200
+retry_s = 5
+
+[[source]]
+name = "bridge"
+kind = "usb-iss"
+port = "/dev/ttyACM0"
+chips = ["mpu6050", "lsm303dlhc-mag@0x1e", "adxl345@83"]
+poll_ms = 20
+i2c_khz = 400
+
+[[source]]
+name = "bench"
+kind = "replay"
+file = "../tests/data/falcon_turn.fcap"
+speed = "max"
+
+[[sensor]]
+name = "compass"
+source = "bridge"
+chip = "lsm303dlhc-mag"
+field = "mag"
+axes = ["x", "y"]
+model = "paper"
+[sensor.rotation]
+min_coverage_deg = 350.0
+[sensor.limits]
+
+[[sensor]]
+name = "tilt"
+source = "bridge"
+chip = "adxl345"
+field = "accel"
+axes = ["y", "z"]
+model = ["offset", "scale"]
+
+[[sensor]]
+name = "imu-mag"
+source = "imu"
+field = "mag"
+axes = ["x", "y"]
+
+[[sensor]]
+name = "replayed"
+source = "bench"
+field = "accel"
+axes = ["z", "x"]
+model = "offset+scale"
+"#;
+
+fn refused(text: &str) -> ConfigError {
+    match parse(text, &config_path()) {
+        Ok(c) => panic!("accepted: {c:?}"),
+        Err(e) => e,
+    }
+}
+
+/// Asserts the message names the file, the key and each of `words`, and
+/// that the error has the expected line.
+#[track_caller]
+fn assert_refused(text: &str, key: &str, line: Option<usize>, words: &[&str]) {
+    let err = refused(text);
+    let message = err.to_string();
+    assert!(message.contains("test.toml"), "no file in: {message}");
+    assert_eq!(err.key(), Some(key), "{message}");
+    assert!(message.contains(key), "no key in: {message}");
+    for w in words {
+        assert!(message.contains(w), "no '{w}' in: {message}");
+    }
+    if let Some(line) = line {
+        let at = err.position().map(|p| p.line);
+        assert_eq!(at, Some(line), "{message}");
+        assert!(message.contains(&format!("test.toml:{line}:")), "{message}");
+    }
+}
+
+fn line_of(text: &str, needle: &str) -> usize {
+    let at = text
+        .find(needle)
+        .unwrap_or_else(|| panic!("{needle} not in text"));
+    text[..at].matches('\n').count() + 1
+}
+
+#[test]
+fn a_full_config_parses_to_the_right_structures() {
+    let config = parse(FULL, &config_path()).unwrap();
+    assert_eq!(config.path, config_path());
+    assert_eq!(config.daemon.state_dir, PathBuf::from("/var/lib/fieldcal"));
+    assert_eq!(config.daemon.status_interval, Duration::from_millis(500));
+    assert_eq!(config.daemon.log_format, LogFormat::Json);
+    assert!(!config.outputs.stdout);
+    assert_eq!(
+        config.outputs.tcp,
+        Some("127.0.0.1:2948".parse::<SocketAddr>().unwrap())
+    );
+    assert_eq!(
+        config.outputs.unix,
+        Some(PathBuf::from("/run/fieldcal/fieldcal.sock"))
+    );
+    assert_eq!(config.outputs.queue, 100);
+
+    assert_eq!(config.sources.len(), 3);
+    assert_eq!(config.sources[0].name, "imu");
+    assert_eq!(
+        config.sources[0].kind,
+        SourceKind::Falcon {
+            port: "/dev/ttyUSB0".into(),
+            baud: 115_200
+        }
+    );
+    assert_eq!(config.sources[0].retry, Duration::from_secs(5));
+    assert_eq!(
+        config.sources[1].kind,
+        SourceKind::UsbIss {
+            port: "/dev/ttyACM0".into(),
+            chips: vec![
+                (Chip::Mpu6050, 0x68),
+                (Chip::Lsm303dlhcMag, 0x1E),
+                (Chip::Adxl345, 83)
+            ],
+            poll: Duration::from_millis(20),
+            i2c_khz: 400,
+        }
+    );
+    assert_eq!(config.sources[1].retry, Duration::from_secs(2));
+    let bridge = config.sources[1].bridge_config().unwrap();
+    assert_eq!(bridge.period, Duration::from_millis(20));
+    assert!(bridge.validate().is_ok());
+    match &config.sources[2].kind {
+        SourceKind::Replay { file, speed } => {
+            // Relative to the configuration's directory.
+            assert!(
+                file.starts_with(config_path().parent().unwrap()),
+                "{file:?}"
+            );
+            assert!(file.is_file());
+            assert_eq!(*speed, Speed::Max);
+        }
+        other => panic!("{other:?}"),
+    }
+
+    let s = &config.sensors;
+    assert_eq!(s.len(), 4);
+    assert_eq!(s[0].name, "compass");
+    assert_eq!(s[0].source, "bridge");
+    assert_eq!(s[0].stream, 1);
+    assert_eq!(s[0].field, Field::Mag);
+    assert_eq!(s[0].axes, [Axis::X, Axis::Y]);
+    assert_eq!(s[0].effects, ["offset", "scale"]);
+    assert_eq!(
+        s[0].rotation
+            .get("min_coverage_deg")
+            .and_then(|v| v.as_float()),
+        Some(350.0)
+    );
+    assert!(s[0].limits.is_empty());
+    assert_eq!((s[1].stream, s[1].field), (2, Field::Accel));
+    assert_eq!(s[1].axes, [Axis::Y, Axis::Z]);
+    assert_eq!(s[1].effects, ["offset", "scale"]);
+    assert_eq!((s[2].stream, s[2].field), (0, Field::Mag));
+    assert_eq!(s[3].stream, 0);
+    assert_eq!(s[3].axes, [Axis::Z, Axis::X]);
+    assert_eq!(s[3].effects, ["offset", "scale"]);
+    assert!(config.source("bench").is_some());
+}
+
+#[test]
+fn defaults_fill_what_is_left_out() {
+    let text = format!(
+        "{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"
+    );
+    let config = parse(&text, &config_path()).unwrap();
+    assert_eq!(config.daemon.status_interval, Duration::from_secs(1));
+    assert_eq!(config.daemon.log_format, LogFormat::Text);
+    assert!(config.outputs.stdout);
+    assert_eq!(config.outputs.tcp, None);
+    assert_eq!(config.outputs.queue, 4096);
+    assert_eq!(
+        config.sources[0].kind,
+        SourceKind::Falcon {
+            port: "/dev/ttyUSB0".into(),
+            baud: 38_400
+        }
+    );
+    match &config.sources[1].kind {
+        SourceKind::UsbIss { poll, i2c_khz, .. } => {
+            assert_eq!(*poll, Duration::from_millis(30));
+            assert_eq!(*i2c_khz, 100);
+        }
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(config.sensors[0].effects, ["offset", "scale"]);
+}
+
+#[test]
+fn load_reads_the_file_and_names_a_missing_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("fieldcal.toml");
+    std::fs::write(
+        &path,
+        format!("{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"),
+    )
+    .unwrap();
+    assert_eq!(load(&path).unwrap().sensors.len(), 1);
+    let missing = dir.path().join("nope.toml");
+    let err = load(&missing).unwrap_err();
+    assert!(matches!(err, ConfigError::Read { .. }));
+    assert!(err.to_string().contains("nope.toml"), "{err}");
+}
+
+fn sensor(extra: &str) -> String {
+    format!("{SOURCES}\n[[sensor]]\nname = \"compass\"\nsource = \"bridge\"\n{extra}\n")
+}
+
+#[test]
+fn a_syntax_error_has_its_line() {
+    let text = "[daemon]\nstate_dir = \"/x\n";
+    let err = refused(text);
+    assert!(matches!(err, ConfigError::Syntax { .. }), "{err}");
+    assert_eq!(err.position().map(|p| p.line), Some(2), "{err}");
+    assert!(err.to_string().contains("test.toml:2:"), "{err}");
+}
+
+#[test]
+fn an_unknown_key_is_named_with_the_allowed_ones() {
+    let text = format!("{SOURCES}\nbud = 9600\n").replace(
+        "port = \"/dev/ttyUSB0\"\n",
+        "port = \"/dev/ttyUSB0\"\nbuad = 9600\n",
+    );
+    assert_refused(
+        &text,
+        "source[0].buad",
+        Some(line_of(&text, "buad")),
+        &["unknown field `buad`", "baud"],
+    );
+    let text = "[deamon]\n";
+    assert_refused(text, "deamon", Some(1), &["unknown field", "daemon"]);
+    let text =
+        sensor("chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\"]\nmodle = \"paper\"");
+    assert_refused(
+        &text,
+        "sensor[0].modle",
+        Some(line_of(&text, "modle")),
+        &["model"],
+    );
+}
+
+#[test]
+fn a_wrong_type_is_named_with_what_was_found() {
+    let text = SOURCES.replace(
+        "port = \"/dev/ttyUSB0\"",
+        "port = \"/dev/ttyUSB0\"\nbaud = \"fast\"",
+    );
+    assert_refused(
+        &text,
+        "source[0].baud",
+        Some(line_of(&text, "\"fast\"")),
+        &["fast", "u32"],
+    );
+    let text = format!("[outputs]\nqueue = -3\n{SOURCES}");
+    assert_refused(&text, "outputs.queue", Some(2), &["-3"]);
+    let text = "[daemon]\nlog_format = \"xml\"\n";
+    assert_refused(text, "daemon.log_format", Some(2), &["xml", "text", "json"]);
+}
+
+#[test]
+fn an_unknown_source_kind_lists_the_kinds() {
+    let text = SOURCES.replace("kind = \"falcon\"", "kind = \"gps\"");
+    assert_refused(
+        &text,
+        "source[0].kind",
+        Some(line_of(&text, "\"gps\"")),
+        &["gps", "falcon", "usb-iss", "replay"],
+    );
+}
+
+#[test]
+fn a_missing_port_or_a_key_of_another_kind_is_refused() {
+    let text = SOURCES.replace("port = \"/dev/ttyUSB0\"\n", "");
+    assert_refused(
+        &text,
+        "source[0].port",
+        Some(line_of(&text, "[[source]]")),
+        &["needs `port`"],
+    );
+    let text = SOURCES.replace(
+        "kind = \"falcon\"",
+        "kind = \"falcon\"\nchips = [\"mpu6050\"]",
+    );
+    assert_refused(
+        &text,
+        "source[0].chips",
+        Some(line_of(&text, "[\"mpu6050\"]")),
+        &["falcon", "no `chips`", "baud"],
+    );
+    let text = "[[source]]\nkind = \"falcon\"\nport = \"/dev/x\"\n";
+    assert_refused(text, "source[0].name", Some(1), &["missing field `name`"]);
+}
+
+#[test]
+fn a_bad_chip_name_or_address_is_refused() {
+    let text = SOURCES.replace("\"mpu6050\"", "\"mpu9250\"");
+    assert_refused(
+        &text,
+        "source[1].chips[0]",
+        Some(line_of(&text, "mpu9250")),
+        &["mpu9250", "adxl345", "lsm303dlhc-mag"],
+    );
+    for bad in ["0x80", "0xzz", "300", ""] {
+        let text = SOURCES.replace("@0x1e", &format!("@{bad}"));
+        assert_refused(
+            &text,
+            "source[1].chips[1]",
+            Some(line_of(&text, "lsm303dlhc-mag@")),
+            &["7-bit"],
+        );
+    }
+    let text = SOURCES.replace("\"mpu6050\"", "\"mpu6050@0x1e\"");
+    assert_refused(&text, "source[1].chips[1]", None, &["both at 0x1e"]);
+    let text = SOURCES.replace(
+        "chips = [\"mpu6050\", \"lsm303dlhc-mag@0x1e\"]",
+        "chips = []",
+    );
+    assert_refused(&text, "source[1].chips", None, &["needs `chips`"]);
+}
+
+#[test]
+fn equal_or_too_many_axes_are_refused() {
+    let text = sensor("chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"x\"]");
+    assert_refused(
+        &text,
+        "sensor[0].axes",
+        Some(line_of(&text, "axes")),
+        &["both axes are \"x\"", "two different"],
+    );
+    let text = sensor("chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\", \"z\"]");
+    assert_refused(
+        &text,
+        "sensor[0].axes",
+        Some(line_of(&text, "axes")),
+        &["3 axes"],
+    );
+    let text = sensor("chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"w\"]");
+    assert_refused(
+        &text,
+        "sensor[0].axes[1]",
+        Some(line_of(&text, "axes")),
+        &["w", "x", "y", "z"],
+    );
+}
+
+#[test]
+fn effects_are_checked_against_the_catalogue() {
+    let text = sensor(
+        "chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\"]\nmodel = [\"offset\", \"scale\", \"wobble\"]",
+    );
+    assert_refused(
+        &text,
+        "sensor[0].model[2]",
+        Some(line_of(&text, "model")),
+        &["'wobble' is not an effect", "offset", "cross-axis"],
+    );
+    for planned in [
+        "cubic",
+        "cross-axis",
+        "drift",
+        "outliers",
+        "covariate:temp_c",
+    ] {
+        let text = sensor(&format!(
+            "chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\"]\nmodel = [\"paper\", \"{planned}\"]"
+        ));
+        assert_refused(
+            &text,
+            "sensor[0].model[1]",
+            Some(line_of(&text, "model")),
+            &[planned, "not available yet"],
+        );
+    }
+    let text =
+        sensor("chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\"]\nmodel = \"offset\"");
+    assert_refused(
+        &text,
+        "sensor[0].model",
+        Some(line_of(&text, "model")),
+        &["lacks scale"],
+    );
+    let text = sensor("chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\"]\nmodel = 3");
+    assert_refused(
+        &text,
+        "sensor[0].model",
+        Some(line_of(&text, "model")),
+        &["an integer", "paper"],
+    );
+}
+
+#[test]
+fn duplicate_names_are_refused() {
+    let text = SOURCES.replace("name = \"bridge\"", "name = \"imu\"");
+    assert_refused(
+        &text,
+        "source[1].name",
+        Some(line_of(&text, "name = \"imu\"\nkind = \"usb")),
+        &["already the name of source[0]"],
+    );
+    let one =
+        "[[sensor]]\nname = \"c\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n";
+    let text = format!("{SOURCES}\n{one}{one}");
+    assert_refused(
+        &text,
+        "sensor[1].name",
+        Some(text.matches('\n').count() - 3),
+        &["already the name of sensor[0]"],
+    );
+}
+
+#[test]
+fn bad_names_are_refused() {
+    for bad in ["", "../etc", "a b", "compass.json"] {
+        let text = format!(
+            "{SOURCES}\n[[sensor]]\nname = \"{bad}\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"
+        );
+        assert_refused(&text, "sensor[0].name", None, &["letters, digits"]);
+    }
+}
+
+#[test]
+fn a_sensor_must_name_an_existing_source_and_chip() {
+    let text = sensor("field = \"mag\"\naxes = [\"x\", \"y\"]")
+        .replace("source = \"bridge\"\n\n", "source = \"brige\"\n\n");
+    let text = text.replacen("source = \"bridge\"\nfield", "source = \"brige\"\nfield", 1);
+    assert_refused(
+        &text,
+        "sensor[0].source",
+        Some(line_of(&text, "\"brige\"")),
+        &["no source named 'brige'", "imu, bridge"],
+    );
+
+    let text = sensor("chip = \"adxl345\"\nfield = \"accel\"\naxes = [\"x\", \"y\"]");
+    assert_refused(
+        &text,
+        "sensor[0].chip",
+        Some(line_of(&text, "\"adxl345\"")),
+        &[
+            "not on source 'bridge'",
+            "mpu6050@0x68",
+            "lsm303dlhc-mag@0x1e",
+        ],
+    );
+
+    let text = sensor("field = \"accel\"\naxes = [\"x\", \"y\"]");
+    assert_refused(
+        &text,
+        "sensor[0].chip",
+        None,
+        &["several streams", "chip ="],
+    );
+
+    let text = format!(
+        "{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\nchip = \"mpu6050\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"
+    );
+    assert_refused(&text, "sensor[0].chip", None, &["no chips"]);
+
+    let text = sensor("chip = \"mpu6050\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]");
+    assert_refused(
+        &text,
+        "sensor[0].field",
+        Some(line_of(&text, "\"mag\"")),
+        &["not measured", "accel, gyro"],
+    );
+}
+
+#[test]
+fn a_missing_replay_file_is_named() {
+    let text = format!(
+        "{SOURCES}\n[[source]]\nname = \"r\"\nkind = \"replay\"\nfile = \"no/such.fcap\"\n\n\
+         [[sensor]]\nname = \"c\"\nsource = \"r\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"
+    );
+    assert_refused(
+        &text,
+        "source[2].file",
+        Some(line_of(&text, "no/such")),
+        &["no/such.fcap", "relative"],
+    );
+    let text = text.replace("file = \"no/such.fcap\"\n", "");
+    assert_refused(&text, "source[2].file", None, &["needs `file`"]);
+}
+
+#[test]
+fn a_replayed_bridge_capture_resolves_chips_to_stream_ids() {
+    let dir = tempfile::tempdir().unwrap();
+    let header = CaptureHeader {
+        version: 1,
+        streams: vec![
+            StreamInfo {
+                id: 0,
+                kind: StreamKind::Chip {
+                    chip: Chip::Mpu6050,
+                    address: 0x68,
+                },
+            },
+            StreamInfo {
+                id: 3,
+                kind: StreamKind::Chip {
+                    chip: Chip::Lsm303dlhcMag,
+                    address: 0x1E,
+                },
+            },
+        ],
+        port: None,
+        baud: None,
+        started_unix: 0.0,
+        nominal_period_s: 0.03,
+        note: None,
+    };
+    let file = std::fs::File::create(dir.path().join("bridge.fcap")).unwrap();
+    CaptureWriter::new(file, &header).unwrap();
+    let path = dir.path().join("fieldcal.toml");
+    let text = "[[source]]\nname = \"r\"\nkind = \"replay\"\nfile = \"bridge.fcap\"\nspeed = 4\n\n\
+                [[sensor]]\nname = \"c\"\nsource = \"r\"\nchip = \"lsm303dlhc-mag\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n";
+    std::fs::write(&path, text).unwrap();
+    let config = load(&path).unwrap();
+    assert_eq!(config.sensors[0].stream, 3);
+    match &config.sources[0].kind {
+        SourceKind::Replay { file, speed } => {
+            assert_eq!(file, &dir.path().join("bridge.fcap"));
+            assert_eq!(*speed, Speed::Times(4.0));
+        }
+        other => panic!("{other:?}"),
+    }
+    std::fs::write(&path, text.replace("speed = 4", "speed = -1")).unwrap();
+    let err = load(&path).unwrap_err();
+    assert_eq!(err.key(), Some("source[0].speed"), "{err}");
+}
+
+#[test]
+fn no_sensors_is_refused() {
+    assert_refused(SOURCES, "sensor", None, &["no [[sensor]]"]);
+    assert_refused("", "sensor", None, &["no [[sensor]]"]);
+}
+
+#[test]
+fn a_public_tcp_address_needs_tcp_public() {
+    let base = format!(
+        "{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"
+    );
+    let text = format!("[outputs]\ntcp = \"0.0.0.0:2948\"\n{base}");
+    assert_refused(
+        &text,
+        "outputs.tcp",
+        Some(2),
+        &["0.0.0.0:2948", "not a loopback", "tcp_public = true"],
+    );
+    let text = format!("[outputs]\ntcp = \"0.0.0.0:2948\"\ntcp_public = true\n{base}");
+    let config = parse(&text, &config_path()).unwrap();
+    assert_eq!(config.outputs.tcp, Some("0.0.0.0:2948".parse().unwrap()));
+    let text = format!("[outputs]\ntcp = \"[::1]:2948\"\n{base}");
+    assert!(parse(&text, &config_path()).is_ok());
+    let text = format!("[outputs]\ntcp = \"localhost:2948\"\n{base}");
+    assert_refused(
+        &text,
+        "outputs.tcp",
+        Some(2),
+        &["not a socket address", "IP:PORT"],
+    );
+}
+
+#[test]
+fn bad_numbers_are_refused_with_the_allowed_range() {
+    let base = format!(
+        "{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"
+    );
+    let text = base.replace("chips =", "i2c_khz = 250\nchips =");
+    assert_refused(
+        &text,
+        "source[1].i2c_khz",
+        Some(line_of(&text, "250")),
+        &["100 or 400"],
+    );
+    let text = base.replace("chips =", "poll_ms = 0\nchips =");
+    assert_refused(
+        &text,
+        "source[1].poll_ms",
+        Some(line_of(&text, "poll_ms")),
+        &["1 to 60000"],
+    );
+    let text = base.replace(
+        "port = \"/dev/ttyUSB0\"",
+        "port = \"/dev/ttyUSB0\"\nretry_s = nan",
+    );
+    assert_refused(
+        &text,
+        "source[0].retry_s",
+        Some(line_of(&text, "nan")),
+        &["above 0"],
+    );
+    let text = format!("[daemon]\nstatus_interval_s = 0\n{base}");
+    assert_refused(&text, "daemon.status_interval_s", Some(2), &["above 0"]);
+}
