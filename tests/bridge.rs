@@ -51,8 +51,13 @@ fn expected(chip: Chip, n: u64) -> Reading {
     r
 }
 
+/// A reading without what the source stamps on it: time and stream.
 fn without_time(r: &Reading) -> Reading {
-    Reading { time: 0.0, ..*r }
+    Reading {
+        time: 0.0,
+        stream: 0,
+        ..*r
+    }
 }
 
 /// The sample number a reading carries (its first accel or mag value).
@@ -207,11 +212,21 @@ fn four_chips_are_decoded_in_order_on_a_steady_schedule() {
         let mut last_time = t_start;
         for (k, (reading, bytes)) in readings[i].iter().enumerate() {
             let want = expected(chip, k as u64);
+            assert_eq!(
+                reading.stream as usize, i,
+                "{chip:?}: the stream is the chip's place in the poll list"
+            );
             assert_eq!(without_time(reading), want, "{chip:?} poll {k}");
             // The raw bytes are the chip's own layout and replay to the same
             // reading.
             assert_eq!(bytes, &chip.encode(&want), "{chip:?} poll {k} raw");
-            assert_eq!(chip.decode(bytes, reading.time).unwrap(), *reading);
+            assert_eq!(
+                chip.decode(bytes, reading.time).unwrap(),
+                Reading {
+                    stream: 0,
+                    ..*reading
+                }
+            );
             assert!(
                 reading.time >= last_time && reading.time <= t_end,
                 "{chip:?} time"

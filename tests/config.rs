@@ -71,8 +71,9 @@ field = "mag"
 axes = ["x", "y"]
 model = "paper"
 [sensor.rotation]
-min_coverage_deg = 350.0
+sectors = 24
 [sensor.limits]
+min_coverage_deg = 350.0
 
 [[sensor]]
 name = "tilt"
@@ -195,13 +196,12 @@ fn a_full_config_parses_to_the_right_structures() {
     assert_eq!(s[0].field, Field::Mag);
     assert_eq!(s[0].axes, [Axis::X, Axis::Y]);
     assert_eq!(s[0].effects, ["offset", "scale"]);
+    assert_eq!(s[0].rotation.sectors, 24);
+    assert_eq!(s[0].limits.min_coverage_deg, 350.0);
     assert_eq!(
-        s[0].rotation
-            .get("min_coverage_deg")
-            .and_then(|v| v.as_float()),
-        Some(350.0)
+        s[1].rotation,
+        fieldcal::daemon::rotation::RotationConfig::default()
     );
-    assert!(s[0].limits.is_empty());
     assert_eq!((s[1].stream, s[1].field), (2, Field::Accel));
     assert_eq!(s[1].axes, [Axis::Y, Axis::Z]);
     assert_eq!(s[1].effects, ["offset", "scale"]);

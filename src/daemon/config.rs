@@ -91,24 +91,10 @@ use crate::protocol::falcon;
 use crate::source::bridge::{BridgeConfig, I2cSpeed};
 use crate::source::replay::Speed;
 
-// replaced by RotationConfig / Limits at merge
-pub type RotationSettings = toml::Table;
-// replaced by RotationConfig / Limits at merge
-pub type LimitSettings = toml::Table;
-
-/// Stand-in for the `validate` of `RotationConfig` and `Limits` while the
-/// settings are raw tables. Once the aliases name those types, their
-/// inherent `validate` is called instead (inherent methods win), and this
-/// trait and its impl can be deleted.
-trait ValidateSettings {
-    fn validate(&self) -> Result<(), String>;
-}
-
-impl ValidateSettings for toml::Table {
-    fn validate(&self) -> Result<(), String> {
-        Ok(())
-    }
-}
+/// When a sensor's rotation counts as complete (`[sensor.rotation]`).
+pub type RotationSettings = crate::daemon::rotation::RotationConfig;
+/// The limits a fit must meet to be accepted (`[sensor.limits]`).
+pub type LimitSettings = crate::daemon::acceptance::Limits;
 
 /// Polls per second are bounded by what a USB-ISS can do; a minute between
 /// polls is already useless for a turning sensor.

@@ -7,9 +7,12 @@
 
 pub mod acceptance;
 pub mod config;
+pub mod messages;
 pub mod notify;
 pub mod publish;
 pub mod rotation;
+pub mod run;
+pub mod sensor;
 pub mod state;
 
 use serde::{Deserialize, Serialize};

@@ -49,6 +49,15 @@ pub struct Harness {
 impl Harness {
     pub fn start(mock: MockUsbIss) -> Harness {
         let (mut master, slave) = TTYPort::pair().expect("a pty pair");
+        // serialport opens pty pairs without close-on-exec: a fieldcal
+        // spawned by a test must not inherit them.
+        for fd in [
+            std::os::fd::AsRawFd::as_raw_fd(&master),
+            std::os::fd::AsRawFd::as_raw_fd(&slave),
+        ] {
+            // SAFETY: fcntl on descriptors this function owns.
+            unsafe { libc::fcntl(fd, libc::F_SETFD, libc::FD_CLOEXEC) };
+        }
         let port = PathBuf::from(slave.name().expect("the slave pty has a name"));
         master
             .set_timeout(Duration::from_millis(10))

@@ -1,10 +1,20 @@
 //! Helpers shared by the integration tests: run the real binary.
 #![allow(dead_code)]
 
+pub mod daemon;
 pub mod pty;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+
+/// Marks a descriptor close-on-exec. serialport's pty pairs are opened
+/// without it, so a daemon spawned later would inherit the master and keep
+/// the line up after the test "unplugs" the device.
+pub fn close_on_exec(fd: std::os::fd::RawFd) {
+    // SAFETY: fcntl on a descriptor the caller owns; no memory is touched.
+    let rc = unsafe { libc::fcntl(fd, libc::F_SETFD, libc::FD_CLOEXEC) };
+    assert_eq!(rc, 0, "fcntl(FD_CLOEXEC) failed");
+}
 
 pub fn fieldcal() -> Command {
     Command::new(env!("CARGO_BIN_EXE_fieldcal"))

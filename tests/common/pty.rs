@@ -17,6 +17,8 @@ pub struct FalconPty {
     _dir: tempfile::TempDir,
     link: PathBuf,
     device: Arc<Mutex<MockFalcon>>,
+    /// When each chunk was written to the pty, in order.
+    sent_at: Arc<Mutex<Vec<Instant>>>,
     period: Duration,
     running: Option<(Arc<AtomicBool>, JoinHandle<()>)>,
 }
@@ -30,6 +32,7 @@ impl FalconPty {
             _dir: dir,
             link,
             device: Arc::new(Mutex::new(MockFalcon::new(chunks))),
+            sent_at: Arc::new(Mutex::new(Vec::new())),
             period,
             running: None,
         };
@@ -56,6 +59,9 @@ impl FalconPty {
     pub fn plug(&mut self) {
         assert!(self.running.is_none(), "already plugged in");
         let (mut master, slave) = TTYPort::pair().expect("pty pair");
+        use std::os::fd::AsRawFd;
+        super::close_on_exec(master.as_raw_fd());
+        super::close_on_exec(slave.as_raw_fd());
         let slave_name = slave.name().expect("pty slave name");
         let _ = std::fs::remove_file(&self.link);
         std::os::unix::fs::symlink(&slave_name, &self.link).expect("symlink to pty");
@@ -64,6 +70,7 @@ impl FalconPty {
             .expect("pty timeout");
         let run = Arc::new(AtomicBool::new(true));
         let device = self.device.clone();
+        let sent_at = self.sent_at.clone();
         let period = self.period;
         let thread = {
             let run = run.clone();
@@ -83,6 +90,7 @@ impl FalconPty {
                         let chunk = device.lock().unwrap().tick().map(<[u8]>::to_vec);
                         if let Some(chunk) = chunk {
                             let _ = master.write_all(&chunk);
+                            sent_at.lock().unwrap().push(Instant::now());
                         }
                     }
                 }
@@ -93,6 +101,11 @@ impl FalconPty {
 
     pub fn sent(&self) -> usize {
         self.device.lock().unwrap().sent()
+    }
+
+    /// When chunk `index` was sent, if it has been.
+    pub fn sent_at(&self, index: usize) -> Option<Instant> {
+        self.sent_at.lock().unwrap().get(index).copied()
     }
 
     pub fn commands_seen(&self) -> (u32, u32) {

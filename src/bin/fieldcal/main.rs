@@ -5,6 +5,8 @@ mod fit;
 mod output;
 mod record;
 mod replay;
+mod run;
+mod signals;
 mod simulate;
 
 use std::path::PathBuf;
@@ -35,6 +37,8 @@ enum Command {
     Fit(FitArgs),
     /// Write a simulated sensor turned in a constant field: a CSV, or a Falcon-GX capture.
     Simulate(SimulateArgs),
+    /// Run the daemon: read the configured sensors, calibrate on a full rotation, publish corrected readings.
+    Run(RunArgs),
     /// Capture a device's bytes, exactly as they come off the wire, to a file.
     Record(RecordArgs),
     /// Decode a capture (or a raw dump) and print its samples as JSON lines.
@@ -79,6 +83,13 @@ struct RecordArgs {
 }
 
 #[derive(Debug, Args)]
+struct RunArgs {
+    /// The daemon's TOML configuration (see config/fieldcal.toml).
+    #[arg(long, value_name = "FILE")]
+    config: PathBuf,
+}
+
+#[derive(Debug, Args)]
 struct ReplayArgs {
     /// A capture written by `fieldcal record` or `fieldcal simulate --format falcon`, or a raw byte dump of Falcon-GX frames.
     file: PathBuf,
@@ -88,6 +99,12 @@ struct ReplayArgs {
     /// Print a JSON summary line (class SUMMARY) after the samples.
     #[arg(long)]
     json: bool,
+    /// Run the capture through the daemon's pipeline as configured here: print what `fieldcal run` would have published.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// With --config: the source the capture stands in for (default: the first).
+    #[arg(long, value_name = "NAME", requires = "config")]
+    source: Option<String>,
 }
 
 #[derive(Debug, Args)]
@@ -239,8 +256,12 @@ fn parse_positive(text: &str) -> Result<f64, String> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    init_logging();
+    // The daemon chooses its log format in its configuration.
+    if !matches!(cli.command, Command::Run(_)) {
+        init_logging(false);
+    }
     let result = match cli.command {
+        Command::Run(args) => run::run(args),
         Command::Fit(args) => fit::fit(args),
         Command::Simulate(args) => simulate::simulate(args),
         Command::Record(args) => record::record(args),
@@ -259,14 +280,20 @@ fn main() -> ExitCode {
     }
 }
 
-/// Logs go to stderr, filtered by RUST_LOG (default: info).
-fn init_logging() {
+/// Logs go to stderr, filtered by RUST_LOG (default: info), as text or
+/// as one JSON object per line.
+fn init_logging(json: bool) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt()
+    let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_target(false)
-        .try_init();
+        .with_target(false);
+    let _ = if json {
+        builder.json().try_init()
+    } else {
+        builder
+            .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+            .try_init()
+    };
 }

@@ -111,7 +111,7 @@ pub fn record(args: RecordArgs) -> Result<()> {
                 Source::Thread(thread)
             }
         };
-        tokio::spawn(forward_signals(stop_tx.clone()));
+        tokio::spawn(crate::signals::forward_signals(stop_tx.clone()));
         let duration = args.duration.map(Duration::from_secs_f64);
         let result = run_recorder(events_rx, &mut writer, started_unix, duration, stop_rx).await;
         // Stop the source whatever ended the recording; it sends the
@@ -152,28 +152,4 @@ pub fn record(args: RecordArgs) -> Result<()> {
 enum Source {
     Task(tokio::task::JoinHandle<()>),
     Thread(std::thread::JoinHandle<()>),
-}
-
-/// Turns Ctrl-C and SIGTERM into a stop request.
-async fn forward_signals(stop: watch::Sender<bool>) {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{SignalKind, signal};
-        match signal(SignalKind::terminate()) {
-            Ok(mut term) => {
-                tokio::select! {
-                    _ = tokio::signal::ctrl_c() => {}
-                    _ = term.recv() => {}
-                }
-            }
-            Err(_) => {
-                let _ = tokio::signal::ctrl_c().await;
-            }
-        }
-    }
-    #[cfg(not(unix))]
-    {
-        let _ = tokio::signal::ctrl_c().await;
-    }
-    let _ = stop.send(true);
 }

@@ -23,6 +23,33 @@ struct SampleLine<'a> {
 pub fn replay(args: ReplayArgs) -> Result<()> {
     let name = args.file.display().to_string();
     let file = read_capture(&args.file)?;
+    if let Some(config) = &args.config {
+        let config = fieldcal::daemon::config::load(config)?;
+        let stdout = std::io::stdout();
+        let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
+        let result = fieldcal::daemon::run::replay_through_pipeline(
+            &config,
+            &file,
+            &name,
+            args.source.as_deref(),
+            args.speed,
+            &mut out,
+        );
+        return match result {
+            Err(fieldcal::daemon::run::DaemonError::Output(e))
+                if e.kind() == std::io::ErrorKind::BrokenPipe =>
+            {
+                Ok(())
+            }
+            Err(e) => Err(e.into()),
+            Ok(summary) => {
+                if let Some(truncated) = &summary.truncated {
+                    tracing::warn!("{truncated}");
+                }
+                Ok(())
+            }
+        };
+    }
     let stop = AtomicBool::new(false);
     let stdout = std::io::stdout();
     let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());

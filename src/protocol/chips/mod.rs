@@ -460,6 +460,7 @@ mod tests {
             temp_raw: Some(-40),
             temp_c: None,
             timer: None,
+            stream: 0,
         };
         for chip in Chip::ALL {
             let bytes = chip.encode(&reading);

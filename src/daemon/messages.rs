@@ -1,0 +1,137 @@
+//! What the daemon publishes: one JSON object per line, each with a
+//! `class`, in the manner of gpsd. Absent values are omitted, never null.
+
+use serde::Serialize;
+
+use super::Calibration;
+use super::rotation::Progress;
+use crate::model::paper::PaperCalibration;
+use crate::source::CountersSnapshot;
+
+/// A sample of one sensor, raw and (once calibrated) corrected.
+#[derive(Debug, Clone, Serialize)]
+pub struct ReadingMessage<'a> {
+    pub class: &'static str,
+    pub sensor: &'a str,
+    /// Host receive time (seconds since the Unix epoch; since the start of
+    /// the capture in a replay).
+    pub time: f64,
+    /// The two turning axes, in counts.
+    pub raw: [f64; 2],
+    /// The calibrated axes (in the y axis' units), once a calibration exists.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub corrected: Option<[f64; 2]>,
+    /// Heading of the corrected reading, degrees counter-clockwise from +x in [0, 360).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heading_deg: Option<f64>,
+    /// The id of the calibration that corrected it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<u64>,
+    /// False until the sensor has a calibration: the reading is raw only.
+    pub calibrated: bool,
+}
+
+/// A fit, accepted or rejected.
+#[derive(Debug, Clone, Serialize)]
+pub struct CalibrationMessage<'a> {
+    pub class: &'static str,
+    pub sensor: &'a str,
+    pub accepted: bool,
+    /// The new calibration's id (accepted fits only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub id: Option<u64>,
+    /// Why the fit was rejected, or why no fit was possible.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+    pub model: &'a str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub params: Option<PaperCalibration>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rms: Option<f64>,
+    pub coverage_deg: f64,
+    pub n: usize,
+    /// Milliseconds the fit took.
+    pub fit_ms: f64,
+    /// The time of the rotation's last sample.
+    pub time: f64,
+    /// Where the calibration came from: `rotation` (fitted now) or `state`
+    /// (loaded from the state directory at start).
+    pub origin: &'static str,
+}
+
+impl<'a> CalibrationMessage<'a> {
+    pub fn loaded(calibration: &'a Calibration) -> Self {
+        CalibrationMessage {
+            class: "CALIBRATION",
+            sensor: &calibration.sensor,
+            accepted: true,
+            id: Some(calibration.id),
+            reason: None,
+            model: &calibration.model,
+            params: Some(calibration.params),
+            rms: Some(calibration.rms),
+            coverage_deg: calibration.coverage_deg,
+            n: calibration.n,
+            fit_ms: 0.0,
+            time: calibration.time,
+            origin: "state",
+        }
+    }
+}
+
+/// Where a sensor is in its life.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SensorState {
+    /// No calibration yet: collecting the first rotation.
+    Collecting,
+    /// Calibrated, correcting every reading.
+    Calibrated,
+    /// Calibrated and collecting a new rotation (after `recalibrate`).
+    Recalibrating,
+}
+
+/// One sensor in a `STATUS` message.
+#[derive(Debug, Clone, Serialize)]
+pub struct SensorStatus<'a> {
+    pub sensor: &'a str,
+    pub source: &'a str,
+    pub state: SensorState,
+    /// Rotation progress, while collecting.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rotation: Option<Progress>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<u64>,
+    pub readings: u64,
+    pub fits_accepted: u64,
+    pub fits_rejected: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last_rejection: Option<&'a str>,
+}
+
+/// A source in a `STATUS` message: its decoder and connection counters.
+#[derive(Debug, Clone, Serialize)]
+pub struct SourceStatus<'a> {
+    pub source: &'a str,
+    pub connected: bool,
+    #[serde(flatten)]
+    pub counters: CountersSnapshot,
+}
+
+/// The periodic `STATUS` message.
+#[derive(Debug, Clone, Serialize)]
+pub struct StatusMessage<'a> {
+    pub class: &'static str,
+    pub time: f64,
+    pub sensors: Vec<SensorStatus<'a>>,
+    pub sources: Vec<SourceStatus<'a>>,
+    pub subscribers: usize,
+    /// Readings dropped for slow subscribers, in all.
+    pub dropped: u64,
+}
+
+/// Serialises a message to one line (without the newline). Serialising
+/// these plain structs cannot fail; an empty object is the fallback.
+pub fn to_line<T: Serialize>(message: &T) -> String {
+    serde_json::to_string(message).unwrap_or_else(|_| "{}".to_string())
+}

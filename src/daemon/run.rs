@@ -1,0 +1,533 @@
+//! The daemon's wiring: sources, sensors, publishers, state and systemd,
+//! connected by channels. Each source task owns its port; this loop owns
+//! the sensors; the hub owns the subscribers.
+//!
+//! [`replay_through_pipeline`] runs the very same sensors on a capture,
+//! synchronously and losslessly, so its output is what `run` would have
+//! published.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use tokio::sync::{mpsc, watch};
+
+use super::Calibration;
+use super::config::{Config, SourceKind};
+use super::messages::{CalibrationMessage, SourceStatus, StatusMessage, to_line};
+use super::notify::Notifier;
+use super::publish::{ClientCommand, Hub, Lane, ReplyTo};
+use super::sensor::Sensor;
+use super::state::StateStore;
+use crate::capture::{CaptureFile, read_capture};
+use crate::source::bridge::{BridgeConfig, spawn_bridge_source};
+use crate::source::replay::{ReplayError, ReplaySummary, Speed, replay};
+use crate::source::serial::{SerialConfig, run_serial_source, unix_now};
+use crate::source::{SourceCounters, SourceEvent};
+
+/// Why the daemon could not start. Once running, it reports and goes on.
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonError {
+    #[error("state directory: {0}")]
+    State(#[from] super::state::StateError),
+    #[error(
+        "cannot listen on TCP {address}: {source}; choose another address in [outputs] tcp, or stop what holds it"
+    )]
+    Tcp {
+        address: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(
+        "cannot listen on the Unix socket {path}: {source}; check that its directory exists and is writable"
+    )]
+    Unix {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("cannot start source '{name}': {source}")]
+    Source {
+        name: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Capture(#[from] crate::capture::CaptureError),
+    #[error(transparent)]
+    Replay(#[from] ReplayError),
+    #[error("no source named '{0}' in the configuration")]
+    NoSuchSource(String),
+    #[error("cannot write the output: {0}")]
+    Output(#[source] std::io::Error),
+}
+
+/// A running source, as the loop sees it.
+struct SourceHandle {
+    name: String,
+    counters: Arc<SourceCounters>,
+    connected: bool,
+    task: SourceTask,
+}
+
+enum SourceTask {
+    Async(tokio::task::JoinHandle<()>),
+    Thread(std::thread::JoinHandle<()>),
+}
+
+/// Sensors grouped by the source that feeds them.
+struct Sensors {
+    sensors: Vec<(usize, Sensor)>,
+}
+
+impl Sensors {
+    fn build(config: &Config, store: Option<&StateStore>) -> Self {
+        let sensors = config
+            .sensors
+            .iter()
+            .filter_map(|s| {
+                let source = config.sources.iter().position(|src| src.name == s.source)?;
+                let stored = store.and_then(|store| match store.load(&s.name) {
+                    Ok(found) => found,
+                    Err(e) => {
+                        tracing::warn!("{e}; the sensor starts uncalibrated");
+                        None
+                    }
+                });
+                Some((source, Sensor::new(s.clone(), stored)))
+            })
+            .collect();
+        Sensors { sensors }
+    }
+
+    /// Feeds a reading to the sensors of its source and stream.
+    fn on_reading(
+        &mut self,
+        source: usize,
+        reading: &crate::sample::Reading,
+        emit: &mut dyn FnMut(Lane, String),
+        store: &mut dyn FnMut(&Calibration) -> Result<(), String>,
+    ) {
+        for (src, sensor) in &mut self.sensors {
+            if *src == source && sensor.wants(reading.stream) {
+                if let Some(accepted) = sensor.on_reading(reading, emit) {
+                    // Readings go on with the new calibration in memory; the
+                    // stored file stays as it was, and subscribers are told.
+                    if let Err(message) = store(&accepted) {
+                        tracing::error!("{message}");
+                        let line = serde_json::json!({ "class": "ERROR", "sensor": sensor.name(), "message": message });
+                        emit(Lane::Control, line.to_string());
+                    }
+                }
+            }
+        }
+    }
+
+    fn recalibrate(&mut self, name: Option<&str>) -> usize {
+        let mut n = 0;
+        for (_, sensor) in &mut self.sensors {
+            if name.is_none_or(|name| sensor.name() == name) {
+                sensor.recalibrate();
+                n += 1;
+            }
+        }
+        n
+    }
+
+    fn status_line(&self, time: f64, sources: &[SourceStatus<'_>], hub: Option<&Hub>) -> String {
+        let stats = hub.map(Hub::stats).unwrap_or_default();
+        to_line(&StatusMessage {
+            class: "STATUS",
+            time,
+            sensors: self.sensors.iter().map(|(_, s)| s.status()).collect(),
+            sources: sources.to_vec(),
+            subscribers: stats.subscribers,
+            dropped: stats.dropped,
+        })
+    }
+}
+
+/// Runs the daemon until `shutdown` turns true. Returns once sources are
+/// stopped (the Falcon stop command sent) and subscribers flushed.
+pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<(), DaemonError> {
+    let notifier = Notifier::from_env();
+    let store = StateStore::open(&config.daemon.state_dir)?;
+    let mut sensors = Sensors::build(&config, Some(&store));
+    let hub = Hub::new(config.outputs.queue);
+    // Sources stop first; outputs only once the last line is published.
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let (outputs_stop_tx, outputs_stop_rx) = watch::channel(false);
+    let (commands_tx, mut commands) = mpsc::channel::<(ClientCommand, ReplyTo)>(64);
+
+    // Listeners first: a bad address stops the start before any port opens.
+    let mut unix_path = None;
+    if let Some(address) = &config.outputs.tcp {
+        let listener = tokio::net::TcpListener::bind(address)
+            .await
+            .map_err(|source| DaemonError::Tcp {
+                address: address.to_string(),
+                source,
+            })?;
+        tracing::info!(%address, "listening on TCP");
+        tokio::spawn({
+            let hub = hub.clone();
+            let (commands, stop) = (commands_tx.clone(), outputs_stop_rx.clone());
+            async move { hub.serve_tcp(listener, commands, stop).await }
+        });
+    }
+    if let Some(path) = &config.outputs.unix {
+        remove_stale_socket(path);
+        let listener =
+            tokio::net::UnixListener::bind(path).map_err(|source| DaemonError::Unix {
+                path: path.clone(),
+                source,
+            })?;
+        tracing::info!(path = %path.display(), "listening on a Unix socket");
+        unix_path = Some(path.clone());
+        tokio::spawn({
+            let hub = hub.clone();
+            let (commands, stop) = (commands_tx.clone(), outputs_stop_rx.clone());
+            async move { hub.serve_unix(listener, commands, stop).await }
+        });
+    }
+    let stdout_task = config.outputs.stdout.then(|| {
+        let hub = hub.clone();
+        let stop = outputs_stop_rx.clone();
+        tokio::spawn(hub.serve_writer(tokio::io::stdout(), stop))
+    });
+    drop(commands_tx);
+
+    // Calibrations loaded from the state directory correct from the start.
+    for (_, sensor) in &sensors.sensors {
+        if let Some(c) = sensor.calibration() {
+            tracing::info!(
+                sensor = sensor.name(),
+                id = c.id,
+                "loaded the stored calibration"
+            );
+            hub.publish(
+                Lane::Control,
+                Arc::from(to_line(&CalibrationMessage::loaded(c))),
+            );
+        }
+    }
+
+    let (events_tx, mut events) = mpsc::channel::<(usize, SourceEvent)>(8192);
+    let stop_flag = Arc::new(AtomicBool::new(false));
+    let mut sources = Vec::new();
+    for (index, source) in config.sources.iter().enumerate() {
+        let counters = Arc::new(SourceCounters::default());
+        let (tx, mut rx) = mpsc::channel::<SourceEvent>(4096);
+        let task = match &source.kind {
+            SourceKind::Falcon { port, baud } => {
+                let serial = SerialConfig {
+                    baud: *baud,
+                    retry_interval: source.retry,
+                    ..SerialConfig::new(port)
+                };
+                SourceTask::Async(tokio::spawn(run_serial_source(
+                    serial,
+                    tx,
+                    counters.clone(),
+                    stop_rx.clone(),
+                )))
+            }
+            SourceKind::UsbIss {
+                port,
+                chips,
+                poll,
+                i2c_khz,
+            } => {
+                let bridge = BridgeConfig {
+                    period: *poll,
+                    retry_interval: source.retry,
+                    speed: if *i2c_khz >= 400 {
+                        crate::i2c::I2cSpeed::Khz400
+                    } else {
+                        crate::i2c::I2cSpeed::Khz100
+                    },
+                    ..BridgeConfig::new(port, chips.clone())
+                };
+                let thread = spawn_bridge_source(bridge, tx, counters.clone(), stop_flag.clone())
+                    .map_err(|e| DaemonError::Source {
+                    name: source.name.clone(),
+                    source: e,
+                })?;
+                SourceTask::Thread(thread)
+            }
+            SourceKind::Replay { file, speed } => {
+                let capture = read_capture(file)?;
+                let (name, speed, stop) = (file.display().to_string(), *speed, stop_flag.clone());
+                let counters = counters.clone();
+                SourceTask::Thread(std::thread::spawn(move || {
+                    let _ = tx.blocking_send(SourceEvent::Connected {
+                        device: name.clone(),
+                    });
+                    let result = replay(&capture, &name, speed, &stop, &mut |reading| {
+                        SourceCounters::add(&counters.frames_good, 1);
+                        if tx.blocking_send(SourceEvent::Reading(reading)).is_err() {
+                            stop.store(true, Ordering::Relaxed);
+                        }
+                    });
+                    match result {
+                        Ok(summary) => {
+                            tracing::info!(readings = summary.readings, "replay of {name} finished")
+                        }
+                        Err(e) => tracing::warn!("{e}"),
+                    }
+                }))
+            }
+        };
+        // One channel for the loop, each event tagged with its source.
+        let forward = events_tx.clone();
+        tokio::spawn(async move {
+            while let Some(event) = rx.recv().await {
+                if forward.send((index, event)).await.is_err() {
+                    break;
+                }
+            }
+        });
+        sources.push(SourceHandle {
+            name: source.name.clone(),
+            counters,
+            connected: false,
+            task,
+        });
+    }
+    drop(events_tx);
+
+    notifier.ready();
+    notifier.status(&format!(
+        "running: {} sources, {} sensors",
+        sources.len(),
+        sensors.sensors.len()
+    ));
+    tracing::info!("fieldcal is running");
+
+    let mut status_tick = tokio::time::interval(config.daemon.status_interval);
+    status_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let watchdog = notifier.watchdog_interval();
+    let mut watchdog_tick = tokio::time::interval(watchdog.unwrap_or(Duration::from_secs(3600)));
+    watchdog_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+
+    let publish = |hub: &Hub| {
+        let hub = hub.clone();
+        move |lane: Lane, line: String| hub.publish(lane, Arc::from(line))
+    };
+    let mut save = |c: &Calibration| store.save(c).map_err(|e| e.to_string());
+
+    loop {
+        tokio::select! {
+            _ = shutdown.changed() => break,
+            event = events.recv() => {
+                let Some((index, event)) = event else { break };
+                handle_event(index, event, &mut sources, &mut sensors, &mut publish(&hub), &mut save);
+            }
+            Some((command, reply)) = commands.recv() => {
+                match command {
+                    ClientCommand::Recalibrate { sensor } => {
+                        let n = sensors.recalibrate(sensor.as_deref());
+                        tracing::info!(sensors = n, "recalibration requested by a client");
+                        if n == 0 {
+                            reply.send(Arc::from(to_line(&serde_json::json!({
+                                "class": "ERROR",
+                                "message": format!("no sensor named '{}'", sensor.unwrap_or_default()),
+                            }))));
+                        }
+                    }
+                    ClientCommand::Status => {}
+                }
+                reply.send(Arc::from(sensors.status_line(unix_now(), &source_statuses(&sources), Some(&hub))));
+            }
+            _ = status_tick.tick() => {
+                let line = sensors.status_line(unix_now(), &source_statuses(&sources), Some(&hub));
+                hub.publish(Lane::Control, Arc::from(line));
+                notifier.status(&status_text(&sensors));
+            }
+            _ = watchdog_tick.tick(), if watchdog.is_some() => notifier.ping(),
+        }
+    }
+
+    // Shutdown: stop the sources (the Falcon source sends its stop
+    // command), then handle what they had already delivered.
+    notifier.stopping();
+    tracing::info!("stopping");
+    let _ = stop_tx.send(true);
+    stop_flag.store(true, Ordering::Relaxed);
+    for source in &mut sources {
+        let task = std::mem::replace(&mut source.task, SourceTask::Async(tokio::spawn(async {})));
+        match task {
+            SourceTask::Async(handle) => {
+                let _ = tokio::time::timeout(Duration::from_secs(2), handle).await;
+            }
+            SourceTask::Thread(handle) => {
+                let _ = tokio::time::timeout(
+                    Duration::from_secs(2),
+                    tokio::task::spawn_blocking(move || handle.join()),
+                )
+                .await;
+            }
+        }
+    }
+    while let Ok((index, event)) = events.try_recv() {
+        handle_event(
+            index,
+            event,
+            &mut sources,
+            &mut sensors,
+            &mut publish(&hub),
+            &mut save,
+        );
+    }
+    hub.publish(
+        Lane::Control,
+        Arc::from(sensors.status_line(unix_now(), &source_statuses(&sources), Some(&hub))),
+    );
+    hub.close().await;
+    let _ = outputs_stop_tx.send(true);
+    if let Some(task) = stdout_task {
+        let _ = tokio::time::timeout(Duration::from_secs(1), task).await;
+    }
+    if let Some(path) = unix_path {
+        let _ = std::fs::remove_file(path);
+    }
+    Ok(())
+}
+
+fn handle_event(
+    index: usize,
+    event: SourceEvent,
+    sources: &mut [SourceHandle],
+    sensors: &mut Sensors,
+    emit: &mut dyn FnMut(Lane, String),
+    store: &mut dyn FnMut(&Calibration) -> Result<(), String>,
+) {
+    match event {
+        SourceEvent::Reading(reading) => sensors.on_reading(index, &reading, emit, store),
+        SourceEvent::Connected { .. } => {
+            if let Some(s) = sources.get_mut(index) {
+                s.connected = true;
+            }
+        }
+        SourceEvent::Disconnected { .. } => {
+            if let Some(s) = sources.get_mut(index) {
+                s.connected = false;
+            }
+        }
+        SourceEvent::Raw { .. } => {}
+    }
+}
+
+fn source_statuses(sources: &[SourceHandle]) -> Vec<SourceStatus<'_>> {
+    sources
+        .iter()
+        .map(|s| SourceStatus {
+            source: &s.name,
+            connected: s.connected,
+            counters: s.counters.snapshot(),
+        })
+        .collect()
+}
+
+/// The one-line STATUS= text systemd shows.
+fn status_text(sensors: &Sensors) -> String {
+    let parts: Vec<String> = sensors
+        .sensors
+        .iter()
+        .map(|(_, s)| {
+            let status = s.status();
+            match (status.calibration, status.rotation) {
+                (Some(id), None) => format!("{}: calibrated (#{id})", s.name()),
+                (_, Some(p)) => format!("{}: collecting {:.0}%", s.name(), p.coverage_pct),
+                (None, None) => format!("{}: waiting", s.name()),
+            }
+        })
+        .collect();
+    parts.join("; ")
+}
+
+/// A socket file left by a daemon that died is removed; anything else at
+/// that path is left for bind to report.
+fn remove_stale_socket(path: &std::path::Path) {
+    use std::os::unix::fs::FileTypeExt;
+    if let Ok(meta) = std::fs::symlink_metadata(path) {
+        if meta.file_type().is_socket() && std::os::unix::net::UnixStream::connect(path).is_err() {
+            let _ = std::fs::remove_file(path);
+        }
+    }
+}
+
+/// Runs the configured sensors on a capture that stands in for the source
+/// `source` (or the only source), writing every line `run` would have
+/// published to `out`, losslessly. STATUS lines come every
+/// `status_interval_s` of capture time, so the output is the same on every
+/// run. No state is read or written.
+pub fn replay_through_pipeline(
+    config: &Config,
+    capture: &CaptureFile,
+    name: &str,
+    source: Option<&str>,
+    speed: Speed,
+    out: &mut dyn Write,
+) -> Result<ReplaySummary, DaemonError> {
+    let index = match source {
+        Some(wanted) => config
+            .sources
+            .iter()
+            .position(|s| s.name == wanted)
+            .ok_or_else(|| DaemonError::NoSuchSource(wanted.to_string()))?,
+        None => 0,
+    };
+    let mut sensors = Sensors::build(config, None);
+    let stop = AtomicBool::new(false);
+    let interval = config.daemon.status_interval.as_secs_f64();
+    let mut next_status = interval;
+    let counters = SourceCounters::default();
+    let source_name = config
+        .sources
+        .get(index)
+        .map_or("replay", |s| s.name.as_str());
+    let realtime = !matches!(speed, Speed::Max);
+    let mut failed: Option<std::io::Error> = None;
+    let write_line = |line: &str, out: &mut dyn Write| -> std::io::Result<()> {
+        out.write_all(line.as_bytes())?;
+        out.write_all(b"\n")?;
+        if realtime { out.flush() } else { Ok(()) }
+    };
+    let summary = replay(capture, name, speed, &stop, &mut |reading| {
+        if failed.is_some() {
+            return;
+        }
+        SourceCounters::add(&counters.frames_good, 1);
+        let mut lines: Vec<String> = Vec::new();
+        while reading.time >= next_status {
+            let statuses = [SourceStatus {
+                source: source_name,
+                connected: true,
+                counters: counters.snapshot(),
+            }];
+            lines.push(sensors.status_line(next_status, &statuses, None));
+            next_status += interval;
+        }
+        sensors.on_reading(
+            index,
+            &reading,
+            &mut |_, line| lines.push(line),
+            &mut |_| Ok(()),
+        );
+        for line in lines {
+            if let Err(e) = write_line(&line, out) {
+                failed = Some(e);
+                stop.store(true, Ordering::Relaxed);
+                return;
+            }
+        }
+    })?;
+    if let Some(e) = failed {
+        return Err(DaemonError::Output(e));
+    }
+    out.flush().map_err(DaemonError::Output)?;
+    Ok(summary)
+}
