@@ -151,7 +151,10 @@ fn falcon_rotation_is_calibrated_within_a_second_and_corrected_after() {
     )
     .unwrap();
     assert_eq!(stored["calibration"]["id"], 1, "{stored}");
-    assert_eq!(stored["calibration"]["params"], calibration["params"], "{stored}");
+    assert_eq!(
+        stored["calibration"]["params"], calibration["params"],
+        "{stored}"
+    );
 }
 
 #[test]

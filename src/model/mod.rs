@@ -4,7 +4,9 @@
 //!   closed-form least squares (eq. 6) and its gradient descent (eqs. 7-21).
 //! - [`heading`]: where on the circle the samples lie (coverage of the turn).
 //! - [`fit`]: fitting a recording end to end, with the checks a user needs.
+//! - [`effects`]: the catalogue of physical effects a model can add.
 
+pub mod effects;
 pub mod fit;
 pub mod heading;
 pub mod paper;
