@@ -722,7 +722,7 @@ fn ladder_plot(
         };
         chart.draw_series(std::iter::once(Text::new(
             text,
-            (top * 0.005, row + 0.3),
+            (top * 0.005, row + 0.17),
             (FAMILY, 14).into_font(),
         )))?;
     }
