@@ -1,6 +1,8 @@
 //! What fieldcal tells a person (text) or a program (JSON) about its work.
 
 pub mod fit;
+pub mod html;
+pub mod plots;
 
 /// Formats a number with `digits` significant digits, without exponent for
 /// the magnitudes sensor readings take, so columns of raw counts and unit

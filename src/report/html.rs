@@ -1,0 +1,91 @@
+//! The report page (`index.html`): the diagnosis text, then every figure.
+//!
+//! Self-contained on purpose: inline CSS, no scripts, no fonts or styles
+//! from the network, so it opens the same on an air-gapped bench machine.
+
+use super::plots::{Figure, ReportData};
+
+/// Escapes text for HTML element content and double-quoted attributes.
+pub fn escape(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    for c in text.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&#39;"),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// Escapes a file name for use as a relative URL in `src`: characters that
+/// would change its meaning in a URL are percent-encoded, then the result is
+/// attribute-escaped.
+fn url(file: &str) -> String {
+    let mut out = String::with_capacity(file.len());
+    for b in file.bytes() {
+        match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'_' | b'.' => out.push(char::from(b)),
+            b => out.push_str(&format!("%{b:02X}")),
+        }
+    }
+    escape(&out)
+}
+
+const STYLE: &str = "\
+body { font-family: sans-serif; margin: 2em auto; max-width: 1040px; padding: 0 1em; color: #222; }
+h1 { font-size: 1.5em; }
+h2 { font-size: 1.15em; margin-top: 2em; }
+.summary { background: #f6f6f6; border-left: 4px solid #1f77b4; padding: 0.5em 1em; }
+figure { margin: 1em 0; }
+figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
+figcaption { color: #444; font-size: 0.95em; margin-top: 0.4em; }
+footer { color: #777; font-size: 0.85em; margin-top: 3em; }
+";
+
+/// Renders the page. `data.summary_html` is inserted as is (the caller
+/// escapes it); every other text is escaped here.
+pub fn render_index(data: &ReportData, figures: &[Figure]) -> String {
+    let title = escape(&data.title);
+    let mut html = String::new();
+    html.push_str("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n");
+    html.push_str(&format!("<title>fieldcal report: {title}</title>\n"));
+    html.push_str(&format!("<style>\n{STYLE}</style>\n</head>\n<body>\n"));
+    html.push_str(&format!("<h1>fieldcal report: {title}</h1>\n"));
+    html.push_str("<section class=\"summary\">\n");
+    html.push_str(&data.summary_html);
+    html.push_str("\n</section>\n");
+    for figure in figures {
+        let id = figure.file.trim_end_matches(".svg");
+        html.push_str(&format!(
+            "<h2 id=\"{}\">{}</h2>\n<figure>\n<img src=\"{}\" alt=\"{}\">\n<figcaption>{}</figcaption>\n</figure>\n",
+            escape(id),
+            escape(&figure.title),
+            url(&figure.file),
+            escape(&figure.title),
+            escape(&figure.caption),
+        ));
+    }
+    html.push_str(
+        "<footer>Written by fieldcal. Residuals are |s|/r − 1, the magnitude error of a \
+         calibrated sample as a fraction of the field, shown in %.</footer>\n</body>\n</html>\n",
+    );
+    html
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn escapes_markup_and_quotes() {
+        assert_eq!(
+            escape("a<b>&\"c\"'d'"),
+            "a&lt;b&gt;&amp;&quot;c&quot;&#39;d&#39;"
+        );
+        assert_eq!(url("a b\".svg"), "a%20b%22.svg");
+    }
+}
