@@ -385,7 +385,11 @@ impl SimSensor {
             let mut yi = static_y + (moving_y - mean_y) + noise.sample(&mut rng);
             if e.outliers > 0.0 && spike_rng.random::<f64>() < e.outliers {
                 let size = spike_sd * (20.0 + 30.0 * spike_rng.random::<f64>());
-                let sign = if spike_rng.random::<bool>() { 1.0 } else { -1.0 };
+                let sign = if spike_rng.random::<bool>() {
+                    1.0
+                } else {
+                    -1.0
+                };
                 match spike_rng.random_range(0..3u8) {
                     0 => xi += sign * size,
                     1 => yi += sign * size,

@@ -82,8 +82,12 @@ pub enum FitError {
         "the readings do not determine the parameter '{parameter}' (its column is constant or a combination of others); drop the effect that adds it"
     )]
     Undetermined { parameter: String },
-    #[error("the fit reached a non-finite value of '{parameter}': the model does not suit these readings")]
+    #[error(
+        "the fit reached a non-finite value of '{parameter}': the model does not suit these readings"
+    )]
     NotFinite { parameter: String },
-    #[error("the fit reached {parameter} = {value}, which must be positive: the model does not suit these readings")]
+    #[error(
+        "the fit reached {parameter} = {value}, which must be positive: the model does not suit these readings"
+    )]
     NonPositive { parameter: &'static str, value: f64 },
 }

@@ -149,17 +149,17 @@ impl<'a> Layout<'a> {
         let mut covariates = Vec::new();
         for effect in effects {
             if let Effect::Covariate(column) = effect {
-                let found =
-                    data.covariate(column)
-                        .ok_or_else(|| FitError::MissingCovariate {
-                            column: column.clone(),
-                            available: data
-                                .covariates
-                                .iter()
-                                .map(|c| c.name.clone())
-                                .collect::<Vec<_>>()
-                                .join(", "),
-                        })?;
+                let found = data
+                    .covariate(column)
+                    .ok_or_else(|| FitError::MissingCovariate {
+                        column: column.clone(),
+                        available: data
+                            .covariates
+                            .iter()
+                            .map(|c| c.name.clone())
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                    })?;
                 let index = push(format!("{column}_x"));
                 push(format!("{column}_y"));
                 covariates.push((index, centred(&found.values)));
@@ -180,7 +180,11 @@ impl<'a> Layout<'a> {
             drift,
             covariates,
             cubic,
-            inv_scale_sq: if scale > 0.0 { 1.0 / (scale * scale) } else { 0.0 },
+            inv_scale_sq: if scale > 0.0 {
+                1.0 / (scale * scale)
+            } else {
+                0.0
+            },
             names,
         })
     }
@@ -484,8 +488,8 @@ fn levenberg_marquardt(
                     Some(new_cost) if trial[3] > 0.0 && new_cost <= cost => {
                         let relative = (cost - new_cost) / cost;
                         p.copy_from_slice(&trial);
-                        let small_step = (0..k)
-                            .all(|j| step[j].abs() <= 1e-12 * p[j].abs().max(1e-300));
+                        let small_step =
+                            (0..k).all(|j| step[j].abs() <= 1e-12 * p[j].abs().max(1e-300));
                         if relative < RELATIVE_COST_TOLERANCE || small_step {
                             return Ok(iterations);
                         }
@@ -572,7 +576,10 @@ mod tests {
             ("r", paper.r, closed.r),
         ] {
             let se = fit.param(name).unwrap().se;
-            assert!((got - want).abs() < 3.0 * se, "{name}: {got} vs {want} ± {se}");
+            assert!(
+                (got - want).abs() < 3.0 * se,
+                "{name}: {got} vs {want} ± {se}"
+            );
         }
         assert!(fit.rms <= closed.rms(&data.x, &data.y) * 1.0001);
     }

@@ -7,11 +7,11 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 
 use fieldcal::io::csv::{ColumnSpec, read_dataset, write_calibrated};
-use fieldcal::model::fit::{FitOptions, fit_paper};
-use fieldcal::model::paper::{GradientDescentOptions, GradientDescentProgress};
 use fieldcal::model::effects::Effect;
+use fieldcal::model::fit::{FitOptions, fit_paper};
 use fieldcal::model::heading::coverage;
 use fieldcal::model::nonlinear::fit_model;
+use fieldcal::model::paper::{GradientDescentOptions, GradientDescentProgress};
 use fieldcal::report::fit::{FitJson, FitSource, ModelFitJson, render_model_text, render_text};
 
 use crate::FitArgs;

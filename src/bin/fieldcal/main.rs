@@ -202,7 +202,12 @@ struct SimulateArgs {
     #[arg(long = "effect", value_name = "EFFECT=VALUE", value_parser = simulate::parse_effect, verbatim_doc_comment)]
     effect: Vec<simulate::SimEffectArg>,
     /// covariate:temp: how far the temperature rises, in °C.
-    #[arg(long, value_name = "DEGC", default_value_t = 10.0, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "DEGC",
+        default_value_t = 10.0,
+        allow_negative_numbers = true
+    )]
     temp_rise: f64,
 }
 
