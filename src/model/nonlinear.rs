@@ -32,6 +32,8 @@ pub const FLAG_THRESHOLD_SD: f64 = 4.0;
 pub const RELATIVE_COST_TOLERANCE: f64 = 1e-12;
 /// Levenberg-Marquardt iterations (over all IRLS rounds) before giving up.
 pub const MAX_ITERATIONS: usize = 500;
+/// Levenberg-Marquardt's stop rule within IRLS rounds whose weights still move.
+const LOOSE_COST_TOLERANCE: f64 = 1e-8;
 /// IRLS rounds before giving up on the weights settling.
 const MAX_IRLS_ROUNDS: usize = 60;
 
@@ -218,7 +220,9 @@ impl<'a> Layout<'a> {
         let c = self.cross.map_or(0.0, |k| p[k]);
         let sy = y2 + d;
         let sx = a * x2 + b + c * sy;
-        let m = sx.hypot(sy);
+        // sqrt rather than hypot: no overflow is possible at sensor
+        // magnitudes, and this is the hot loop.
+        let m = (sx * sx + sy * sy).sqrt();
         let e = m / r - 1.0;
         if let Some(row) = row {
             // de/ds_x and de/ds_y; a zero reading has no direction.
@@ -271,25 +275,28 @@ impl<'a> Layout<'a> {
         row: &mut [f64],
     ) -> (DMatrix<f64>, DVector<f64>, f64) {
         let k = self.unknowns();
-        let mut jtj = DMatrix::<f64>::zeros(k, k);
-        let mut jte = DVector::<f64>::zeros(k);
+        // Flat row-major accumulators: the hot loop of the fit, kept free of
+        // matrix indexing and allocation.
+        let mut upper = vec![0.0; k * k];
+        let mut gradient = vec![0.0; k];
         let mut cost = 0.0;
         for (i, &w) in weights.iter().enumerate() {
             let (_, _, e) = self.evaluate(p, i, Some(row));
             cost += w * e * e;
-            for u in 0..k {
-                let wu = w * row[u];
-                jte[u] += wu * e;
-                for v in u..k {
-                    jtj[(u, v)] += wu * row[v];
+            for (u, &ru) in row.iter().enumerate() {
+                let wu = w * ru;
+                gradient[u] += wu * e;
+                let target = &mut upper[u * k + u..(u + 1) * k];
+                for (acc, &rv) in target.iter_mut().zip(&row[u..]) {
+                    *acc += wu * rv;
                 }
             }
         }
-        for u in 0..k {
-            for v in 0..u {
-                jtj[(u, v)] = jtj[(v, u)];
-            }
-        }
+        let jtj = DMatrix::from_fn(k, k, |u, v| {
+            let (lo, hi) = if u <= v { (u, v) } else { (v, u) };
+            upper[lo * k + hi]
+        });
+        let jte = DVector::from_vec(gradient);
         (jtj, jte, cost)
     }
 }
@@ -317,9 +324,28 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
     let mut residuals = vec![0.0; n];
     let mut iterations = 0;
     let mut scale = 0.0;
+    // The damping carries over between IRLS rounds: each round starts near
+    // the last minimum, where small damping is right.
+    let mut lambda = 1e-3;
+    // While the weights still move, each round need not reach the last
+    // digit: a loose tolerance, then one tight run once they have settled.
+    let mut settled = !robust;
     for round in 0.. {
-        iterations += levenberg_marquardt(&layout, &mut p, &weights, &mut row, iterations)?;
-        if !robust {
+        let tolerance = if settled {
+            RELATIVE_COST_TOLERANCE
+        } else {
+            LOOSE_COST_TOLERANCE
+        };
+        iterations += levenberg_marquardt(
+            &layout,
+            &mut p,
+            &weights,
+            &mut row,
+            &mut lambda,
+            tolerance,
+            iterations,
+        )?;
+        if settled {
             break;
         }
         for (i, e) in residuals.iter_mut().enumerate() {
@@ -332,10 +358,12 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
             largest_change = largest_change.max((new - *w).abs());
             *w = new;
         }
-        if largest_change < 1e-6 {
-            break;
+        // Weights settled to 1e-5 move the parameters by far less than
+        // their standard errors.
+        if largest_change < 1e-5 {
+            settled = true;
         }
-        if round + 1 >= MAX_IRLS_ROUNDS {
+        if !settled && round + 1 >= MAX_IRLS_ROUNDS {
             return Err(FitError::NoConvergence {
                 iterations,
                 what: "the robust weights did not settle",
@@ -449,10 +477,12 @@ fn levenberg_marquardt(
     p: &mut [f64],
     weights: &[f64],
     row: &mut [f64],
+    lambda: &mut f64,
+    tolerance: f64,
     done: usize,
 ) -> Result<usize, FitError> {
     let k = p.len();
-    let mut lambda = 1e-3;
+    *lambda = lambda.max(1e-6);
     let mut trial = vec![0.0; k];
     let (mut jtj, mut jte, mut cost) = layout.normal_equations(p, weights, row);
     for j in 0..k {
@@ -476,7 +506,7 @@ fn levenberg_marquardt(
         // parameters of very different units step alike.
         let mut damped = jtj.clone();
         for j in 0..k {
-            damped[(j, j)] += lambda * jtj[(j, j)];
+            damped[(j, j)] += *lambda * jtj[(j, j)];
         }
         let step = damped.cholesky().map(|c| c.solve(&(-&jte)));
         let accepted = match step {
@@ -490,7 +520,7 @@ fn levenberg_marquardt(
                         p.copy_from_slice(&trial);
                         let small_step =
                             (0..k).all(|j| step[j].abs() <= 1e-12 * p[j].abs().max(1e-300));
-                        if relative < RELATIVE_COST_TOLERANCE || small_step {
+                        if relative < tolerance || small_step {
                             return Ok(iterations);
                         }
                         Some(())
@@ -501,13 +531,13 @@ fn levenberg_marquardt(
             None => None,
         };
         if accepted.is_some() {
-            lambda = (lambda / 10.0).max(1e-15);
+            *lambda = (*lambda / 10.0).max(1e-15);
             (jtj, jte, cost) = layout.normal_equations(p, weights, row);
         } else {
-            lambda *= 10.0;
+            *lambda *= 10.0;
             // No step, however short, lowers the cost: p is the minimum to
             // the precision of the arithmetic.
-            if lambda > 1e12 {
+            if *lambda > 1e12 {
                 return Ok(iterations);
             }
         }
