@@ -312,15 +312,15 @@ fn cli_simulates_effects_and_fits_them() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let fit: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(
-        fit["model"],
+        report["model"],
         "offset+scale+cross-axis+drift+covariate:temp+outliers"
     );
     for name in [
         "a", "b", "d", "r", "c", "drift_x", "drift_y", "temp_x", "temp_y",
     ] {
-        let (value, se) = (fit["params"][name].as_f64(), fit["se"][name].as_f64());
+        let (value, se) = (report["params"][name].as_f64(), report["se"][name].as_f64());
         let want = sim["params"][name].as_f64().unwrap();
         let (value, se) = (value.unwrap(), se.unwrap());
         assert!(
@@ -328,11 +328,51 @@ fn cli_simulates_effects_and_fits_them() {
             "{name}: {value} ± {se} vs {want}"
         );
     }
-    assert_eq!(fit["unknowns"], 9);
-    assert_eq!(fit["n"], 400);
-    assert!(fit["rms"].as_f64().unwrap() < 0.0012);
-    assert!(fit["flagged"]["count"].as_u64().unwrap() > 0);
-    assert!(fit["coverage_deg"].as_f64().unwrap() > 350.0);
+    assert_eq!(report["unknowns"], 9);
+    assert_eq!(report["n"], 400);
+    assert!(report["rms"].as_f64().unwrap() < 0.0012);
+    assert!(report["flagged"]["count"].as_u64().unwrap() > 0);
+    assert!(report["coverage_deg"].as_f64().unwrap() > 350.0);
+
+    // The text report lists every parameter with its standard error, and
+    // --output writes the full model's calibrated samples.
+    let calibrated = dir.path().join("cal.csv");
+    let out = Command::new(bin)
+        .args(["fit", csv, "--effects", "cross-axis+drift", "--output"])
+        .arg(&calibrated)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    for name in ["a", "b", "d", "r", "c", "drift_x", "drift_y"] {
+        assert!(
+            text.lines()
+                .any(|l| l.starts_with(&format!("{name} ")) && l.contains(" ± ")),
+            "{name} missing in\n{text}"
+        );
+    }
+    let written = std::fs::read_to_string(&calibrated).unwrap();
+    let rows: Vec<Vec<f64>> = written
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(written.lines().next(), Some("t,x,y"));
+    assert_eq!(rows.len(), 400);
+    let data = fieldcal::io::csv::read_dataset(
+        std::path::Path::new(csv),
+        &fieldcal::io::csv::ColumnSpec::default(),
+    )
+    .unwrap();
+    let fitted = self::fit(&data, "cross-axis+drift");
+    for (i, row) in rows.iter().enumerate() {
+        let (sx, sy) = fitted.apply(i);
+        assert!((row[1] - sx).abs() < 1e-9 && (row[2] - sy).abs() < 1e-9);
+    }
 
     let out = Command::new(bin)
         .args(["fit", csv, "--effects", "covariate:current"])

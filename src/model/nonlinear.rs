@@ -18,6 +18,7 @@ use serde::Serialize;
 
 use super::FitError;
 use super::effects::Effect;
+use super::heading::circle_centre;
 use super::paper::{PaperCalibration, closed_form};
 use crate::sample::Dataset;
 
@@ -314,7 +315,7 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
             needed: unknowns + 1,
         });
     }
-    let start = closed_form(&data.x, &data.y)?.to_calibration()?;
+    let start = starting_point(data)?;
     let mut p = vec![0.0; unknowns];
     p[..4].copy_from_slice(&[start.a, start.b, start.d, start.r]);
 
@@ -457,6 +458,37 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
         iterations,
         rss,
     })
+}
+
+/// Where Levenberg-Marquardt starts: the paper's closed form, or, when
+/// the readings fit no ellipse of the paper's family (strong coupling,
+/// spikes), the best circle, from which the general model may still get
+/// there. A failure of both reports the closed form's reason.
+fn starting_point(data: &Dataset) -> Result<PaperCalibration, FitError> {
+    let closed = closed_form(&data.x, &data.y).and_then(|theta| theta.to_calibration());
+    let error = match closed {
+        Ok(start) => return Ok(start),
+        Err(e @ (FitError::NotAnEllipse { .. } | FitError::NoRadius { .. })) => e,
+        Err(e) => return Err(e),
+    };
+    let (cx, cy) = circle_centre(&data.x, &data.y).map_err(|_| error.clone())?;
+    let r = data
+        .x
+        .iter()
+        .zip(&data.y)
+        .map(|(x, y)| (x - cx).hypot(y - cy))
+        .sum::<f64>()
+        / data.len().max(1) as f64;
+    if r > 0.0 && r.is_finite() {
+        Ok(PaperCalibration {
+            a: 1.0,
+            b: -cx,
+            d: -cy,
+            r,
+        })
+    } else {
+        Err(error)
+    }
 }
 
 /// The parameter whose column carries no information (zero or dependent).

@@ -35,6 +35,12 @@ pub fn fit(args: FitArgs) -> Result<()> {
     };
     let file = args.file.display().to_string();
     if let Some(effects) = &args.effects {
+        if args.solver != fieldcal::model::fit::Solver::Lsq {
+            anyhow::bail!(
+                "--solver {} fits the paper's model only; --effects fits by Levenberg-Marquardt: drop one of them",
+                args.solver.name()
+            );
+        }
         return fit_effects(&args, &data, &effects.0, &file);
     }
     let mut progress = progress_printer();

@@ -33,7 +33,7 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Fit the paper's calibration to a CSV recording of one full turn.
+    /// Fit the paper's calibration (or the paper's model plus --effects) to a CSV recording of one full turn.
     Fit(FitArgs),
     /// Write a simulated sensor turned in a constant field: a CSV, or a Falcon-GX capture.
     Simulate(SimulateArgs),

@@ -75,14 +75,29 @@ pub fn simulate(args: SimulateArgs) -> Result<()> {
         });
         write_stdout(format!("{json}\n").as_bytes())?;
     } else if let Some(path) = &args.output {
-        eprintln!(
-            "wrote {n} samples to {}; true calibration: a = {}, b = {}, d = {}, r = {}",
-            path.display(),
-            truth.a,
-            truth.b,
-            truth.d,
-            truth.r
-        );
+        if args.effect.is_empty() {
+            eprintln!(
+                "wrote {n} samples to {}; true calibration: a = {}, b = {}, d = {}, r = {}",
+                path.display(),
+                truth.a,
+                truth.b,
+                truth.d,
+                truth.r
+            );
+        } else {
+            let params: Vec<String> = model_truth
+                .params
+                .iter()
+                .filter(|(name, value)| **value != 0.0 || ["b", "d"].contains(&name.as_str()))
+                .map(|(name, value)| format!("{name} = {value}"))
+                .collect();
+            eprintln!(
+                "wrote {n} samples to {} ({} spikes); true parameters of the general model: {}",
+                path.display(),
+                model_truth.outliers.len(),
+                params.join(", ")
+            );
+        }
     }
     Ok(())
 }
