@@ -1,14 +1,18 @@
 //! The simulator: a sensor turned through whole rotations in a constant
 //! field, read through the paper's model (per-axis gain and offset) with
 //! Gaussian noise, so fieldcal can be tried and tested with no sensor.
+//! Hidden effects ([`SimEffects`]) mirror the catalogue, so each effect's
+//! fit can be checked against a known truth.
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
+use rand::RngExt as _;
+
 use crate::model::paper::PaperCalibration;
-use crate::sample::Dataset;
+use crate::sample::{Covariate, Dataset};
 
 /// A simulated sensor and the way it is turned.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -33,6 +37,95 @@ pub struct SimSensor {
     pub start_heading_deg: f64,
     /// Seed of the noise: the same seed gives the same file.
     pub seed: u64,
+    /// Effects beyond the paper's model (none by default).
+    pub effects: SimEffects,
+}
+
+/// Effects the paper's model lacks, hidden in the simulated readings with
+/// known magnitudes. Each mirrors a term of [`crate::model::nonlinear`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SimEffects {
+    /// Non-orthogonality: the y sensing axis tilted toward x by this angle,
+    /// in degrees (cross-axis coupling).
+    pub cross_axis_deg: f64,
+    /// Offsets moving during the run, in counts per second, [x, y].
+    pub drift_per_s: [f64; 2],
+    /// Offset per degree Celsius of a `temp` column, in counts, [x, y]. The
+    /// temperature starts at 20 °C, rises by `temp_rise` toward a plateau and
+    /// cools back after the half-way point (not monotonic, so it is told
+    /// apart from drift).
+    pub temp_per_c: Option<[f64; 2]>,
+    /// How far the temperature rises, in °C.
+    pub temp_rise: f64,
+    /// Offset per ampere of a `current` column, in counts, [x, y]. The
+    /// current is a motor switching between 0 A and 2 A at irregular times.
+    pub current_per_a: Option<[f64; 2]>,
+    /// Odd non-linearity per axis, [x, y]: the reading falls short of the
+    /// linear one by this fraction at full scale (the largest static reading).
+    pub cubic: [f64; 2],
+    /// Fraction of samples hit by a spike of 20 to 50 noise SDs.
+    pub outliers: f64,
+}
+
+impl Default for SimEffects {
+    fn default() -> Self {
+        SimEffects {
+            cross_axis_deg: 0.0,
+            drift_per_s: [0.0; 2],
+            temp_per_c: None,
+            temp_rise: 10.0,
+            current_per_a: None,
+            cubic: [0.0; 2],
+            outliers: 0.0,
+        }
+    }
+}
+
+/// The true values behind a simulation, in the model's parameter names.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SimTruth {
+    /// Every parameter of the full model, by name (a, b, d, r, c, drift_x,
+    /// drift_y, temp_x, temp_y, current_x, current_y, k_x, k_y), in the
+    /// fit's units: k in terms of the data's own full scale.
+    pub params: std::collections::BTreeMap<String, f64>,
+    /// Indices of the samples hit by spikes, ascending.
+    pub outliers: Vec<usize>,
+}
+
+/// Temperature profile: 20 °C, rising with time constant `duration/6`,
+/// cooling back from the half-way point.
+fn temperature(time: f64, duration: f64, rise: f64) -> f64 {
+    let tau = (duration / 6.0).max(1e-9);
+    let half = duration / 2.0;
+    if time <= half {
+        20.0 + rise * (1.0 - (-time / tau).exp())
+    } else {
+        let peak = rise * (1.0 - (-half / tau).exp());
+        20.0 + peak * (-(time - half) / tau).exp()
+    }
+}
+
+/// Solves `raw + k*raw^3/fs^2 = linear` for raw by Newton's method (the
+/// model's cubic correction inverted, so the model can undo it exactly).
+fn compress(linear: f64, k: f64, fs: f64) -> f64 {
+    if k == 0.0 || fs <= 0.0 {
+        return linear;
+    }
+    let q = k / (fs * fs);
+    let mut raw = linear;
+    for _ in 0..50 {
+        let f = raw + q * raw * raw * raw - linear;
+        let slope = 1.0 + 3.0 * q * raw * raw;
+        if slope <= 0.0 {
+            break;
+        }
+        let step = f / slope;
+        raw -= step;
+        if step.abs() <= 1e-14 * raw.abs().max(1.0) {
+            break;
+        }
+    }
+    raw
 }
 
 impl Default for SimSensor {
@@ -49,6 +142,7 @@ impl Default for SimSensor {
             turn_seconds: 10.0,
             start_heading_deg: 0.0,
             seed: 1,
+            effects: SimEffects::default(),
         }
     }
 }
@@ -125,6 +219,54 @@ impl SimSensor {
                 });
             }
         }
+        let e = &self.effects;
+        let effect_checks: [(&'static str, f64, &'static str, bool); 5] = [
+            (
+                "effect cross-axis",
+                e.cross_axis_deg,
+                "an angle between -45 and 45 degrees",
+                e.cross_axis_deg.abs() < 45.0,
+            ),
+            (
+                "effect cubic",
+                e.cubic[0].abs().max(e.cubic[1].abs()),
+                "a fraction between -0.25 and 0.25",
+                e.cubic.iter().all(|k| k.abs() <= 0.25),
+            ),
+            (
+                "effect outliers",
+                e.outliers,
+                "a fraction from 0 to 0.5",
+                (0.0..=0.5).contains(&e.outliers),
+            ),
+            ("temp-rise", e.temp_rise, "a finite number", true),
+            (
+                "effect drift",
+                e.drift_per_s[0] + e.drift_per_s[1],
+                "finite",
+                true,
+            ),
+        ];
+        for (name, value, rule, ok) in effect_checks {
+            if !ok || !value.is_finite() {
+                return Err(SimError::Invalid { name, rule, value });
+            }
+        }
+        for value in e
+            .temp_per_c
+            .iter()
+            .chain(&e.current_per_a)
+            .flatten()
+            .chain(&e.drift_per_s)
+        {
+            if !value.is_finite() {
+                return Err(SimError::Invalid {
+                    name: "effect",
+                    rule: "a finite number",
+                    value: *value,
+                });
+            }
+        }
         let samples = (self.turns * self.turn_seconds / self.period).round();
         if !(samples <= MAX_SAMPLES as f64) {
             return Err(SimError::TooMany {
@@ -147,8 +289,15 @@ impl SimSensor {
         }
     }
 
-    /// Simulates the recording: columns `t`, `x`, `y`.
+    /// Simulates the recording: columns `t`, `x`, `y`, and `temp` or
+    /// `current` when the sensor has those effects.
     pub fn simulate(&self) -> Result<Dataset, SimError> {
+        self.simulate_with_truth().map(|(data, _)| data)
+    }
+
+    /// Simulates the recording and reports the true value of every
+    /// parameter of the full model, and which samples carry spikes.
+    pub fn simulate_with_truth(&self) -> Result<(Dataset, SimTruth), SimError> {
         let n = self.validate()?;
         let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
         let noise = Normal::new(0.0, self.noise).map_err(|_| SimError::Invalid {
@@ -158,27 +307,166 @@ impl SimSensor {
         })?;
         let rate = std::f64::consts::TAU / self.turn_seconds;
         let start = self.start_heading_deg.to_radians();
+        let e = &self.effects;
+        let tilt = e.cross_axis_deg.to_radians();
+        // Full scale of the cubic: the largest static reading of the turn.
+        let full_scale = (self.offset_x.abs() + self.gain_x * self.field)
+            .max(self.offset_y.abs() + self.gain_y * self.field);
+        let duration = n as f64 * self.period;
+        // Effects draw from their own streams, so the noise of a seed stays
+        // the same with or without them.
+        let mut switch_rng = ChaCha8Rng::seed_from_u64(self.seed ^ 0x6375_7272_656e_7400);
+        let mut spike_rng = ChaCha8Rng::seed_from_u64(self.seed ^ 0x7370_696b_6500_0000);
+        let spike_sd = if self.noise > 0.0 {
+            self.noise
+        } else {
+            1e-3 * self.field * self.gain_y
+        };
+        // First the clock and the covariates, so the moving offsets' means
+        // are known: the model's cubic acts on the reading less the moving
+        // offsets about their means, and the simulation mirrors it.
         let mut t = Vec::with_capacity(n);
-        let mut x = Vec::with_capacity(n);
-        let mut y = Vec::with_capacity(n);
+        let mut temp = Vec::new();
+        let mut current = Vec::new();
+        let mut current_on = false;
+        let mut next_switch = 0.0;
+        let switch_mean = self.turn_seconds / 5.0;
         for i in 0..n {
             // Rounded to the nanosecond so 0.15 is written 0.15, not 0.15000000000000002.
             let time = (i as f64 * self.period * 1e9).round() / 1e9;
-            let heading = start + rate * time;
             t.push(time);
-            x.push(
-                self.gain_x * self.field * heading.cos() + self.offset_x + noise.sample(&mut rng),
+            if e.temp_per_c.is_some() {
+                temp.push(temperature(time, duration, e.temp_rise));
+            }
+            if e.current_per_a.is_some() {
+                while time >= next_switch {
+                    current_on = !current_on;
+                    next_switch += switch_mean * (0.5 + switch_rng.random::<f64>());
+                }
+                current.push(if current_on { 2.0 } else { 0.0 });
+            }
+        }
+        let moving = |i: usize| -> (f64, f64) {
+            let mut moving_x = e.drift_per_s[0] * t[i];
+            let mut moving_y = e.drift_per_s[1] * t[i];
+            if let Some([kx, ky]) = e.temp_per_c {
+                moving_x += kx * temp[i];
+                moving_y += ky * temp[i];
+            }
+            if let Some([kx, ky]) = e.current_per_a {
+                moving_x += kx * current[i];
+                moving_y += ky * current[i];
+            }
+            (moving_x, moving_y)
+        };
+        let (mut mean_x, mut mean_y) = (0.0, 0.0);
+        for i in 0..n {
+            let (mx, my) = moving(i);
+            mean_x += mx / n as f64;
+            mean_y += my / n as f64;
+        }
+        let mut x = Vec::with_capacity(n);
+        let mut y = Vec::with_capacity(n);
+        let mut outliers = Vec::new();
+        for (i, &time) in t.iter().enumerate() {
+            let heading = start + rate * time;
+            let (moving_x, moving_y) = moving(i);
+            let static_x = compress(
+                self.gain_x * self.field * heading.cos() + self.offset_x + mean_x,
+                e.cubic[0],
+                full_scale,
             );
-            y.push(
-                self.gain_y * self.field * heading.sin() + self.offset_y + noise.sample(&mut rng),
+            let static_y = compress(
+                self.gain_y * self.field * (heading + tilt).sin() + self.offset_y + mean_y,
+                e.cubic[1],
+                full_scale,
             );
+            let mut xi = static_x + (moving_x - mean_x) + noise.sample(&mut rng);
+            let mut yi = static_y + (moving_y - mean_y) + noise.sample(&mut rng);
+            if e.outliers > 0.0 && spike_rng.random::<f64>() < e.outliers {
+                let size = spike_sd * (20.0 + 30.0 * spike_rng.random::<f64>());
+                let sign = if spike_rng.random::<bool>() {
+                    1.0
+                } else {
+                    -1.0
+                };
+                match spike_rng.random_range(0..3u8) {
+                    0 => xi += sign * size,
+                    1 => yi += sign * size,
+                    _ => {
+                        xi += sign * size;
+                        yi -= sign * size;
+                    }
+                }
+                outliers.push(i);
+            }
+            x.push(xi);
+            y.push(yi);
+        }
+        let mut covariates = Vec::new();
+        if !temp.is_empty() {
+            covariates.push(Covariate {
+                name: "temp".into(),
+                values: temp,
+            });
+        }
+        if !current.is_empty() {
+            covariates.push(Covariate {
+                name: "current".into(),
+                values: current,
+            });
         }
         // Every value is finite: the inputs were checked above.
-        Dataset::new("x", "y", Some(t), x, y, Vec::new()).map_err(|_| SimError::Invalid {
-            name: "field",
-            rule: "small enough to keep readings finite",
-            value: self.field,
-        })
+        let data =
+            Dataset::new("x", "y", Some(t), x, y, covariates).map_err(|_| SimError::Invalid {
+                name: "field",
+                rule: "small enough to keep readings finite",
+                value: self.field,
+            })?;
+        let truth = self.model_truth(&data, full_scale, outliers);
+        Ok((data, truth))
+    }
+
+    /// The full model's parameters that undo this sensor on `data`.
+    fn model_truth(&self, data: &Dataset, full_scale: f64, outliers: Vec<usize>) -> SimTruth {
+        let e = &self.effects;
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let t_mean = data.t.as_deref().map_or(0.0, mean);
+        let column_mean = |name: &str| data.covariate(name).map_or(0.0, |c| mean(&c.values));
+        let [tx, ty] = e.temp_per_c.unwrap_or([0.0; 2]);
+        let [cx, cy] = e.current_per_a.unwrap_or([0.0; 2]);
+        // b and d are the mean offsets: the moving terms are centred.
+        let offset_x = self.offset_x
+            + e.drift_per_s[0] * t_mean
+            + tx * column_mean("temp")
+            + cx * column_mean("current");
+        let offset_y = self.offset_y
+            + e.drift_per_s[1] * t_mean
+            + ty * column_mean("temp")
+            + cy * column_mean("current");
+        let tilt = e.cross_axis_deg.to_radians();
+        let a = self.gain_y / (self.gain_x * tilt.cos());
+        // The model's cubic is scaled by the data's own largest reading.
+        let scale_ratio = (crate::model::nonlinear::cubic_scale(data) / full_scale).powi(2);
+        let params = [
+            ("a", a),
+            ("b", -a * offset_x),
+            ("d", -offset_y),
+            ("r", self.gain_y * self.field),
+            ("c", -tilt.tan()),
+            ("drift_x", e.drift_per_s[0]),
+            ("drift_y", e.drift_per_s[1]),
+            ("temp_x", tx),
+            ("temp_y", ty),
+            ("current_x", cx),
+            ("current_y", cy),
+            ("k_x", e.cubic[0] * scale_ratio),
+            ("k_y", e.cubic[1] * scale_ratio),
+        ]
+        .into_iter()
+        .map(|(name, value)| (name.to_string(), value + 0.0))
+        .collect();
+        SimTruth { params, outliers }
     }
 }
 
@@ -270,7 +558,6 @@ impl SimSensor {
     ) -> Result<(crate::capture::CaptureHeader, Vec<crate::capture::Chunk>), WireError> {
         use crate::capture::{CaptureHeader, Chunk, StreamInfo, StreamKind};
         use crate::protocol::falcon::{BAUD, FalconFrame};
-        use rand::RngExt as _;
 
         if !(0.0..1.0).contains(&wire.garbage) {
             return Err(WireError::Garbage(wire.garbage));

@@ -5,10 +5,13 @@
 //! - [`heading`]: where on the circle the samples lie (coverage of the turn).
 //! - [`fit`]: fitting a recording end to end, with the checks a user needs.
 //! - [`effects`]: the catalogue of physical effects a model can add.
+//! - [`nonlinear`]: the paper's model plus any effects, fitted by
+//!   Levenberg-Marquardt.
 
 pub mod effects;
 pub mod fit;
 pub mod heading;
+pub mod nonlinear;
 pub mod paper;
 
 /// Why a fit could not produce a calibration. Messages say what was found
@@ -60,4 +63,31 @@ pub enum FitError {
         last_step: f64,
         tolerance: f64,
     },
+    #[error(
+        "the fit did not converge after {iterations} iterations ({what}); the model may not suit these readings: try fewer effects"
+    )]
+    NoConvergence {
+        iterations: usize,
+        what: &'static str,
+    },
+    #[error(
+        "the recording has no column '{column}' for the effect covariate:{column}; its covariate columns are: {available}"
+    )]
+    MissingCovariate { column: String, available: String },
+    #[error(
+        "the drift effect needs sample times, and the recording has no time column (t, t_s, time or time_s, or choose one with --t)"
+    )]
+    MissingTime,
+    #[error(
+        "the readings do not determine the parameter '{parameter}' (its column is constant or a combination of others); drop the effect that adds it"
+    )]
+    Undetermined { parameter: String },
+    #[error(
+        "the fit reached a non-finite value of '{parameter}': the model does not suit these readings"
+    )]
+    NotFinite { parameter: String },
+    #[error(
+        "the fit reached {parameter} = {value}, which must be positive: the model does not suit these readings"
+    )]
+    NonPositive { parameter: &'static str, value: f64 },
 }

@@ -3,7 +3,13 @@
 use serde::Serialize;
 
 use super::significant;
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use crate::model::effects::{Effect, model_name};
 use crate::model::fit::{FitReport, PAPER_EFFECTS, Solver};
+use crate::model::heading::Coverage;
+use crate::model::nonlinear::ModelFit;
 use crate::model::paper::PaperCalibration;
 
 /// Where the fitted samples came from, for the report.
@@ -108,6 +114,155 @@ pub fn render_text(report: &FitReport, source: FitSource<'_>) -> String {
     line(
         "fit time",
         format!("{:.3} ms", report.elapsed.as_secs_f64() * 1e3),
+        "",
+    );
+    out
+}
+
+/// Which samples the robust fit set aside.
+#[derive(Debug, Serialize)]
+pub struct FlaggedJson<'a> {
+    pub count: usize,
+    pub indices: &'a [usize],
+}
+
+/// The machine-readable report of a fit with effects (`fit --effects --json`).
+#[derive(Debug, Serialize)]
+pub struct ModelFitJson<'a> {
+    pub file: &'a str,
+    pub x_column: &'a str,
+    pub y_column: &'a str,
+    pub model: String,
+    pub effects: &'a [Effect],
+    pub solver: &'static str,
+    /// Parameter name -> value (a, b, d, r always).
+    pub params: BTreeMap<&'a str, f64>,
+    /// Parameter name -> standard error.
+    pub se: BTreeMap<&'a str, f64>,
+    /// Root mean square of |calibrated|/r - 1 over the samples used.
+    pub rms: f64,
+    pub rss: f64,
+    pub n: usize,
+    pub unknowns: usize,
+    pub flagged: FlaggedJson<'a>,
+    pub iterations: usize,
+    pub coverage_deg: f64,
+    pub largest_gap_deg: f64,
+    pub fit_seconds: f64,
+}
+
+impl<'a> ModelFitJson<'a> {
+    pub fn new(
+        fit: &'a ModelFit,
+        coverage: &Coverage,
+        elapsed: Duration,
+        source: FitSource<'a>,
+    ) -> Self {
+        ModelFitJson {
+            file: source.file,
+            x_column: source.x_column,
+            y_column: source.y_column,
+            model: model_name(&fit.effects),
+            effects: &fit.effects,
+            solver: "levenberg-marquardt",
+            params: fit
+                .params
+                .iter()
+                .map(|p| (p.name.as_str(), p.value))
+                .collect(),
+            se: fit.params.iter().map(|p| (p.name.as_str(), p.se)).collect(),
+            rms: fit.rms,
+            rss: fit.rss,
+            n: fit.n,
+            unknowns: fit.unknowns,
+            flagged: FlaggedJson {
+                count: fit.flagged.len(),
+                indices: &fit.flagged,
+            },
+            iterations: fit.iterations,
+            coverage_deg: coverage.covered_deg,
+            largest_gap_deg: coverage.largest_gap_deg,
+            fit_seconds: elapsed.as_secs_f64(),
+        }
+    }
+}
+
+/// What a parameter of the general model means, for the text report.
+fn describe(name: &str) -> String {
+    match name {
+        "a" => "gain of x relative to y".into(),
+        "b" => "mean offset of x, after the gain (y units)".into(),
+        "d" => "mean offset of y".into(),
+        "r" => "field magnitude (y units)".into(),
+        "c" => "cross-axis coupling of y into x".into(),
+        "drift_x" | "drift_y" => "offset drift, counts per second".into(),
+        "k_x" | "k_y" => "cubic non-linearity, fraction at full scale".into(),
+        other => match other.rsplit_once('_') {
+            Some((column, _)) => format!("offset per unit of '{column}'"),
+            None => String::new(),
+        },
+    }
+}
+
+/// The report of a fit with effects, for a person.
+pub fn render_model_text(
+    fit: &ModelFit,
+    coverage: &Coverage,
+    elapsed: Duration,
+    source: FitSource<'_>,
+) -> String {
+    let mut out = String::new();
+    let mut line = |label: &str, value: String, note: &str| {
+        out.push_str(format!("{label:<10}{value:<30}{note}").trim_end());
+        out.push('\n');
+    };
+    line("file", source.file.to_string(), "");
+    line(
+        "axes",
+        format!("x = {}, y = {}", source.x_column, source.y_column),
+        "",
+    );
+    line("model", model_name(&fit.effects), "");
+    line(
+        "solver",
+        format!("levenberg-marquardt, {} iterations", fit.iterations),
+        "",
+    );
+    line(
+        "samples",
+        fit.n.to_string(),
+        &format!("{} unknowns", fit.unknowns),
+    );
+    line(
+        "coverage",
+        format!("{:.1}°", coverage.covered_deg),
+        &format!("of heading (largest gap {:.1}°)", coverage.largest_gap_deg),
+    );
+    for p in &fit.params {
+        line(
+            &p.name,
+            format!("{} ± {}", significant(p.value, 7), significant(p.se, 2)),
+            &describe(&p.name),
+        );
+    }
+    if fit.effects.contains(&Effect::Outliers) {
+        line(
+            "flagged",
+            fit.flagged.len().to_string(),
+            "samples set aside as outliers",
+        );
+    }
+    line(
+        "rms",
+        significant(fit.rms, 4),
+        &format!(
+            "{:.3} % of the field (|calibrated|/r - 1, over the samples used)",
+            fit.rms * 100.0
+        ),
+    );
+    line(
+        "fit time",
+        format!("{:.3} ms", elapsed.as_secs_f64() * 1e3),
         "",
     );
     out

@@ -2,21 +2,26 @@
 
 use std::io::IsTerminal;
 
+use std::time::Instant;
+
 use anyhow::{Context, Result};
 
 use fieldcal::io::csv::{ColumnSpec, read_dataset, write_calibrated};
+use fieldcal::model::effects::Effect;
 use fieldcal::model::fit::{FitOptions, fit_paper};
+use fieldcal::model::heading::coverage;
+use fieldcal::model::nonlinear::fit_model;
 use fieldcal::model::paper::{GradientDescentOptions, GradientDescentProgress};
-use fieldcal::report::fit::{FitJson, FitSource, render_text};
+use fieldcal::report::fit::{FitJson, FitSource, ModelFitJson, render_model_text, render_text};
 
 use crate::FitArgs;
 use crate::output::write_stdout;
 
 pub fn fit(args: FitArgs) -> Result<()> {
     let spec = ColumnSpec {
-        x: args.x,
-        y: args.y,
-        t: args.t,
+        x: args.x.clone(),
+        y: args.y.clone(),
+        t: args.t.clone(),
     };
     let data = read_dataset(&args.file, &spec)?;
     let options = FitOptions {
@@ -29,6 +34,15 @@ pub fn fit(args: FitArgs) -> Result<()> {
         min_coverage_deg: args.min_coverage,
     };
     let file = args.file.display().to_string();
+    if let Some(effects) = &args.effects {
+        if args.solver != fieldcal::model::fit::Solver::Lsq {
+            anyhow::bail!(
+                "--solver {} fits the paper's model only; --effects fits by Levenberg-Marquardt: drop one of them",
+                args.solver.name()
+            );
+        }
+        return fit_effects(&args, &data, &effects.0, &file);
+    }
     let mut progress = progress_printer();
     let report = fit_paper(&data.x, &data.y, &options, &mut progress);
     finish_progress();
@@ -58,6 +72,43 @@ pub fn fit(args: FitArgs) -> Result<()> {
         serde_json::to_string(&FitJson::new(&report, source))? + "\n"
     } else {
         render_text(&report, source)
+    };
+    write_stdout(text.as_bytes())
+}
+
+/// `fit --effects`: the general model by Levenberg-Marquardt.
+fn fit_effects(
+    args: &FitArgs,
+    data: &fieldcal::sample::Dataset,
+    effects: &[Effect],
+    file: &str,
+) -> Result<()> {
+    let started = Instant::now();
+    let fit = fit_model(data, effects).with_context(|| format!("{file}: no calibration"))?;
+    let elapsed = started.elapsed();
+    let coverage = coverage(fit.headings.iter().copied());
+    coverage
+        .require(args.min_coverage)
+        .with_context(|| format!("{file}: no calibration"))?;
+
+    if let Some(output) = &args.output {
+        let (cx, cy): (Vec<f64>, Vec<f64>) = fit.calibrated.iter().copied().unzip();
+        write_calibrated(output, data.t.as_deref(), &cx, &cy).with_context(|| {
+            format!(
+                "cannot write the calibrated samples to {}",
+                output.display()
+            )
+        })?;
+    }
+    let source = FitSource {
+        file,
+        x_column: &data.x_name,
+        y_column: &data.y_name,
+    };
+    let text = if args.json {
+        serde_json::to_string(&ModelFitJson::new(&fit, &coverage, elapsed, source))? + "\n"
+    } else {
+        render_model_text(&fit, &coverage, elapsed, source)
     };
     write_stdout(text.as_bytes())
 }

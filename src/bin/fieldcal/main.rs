@@ -33,7 +33,7 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Fit the paper's calibration to a CSV recording of one full turn.
+    /// Fit the paper's calibration (or the paper's model plus --effects) to a CSV recording of one full turn.
     Fit(FitArgs),
     /// Write a simulated sensor turned in a constant field: a CSV, or a Falcon-GX capture.
     Simulate(SimulateArgs),
@@ -123,6 +123,11 @@ struct FitArgs {
     /// Solver: closed-form least squares, or the paper's gradient descent.
     #[arg(long, value_enum, default_value_t = Solver::Lsq)]
     solver: Solver,
+    /// Fit the paper's model plus these effects by Levenberg-Marquardt
+    /// (comma- or plus-separated: cross-axis, drift, covariate:<column>,
+    /// cubic, outliers; `paper` is offset+scale).
+    #[arg(long, value_name = "LIST", value_parser = parse_effect_list)]
+    effects: Option<EffectList>,
     /// Print one JSON object on stdout instead of the text report.
     #[arg(long)]
     json: bool,
@@ -187,6 +192,23 @@ struct SimulateArgs {
     /// Seed of the noise generator.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// A hidden effect the paper's model lacks; repeat for several.
+    /// cross-axis=DEG: the y axis tilted toward x (3 or 3deg);
+    /// drift=X[,Y]: offsets moving in counts per second (one value: both axes);
+    /// covariate:temp=X[,Y]: counts per °C of a `temp` column (20 °C, rising by --temp-rise, cooling back after half-way);
+    /// covariate:current=X[,Y]: counts per A of a `current` column (a motor switching 0 A / 2 A);
+    /// cubic=X[,Y]: the reading falls short by that fraction at full scale;
+    /// outliers=F: that fraction of samples hit by spikes of 20 to 50 noise SDs.
+    #[arg(long = "effect", value_name = "EFFECT=VALUE", value_parser = simulate::parse_effect, verbatim_doc_comment)]
+    effect: Vec<simulate::SimEffectArg>,
+    /// covariate:temp: how far the temperature rises, in °C.
+    #[arg(
+        long,
+        value_name = "DEGC",
+        default_value_t = 10.0,
+        allow_negative_numbers = true
+    )]
+    temp_rise: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -197,6 +219,14 @@ enum SimFormat {
     Falcon,
     /// The same frames as a plain byte dump with no timing, as `cat /dev/ttyUSB0 > file` gives.
     FalconRaw,
+}
+
+/// The model of `fit --effects` (a newtype: clap treats a bare Vec as repeats).
+#[derive(Debug, Clone)]
+struct EffectList(Vec<fieldcal::model::effects::Effect>);
+
+fn parse_effect_list(text: &str) -> Result<EffectList, String> {
+    fieldcal::model::effects::parse_list(text).map(EffectList)
 }
 
 fn parse_speed(text: &str) -> Result<Speed, String> {

@@ -7,8 +7,8 @@ use anyhow::{Context, Result, bail};
 
 use fieldcal::capture::CaptureWriter;
 use fieldcal::io::atomic::AtomicFile;
-use fieldcal::io::csv::{write_calibrated, write_calibrated_to};
-use fieldcal::sim::{FalconWire, SimSensor};
+use fieldcal::io::csv::{write_dataset, write_dataset_to};
+use fieldcal::sim::{FalconWire, SimEffects, SimSensor};
 
 use crate::output::write_stdout;
 use crate::{SimFormat, SimulateArgs};
@@ -26,19 +26,20 @@ pub fn simulate(args: SimulateArgs) -> Result<()> {
         turn_seconds: args.turn_seconds,
         start_heading_deg: args.start_heading,
         seed: args.seed,
+        effects: sim_effects(&args.effect, args.temp_rise),
     };
     if args.json && args.output.is_none() {
         bail!("--json prints the true calibration on stdout, so the data needs --output FILE");
     }
+    let (data, model_truth) = sensor.simulate_with_truth()?;
     let n = match args.format {
         SimFormat::Csv => {
-            let data = sensor.simulate()?;
             match &args.output {
-                Some(path) => write_calibrated(path, data.t.as_deref(), &data.x, &data.y)
+                Some(path) => write_dataset(path, &data)
                     .with_context(|| format!("cannot write {}", path.display()))?,
                 None => {
                     let mut buffer = Vec::with_capacity(data.len() * 40);
-                    write_calibrated_to(&mut buffer, data.t.as_deref(), &data.x, &data.y)?;
+                    write_dataset_to(&mut buffer, &data)?;
                     write_stdout(&buffer)?;
                 }
             }
@@ -69,19 +70,102 @@ pub fn simulate(args: SimulateArgs) -> Result<()> {
             "n": n,
             "sensor": sensor,
             "truth": truth,
+            "params": model_truth.params,
+            "outliers": model_truth.outliers,
         });
         write_stdout(format!("{json}\n").as_bytes())?;
     } else if let Some(path) = &args.output {
-        eprintln!(
-            "wrote {n} samples to {}; true calibration: a = {}, b = {}, d = {}, r = {}",
-            path.display(),
-            truth.a,
-            truth.b,
-            truth.d,
-            truth.r
-        );
+        if args.effect.is_empty() {
+            eprintln!(
+                "wrote {n} samples to {}; true calibration: a = {}, b = {}, d = {}, r = {}",
+                path.display(),
+                truth.a,
+                truth.b,
+                truth.d,
+                truth.r
+            );
+        } else {
+            let params: Vec<String> = model_truth
+                .params
+                .iter()
+                .filter(|(name, value)| **value != 0.0 || ["b", "d"].contains(&name.as_str()))
+                .map(|(name, value)| format!("{name} = {value}"))
+                .collect();
+            eprintln!(
+                "wrote {n} samples to {} ({} spikes); true parameters of the general model: {}",
+                path.display(),
+                model_truth.outliers.len(),
+                params.join(", ")
+            );
+        }
     }
     Ok(())
+}
+
+/// One `--effect NAME=VALUE` of `fieldcal simulate`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SimEffectArg {
+    CrossAxisDeg(f64),
+    Drift([f64; 2]),
+    Temp([f64; 2]),
+    Current([f64; 2]),
+    Cubic([f64; 2]),
+    Outliers(f64),
+}
+
+/// Parses `cross-axis=3deg`, `drift=0.5,-0.3`, `covariate:temp=4`,
+/// `cubic=0.02`, `outliers=0.01`...
+pub fn parse_effect(text: &str) -> Result<SimEffectArg, String> {
+    let (name, value) = text.split_once('=').ok_or_else(|| {
+        format!("'{text}' needs a value, as in cross-axis=3deg, drift=0.5, covariate:temp=4, cubic=0.02 or outliers=0.01")
+    })?;
+    let number = |v: &str| -> Result<f64, String> {
+        v.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| format!("'{v}' in '{text}' is not a number"))
+    };
+    let pair = |v: &str| -> Result<[f64; 2], String> {
+        match v.split_once(',') {
+            Some((x, y)) => Ok([number(x)?, number(y)?]),
+            None => number(v).map(|both| [both, both]),
+        }
+    };
+    Ok(match name.trim() {
+        "cross-axis" => {
+            let v = value.trim();
+            SimEffectArg::CrossAxisDeg(number(v.strip_suffix("deg").unwrap_or(v))?)
+        }
+        "drift" => SimEffectArg::Drift(pair(value)?),
+        "covariate:temp" => SimEffectArg::Temp(pair(value)?),
+        "covariate:current" => SimEffectArg::Current(pair(value)?),
+        "cubic" => SimEffectArg::Cubic(pair(value)?),
+        "outliers" => SimEffectArg::Outliers(number(value)?),
+        other => {
+            return Err(format!(
+                "'{other}' is not an effect the simulator has; choose cross-axis, drift, covariate:temp, covariate:current, cubic or outliers"
+            ));
+        }
+    })
+}
+
+fn sim_effects(args: &[SimEffectArg], temp_rise: f64) -> SimEffects {
+    let mut effects = SimEffects {
+        temp_rise,
+        ..Default::default()
+    };
+    for arg in args {
+        match *arg {
+            SimEffectArg::CrossAxisDeg(deg) => effects.cross_axis_deg = deg,
+            SimEffectArg::Drift(v) => effects.drift_per_s = v,
+            SimEffectArg::Temp(v) => effects.temp_per_c = Some(v),
+            SimEffectArg::Current(v) => effects.current_per_a = Some(v),
+            SimEffectArg::Cubic(v) => effects.cubic = v,
+            SimEffectArg::Outliers(f) => effects.outliers = f,
+        }
+    }
+    effects
 }
 
 fn write_capture(
