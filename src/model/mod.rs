@@ -9,6 +9,7 @@
 pub mod effects;
 pub mod fit;
 pub mod heading;
+pub mod nonlinear;
 pub mod paper;
 
 /// Why a fit could not produce a calibration. Messages say what was found
