@@ -406,3 +406,53 @@ mod tests {
         assert!((bic(&fit, 100) - expected).abs() < 1e-9);
     }
 }
+
+#[cfg(test)]
+mod data_tests {
+    use super::*;
+    use crate::sim::SimSensor;
+
+    fn clean(seed: u64) -> Dataset {
+        SimSensor {
+            offset_x: 30.0,
+            offset_y: -20.0,
+            gain_x: 1.05,
+            noise: 3.0,
+            seed,
+            ..Default::default()
+        }
+        .simulate()
+        .unwrap()
+    }
+
+    #[test]
+    fn clean_recordings_suggest_nothing() {
+        let mut fired = 0;
+        for seed in 1..=40 {
+            let d = diagnose(&clean(seed), &[]).unwrap();
+            assert!(d.baseline.rms.is_finite() && d.noise_floor.rms > 0.0);
+            if d.suggested.is_some() {
+                fired += 1;
+            }
+        }
+        assert!(
+            fired <= 2,
+            "{fired} of 40 clean recordings got a suggestion"
+        );
+    }
+
+    #[test]
+    fn spikes_open_the_tail_gate_and_clean_data_does_not() {
+        let data = clean(3);
+        let fit = fit_model(&data, &effects::PAPER).unwrap();
+        assert!(!tails_heavy(&analyse(&data, &fit)));
+        let mut spiky = data.clone();
+        for i in [17, 60, 111, 150] {
+            spiky.x[i] += 80.0;
+        }
+        let fit = fit_model(&spiky, &effects::PAPER).unwrap();
+        let res = analyse(&spiky, &fit);
+        assert!(tails_heavy(&res), "{res:?}");
+        assert!(evidence(&Effect::Outliers, &res, &spiky).contains("beyond 4 robust SD"));
+    }
+}
