@@ -39,6 +39,8 @@ pub const TAIL_EXPECTED_SLACK: f64 = 2.0;
 /// The verdict calls the remainder noise when the final rms is within this
 /// fraction above the noise floor.
 pub const NOISE_TOLERANCE: f64 = 0.2;
+/// An rms below this is rounding, not noise or structure.
+const NUMERICAL_RMS: f64 = 1e-12;
 /// A harmonic (or trend) counts as structure in the verdict when it exceeds
 /// this many standard errors of a Gaussian-noise estimate.
 const STRUCTURE_SES: f64 = 5.0;
@@ -322,6 +324,13 @@ pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitErr
 
 /// Noise, or where structure remains.
 fn verdict(rms: f64, res: &Residuals, floor: &NoiseFloor, n: usize) -> String {
+    // Noiseless data fits to rounding: no floor to compare with, and
+    // nothing left to explain.
+    if rms < NUMERICAL_RMS {
+        return format!(
+            "what remains is noise: the rms {rms:.1e} is at the level of rounding; the data has no measurable noise"
+        );
+    }
     let excess = if floor.rms > 0.0 {
         rms / floor.rms - 1.0
     } else {

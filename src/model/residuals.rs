@@ -93,7 +93,11 @@ fn used_in_time_order(data: &Dataset, fit: &ModelFit) -> Vec<usize> {
         }
     }
     let mut used: Vec<usize> = (0..n)
-        .filter(|&i| !flagged[i] && fit.residuals[i].is_finite())
+        .filter(|&i| {
+            !flagged[i]
+                && fit.residuals[i].is_finite()
+                && fit.headings.get(i).is_some_and(|h| h.is_finite())
+        })
         .collect();
     if let Some(t) = data.t.as_deref().filter(|t| t.len() == n) {
         used.sort_by(|&a, &b| t[a].total_cmp(&t[b]));
@@ -144,7 +148,11 @@ pub fn harmonics(e: &[f64], theta: &[f64]) -> Vec<Harmonic> {
         }
     });
     let target = DVector::from_column_slice(&e[..n]);
-    let Ok(coef) = design.svd(true, true).solve(&target, 1e-12) else {
+    // Bounded iterations: an SVD that cannot converge must not hang the tool.
+    let Some(svd) = design.try_svd(true, true, f64::EPSILON, 1000) else {
+        return Vec::new();
+    };
+    let Ok(coef) = svd.solve(&target, 1e-12) else {
         return Vec::new();
     };
     (1..=MAX_HARMONIC)
