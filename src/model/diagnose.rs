@@ -21,7 +21,7 @@ use serde::Serialize;
 use super::FitError;
 use super::effects::{self, Effect, model_name};
 use super::nonlinear::{ModelFit, fit_model};
-use super::residuals::{NoiseFloor, Residuals, analyse, is_time_like};
+use super::residuals::{self, NoiseFloor, Residuals, analyse, is_time_like};
 use crate::sample::Dataset;
 
 /// An effect is supported when it lowers BIC by more than this (Kass and
@@ -149,8 +149,52 @@ fn harmonic(res: &Residuals, order: u32) -> f64 {
         .map_or(0.0, |h| h.amplitude)
 }
 
+/// A logged column that moves almost in step with time: drift and that
+/// covariate are then hard to tell apart, and the user should know.
+const TIME_LIKE_CORRELATION: f64 = 0.95;
+
+/// The covariate columns that follow time closely, with their correlation.
+fn time_twins(data: &Dataset) -> Vec<(String, f64)> {
+    let Some(t) = data.t.as_deref() else {
+        return Vec::new();
+    };
+    data.covariates
+        .iter()
+        .filter(|c| !is_time_like(&c.name))
+        .filter_map(|c| {
+            let (_, r) = residuals::line(t, &c.values)?;
+            (r.abs() > TIME_LIKE_CORRELATION).then(|| (c.name.clone(), r))
+        })
+        .collect()
+}
+
 /// One sentence on why the residual points at this effect.
 fn evidence(effect: &Effect, res: &Residuals, data: &Dataset) -> String {
+    let base = evidence_base(effect, res, data);
+    let twins = time_twins(data);
+    let caveat = match effect {
+        Effect::Drift if !twins.is_empty() => {
+            let names: Vec<String> = twins
+                .iter()
+                .map(|(name, r)| format!("{name} (correlation {r:.2})"))
+                .collect();
+            format!(
+                " (but {} follows time closely, so a drift and that covariate are hard to tell apart)",
+                names.join(", ")
+            )
+        }
+        Effect::Covariate(column) => match twins.iter().find(|(name, _)| name == column) {
+            Some((_, r)) => format!(
+                " (but {column} follows time, correlation {r:.2}, so it is hard to tell apart from a drift)"
+            ),
+            None => String::new(),
+        },
+        _ => String::new(),
+    };
+    base + &caveat
+}
+
+fn evidence_base(effect: &Effect, res: &Residuals, data: &Dataset) -> String {
     match effect {
         Effect::CrossAxis => format!(
             "the residual's second harmonic of heading, {} of the field, is the signature of cross-axis coupling",
@@ -466,5 +510,33 @@ mod data_tests {
         let res = analyse(&spiky, &fit);
         assert!(tails_heavy(&res), "{res:?}");
         assert!(evidence(&Effect::Outliers, &res, &spiky).contains("beyond 4 robust SD"));
+    }
+}
+
+#[cfg(test)]
+mod evidence_tests {
+    use super::*;
+    use crate::sample::Covariate;
+
+    #[test]
+    fn a_covariate_that_follows_time_is_called_out() {
+        let n = 50;
+        let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.1).collect();
+        let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.2).cos()).collect();
+        let y: Vec<f64> = (0..n).map(|i| (i as f64 * 0.2).sin()).collect();
+        let temp = Covariate {
+            name: "temp_c".into(),
+            values: t.iter().map(|t| 20.0 + t).collect(),
+        };
+        let data = Dataset::new("x", "y", Some(t), x, y, vec![temp]).unwrap();
+        let fit = fit_model(&data, &effects::PAPER).unwrap();
+        let res = analyse(&data, &fit);
+        let drift = evidence(&Effect::Drift, &res, &data);
+        assert!(
+            drift.contains("per minute") && drift.contains("temp_c"),
+            "{drift}"
+        );
+        let cov = evidence(&Effect::Covariate("temp_c".into()), &res, &data);
+        assert!(cov.contains("hard to tell apart"), "{cov}");
     }
 }
