@@ -12,9 +12,10 @@
 //! outlier model: each flagged sample costs one unknown (an indicator that
 //! absorbs it), and the robust fit's RSS over the used samples is its RSS on
 //! all n. On top, it must pass a tail gate: more samples beyond 4 robust SD
-//! than Gaussian noise could plausibly give (Poisson tail below 1e-4, at
-//! least [`MIN_TAILS`]). Clean Gaussian data gives ~0.01 such samples per
-//! 200, so the gate holds it shut.
+//! than Gaussian noise could plausibly give (Poisson tail below 1e-3, at
+//! least [`MIN_TAILS`]), or one sample beyond [`EXTREME_SDS`]. Clean
+//! Gaussian data gives ~0.01 samples beyond 4 SD per 200, so the gate holds
+//! it shut.
 
 use serde::Serialize;
 
@@ -30,9 +31,13 @@ pub const BIC_MARGIN: f64 = 10.0;
 /// The ladder adds at most this many effects.
 pub const MAX_STEPS: usize = 5;
 /// The `outliers` tail gate needs at least this many samples beyond 4 SD.
-pub const MIN_TAILS: usize = 3;
+pub const MIN_TAILS: usize = 2;
 /// ... and a count this improbable for Gaussian noise (Poisson upper tail).
-pub const TAIL_PROBABILITY: f64 = 1e-4;
+pub const TAIL_PROBABILITY: f64 = 1e-3;
+/// Or one sample this many robust SD out: Gaussian noise puts one of n
+/// there with probability n·2e-9 (plus the robust SD's own error), so a
+/// single far spike is enough.
+pub const EXTREME_SDS: f64 = 6.0;
 /// The expected Gaussian tail count is inflated by this factor before the
 /// Poisson test, for the uncertainty of the robust SD itself.
 pub const TAIL_EXPECTED_SLACK: f64 = 2.0;
@@ -92,7 +97,7 @@ pub struct Diagnosis {
 /// The criterion, as the report states it.
 pub fn criterion() -> String {
     format!(
-        "BIC: n·ln(RSS/n) + p·ln(n), with n all samples and p the unknowns; an effect is supported when it lowers BIC by more than {BIC_MARGIN}. outliers counts one unknown per flagged sample (the mean-shift outlier model) and must also find at least {MIN_TAILS} samples beyond 4 robust SD, a count Gaussian noise gives with probability below {TAIL_PROBABILITY:e}"
+        "BIC: n·ln(RSS/n) + p·ln(n), with n all samples and p the unknowns; an effect is supported when it lowers BIC by more than {BIC_MARGIN}. outliers counts one unknown per flagged sample (the mean-shift outlier model) and must also find at least {MIN_TAILS} samples beyond 4 robust SD, a count Gaussian noise gives with probability below {TAIL_PROBABILITY:e}, or one beyond {EXTREME_SDS} robust SD"
     )
 }
 
@@ -135,7 +140,9 @@ pub fn tail_threshold(expected: f64) -> usize {
 
 /// Whether the tails of a residual are too heavy for Gaussian noise.
 fn tails_heavy(res: &Residuals) -> bool {
+    let n = res.tail_expected / residuals::GAUSSIAN_TAIL_4SD;
     res.tail_count >= tail_threshold(res.tail_expected)
+        || (res.tail_count >= 1 && res.tail_max_sd > EXTREME_SDS && n < 100_000.0)
 }
 
 fn percent(fraction: f64) -> String {
@@ -228,8 +235,8 @@ fn evidence_base(effect: &Effect, res: &Residuals, data: &Dataset) -> String {
             None => format!("{column} does not change, so the residual cannot follow it"),
         },
         Effect::Outliers => format!(
-            "{} samples lie beyond 4 robust SD where Gaussian noise would give {:.2}",
-            res.tail_count, res.tail_expected
+            "{} samples lie beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}",
+            res.tail_count, res.tail_max_sd, res.tail_expected
         ),
         Effect::Offset | Effect::Scale => "part of the paper's model".to_string(),
     }
@@ -437,7 +444,7 @@ mod tests {
 
     #[test]
     fn tail_threshold_is_strict_for_small_runs() {
-        assert_eq!(tail_threshold(0.0127), MIN_TAILS);
+        assert_eq!(tail_threshold(0.0127), 2);
         // 100,000 samples: ~6 expected; the gate asks for far more.
         assert!(tail_threshold(6.3) > 20);
     }
@@ -510,6 +517,16 @@ mod data_tests {
         let res = analyse(&spiky, &fit);
         assert!(tails_heavy(&res), "{res:?}");
         assert!(evidence(&Effect::Outliers, &res, &spiky).contains("beyond 4 robust SD"));
+
+        // One far spike is enough.
+        let mut one = data.clone();
+        one.x[0] += 60.0;
+        let fit = fit_model(&one, &effects::PAPER).unwrap();
+        let res = analyse(&one, &fit);
+        assert!(
+            res.tail_max_sd > EXTREME_SDS && tails_heavy(&res),
+            "{res:?}"
+        );
     }
 }
 

@@ -67,6 +67,9 @@ pub struct Residuals {
     pub tail_count: usize,
     /// What Gaussian noise would give: n · P(|Z| > 4).
     pub tail_expected: f64,
+    /// The largest |e - median|, in robust SD: one far spike shows here even
+    /// when the tail count is small.
+    pub tail_max_sd: f64,
     /// 1.4826 · MAD of e.
     pub robust_sd: f64,
     pub noise_floor: NoiseFloor,
@@ -313,8 +316,15 @@ pub fn analyse(data: &Dataset, fit: &ModelFit) -> Residuals {
         0
     };
 
+    let tail_max_sd = if sd > 0.0 {
+        e.iter().map(|v| (v - m).abs() / sd).fold(0.0, f64::max)
+    } else {
+        0.0
+    };
+
     Residuals {
         harmonics: harmonics(&e, &theta),
+        tail_max_sd: finite_or_zero(tail_max_sd),
         time_trend,
         time_structure: slow_structure(&e),
         covariates,
