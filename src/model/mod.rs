@@ -7,12 +7,16 @@
 //! - [`effects`]: the catalogue of physical effects a model can add.
 //! - [`nonlinear`]: the paper's model plus any effects, fitted by
 //!   Levenberg-Marquardt.
+//! - [`residuals`]: what a fit's residual still holds, and its noise floor.
+//! - [`diagnose`]: which effect the data supports, step by step.
 
+pub mod diagnose;
 pub mod effects;
 pub mod fit;
 pub mod heading;
 pub mod nonlinear;
 pub mod paper;
+pub mod residuals;
 
 /// Why a fit could not produce a calibration. Messages say what was found
 /// and what to do; the caller adds which file or sensor it was.

@@ -1,6 +1,7 @@
 //! The `fieldcal` command: parses arguments and wires the library together.
 //! One module per subcommand; the work itself lives in the library.
 
+mod diagnose;
 mod fit;
 mod output;
 mod record;
@@ -35,6 +36,8 @@ struct Cli {
 enum Command {
     /// Fit the paper's calibration (or the paper's model plus --effects) to a CSV recording of one full turn.
     Fit(FitArgs),
+    /// Rank the effects the data supports, add them one by one down to the noise floor.
+    Diagnose(DiagnoseArgs),
     /// Write a simulated sensor turned in a constant field: a CSV, or a Falcon-GX capture.
     Simulate(SimulateArgs),
     /// Run the daemon: read the configured sensors, calibrate on a full rotation, publish corrected readings.
@@ -143,6 +146,30 @@ struct FitArgs {
     /// paper-gd: learning rate (the paper's is 0.73).
     #[arg(long, value_name = "ALPHA", default_value_t = PAPER_LEARNING_RATE, value_parser = parse_positive)]
     learning_rate: f64,
+}
+
+#[derive(Debug, Args)]
+struct DiagnoseArgs {
+    /// CSV file: a header line, then one sample per line.
+    file: PathBuf,
+    /// Column holding the x axis.
+    #[arg(long, default_value = "x", value_name = "COL")]
+    x: String,
+    /// Column holding the y axis.
+    #[arg(long, default_value = "y", value_name = "COL")]
+    y: String,
+    /// Column holding time in seconds [default: the first of t, t_s, time, time_s]
+    #[arg(long, value_name = "COL")]
+    t: Option<String>,
+    /// The model to start from, as in `fit --effects` (default: paper, i.e. offset+scale).
+    #[arg(long, value_name = "LIST")]
+    effects: Option<String>,
+    /// Print one JSON object on stdout instead of the text report.
+    #[arg(long)]
+    json: bool,
+    /// Write a report with plots into this directory.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -293,6 +320,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Run(args) => run::run(args),
         Command::Fit(args) => fit::fit(args),
+        Command::Diagnose(args) => diagnose::diagnose(args),
         Command::Simulate(args) => simulate::simulate(args),
         Command::Record(args) => record::record(args),
         Command::Replay(args) => replay::replay(args),

@@ -1,0 +1,145 @@
+//! `fieldcal diagnose`: read a CSV, find which effects the data supports,
+//! add them one by one, and say whether what is left is noise.
+
+use anyhow::{Context, Result};
+use serde::Serialize;
+
+use fieldcal::io::csv::{ColumnSpec, read_dataset};
+use fieldcal::model::diagnose::{Candidate, Diagnosis, Step, diagnose as run_diagnosis};
+use fieldcal::model::effects::{Effect, parse_list};
+use fieldcal::model::residuals::Residuals;
+
+use crate::DiagnoseArgs;
+use crate::output::write_stdout;
+
+pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
+    let spec = ColumnSpec {
+        x: args.x,
+        y: args.y,
+        t: args.t,
+    };
+    let data = read_dataset(&args.file, &spec)?;
+    let baseline = parse_list(args.effects.as_deref().unwrap_or("paper"))
+        .map_err(anyhow::Error::msg)
+        .context("--effects")?;
+    for effect in &baseline {
+        if let Effect::Covariate(column) = effect {
+            if data.covariate(column).is_none() {
+                anyhow::bail!(
+                    "--effects: {}: the recording has no column '{column}'",
+                    args.file.display()
+                );
+            }
+        }
+    }
+    let file = args.file.display().to_string();
+    let diagnosis =
+        run_diagnosis(&data, &baseline).with_context(|| format!("{file}: no diagnosis"))?;
+
+    if args.report.is_some() {
+        eprintln!("reports: not built yet");
+    }
+
+    let text = if args.json {
+        serde_json::to_string(&DiagnosisJson::new(&diagnosis, &file))? + "\n"
+    } else {
+        render_text(&diagnosis, &file)
+    };
+    write_stdout(text.as_bytes())
+}
+
+/// The JSON surface: flat numbers where a program wants them (`noise_floor`
+/// is the rms, `suggested` a name or null), the full diagnostics beside.
+#[derive(Debug, Serialize)]
+struct DiagnosisJson<'a> {
+    file: &'a str,
+    baseline: &'a Step,
+    candidates: &'a [Candidate],
+    /// The effect to add next, or null when the model is enough.
+    suggested: Option<&'a Effect>,
+    ladder: &'a [Step],
+    noise_floor: f64,
+    noise_floor_method: &'a str,
+    verdict: &'a str,
+    criterion: &'a str,
+    baseline_residuals: &'a Residuals,
+    final_residuals: &'a Residuals,
+}
+
+impl<'a> DiagnosisJson<'a> {
+    fn new(d: &'a Diagnosis, file: &'a str) -> Self {
+        DiagnosisJson {
+            file,
+            baseline: &d.baseline,
+            candidates: &d.candidates,
+            suggested: d.suggested.as_ref(),
+            ladder: &d.ladder,
+            noise_floor: d.noise_floor.rms,
+            noise_floor_method: &d.noise_floor.method,
+            verdict: &d.verdict,
+            criterion: &d.criterion,
+            baseline_residuals: &d.baseline_residuals,
+            final_residuals: &d.final_residuals,
+        }
+    }
+}
+
+fn pct(fraction: f64) -> String {
+    format!("{:.3} %", fraction * 100.0)
+}
+
+fn render_text(d: &Diagnosis, file: &str) -> String {
+    let mut out = String::new();
+    out.push_str(&format!("{file}\n"));
+    out.push_str(&format!(
+        "baseline  {}: rms {} of the field ({} unknowns)\n",
+        d.baseline.model,
+        pct(d.baseline.rms),
+        d.baseline.unknowns
+    ));
+    out.push_str(&format!(
+        "noise floor  {} ({})\n\n",
+        pct(d.noise_floor.rms),
+        d.noise_floor.method
+    ));
+    if d.candidates.is_empty() {
+        out.push_str("candidates: none could be fitted\n");
+    } else {
+        out.push_str("candidates, best first:\n");
+        for c in &d.candidates {
+            out.push_str(&format!(
+                "  {:<22} rms {:>9}  ΔBIC {:>9.1}  {}  {}\n",
+                c.effect.to_string(),
+                pct(c.rms),
+                c.delta_bic,
+                if c.supported {
+                    "supported    "
+                } else {
+                    "not supported"
+                },
+                c.evidence
+            ));
+        }
+    }
+    match &d.suggested {
+        Some(effect) => out.push_str(&format!("suggested: {effect}\n\n")),
+        None => out.push_str("suggested: none (the model is enough)\n\n"),
+    }
+    out.push_str("ladder:\n");
+    for (i, step) in d.ladder.iter().enumerate() {
+        let ratio = if d.noise_floor.rms > 0.0 {
+            format!("{:.2}× the noise floor", step.rms / d.noise_floor.rms)
+        } else {
+            String::from("no noise floor")
+        };
+        out.push_str(&format!(
+            "  {i}. {:<40} rms {:>9}  ({ratio})\n",
+            step.model,
+            pct(step.rms)
+        ));
+    }
+    out.push_str(&format!("  noise floor {}\n\n", pct(d.noise_floor.rms)));
+    out.push_str(&format!("verdict: {}\n", d.verdict));
+    out.push_str(&format!("criterion: {}\n", d.criterion));
+    out
+}

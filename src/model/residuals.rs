@@ -1,0 +1,418 @@
+//! Residual diagnostics for any fit: where the magnitude error
+//! `e_i = |s_i|/r - 1` still has structure (harmonics of heading, a trend or
+//! slow wander in time, a link to a logged column, heavy tails), and how
+//! large the noise is, estimated from the data itself.
+//!
+//! These are what [`super::diagnose`] reads to say which effect the data
+//! supports and why, in words a person understands.
+
+use nalgebra::{DMatrix, DVector};
+use serde::Serialize;
+
+use super::nonlinear::ModelFit;
+use crate::sample::Dataset;
+
+/// Highest harmonic of heading analysed: cross-axis coupling shows at 2,
+/// cubic non-linearity at 2 and 4; 1 and 3 catch leftover offsets.
+pub const MAX_HARMONIC: u32 = 4;
+/// Samples further than this many robust SD from the median are tails.
+pub const TAIL_SDS: f64 = 4.0;
+/// P(|Z| > 4) for a standard normal: the tail fraction Gaussian noise gives.
+pub const GAUSSIAN_TAIL_4SD: f64 = 6.334e-5;
+/// MAD to SD for Gaussian data.
+const MAD_TO_SD: f64 = 1.482_602_218_505_602;
+/// The slow smooth of e vs time averages over this fraction of the run.
+pub const SMOOTH_FRACTION: f64 = 0.1;
+
+/// One harmonic of e vs heading: `e ≈ amplitude * cos(order*θ + phase)`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Harmonic {
+    pub order: u32,
+    /// As a fraction of the field.
+    pub amplitude: f64,
+    pub phase_deg: f64,
+}
+
+/// How the residual follows one logged column (least-squares line).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CovariateLink {
+    pub column: String,
+    /// Residual per unit of the column.
+    pub slope: f64,
+    pub correlation: f64,
+    /// Fraction of the residual variance the line explains (correlation²).
+    pub explained: f64,
+}
+
+/// The noise level of the residual, and how it was estimated.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct NoiseFloor {
+    /// As a fraction of the field (comparable with a fit's rms).
+    pub rms: f64,
+    pub method: String,
+}
+
+/// Everything the residual says about what the model misses.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Residuals {
+    /// Orders 1..=4, least squares of e on cos/sin(kθ) jointly.
+    pub harmonics: Vec<Harmonic>,
+    /// Slope of e vs time, per second (None without a time column).
+    pub time_trend: Option<f64>,
+    /// Fraction of the residual variance explained by a moving average over
+    /// ~1/10 of the run, in time order (None with fewer than 20 samples).
+    pub time_structure: Option<f64>,
+    pub covariates: Vec<CovariateLink>,
+    /// Samples with |e - median| > 4 robust SD.
+    pub tail_count: usize,
+    /// What Gaussian noise would give: n · P(|Z| > 4).
+    pub tail_expected: f64,
+    /// The largest |e - median|, in robust SD: one far spike shows here even
+    /// when the tail count is small.
+    pub tail_max_sd: f64,
+    /// 1.4826 · MAD of e.
+    pub robust_sd: f64,
+    pub noise_floor: NoiseFloor,
+}
+
+/// Whether a column name looks like time (those are not covariates: time is
+/// the `drift` effect's business).
+pub fn is_time_like(name: &str) -> bool {
+    let lower = name.trim().to_ascii_lowercase();
+    matches!(
+        lower.as_str(),
+        "t" | "t_s" | "ts" | "time" | "time_s" | "timestamp" | "seconds" | "secs"
+    ) || lower.starts_with("time")
+}
+
+/// Indices of the samples the fit used (all but the flagged ones), in time
+/// order when the data has times (input order otherwise).
+fn used_in_time_order(data: &Dataset, fit: &ModelFit) -> Vec<usize> {
+    let n = fit.residuals.len();
+    let mut flagged = vec![false; n];
+    for &i in &fit.flagged {
+        if let Some(f) = flagged.get_mut(i) {
+            *f = true;
+        }
+    }
+    let mut used: Vec<usize> = (0..n)
+        .filter(|&i| {
+            !flagged[i]
+                && fit.residuals[i].is_finite()
+                && fit.headings.get(i).is_some_and(|h| h.is_finite())
+        })
+        .collect();
+    if let Some(t) = data.t.as_deref().filter(|t| t.len() == n) {
+        used.sort_by(|&a, &b| t[a].total_cmp(&t[b]));
+    }
+    used
+}
+
+/// Median of the values (0 for none). Sorts a copy.
+pub fn median(values: &[f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let m = v.len() / 2;
+    if v.len() % 2 == 1 {
+        v[m]
+    } else {
+        0.5 * (v[m - 1] + v[m])
+    }
+}
+
+/// 1.4826 · median absolute deviation: the SD for Gaussian data, barely
+/// moved by a few spikes.
+pub fn robust_sd(values: &[f64]) -> f64 {
+    let m = median(values);
+    let dev: Vec<f64> = values.iter().map(|v| (v - m).abs()).collect();
+    MAD_TO_SD * median(&dev)
+}
+
+/// Least squares of e on `[1, cos kθ, sin kθ]`, k = 1..=4, jointly (the
+/// columns are not orthogonal on an uneven turn).
+pub fn harmonics(e: &[f64], theta: &[f64]) -> Vec<Harmonic> {
+    let n = e.len().min(theta.len());
+    let columns = 1 + 2 * MAX_HARMONIC as usize;
+    if n <= columns {
+        return Vec::new();
+    }
+    let design = DMatrix::from_fn(n, columns, |i, j| {
+        if j == 0 {
+            return 1.0;
+        }
+        let k = j.div_ceil(2) as f64;
+        if j % 2 == 1 {
+            (k * theta[i]).cos()
+        } else {
+            (k * theta[i]).sin()
+        }
+    });
+    let target = DVector::from_column_slice(&e[..n]);
+    // Bounded iterations: an SVD that cannot converge must not hang the tool.
+    let Some(svd) = design.try_svd(true, true, f64::EPSILON, 1000) else {
+        return Vec::new();
+    };
+    let Ok(coef) = svd.solve(&target, 1e-12) else {
+        return Vec::new();
+    };
+    (1..=MAX_HARMONIC)
+        .map(|k| {
+            let a = coef[2 * k as usize - 1];
+            let b = coef[2 * k as usize];
+            // a cos + b sin = A cos(kθ + φ) with a = A cos φ, b = -A sin φ.
+            let amplitude = a.hypot(b);
+            let phase_deg = if amplitude > 0.0 {
+                (-b).atan2(a).to_degrees()
+            } else {
+                0.0
+            };
+            Harmonic {
+                order: k,
+                amplitude: finite_or_zero(amplitude),
+                phase_deg: finite_or_zero(phase_deg),
+            }
+        })
+        .collect()
+}
+
+fn finite_or_zero(v: f64) -> f64 {
+    if v.is_finite() { v } else { 0.0 }
+}
+
+/// Least-squares line of `e` on `u`: (slope, correlation). None when `u` is
+/// constant or there are too few points.
+pub fn line(u: &[f64], e: &[f64]) -> Option<(f64, f64)> {
+    let n = u.len().min(e.len());
+    if n < 3 {
+        return None;
+    }
+    let mu = u[..n].iter().sum::<f64>() / n as f64;
+    let me = e[..n].iter().sum::<f64>() / n as f64;
+    let (mut suu, mut see, mut sue) = (0.0, 0.0, 0.0);
+    for i in 0..n {
+        let (du, de) = (u[i] - mu, e[i] - me);
+        suu += du * du;
+        see += de * de;
+        sue += du * de;
+    }
+    if !(suu > 0.0) {
+        return None;
+    }
+    let slope = sue / suu;
+    let correlation = if see > 0.0 {
+        sue / (suu * see).sqrt()
+    } else {
+        0.0
+    };
+    (slope.is_finite() && correlation.is_finite()).then_some((slope, correlation))
+}
+
+/// Fraction of the variance of `e` (already in time order) explained by a
+/// centred moving average over ~1/10 of the run.
+pub fn slow_structure(e: &[f64]) -> Option<f64> {
+    let n = e.len();
+    if n < 20 {
+        return None;
+    }
+    let half = ((n as f64 * SMOOTH_FRACTION) as usize / 2).max(1);
+    let mut prefix = vec![0.0; n + 1];
+    for i in 0..n {
+        prefix[i + 1] = prefix[i] + e[i];
+    }
+    let mean = prefix[n] / n as f64;
+    let total: f64 = e.iter().map(|v| (v - mean).powi(2)).sum();
+    if !(total > 0.0) {
+        return Some(0.0);
+    }
+    let left: f64 = (0..n)
+        .map(|i| {
+            let (lo, hi) = (i.saturating_sub(half), (i + half + 1).min(n));
+            let smooth = (prefix[hi] - prefix[lo]) / (hi - lo) as f64;
+            (e[i] - smooth).powi(2)
+        })
+        .sum();
+    Some((1.0 - left / total).clamp(0.0, 1.0))
+}
+
+/// The noise floor of the residual, from the data itself: differences of
+/// consecutive residuals in time order. Structure (harmonics of heading,
+/// drift, a slowly changing covariate) changes little between neighbouring
+/// samples of a turn, while independent noise does not cancel: Δe has SD
+/// σ√2. The MAD keeps spikes from inflating it.
+pub fn noise_floor(data: &Dataset, fit: &ModelFit) -> NoiseFloor {
+    let order = used_in_time_order(data, fit);
+    let e: Vec<f64> = order.iter().map(|&i| fit.residuals[i]).collect();
+    noise_floor_of(&e, data.t.is_some())
+}
+
+/// [`noise_floor`] of residuals already in time order.
+fn noise_floor_of(e: &[f64], timed: bool) -> NoiseFloor {
+    let order = if timed { "time" } else { "input" };
+    if e.len() < 3 {
+        return NoiseFloor {
+            rms: 0.0,
+            method: "too few samples to estimate the noise".to_string(),
+        };
+    }
+    let diffs: Vec<f64> = e.windows(2).map(|w| w[1] - w[0]).collect();
+    // Differences are centred on zero by construction: MAD about zero.
+    let abs: Vec<f64> = diffs.iter().map(|d| d.abs()).collect();
+    let rms = finite_or_zero(MAD_TO_SD * median(&abs) / std::f64::consts::SQRT_2);
+    NoiseFloor {
+        rms,
+        method: format!(
+            "1.4826·MAD of the differences of consecutive residuals in {order} order, divided by √2 ({} differences): slow structure cancels between neighbours, noise does not, and the MAD ignores spikes",
+            diffs.len()
+        ),
+    }
+}
+
+/// All the residual diagnostics of a fit. Flagged samples (the `outliers`
+/// effect) are left out of every statistic, the tail count included: they
+/// are already explained.
+pub fn analyse(data: &Dataset, fit: &ModelFit) -> Residuals {
+    let order = used_in_time_order(data, fit);
+    let e: Vec<f64> = order.iter().map(|&i| fit.residuals[i]).collect();
+    let theta: Vec<f64> = order
+        .iter()
+        .map(|&i| fit.headings.get(i).copied().unwrap_or(0.0))
+        .collect();
+    let n_all = fit.residuals.len();
+    let column = |values: &[f64]| -> Option<Vec<f64>> {
+        (values.len() == n_all).then(|| order.iter().map(|&i| values[i]).collect())
+    };
+
+    let time_trend = data
+        .t
+        .as_deref()
+        .and_then(column)
+        .and_then(|t| line(&t, &e))
+        .map(|(slope, _)| slope);
+
+    let covariates = data
+        .covariates
+        .iter()
+        .filter(|c| !is_time_like(&c.name))
+        .filter_map(|c| {
+            let u = column(&c.values)?;
+            let (slope, correlation) = line(&u, &e)?;
+            Some(CovariateLink {
+                column: c.name.clone(),
+                slope,
+                correlation,
+                explained: correlation * correlation,
+            })
+        })
+        .collect();
+
+    let m = median(&e);
+    let sd = robust_sd(&e);
+    let tail_count = if sd > 0.0 {
+        e.iter().filter(|v| (*v - m).abs() > TAIL_SDS * sd).count()
+    } else {
+        0
+    };
+
+    let tail_max_sd = if sd > 0.0 {
+        e.iter().map(|v| (v - m).abs() / sd).fold(0.0, f64::max)
+    } else {
+        0.0
+    };
+
+    Residuals {
+        harmonics: harmonics(&e, &theta),
+        tail_max_sd: finite_or_zero(tail_max_sd),
+        time_trend,
+        time_structure: slow_structure(&e),
+        covariates,
+        tail_count,
+        tail_expected: e.len() as f64 * GAUSSIAN_TAIL_4SD,
+        robust_sd: sd,
+        noise_floor: noise_floor_of(&e, data.t.is_some()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    fn gaussian(n: usize, sd: f64, seed: u64) -> Vec<f64> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let normal = Normal::new(0.0, sd).unwrap();
+        (0..n).map(|_| normal.sample(&mut rng)).collect()
+    }
+
+    #[test]
+    fn second_harmonic_is_recovered() {
+        let n = 360;
+        let theta: Vec<f64> = (0..n)
+            .map(|i| i as f64 / n as f64 * std::f64::consts::TAU - 3.0)
+            .collect();
+        let e: Vec<f64> = theta
+            .iter()
+            .map(|t| 0.02 * (2.0 * t + 30f64.to_radians()).cos())
+            .collect();
+        let h = harmonics(&e, &theta);
+        assert_eq!(h.len(), 4);
+        assert!((h[1].amplitude - 0.02).abs() < 1e-9, "{h:?}");
+        assert!((h[1].phase_deg - 30.0).abs() < 1e-6, "{h:?}");
+        for k in [0, 2, 3] {
+            assert!(h[k].amplitude < 1e-9, "{h:?}");
+        }
+    }
+
+    #[test]
+    fn noise_floor_ignores_slow_structure() {
+        let n = 400;
+        let noise = gaussian(n, 0.003, 7);
+        let e: Vec<f64> = noise
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v + 0.02 * (i as f64 / n as f64 * std::f64::consts::TAU * 2.0).sin())
+            .collect();
+        let floor = noise_floor_of(&e, true);
+        assert!((floor.rms / 0.003 - 1.0).abs() < 0.15, "{floor:?}");
+        assert!(floor.method.contains("MAD"));
+    }
+
+    #[test]
+    fn tails_are_counted() {
+        let mut e = gaussian(1000, 0.003, 3);
+        for i in [10, 200, 555] {
+            e[i] += 0.1;
+        }
+        let m = median(&e);
+        let sd = robust_sd(&e);
+        assert!((sd / 0.003 - 1.0).abs() < 0.1, "{sd}");
+        let tails = e.iter().filter(|v| (*v - m).abs() > TAIL_SDS * sd).count();
+        assert!((3..=4).contains(&tails), "{tails}");
+    }
+
+    #[test]
+    fn covariate_correlation() {
+        let n = 200;
+        let temp: Vec<f64> = (0..n).map(|i| 20.0 + i as f64 * 0.05).collect();
+        let noise = gaussian(n, 0.001, 5);
+        let e: Vec<f64> = temp
+            .iter()
+            .zip(&noise)
+            .map(|(t, v)| 0.002 * (t - 25.0) + v)
+            .collect();
+        let (slope, corr) = line(&temp, &e).unwrap();
+        assert!((slope - 0.002).abs() < 2e-4, "{slope}");
+        assert!(corr > 0.9, "{corr}");
+        assert!(line(&vec![1.0; n], &e).is_none());
+    }
+
+    #[test]
+    fn time_like_names() {
+        assert!(is_time_like("time_s") && is_time_like("T") && is_time_like("timestamp"));
+        assert!(!is_time_like("temp_c"));
+    }
+}

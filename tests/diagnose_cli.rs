@@ -1,0 +1,87 @@
+//! `fieldcal diagnose` as a user runs it.
+
+mod common;
+
+use common::{repo_path, run, run_err, run_ok};
+use serde_json::Value;
+
+fn sim_mild() -> String {
+    repo_path("tests/data/sim_mild.csv")
+        .to_str()
+        .unwrap()
+        .to_string()
+}
+
+#[test]
+fn json_on_a_clean_recording_suggests_nothing() {
+    let out = run_ok(&["diagnose", &sim_mild(), "--json"]);
+    let v: Value = serde_json::from_str(&out).unwrap();
+    for key in [
+        "baseline",
+        "candidates",
+        "suggested",
+        "ladder",
+        "noise_floor",
+        "noise_floor_method",
+        "verdict",
+        "criterion",
+    ] {
+        assert!(v.get(key).is_some(), "missing {key}: {out}");
+    }
+    assert_eq!(
+        v["baseline"]["effects"],
+        serde_json::json!(["offset", "scale"])
+    );
+    assert!(v["baseline"]["rms"].as_f64().unwrap() > 0.0);
+    assert!(v["suggested"].is_null(), "{out}");
+    assert!(v["candidates"].is_array());
+    for c in v["candidates"].as_array().unwrap() {
+        assert!(c["effect"].is_string() && c["rms"].is_number(), "{c}");
+    }
+    let ladder = v["ladder"].as_array().unwrap();
+    assert!(!ladder.is_empty());
+    assert!(ladder[0]["effects"].is_array() && ladder[0]["rms"].is_number());
+    // Noise of 3 counts on a field of 1000.
+    let floor = v["noise_floor"].as_f64().unwrap();
+    assert!((floor / 0.003 - 1.0).abs() < 0.3, "noise floor {floor}");
+    assert!(v["noise_floor_method"].as_str().unwrap().contains("MAD"));
+    assert!(
+        v["verdict"]
+            .as_str()
+            .unwrap()
+            .starts_with("what remains is noise"),
+        "{out}"
+    );
+    assert!(v["criterion"].as_str().unwrap().contains("BIC"));
+}
+
+#[test]
+fn text_report_names_its_parts() {
+    let out = run_ok(&["diagnose", &sim_mild()]);
+    for part in ["baseline", "noise floor", "ladder", "verdict", "criterion"] {
+        assert!(out.contains(part), "missing {part}: {out}");
+    }
+}
+
+#[test]
+fn report_flag_is_accepted() {
+    let dir = tempfile::tempdir().unwrap();
+    let r = run(&[
+        "diagnose",
+        &sim_mild(),
+        "--json",
+        "--report",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+}
+
+#[test]
+fn bad_input_is_a_clean_error() {
+    let message = run_err(&["diagnose", "/nonexistent/file.csv"]);
+    assert!(message.contains("nonexistent"), "{message}");
+    let message = run_err(&["diagnose", &sim_mild(), "--effects", "magic"]);
+    assert!(message.contains("magic"), "{message}");
+    let message = run_err(&["diagnose", &sim_mild(), "--effects", "covariate:temp"]);
+    assert!(message.contains("temp"), "{message}");
+}
