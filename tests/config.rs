@@ -408,23 +408,29 @@ fn effects_are_checked_against_the_catalogue() {
         Some(line_of(&text, "model")),
         &["'wobble' is not an effect", "offset", "cross-axis"],
     );
-    for planned in [
-        "cubic",
-        "cross-axis",
-        "drift",
-        "outliers",
-        "covariate:temp_c",
-    ] {
+    // Effects that need the time base or a logged column cannot correct
+    // live readings.
+    for offline in ["drift", "covariate:temp_c"] {
         let text = sensor(&format!(
-            "chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\"]\nmodel = [\"paper\", \"{planned}\"]"
+            "chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\"]\nmodel = [\"paper\", \"{offline}\"]"
         ));
         assert_refused(
             &text,
             "sensor[0].model[1]",
             Some(line_of(&text, "model")),
-            &[planned, "not available yet"],
+            &[offline, "cannot correct live readings", "fieldcal diagnose"],
         );
     }
+    // Those that depend on the reading alone are accepted, in catalogue order.
+    let text = sensor(
+        "chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\"]\nmodel = [\"outliers\", \"paper\", \"cubic\", \"cross-axis\"]",
+    );
+    let config =
+        fieldcal::daemon::config::parse(&text, std::path::Path::new("/tmp/fieldcal.toml")).unwrap();
+    assert_eq!(
+        config.sensors[0].effects,
+        ["offset", "scale", "cross-axis", "cubic", "outliers"]
+    );
     let text =
         sensor("chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\"]\nmodel = \"offset\"");
     assert_refused(

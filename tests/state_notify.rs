@@ -33,6 +33,7 @@ fn calibration(sensor: &str, id: u64) -> Calibration {
         coverage_deg: 359.5,
         n: 412,
         time: 1_700_000_000.5,
+        terms: Default::default(),
     }
 }
 

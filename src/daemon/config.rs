@@ -86,6 +86,7 @@ use toml::Spanned;
 use toml::de::{DeTable, DeValue};
 
 use crate::capture::{self, CaptureFile, StreamKind};
+use crate::model::effects::{self, Effect};
 use crate::protocol::chips::Chip;
 use crate::protocol::falcon;
 use crate::source::bridge::{BridgeConfig, I2cSpeed};
@@ -101,15 +102,15 @@ pub type LimitSettings = crate::daemon::acceptance::Limits;
 const POLL_MS_MAX: u64 = 60_000;
 /// Names become file names and JSON values: keep them short.
 const NAME_MAX: usize = 64;
-/// The effects the fits implement.
-const AVAILABLE_EFFECTS: [&str; 2] = ["offset", "scale"];
-/// The rest of product.md's catalogue: known names, not implemented yet.
-const PLANNED_EFFECTS: [&str; 5] = [
-    "cross-axis",
-    "drift",
-    "covariate:<column>",
-    "cubic",
-    "outliers",
+/// The effects the daemon can fit and apply to live readings: those that
+/// depend on the reading alone (drift needs the time base and covariates a
+/// logged column at correction time).
+const LIVE_EFFECTS: [Effect; 5] = [
+    Effect::Offset,
+    Effect::Scale,
+    Effect::CrossAxis,
+    Effect::Cubic,
+    Effect::Outliers,
 ];
 
 /// A checked configuration.
@@ -1174,41 +1175,32 @@ impl Checker<'_> {
                 ));
             }
         }
-        let mut effects: Vec<&str> = Vec::new();
+        let mut effects: Vec<Effect> = Vec::new();
         for (item_key, name) in &names {
-            match name.as_str() {
-                "paper" => effects.extend(AVAILABLE_EFFECTS),
-                n if AVAILABLE_EFFECTS.contains(&n) => {
-                    if let Some(&e) = AVAILABLE_EFFECTS.iter().find(|&&e| e == n) {
-                        effects.push(e);
-                    }
-                }
-                n if PLANNED_EFFECTS.contains(&n) || n.starts_with("covariate:") => {
-                    return Err(self.error(
-                        item_key,
-                        format!(
-                            "the effect '{n}' is not available yet: only the paper's model \
-                             (offset, scale) can be fitted; {} are planned",
-                            PLANNED_EFFECTS.join(", ")
-                        ),
-                    ));
-                }
-                n => {
-                    return Err(self.error(
-                        item_key,
-                        format!(
-                            "'{n}' is not an effect: give \"paper\" or effects from offset, \
-                             scale (available) and {} (not available yet)",
-                            PLANNED_EFFECTS.join(", ")
-                        ),
-                    ));
-                }
+            if name == "paper" {
+                effects.extend(effects::PAPER);
+                continue;
             }
+            let effect: Effect = name
+                .parse()
+                .map_err(|problem| self.error(item_key, problem))?;
+            if !LIVE_EFFECTS.contains(&effect) {
+                return Err(self.error(
+                    item_key,
+                    format!(
+                        "the effect '{effect}' cannot correct live readings: it needs the time base or a \
+                         logged column at correction time; the daemon fits {}; analyse it offline with \
+                         `fieldcal fit --effects {effect}` or `fieldcal diagnose`",
+                        LIVE_EFFECTS.iter().map(Effect::to_string).collect::<Vec<_>>().join(", ")
+                    ),
+                ));
+            }
+            effects.push(effect);
         }
-        let missing: Vec<&str> = AVAILABLE_EFFECTS
+        let missing: Vec<String> = effects::PAPER
             .iter()
             .filter(|e| !effects.contains(e))
-            .copied()
+            .map(Effect::to_string)
             .collect();
         if !missing.is_empty() {
             return Err(self.error(
@@ -1221,7 +1213,9 @@ impl Checker<'_> {
             ));
         }
         // Catalogue order, each once.
-        Ok(AVAILABLE_EFFECTS.iter().map(|e| e.to_string()).collect())
+        effects.sort();
+        effects.dedup();
+        Ok(effects.iter().map(Effect::to_string).collect())
     }
 
     fn check_name(&self, key: &str, name: &str) -> Result<(), ConfigError> {

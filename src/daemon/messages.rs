@@ -57,6 +57,16 @@ pub struct CalibrationMessage<'a> {
     /// Where the calibration came from: `rotation` (fitted now) or `state`
     /// (loaded from the state directory at start).
     pub origin: &'static str,
+    /// Terms of the effects beyond the paper's, when the model has them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub terms: Option<super::Terms>,
+    /// The noise floor estimated from the rotation itself (rms, fraction of the field).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise_floor: Option<f64>,
+    /// The effect the rotation's residual supports adding to the model, if any:
+    /// add it to the sensor's `model` in the configuration.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub suggested: Option<String>,
 }
 
 impl<'a> CalibrationMessage<'a> {
@@ -75,6 +85,9 @@ impl<'a> CalibrationMessage<'a> {
             fit_ms: 0.0,
             time: calibration.time,
             origin: "state",
+            terms: (!calibration.terms.is_none()).then_some(calibration.terms),
+            noise_floor: None,
+            suggested: None,
         }
     }
 }

@@ -40,4 +40,42 @@ pub struct Calibration {
     pub n: usize,
     /// When it was accepted, in seconds since the Unix epoch.
     pub time: f64,
+    /// Terms of the effects beyond the paper's (zero when absent, and then
+    /// left out of the JSON, so files of the paper's model stay as they were).
+    #[serde(default, skip_serializing_if = "Terms::is_none")]
+    pub terms: Terms,
+}
+
+/// The live-correctable effects' terms: cross-axis coupling `c`, and the
+/// odd cubic per axis `k` relative to the full scale `cubic_scale`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Terms {
+    #[serde(default)]
+    pub c: f64,
+    #[serde(default)]
+    pub k: [f64; 2],
+    #[serde(default)]
+    pub cubic_scale: f64,
+}
+
+impl Terms {
+    pub fn is_none(&self) -> bool {
+        *self == Terms::default()
+    }
+}
+
+impl Calibration {
+    /// The corrected reading of a raw sample: the cubic terms removed, then
+    /// the paper's gains and offsets with the cross-axis coupling.
+    pub fn apply(&self, x: f64, y: f64) -> (f64, f64) {
+        let t = &self.terms;
+        let (x2, y2) = if t.cubic_scale > 0.0 {
+            let s2 = t.cubic_scale * t.cubic_scale;
+            (x + t.k[0] * x * x * x / s2, y + t.k[1] * y * y * y / s2)
+        } else {
+            (x, y)
+        };
+        let p = &self.params;
+        (p.a * x2 + p.b + t.c * (y2 + p.d), y2 + p.d)
+    }
 }

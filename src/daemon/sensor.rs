@@ -5,13 +5,18 @@
 
 use std::time::Instant;
 
-use super::Calibration;
 use super::acceptance::{self, Limits};
 use super::config::{Axis, Field, SensorConfig};
 use super::messages::{CalibrationMessage, ReadingMessage, SensorState, SensorStatus, to_line};
 use super::publish::Lane;
 use super::rotation::{RotationBuffer, RotationEvent};
-use crate::model::fit::{FitOptions, fit_paper};
+use super::{Calibration, Terms};
+use crate::model::diagnose::diagnose;
+use crate::model::effects::{Effect, parse_list};
+use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper};
+use crate::model::heading::coverage;
+use crate::model::nonlinear::{cubic_scale, fit_model};
+use crate::sample::Dataset;
 use crate::sample::Reading;
 
 /// A line to publish, on its lane.
@@ -19,6 +24,7 @@ pub type Emit<'a> = dyn FnMut(Lane, String) + 'a;
 
 pub struct Sensor {
     config: SensorConfig,
+    effects: Vec<Effect>,
     limits: Limits,
     model: String,
     buffer: RotationBuffer,
@@ -37,8 +43,13 @@ impl Sensor {
     pub fn new(config: SensorConfig, stored: Option<Calibration>) -> Self {
         let limits = config.limits.clone();
         let buffer = RotationBuffer::new(config.rotation.clone());
+        // The configuration checked the names; an unparsable list (not
+        // possible from a checked file) falls back to the paper's model.
+        let effects = parse_list(&config.effects.join(","))
+            .unwrap_or_else(|_| crate::model::effects::PAPER.to_vec());
         Sensor {
-            model: config.effects.join("+"),
+            model: crate::model::effects::model_name(&effects),
+            effects,
             state: if stored.is_some() {
                 SensorState::Calibrated
             } else {
@@ -124,7 +135,7 @@ impl Sensor {
 
     fn reading_line(&self, time: f64, x: f64, y: f64) -> String {
         let corrected = self.current.as_ref().map(|c| {
-            let (sx, sy) = c.params.apply(x, y);
+            let (sx, sy) = c.apply(x, y);
             (c.id, [sx, sy], sy.atan2(sx).to_degrees().rem_euclid(360.0))
         });
         to_line(&ReadingMessage {
@@ -140,21 +151,23 @@ impl Sensor {
     }
 
     fn fit(&mut self, time: f64, emit: &mut Emit<'_>) -> Option<Calibration> {
-        let (_, x, y) = self.buffer.take();
-        let options = FitOptions {
-            min_coverage_deg: self.limits.min_coverage_deg,
-            ..FitOptions::default()
-        };
+        let (t, x, y) = self.buffer.take();
         let started = Instant::now();
-        let fitted = fit_paper(&x, &y, &options, &mut |_| {});
+        let fitted = self.fit_rotation(t, x, y);
         let fit_ms = started.elapsed().as_secs_f64() * 1e3;
-        let report = match fitted {
-            Ok(report) => report,
-            Err(e) => {
-                self.reject(time, format!("no fit: {e}"), x.len(), 0.0, fit_ms, emit);
+        let (report, terms, rotation) = match fitted {
+            Ok(found) => found,
+            Err((reason, n)) => {
+                self.reject(time, format!("no fit: {reason}"), n, 0.0, fit_ms, emit);
                 return None;
             }
         };
+        // What the rotation's residual says beyond the fit: its noise floor,
+        // and an effect the model lacks, so the user beside the robot learns
+        // that the configuration should add it.
+        let insight = diagnose(&rotation, &self.effects).ok();
+        let noise_floor = insight.as_ref().map(|d| d.noise_floor.rms);
+        let suggested = insight.and_then(|d| d.suggested).map(|e| e.to_string());
         if let Err(reason) = acceptance::check(&report, &self.limits) {
             let message = CalibrationMessage {
                 class: "CALIBRATION",
@@ -170,6 +183,9 @@ impl Sensor {
                 fit_ms,
                 time,
                 origin: "rotation",
+                terms: (!terms.is_none()).then_some(terms),
+                noise_floor,
+                suggested,
             };
             emit(Lane::Control, to_line(&message));
             self.note_rejection(reason);
@@ -184,10 +200,13 @@ impl Sensor {
             coverage_deg: report.coverage.covered_deg,
             n: report.n,
             time,
+            terms,
         };
         let message = CalibrationMessage {
             fit_ms,
             origin: "rotation",
+            noise_floor,
+            suggested,
             ..CalibrationMessage::loaded(&calibration)
         };
         emit(Lane::Control, to_line(&message));
@@ -202,6 +221,57 @@ impl Sensor {
         self.state = SensorState::Calibrated;
         self.current = Some(calibration.clone());
         Some(calibration)
+    }
+
+    /// Fits the rotation with the sensor's model: the paper's closed form,
+    /// or the general model when the configuration adds effects. Returns
+    /// the report the acceptance limits judge, the extra terms, and the
+    /// rotation as a recording (for the diagnosis).
+    fn fit_rotation(
+        &self,
+        t: Vec<f64>,
+        x: Vec<f64>,
+        y: Vec<f64>,
+    ) -> Result<(FitReport, Terms, Dataset), (String, usize)> {
+        let n = x.len();
+        let rotation =
+            Dataset::new("x", "y", Some(t), x, y, Vec::new()).map_err(|e| (e.to_string(), n))?;
+        let options = FitOptions {
+            min_coverage_deg: self.limits.min_coverage_deg,
+            ..FitOptions::default()
+        };
+        if self.effects.iter().all(Effect::is_paper) {
+            let report = fit_paper(&rotation.x, &rotation.y, &options, &mut |_| {})
+                .map_err(|e| (e.to_string(), n))?;
+            return Ok((report, Terms::default(), rotation));
+        }
+        let started = Instant::now();
+        let fit = fit_model(&rotation, &self.effects).map_err(|e| (e.to_string(), n))?;
+        let covered = coverage(fit.headings.iter().copied());
+        covered
+            .require(options.min_coverage_deg)
+            .map_err(|e| (e.to_string(), n))?;
+        let calibration = fit.paper();
+        let terms = Terms {
+            c: fit.value("c"),
+            k: [fit.value("k_x"), fit.value("k_y")],
+            cubic_scale: if self.effects.contains(&Effect::Cubic) {
+                cubic_scale(&rotation)
+            } else {
+                0.0
+            },
+        };
+        let report = FitReport {
+            solver: Solver::Lsq,
+            calibration,
+            theta: calibration.to_theta(),
+            rms: fit.rms,
+            n: fit.n,
+            iterations: None,
+            coverage: covered,
+            elapsed: started.elapsed(),
+        };
+        Ok((report, terms, rotation))
     }
 
     fn reject(
@@ -227,6 +297,9 @@ impl Sensor {
             fit_ms,
             time,
             origin: "rotation",
+            terms: None,
+            noise_floor: None,
+            suggested: None,
         };
         emit(Lane::Control, to_line(&message));
         self.note_rejection(reason);

@@ -1,5 +1,6 @@
 //! What fieldcal tells a person (text) or a program (JSON) about its work.
 
+pub mod diagnosis;
 pub mod fit;
 pub mod html;
 pub mod plots;

@@ -36,14 +36,24 @@ pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
     let diagnosis =
         run_diagnosis(&data, &baseline).with_context(|| format!("{file}: no diagnosis"))?;
 
-    if args.report.is_some() {
-        eprintln!("reports: not built yet");
+    let summary = render_text(&diagnosis, &file);
+    if let Some(dir) = &args.report {
+        let title = format!("{file}: x = {}, y = {}", data.x_name, data.y_name);
+        let report = fieldcal::report::diagnosis::report_data(&data, &diagnosis, &title, &summary)
+            .with_context(|| format!("{file}: cannot refit the models for the report"))?;
+        let written = fieldcal::report::plots::write_report(dir, &report)?;
+        eprintln!(
+            "report: {} files in {}; open {}",
+            written.len(),
+            dir.display(),
+            dir.join(fieldcal::report::plots::INDEX_FILE).display()
+        );
     }
 
     let text = if args.json {
         serde_json::to_string(&DiagnosisJson::new(&diagnosis, &file))? + "\n"
     } else {
-        render_text(&diagnosis, &file)
+        summary
     };
     write_stdout(text.as_bytes())
 }
