@@ -470,50 +470,6 @@ impl SimSensor {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn same_seed_same_data_other_seed_other_noise() {
-        let s = SimSensor {
-            noise: 2.0,
-            ..Default::default()
-        };
-        let a = s.simulate().unwrap();
-        assert_eq!(a, s.simulate().unwrap());
-        let b = SimSensor { seed: 2, ..s }.simulate().unwrap();
-        assert_ne!(a.x, b.x);
-        assert_eq!(a.len(), 200);
-    }
-
-    #[test]
-    fn truth_calibrates_noiseless_samples_onto_the_circle() {
-        let s = SimSensor {
-            gain_x: 1.4,
-            gain_y: 0.9,
-            offset_x: 300.0,
-            offset_y: -120.0,
-            ..Default::default()
-        };
-        let d = s.simulate().unwrap();
-        let truth = s.truth();
-        assert!(truth.rms(&d.x, &d.y) < 1e-12);
-    }
-
-    #[test]
-    fn refuses_nonsense() {
-        let s = SimSensor {
-            period: 0.0,
-            ..Default::default()
-        };
-        assert_eq!(
-            s.simulate().unwrap_err().to_string(),
-            "--period must be a positive number of seconds, got 0"
-        );
-    }
-}
-
 /// How a simulated Falcon-GX-style IMU puts the simulated sensor on the wire.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FalconWire {
@@ -628,5 +584,49 @@ impl SimSensor {
             )),
         };
         Ok((header, chunks))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn same_seed_same_data_other_seed_other_noise() {
+        let s = SimSensor {
+            noise: 2.0,
+            ..Default::default()
+        };
+        let a = s.simulate().unwrap();
+        assert_eq!(a, s.simulate().unwrap());
+        let b = SimSensor { seed: 2, ..s }.simulate().unwrap();
+        assert_ne!(a.x, b.x);
+        assert_eq!(a.len(), 200);
+    }
+
+    #[test]
+    fn truth_calibrates_noiseless_samples_onto_the_circle() {
+        let s = SimSensor {
+            gain_x: 1.4,
+            gain_y: 0.9,
+            offset_x: 300.0,
+            offset_y: -120.0,
+            ..Default::default()
+        };
+        let d = s.simulate().unwrap();
+        let truth = s.truth();
+        assert!(truth.rms(&d.x, &d.y) < 1e-12);
+    }
+
+    #[test]
+    fn refuses_nonsense() {
+        let s = SimSensor {
+            period: 0.0,
+            ..Default::default()
+        };
+        assert_eq!(
+            s.simulate().unwrap_err().to_string(),
+            "--period must be a positive number of seconds, got 0"
+        );
     }
 }

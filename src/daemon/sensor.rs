@@ -169,23 +169,15 @@ impl Sensor {
         let noise_floor = insight.as_ref().map(|d| d.noise_floor.rms);
         let suggested = insight.and_then(|d| d.suggested).map(|e| e.to_string());
         if let Err(reason) = acceptance::check(&report, &self.limits) {
+            // A fit outside the limits is published with its numbers, so the
+            // user sees how far off it was.
             let message = CalibrationMessage {
-                class: "CALIBRATION",
-                sensor: &self.config.name,
-                accepted: false,
-                id: None,
-                reason: Some(reason.clone()),
-                model: &self.model,
                 params: Some(report.calibration),
                 rms: Some(report.rms),
-                coverage_deg: report.coverage.covered_deg,
-                n: report.n,
-                fit_ms,
-                time,
-                origin: "rotation",
                 terms: (!terms.is_none()).then_some(terms),
                 noise_floor,
                 suggested,
+                ..self.rejection(time, &reason, report.n, report.coverage.covered_deg, fit_ms)
             };
             emit(Lane::Control, to_line(&message));
             self.note_rejection(reason);
@@ -283,12 +275,26 @@ impl Sensor {
         fit_ms: f64,
         emit: &mut Emit<'_>,
     ) {
-        let message = CalibrationMessage {
+        let message = self.rejection(time, &reason, n, coverage_deg, fit_ms);
+        emit(Lane::Control, to_line(&message));
+        self.note_rejection(reason);
+    }
+
+    /// A `CALIBRATION` line for a rotation that produced no accepted fit.
+    fn rejection(
+        &self,
+        time: f64,
+        reason: &str,
+        n: usize,
+        coverage_deg: f64,
+        fit_ms: f64,
+    ) -> CalibrationMessage<'_> {
+        CalibrationMessage {
             class: "CALIBRATION",
             sensor: &self.config.name,
             accepted: false,
             id: None,
-            reason: Some(reason.clone()),
+            reason: Some(reason.to_string()),
             model: &self.model,
             params: None,
             rms: None,
@@ -300,9 +306,7 @@ impl Sensor {
             terms: None,
             noise_floor: None,
             suggested: None,
-        };
-        emit(Lane::Control, to_line(&message));
-        self.note_rejection(reason);
+        }
     }
 
     fn note_rejection(&mut self, reason: String) {

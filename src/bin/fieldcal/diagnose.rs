@@ -4,7 +4,6 @@
 use anyhow::{Context, Result};
 use serde::Serialize;
 
-use fieldcal::io::csv::{ColumnSpec, read_dataset};
 use fieldcal::model::diagnose::{Candidate, Diagnosis, Step, diagnose as run_diagnosis};
 use fieldcal::model::effects::{Effect, parse_list};
 use fieldcal::model::residuals::Residuals;
@@ -13,12 +12,7 @@ use crate::DiagnoseArgs;
 use crate::output::write_stdout;
 
 pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
-    let spec = ColumnSpec {
-        x: args.x,
-        y: args.y,
-        t: args.t,
-    };
-    let data = read_dataset(&args.file, &spec)?;
+    let data = args.input.read()?;
     let baseline = parse_list(args.effects.as_deref().unwrap_or("paper"))
         .map_err(anyhow::Error::msg)
         .context("--effects")?;
@@ -27,12 +21,12 @@ pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
             if data.covariate(column).is_none() {
                 anyhow::bail!(
                     "--effects: {}: the recording has no column '{column}'",
-                    args.file.display()
+                    args.input.file.display()
                 );
             }
         }
     }
-    let file = args.file.display().to_string();
+    let file = args.input.file.display().to_string();
     let diagnosis =
         run_diagnosis(&data, &baseline).with_context(|| format!("{file}: no diagnosis"))?;
 

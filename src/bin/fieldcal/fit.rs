@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 
-use fieldcal::io::csv::{ColumnSpec, read_dataset, write_calibrated};
+use fieldcal::io::csv::write_calibrated;
 use fieldcal::model::effects::Effect;
 use fieldcal::model::fit::{FitOptions, fit_paper};
 use fieldcal::model::heading::coverage;
@@ -18,12 +18,7 @@ use crate::FitArgs;
 use crate::output::write_stdout;
 
 pub fn fit(args: FitArgs) -> Result<()> {
-    let spec = ColumnSpec {
-        x: args.x.clone(),
-        y: args.y.clone(),
-        t: args.t.clone(),
-    };
-    let data = read_dataset(&args.file, &spec)?;
+    let data = args.input.read()?;
     let options = FitOptions {
         solver: args.solver,
         gradient_descent: GradientDescentOptions {
@@ -33,7 +28,7 @@ pub fn fit(args: FitArgs) -> Result<()> {
         },
         min_coverage_deg: args.min_coverage,
     };
-    let file = args.file.display().to_string();
+    let file = args.input.file.display().to_string();
     if let Some(effects) = &args.effects {
         if args.solver != fieldcal::model::fit::Solver::Lsq {
             anyhow::bail!(

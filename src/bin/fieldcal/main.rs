@@ -110,8 +110,9 @@ struct ReplayArgs {
     source: Option<String>,
 }
 
+/// A CSV recording and which of its columns hold what.
 #[derive(Debug, Args)]
-struct FitArgs {
+struct CsvInput {
     /// CSV file: a header line, then one sample per line.
     file: PathBuf,
     /// Column holding the x axis.
@@ -123,6 +124,23 @@ struct FitArgs {
     /// Column holding time in seconds [default: the first of t, t_s, time, time_s]
     #[arg(long, value_name = "COL")]
     t: Option<String>,
+}
+
+impl CsvInput {
+    fn read(&self) -> anyhow::Result<fieldcal::sample::Dataset> {
+        let spec = fieldcal::io::csv::ColumnSpec {
+            x: self.x.clone(),
+            y: self.y.clone(),
+            t: self.t.clone(),
+        };
+        Ok(fieldcal::io::csv::read_dataset(&self.file, &spec)?)
+    }
+}
+
+#[derive(Debug, Args)]
+struct FitArgs {
+    #[command(flatten)]
+    input: CsvInput,
     /// Solver: closed-form least squares, or the paper's gradient descent.
     #[arg(long, value_enum, default_value_t = Solver::Lsq)]
     solver: Solver,
@@ -150,17 +168,8 @@ struct FitArgs {
 
 #[derive(Debug, Args)]
 struct DiagnoseArgs {
-    /// CSV file: a header line, then one sample per line.
-    file: PathBuf,
-    /// Column holding the x axis.
-    #[arg(long, default_value = "x", value_name = "COL")]
-    x: String,
-    /// Column holding the y axis.
-    #[arg(long, default_value = "y", value_name = "COL")]
-    y: String,
-    /// Column holding time in seconds [default: the first of t, t_s, time, time_s]
-    #[arg(long, value_name = "COL")]
-    t: Option<String>,
+    #[command(flatten)]
+    input: CsvInput,
     /// The model to start from, as in `fit --effects` (default: paper, i.e. offset+scale).
     #[arg(long, value_name = "LIST")]
     effects: Option<String>,
