@@ -6,6 +6,8 @@
 //! one, never a torn one. A file that cannot be trusted on load is moved
 //! aside (never overwritten, never used) so a person can look at it later,
 //! and the daemon carries on as if the sensor had no calibration yet.
+//! A writer killed mid-write leaves its temporary file; [`StateStore::open`]
+//! removes those of writers that are no longer alive.
 //!
 //! File layout (format 1):
 //!
@@ -177,6 +179,7 @@ impl StateStore {
                 source,
             });
         }
+        remove_stale_temporaries(dir);
         Ok(StateStore {
             dir: dir.to_path_buf(),
         })
@@ -291,6 +294,55 @@ impl StateStore {
     }
 }
 
+/// Removes the temporaries a killed writer left (`.<sensor>.json.tmp.<pid>.<n>`
+/// and `.fieldcal-probe.tmp.<pid>.<n>`, see [`AtomicFile`]) when process
+/// `<pid>` is gone: a kill between creating and renaming the temporary file
+/// leaves it, and without this each crash would add one. A temporary of a
+/// live process (another fieldcal writing, or an unrelated process that
+/// reuses the pid) is left alone, as is anything else in the directory.
+/// Where `/proc` is missing, liveness cannot be told and nothing is removed.
+/// Best effort: a failure to list or remove is ignored.
+fn remove_stale_temporaries(dir: &Path) {
+    if !Path::new("/proc/self").exists() {
+        return;
+    }
+    let Ok(entries) = fs::read_dir(dir) else {
+        return;
+    };
+    let own = std::process::id();
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(pid) = name.to_str().and_then(stale_temporary_pid) else {
+            continue;
+        };
+        if pid != own && !Path::new(&format!("/proc/{pid}")).exists() {
+            match fs::remove_file(entry.path()) {
+                Ok(()) => tracing::info!(
+                    file = %entry.path().display(),
+                    "removed a temporary file left by a writer that was killed"
+                ),
+                Err(e) => tracing::debug!(file = %entry.path().display(), "{e}"),
+            }
+        }
+    }
+}
+
+/// The writer's pid when `name` is one of the store's temporaries:
+/// `.<stem>.json.tmp.<pid>.<n>` or `.fieldcal-probe.tmp.<pid>.<n>`.
+fn stale_temporary_pid(name: &str) -> Option<u32> {
+    let rest = name.strip_prefix('.')?;
+    let (stem, suffix) = rest.rsplit_once(".tmp.")?;
+    if !(stem.ends_with(".json") || stem == "fieldcal-probe") {
+        return None;
+    }
+    let (pid, n) = suffix.split_once('.')?;
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    if !(digits(pid) && digits(n)) {
+        return None;
+    }
+    pid.parse().ok()
+}
+
 /// The file's bytes, `None` when there is no file; a file above
 /// [`MAX_FILE_LEN`] is an error rather than a large allocation.
 fn read_bounded(path: &Path) -> io::Result<Option<Vec<u8>>> {
@@ -371,4 +423,58 @@ fn calibration_problem(c: &Calibration) -> Option<String> {
         ));
     }
     None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recognises_only_the_store_temporaries() {
+        assert_eq!(stale_temporary_pid(".compass.json.tmp.123.4"), Some(123));
+        assert_eq!(stale_temporary_pid(".fieldcal-probe.tmp.9.0"), Some(9));
+        assert_eq!(stale_temporary_pid(".a%2Eb.json.tmp.77.12"), Some(77));
+        for other in [
+            "compass.json",
+            "compass.json.corrupt-1700000000",
+            ".compass.json.tmp.123",
+            ".compass.json.tmp.x.1",
+            ".compass.json.tmp.1.",
+            ".notes.txt.tmp.1.2",
+            "compass.json.tmp.1.2",
+        ] {
+            assert_eq!(stale_temporary_pid(other), None, "{other}");
+        }
+    }
+
+    #[test]
+    fn open_removes_temporaries_of_dead_writers_only() {
+        let dir = tempfile::tempdir().unwrap();
+        // Above the largest pid_max Linux allows (2^22): never alive.
+        let dead = 4_194_305u32;
+        let own = std::process::id();
+        let keep = [
+            "compass.json".to_string(),
+            format!(".compass.json.tmp.{own}.7"), // this process: a live writer
+            format!(".notes.tmp.{dead}.1"),       // not one of ours
+            format!("compass.json.corrupt-{dead}"),
+        ];
+        let remove = [
+            format!(".compass.json.tmp.{dead}.3"),
+            format!(".gyro_2.json.tmp.{dead}.0"),
+            format!(".fieldcal-probe.tmp.{dead}.1"),
+        ];
+        for name in keep.iter().chain(&remove) {
+            fs::write(dir.path().join(name), "x").unwrap();
+        }
+        StateStore::open(dir.path()).unwrap();
+        let mut left: Vec<String> = fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        let mut expected = keep.to_vec();
+        expected.sort();
+        assert_eq!(left, expected);
+    }
 }
