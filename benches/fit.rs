@@ -1,15 +1,25 @@
 //! Fit timings: the closed form against the paper's gradient descent, on the
-//! shipped one-turn recordings (`tests/data/`) and on larger simulations.
+//! shipped one-turn recordings (`tests/data/`) and on simulations of one
+//! rotation of 200, 2,000 and 200,000 samples; and the general model with
+//! every effect (Levenberg-Marquardt, IRLS) on data carrying those effects.
 //!
 //! Run: `cargo bench --bench fit`
 
 use std::hint::black_box;
 use std::path::Path;
+use std::time::{Duration, Instant};
 
-use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use criterion::{BenchmarkId, Criterion, SamplingMode, criterion_group, criterion_main};
 use fieldcal::io::csv::{ColumnSpec, read_dataset};
+use fieldcal::model::effects::parse_list;
+use fieldcal::model::nonlinear::fit_model;
 use fieldcal::model::paper::{GradientDescentOptions, closed_form, gradient_descent};
-use fieldcal::sim::SimSensor;
+use fieldcal::sample::Dataset;
+use fieldcal::sim::{SimEffects, SimSensor};
+
+const SIZES: [usize; 3] = [200, 2_000, 200_000];
+/// Every effect of the catalogue the simulation can hide.
+const ALL_EFFECTS: &str = "offset,scale,cross-axis,drift,covariate:temp,cubic,outliers";
 
 fn shipped(name: &str) -> (Vec<f64>, Vec<f64>) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -19,7 +29,45 @@ fn shipped(name: &str) -> (Vec<f64>, Vec<f64>) {
     (d.x, d.y)
 }
 
-fn solvers(c: &mut Criterion) {
+/// One rotation of `n` samples (50 ms apart) of a sensor with the paper's
+/// effects only.
+fn paper_rotation(n: usize) -> Dataset {
+    SimSensor {
+        offset_x: 30.0,
+        offset_y: -20.0,
+        gain_x: 1.05,
+        noise: 3.0,
+        turn_seconds: n as f64 * 0.05,
+        ..Default::default()
+    }
+    .simulate()
+    .expect("simulation")
+}
+
+/// One rotation of `n` samples of a sensor with every effect.
+fn effects_rotation(n: usize) -> Dataset {
+    SimSensor {
+        offset_x: 120.0,
+        offset_y: -80.0,
+        gain_x: 1.08,
+        noise: 2.0,
+        turn_seconds: n as f64 * 0.05,
+        effects: SimEffects {
+            cross_axis_deg: 2.0,
+            drift_per_s: [0.5 * 200.0 / n as f64, -0.3 * 200.0 / n as f64],
+            temp_per_c: Some([1.5, -1.0]),
+            cubic: [0.01, 0.005],
+            outliers: 0.01,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+    .simulate_with_truth()
+    .expect("simulation")
+    .0
+}
+
+fn shipped_turns(c: &mut Criterion) {
     let mut group = c.benchmark_group("one turn, 200 samples");
     for name in ["sim_mild.csv", "sim_strong.csv"] {
         let (x, y) = shipped(name);
@@ -36,20 +84,63 @@ fn solvers(c: &mut Criterion) {
         });
     }
     group.finish();
+}
 
+fn by_size(c: &mut Criterion) {
+    let options = GradientDescentOptions::default();
     let mut group = c.benchmark_group("closed form by size");
-    for n in [200usize, 2_000, 200_000] {
-        let sensor = SimSensor {
-            offset_x: 30.0,
-            offset_y: -20.0,
-            gain_x: 1.05,
-            noise: 3.0,
-            turn_seconds: n as f64 * 0.05,
-            ..Default::default()
-        };
-        let d = sensor.simulate().expect("simulation");
+    for n in SIZES {
+        let d = paper_rotation(n);
         group.bench_function(BenchmarkId::new("lsq", n), |b| {
             b.iter(|| closed_form(black_box(&d.x), black_box(&d.y)))
+        });
+    }
+    group.finish();
+
+    let mut group = c.benchmark_group("paper gd by size");
+    for n in SIZES {
+        let d = paper_rotation(n);
+        let started = Instant::now();
+        let outcome = gradient_descent(&d.x, &d.y, &options, &mut |_| {});
+        let once = started.elapsed();
+        match &outcome {
+            Ok(o) => println!(
+                "paper-gd, {n} samples: {} iterations, one run {:.3} ms",
+                o.iterations,
+                once.as_secs_f64() * 1e3
+            ),
+            Err(e) => println!("paper-gd, {n} samples: {e}"),
+        }
+        if once > Duration::from_millis(500) {
+            // Too slow for repeated samples: the single timed run above is
+            // the figure.
+            continue;
+        }
+        group.bench_function(BenchmarkId::new("paper-gd", n), |b| {
+            b.iter(|| gradient_descent(black_box(&d.x), black_box(&d.y), &options, &mut |_| {}))
+        });
+    }
+    group.finish();
+
+    let effects = parse_list(ALL_EFFECTS).expect("effects");
+    let mut group = c.benchmark_group("nonlinear, every effect, by size");
+    group.sampling_mode(SamplingMode::Flat);
+    group.sample_size(10);
+    for n in SIZES {
+        let d = effects_rotation(n);
+        let started = Instant::now();
+        match fit_model(&d, &effects) {
+            Ok(fit) => println!(
+                "nonlinear [{ALL_EFFECTS}], {n} samples: {} LM iterations, rms {:.2e}, {} flagged, one run {:.3} ms",
+                fit.iterations,
+                fit.rms,
+                fit.flagged.len(),
+                started.elapsed().as_secs_f64() * 1e3
+            ),
+            Err(e) => println!("nonlinear, {n} samples: {e}"),
+        }
+        group.bench_function(BenchmarkId::new("fit_model", n), |b| {
+            b.iter(|| fit_model(black_box(&d), &effects))
         });
     }
     group.finish();
@@ -57,7 +148,7 @@ fn solvers(c: &mut Criterion) {
 
 criterion_group! {
     name = benches;
-    config = Criterion::default().sample_size(20).measurement_time(std::time::Duration::from_secs(3));
-    targets = solvers
+    config = Criterion::default().sample_size(20).measurement_time(Duration::from_secs(3));
+    targets = shipped_turns, by_size
 }
 criterion_main!(benches);

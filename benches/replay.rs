@@ -1,0 +1,89 @@
+//! `fieldcal replay --speed max` of a long capture through the daemon's
+//! whole pipeline (decoder, rotation buffer, fits, acceptance, JSON lines)
+//! to a null sink, in readings per second.
+//!
+//! Run: `cargo bench --bench replay`
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use fieldcal::capture::{CaptureFile, CaptureWriter, parse_capture};
+use fieldcal::daemon::config::{Config, parse};
+use fieldcal::daemon::run::replay_through_pipeline;
+use fieldcal::sim::{FalconWire, SimSensor};
+use fieldcal::source::replay::Speed;
+
+/// Turns of 200 frames (50 ms apart): 500 turns = 100,000 frames.
+const TURNS: f64 = 500.0;
+
+fn pipeline_config() -> Config {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/pipeline.toml");
+    let text = std::fs::read_to_string(&path).expect("tests/data/pipeline.toml");
+    parse(&text, &path).expect("pipeline configuration")
+}
+
+fn long_capture() -> CaptureFile {
+    let sensor = SimSensor {
+        offset_x: 30.0,
+        offset_y: -20.0,
+        gain_x: 1.05,
+        noise: 3.0,
+        turns: TURNS,
+        ..Default::default()
+    };
+    let (header, chunks) = sensor
+        .falcon_capture(&FalconWire {
+            garbage: 0.01,
+            ..Default::default()
+        })
+        .expect("simulated capture");
+    let mut writer = CaptureWriter::new(Vec::new(), &header).expect("capture header");
+    for chunk in &chunks {
+        writer
+            .write_chunk(chunk.time, chunk.stream, &chunk.bytes)
+            .expect("capture chunk");
+    }
+    let bytes = writer.into_inner().expect("capture bytes");
+    parse_capture(&bytes, "long.fcap").expect("capture parses")
+}
+
+fn replay(c: &mut Criterion) {
+    let config = pipeline_config();
+    let capture = long_capture();
+    let run = || {
+        replay_through_pipeline(
+            &config,
+            &capture,
+            "long.fcap",
+            None,
+            Speed::Max,
+            &mut std::io::sink(),
+        )
+        .expect("replay")
+    };
+    let started = Instant::now();
+    let summary = run();
+    let once = started.elapsed().as_secs_f64();
+    let readings = summary.readings;
+    println!(
+        "replay --speed max, {readings} readings ({} chunks): one run {:.1} ms, {:.2} million readings/s",
+        summary.chunks,
+        once * 1e3,
+        readings as f64 / once / 1e6
+    );
+    let mut group = c.benchmark_group("replay through the pipeline");
+    group.throughput(Throughput::Elements(readings));
+    group.sample_size(10);
+    group.bench_function("speed max, 100k frames, JSON to a null sink", |b| {
+        b.iter(run)
+    });
+    group.finish();
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().measurement_time(Duration::from_secs(3));
+    targets = replay
+}
+criterion_main!(benches);
