@@ -356,30 +356,15 @@ impl Hub {
         &self,
         listener: tokio::net::TcpListener,
         commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
-        mut shutdown: watch::Receiver<bool>,
+        shutdown: watch::Receiver<bool>,
     ) {
-        loop {
-            let accepted = tokio::select! {
-                accepted = listener.accept() => accepted,
-                () = turned_true(&mut shutdown) => break,
-            };
-            match accepted {
-                Ok((stream, addr)) => {
-                    // Lines are batched by the writer; do not let Nagle delay them.
-                    let _ = stream.set_nodelay(true);
-                    let hub = self.clone();
-                    let commands = commands.clone();
-                    tokio::spawn(async move {
-                        hub.serve_connection(stream, addr.to_string(), commands)
-                            .await;
-                    });
-                }
-                Err(e) => {
-                    tracing::warn!(error = %e, "accepting a TCP subscriber failed; retrying in {ACCEPT_BACKOFF:?}");
-                    tokio::time::sleep(ACCEPT_BACKOFF).await;
-                }
-            }
-        }
+        let accept = || async {
+            let (stream, addr) = listener.accept().await?;
+            // Lines are batched by the writer; do not let Nagle delay them.
+            let _ = stream.set_nodelay(true);
+            Ok((stream, addr.to_string()))
+        };
+        self.accept_loop("TCP", accept, commands, shutdown).await;
     }
 
     /// Accepts Unix-socket subscribers until `shutdown` turns true, like
@@ -388,24 +373,45 @@ impl Hub {
         &self,
         listener: tokio::net::UnixListener,
         commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
-        mut shutdown: watch::Receiver<bool>,
+        shutdown: watch::Receiver<bool>,
     ) {
+        let accept = || async {
+            let (stream, _addr) = listener.accept().await?;
+            Ok((stream, "unix".to_owned()))
+        };
+        self.accept_loop("Unix-socket", accept, commands, shutdown)
+            .await;
+    }
+
+    /// The accept loop both listeners share: each connection gets its own
+    /// task; a failed accept (out of descriptors, say) is retried after a
+    /// pause instead of spinning.
+    async fn accept_loop<S, F, Fut>(
+        &self,
+        kind: &str,
+        mut accept: F,
+        commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
+        mut shutdown: watch::Receiver<bool>,
+    ) where
+        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+        F: FnMut() -> Fut,
+        Fut: Future<Output = std::io::Result<(S, String)>>,
+    {
         loop {
             let accepted = tokio::select! {
-                accepted = listener.accept() => accepted,
+                accepted = accept() => accepted,
                 () = turned_true(&mut shutdown) => break,
             };
             match accepted {
-                Ok((stream, _addr)) => {
+                Ok((stream, peer)) => {
                     let hub = self.clone();
                     let commands = commands.clone();
                     tokio::spawn(async move {
-                        hub.serve_connection(stream, "unix".to_owned(), commands)
-                            .await;
+                        hub.serve_connection(stream, peer, commands).await;
                     });
                 }
                 Err(e) => {
-                    tracing::warn!(error = %e, "accepting a Unix-socket subscriber failed; retrying in {ACCEPT_BACKOFF:?}");
+                    tracing::warn!(error = %e, "accepting a {kind} subscriber failed; retrying in {ACCEPT_BACKOFF:?}");
                     tokio::time::sleep(ACCEPT_BACKOFF).await;
                 }
             }

@@ -138,20 +138,27 @@ impl Daemon {
     }
 
     pub fn wait(&mut self, timeout: Duration) -> ExitStatus {
-        let deadline = Instant::now() + timeout;
-        loop {
-            if let Some(status) = self.child.try_wait().unwrap() {
-                return status;
-            }
-            if Instant::now() > deadline {
-                let _ = self.child.kill();
-                panic!(
-                    "fieldcal did not exit within {timeout:?}; stderr:\n{}",
-                    self.stderr()
-                );
-            }
-            std::thread::sleep(Duration::from_millis(20));
+        let stderr = self.stderr.clone();
+        wait_child(&mut self.child, timeout, || stderr.lock().unwrap().clone())
+    }
+}
+
+/// Waits for a child to exit; past `timeout` it is killed and the test
+/// fails with what the child wrote on stderr.
+pub fn wait_child(child: &mut Child, timeout: Duration, stderr: impl Fn() -> String) -> ExitStatus {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
         }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!(
+                "fieldcal did not exit within {timeout:?}; stderr:\n{}",
+                stderr()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
 
