@@ -592,6 +592,8 @@ fn the_service_unit_verifies_where_systemd_analyze_exists() {
         "StateDirectory=",
         "SupplementaryGroups=dialout",
         "ProtectSystem=strict",
+        // The latency under load that the README states depends on it.
+        "CPUSchedulingPolicy=fifo",
     ] {
         assert!(text.contains(needed), "{needed} missing from the unit");
     }
