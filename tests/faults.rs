@@ -180,6 +180,106 @@ fn a_full_disk_keeps_the_old_file_and_readings_go_on() {
     assert!(daemon.terminate().success(), "{}", daemon.stderr());
 }
 
+/// A small tmpfs mounted over a directory for the life of the guard.
+struct TmpfsMount(std::path::PathBuf);
+
+impl TmpfsMount {
+    /// Mounts a tmpfs of `size` bytes at `at` (created), or says why not.
+    fn mount(at: &Path, size: usize) -> Result<TmpfsMount, std::io::Error> {
+        use std::ffi::CString;
+        std::fs::create_dir_all(at)?;
+        let target = CString::new(at.as_os_str().as_encoded_bytes()).unwrap();
+        let options = CString::new(format!("size={size},mode=0755")).unwrap();
+        // SAFETY: mount(2) with NUL-terminated strings that outlive the call.
+        let rc = unsafe {
+            libc::mount(
+                c"tmpfs".as_ptr(),
+                target.as_ptr(),
+                c"tmpfs".as_ptr(),
+                0,
+                options.as_ptr().cast(),
+            )
+        };
+        if rc == 0 {
+            Ok(TmpfsMount(at.to_path_buf()))
+        } else {
+            Err(std::io::Error::last_os_error())
+        }
+    }
+}
+
+impl Drop for TmpfsMount {
+    fn drop(&mut self) {
+        let target = std::ffi::CString::new(self.0.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: umount2(2) on the path this guard mounted; a lazy detach,
+        // so a daemon still holding it open cannot keep the mount.
+        unsafe { libc::umount2(target.as_ptr(), libc::MNT_DETACH) };
+    }
+}
+
+/// A real full disk, where the machine lets the test mount one: the state
+/// directory is a 1 MiB tmpfs; once the first calibration is stored, a
+/// filler file takes every free block, so the next save fails with ENOSPC.
+/// The filler removed, the following calibration is stored again. (Where
+/// mounting is not permitted, the RLIMIT_FSIZE test above covers the same
+/// path with EFBIG.)
+#[test]
+fn a_really_full_filesystem_keeps_the_old_file_and_readings_go_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let _mount = match TmpfsMount::mount(&state, 1 << 20) {
+        Ok(mount) => mount,
+        Err(e) => {
+            eprintln!(
+                "skipped: cannot mount a tmpfs here ({e}); the RLIMIT_FSIZE test covers this path"
+            );
+            return;
+        }
+    };
+    let (mut daemon, socket, before) = daemon_with_a_stored_calibration(dir.path(), |_| {});
+
+    // Fill every free block. tmpfs counts pages, so write until refused.
+    let filler = state.join("filler");
+    {
+        use std::io::Write;
+        let mut file = std::fs::File::create(&filler).unwrap();
+        let block = vec![0xA5u8; 4096];
+        let error = loop {
+            if let Err(e) = file.write_all(&block) {
+                break e;
+            }
+        };
+        assert_eq!(
+            error.raw_os_error(),
+            Some(libc::ENOSPC),
+            "filling the tmpfs: {error}"
+        );
+    }
+
+    assert_failed_save_reported_and_readings_go_on(&mut daemon, &socket);
+    let log = daemon.stderr();
+    assert!(
+        log.contains("No space left on device"),
+        "the write failed for another reason than a full disk:\n{log}"
+    );
+    assert_eq!(std::fs::read(state.join("compass.json")).unwrap(), before);
+    assert!(temp_files(&state).is_empty(), "{:?}", temp_files(&state));
+
+    // Space again: the next accepted calibration is stored.
+    std::fs::remove_file(&filler).unwrap();
+    send_unix_command(&socket, r#"{"command":"recalibrate"}"#);
+    let third = daemon.wait_for(LONG, "the third CALIBRATION", |v| {
+        is_class(v, "CALIBRATION")
+    });
+    assert_eq!(third["id"], 3, "{third}");
+    let deadline = Instant::now() + LONG;
+    while stored_id(&state.join("compass.json")) != 3 {
+        assert!(Instant::now() < deadline, "calibration 3 was never stored");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(daemon.terminate().success(), "{}", daemon.stderr());
+}
+
 /// Calibration number `id` as the writer child stores it: every field is
 /// derived from the id, so a file mixing two writes would not match. The
 /// numbers are short binary fractions, which survive the JSON round trip
