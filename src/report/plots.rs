@@ -428,6 +428,69 @@ fn span(values: impl IntoIterator<Item = f64>) -> Option<Range<f64>> {
     Some(lo - pad..hi + pad)
 }
 
+/// A tick value as people write it: "50", "0.5", "-2", not "50.0" (ticks are
+/// round numbers; six decimals absorb binary noise such as 0.30000000000000004).
+fn tick_label(value: f64) -> String {
+    let text = format!("{value:.6}");
+    let text = text.trim_end_matches('0').trim_end_matches('.');
+    match text {
+        "-0" => "0".to_string(),
+        _ => text.to_string(),
+    }
+}
+
+/// The vertical scale of a residual plot. Spikes hundreds of noise SDs tall
+/// would flatten everything else, so when the extremes reach far beyond
+/// the bulk the scale holds the bulk (the 1st to 99th percentile, and the
+/// noise band) and the points beyond are drawn at its edge, counted.
+#[derive(Debug)]
+struct ResidualScale {
+    range: Range<f64>,
+    /// True when some values lie outside `range` (drawn at its edge).
+    clipped: bool,
+}
+
+/// How far past the bulk's span the extremes may reach before the scale
+/// stops following them: the full span is kept up to this many bulk spans.
+const FULL_SPAN_LIMIT: f64 = 3.0;
+
+fn residual_scale(values: &[f64], band: Option<f64>) -> ResidualScale {
+    let mut sorted: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    sorted.sort_by(f64::total_cmp);
+    let band = band.into_iter().flat_map(|f| [f, -f]);
+    let full = span(sorted.iter().copied().chain(band.clone())).unwrap_or(-1.0..1.0);
+    let whole = ResidualScale {
+        range: full.clone(),
+        clipped: false,
+    };
+    // Percentiles of a few points say nothing about a bulk.
+    if sorted.len() < 20 {
+        return whole;
+    }
+    let quantile = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
+    let Some(bulk) = span([quantile(0.01), quantile(0.99)].into_iter().chain(band)) else {
+        return whole;
+    };
+    let bulk_width = bulk.end - bulk.start;
+    if full.end - full.start <= FULL_SPAN_LIMIT * bulk_width {
+        return whole;
+    }
+    // Room beyond the bulk for the edge markers.
+    let pad = 0.1 * bulk_width;
+    let range = bulk.start - pad..bulk.end + pad;
+    let clipped = sorted.iter().any(|v| !range.contains(v));
+    ResidualScale { range, clipped }
+}
+
+/// Raises the top of `range` so a legend of `rows` fits above the data on a
+/// plotting area `pixels` high.
+fn with_legend_room(range: Range<f64>, rows: usize, pixels: u32) -> Range<f64> {
+    let legend_px = 14.0 + 20.0 * rows as f64;
+    let share = (legend_px / f64::from(pixels.max(1))).min(0.5);
+    let width = range.end - range.start;
+    range.start..range.start + width / (1.0 - share)
+}
+
 /// Widens one of the ranges so one unit is as many pixels on x as on y on a
 /// plotting area of `pixels`: an ellipse then looks like the ellipse it is.
 fn equal_aspect(x: Range<f64>, y: Range<f64>, pixels: (u32, u32)) -> (Range<f64>, Range<f64>) {
@@ -475,6 +538,8 @@ fn frame<'a, 'b: 'a>(
         .x_desc(x_desc)
         .y_desc(y_desc)
         .label_style((FAMILY, 13))
+        .x_label_formatter(&|v| tick_label(*v))
+        .y_label_formatter(&|v| tick_label(*v))
         .axis_desc_style((FAMILY, LABEL_SIZE))
         .light_line_style(RGBColor(235, 235, 235))
         .bold_line_style(RGBColor(215, 215, 215))
@@ -626,8 +691,13 @@ fn residual_plot(
             x = -180.0..180.0;
         }
     }
-    let band = floor.into_iter().flat_map(|f| [f, -f]);
-    let y = span(all().map(|p| p.1).chain(band)).unwrap_or(-1.0..1.0);
+    let values: Vec<f64> = all().map(|p| p.1).collect();
+    let scale = residual_scale(&values, floor);
+    let rows = 1
+        + usize::from(floor.is_some())
+        + usize::from(!after.is_empty())
+        + usize::from(scale.clipped);
+    let y = with_legend_room(scale.range.clone(), rows, plot_pixels(&body).1);
     let mut chart = frame(&body, x.clone(), y, x_desc, "|s|/r − 1 (%)")?;
     if let Some(f) = floor {
         chart
@@ -649,10 +719,12 @@ fn residual_plot(
         }
     }
     let size = if before.len() > 2000 { 1 } else { 2 };
+    let on_scale = |p: &&(f64, f64)| scale.range.contains(&p.1);
     chart
         .draw_series(
             before
                 .iter()
+                .filter(on_scale)
                 .map(|&p| Circle::new(p, size, BEFORE.mix(0.5).filled())),
         )?
         .label(display_label(&data.before_label, "baseline").to_string())
@@ -662,10 +734,52 @@ fn residual_plot(
             .draw_series(
                 after
                     .iter()
+                    .filter(on_scale)
                     .map(|&p| Circle::new(p, size, AFTER.mix(0.5).filled())),
             )?
             .label(display_label(&data.after_label, "with the suggested effect").to_string())
             .legend(|(x, y)| Circle::new((x, y), 3, AFTER.filled()));
+    }
+    if scale.clipped {
+        // Points off the scale stay visible: a triangle at the edge, in
+        // their model's colour, pointing the way they went.
+        let range = &scale.range;
+        let edge_markers = |points: &[(f64, f64)], colour: RGBColor| {
+            points
+                .iter()
+                .filter(|p| !range.contains(&p.1))
+                .map(|&(x, y)| {
+                    let (at, tip, base) = if y >= range.end {
+                        (range.end, -4, 4)
+                    } else {
+                        (range.start, 4, -4)
+                    };
+                    EmptyElement::at((x, at))
+                        + Polygon::new(vec![(0, tip), (-4, base), (4, base)], colour.filled())
+                })
+                .collect::<Vec<_>>()
+        };
+        // Counted by sample: both models' markers of one sample share its x.
+        let mut off_scale: Vec<u64> = all()
+            .filter(|p| !range.contains(&p.1))
+            .map(|p| p.0.to_bits())
+            .collect();
+        off_scale.sort_unstable();
+        off_scale.dedup();
+        let samples = off_scale.len();
+        chart.draw_series(edge_markers(&after, AFTER))?;
+        chart
+            .draw_series(edge_markers(&before, BEFORE))?
+            .label(format!(
+                "{samples} sample{} beyond the scale, at its edge",
+                if samples == 1 { "" } else { "s" }
+            ))
+            .legend(|(x, y)| {
+                Polygon::new(
+                    vec![(x, y - 4), (x - 4, y + 4), (x + 4, y + 4)],
+                    FLOOR.filled(),
+                )
+            });
     }
     legend(&mut chart)
 }
@@ -700,6 +814,7 @@ fn ladder_plot(
         .y_labels(0)
         .x_desc("rms of |s|/r − 1 (%)")
         .label_style((FAMILY, 13))
+        .x_label_formatter(&|v| tick_label(*v))
         .axis_desc_style((FAMILY, LABEL_SIZE))
         .light_line_style(RGBColor(235, 235, 235))
         .bold_line_style(RGBColor(215, 215, 215))
@@ -860,6 +975,82 @@ mod tests {
         assert!(heading.contains("noise floor ±0.20%"));
         let ladder = std::fs::read_to_string(out.join("ladder.svg")).unwrap();
         assert!(ladder.contains("+cross-axis+drift"));
+    }
+
+    #[test]
+    fn tick_labels_drop_needless_decimals() {
+        assert_eq!(tick_label(50.0), "50");
+        assert_eq!(tick_label(0.5), "0.5");
+        assert_eq!(tick_label(-2.0), "-2");
+        assert_eq!(tick_label(0.1 + 0.2), "0.3");
+        assert_eq!(tick_label(-0.0), "0");
+        assert_eq!(tick_label(0.0002), "0.0002");
+    }
+
+    #[test]
+    fn residual_scale_follows_the_bulk_not_a_spike() {
+        // A sine of amplitude 1 over 200 samples and a noise band of 0.1.
+        let mut values: Vec<f64> = (0..200).map(|i| (f64::from(i) * 0.1).sin()).collect();
+        let clean = residual_scale(&values, Some(0.1));
+        assert!(!clean.clipped);
+        assert!(
+            clean.range.start < -0.99 && clean.range.end > 0.99,
+            "{clean:?}"
+        );
+        assert!(clean.range.end - clean.range.start < 2.3, "{clean:?}");
+        // One spike 40 times the amplitude: the scale keeps the sine.
+        values[57] = 40.0;
+        let spiked = residual_scale(&values, Some(0.1));
+        assert!(spiked.clipped, "{spiked:?}");
+        assert!(spiked.range.end < 3.0, "{spiked:?}");
+        assert!(spiked.range.start < -0.99 && spiked.range.end > 0.99);
+        // Extremes within three spans of the bulk are kept whole.
+        values[57] = 2.5;
+        assert!(!residual_scale(&values, Some(0.1)).clipped);
+        // Too few points for percentiles: the whole range.
+        assert!(!residual_scale(&[0.0, 0.1, 50.0], None).clipped);
+    }
+
+    #[test]
+    fn a_spike_is_drawn_at_the_edge_and_counted() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut data = demo_data(400);
+        data.residual_before[10] = 5.0;
+        data.residual_after[10] = 4.0;
+        data.residual_before[20] = -6.0;
+        write_report(dir.path(), &data).unwrap();
+        let heading = std::fs::read_to_string(dir.path().join("residual_heading.svg")).unwrap();
+        assert!(
+            heading.contains("2 samples beyond the scale, at its edge"),
+            "no edge note in the heading plot"
+        );
+        // The spikes (500 % and -600 %) do not set the scale.
+        let largest_tick = svg_texts(&heading)
+            .iter()
+            .filter(|(tag, _)| tag.contains("text-anchor=\"end\""))
+            .filter_map(|(_, t)| t.parse::<f64>().ok())
+            .fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(largest_tick > 0.0 && largest_tick < 50.0, "{largest_tick}");
+        let clean = demo_data(400);
+        write_report(dir.path(), &clean).unwrap();
+        let heading = std::fs::read_to_string(dir.path().join("residual_heading.svg")).unwrap();
+        assert!(!heading.contains("beyond the scale"));
+    }
+
+    /// The opening tag and the contents of every `<text>` element of an SVG
+    /// written by plotters (which puts the contents on a line of their own).
+    /// Y-axis tick labels are the right-aligned ones (`text-anchor="end"`).
+    fn svg_texts(svg: &str) -> Vec<(String, String)> {
+        let mut texts = Vec::new();
+        let mut lines = svg.lines();
+        while let Some(line) = lines.next() {
+            if line.starts_with("<text") {
+                if let Some(content) = lines.next() {
+                    texts.push((line.to_string(), content.trim().to_string()));
+                }
+            }
+        }
+        texts
     }
 
     fn assert_no_urls(text: &str) {
