@@ -3,7 +3,8 @@
 //!
 //! A sample passes, in order: a source ([`crate::source`]) -> the sensor's
 //! [`rotation`] buffer -> the fit and its [`acceptance`] check -> the
-//! corrector -> [`publish`] (stdout, TCP, Unix socket) and [`state`].
+//! corrector -> [`publish`] (stdout, TCP, Unix socket) and [`state`]
+//! (written by the [`state_writer`] thread, off the readings' path).
 
 pub mod acceptance;
 pub mod config;
@@ -14,6 +15,7 @@ pub mod rotation;
 pub mod run;
 pub mod sensor;
 pub mod state;
+pub mod state_writer;
 
 use serde::{Deserialize, Serialize};
 

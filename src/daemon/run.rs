@@ -21,6 +21,7 @@ use super::notify::Notifier;
 use super::publish::{ClientCommand, Hub, Lane, ReplyTo};
 use super::sensor::Sensor;
 use super::state::StateStore;
+use super::state_writer::{SaveFailure, StateWriter};
 use crate::capture::{CaptureFile, read_capture};
 use crate::source::bridge::{BridgeConfig, spawn_bridge_source};
 use crate::source::replay::{ReplayError, ReplaySummary, Speed, replay};
@@ -54,6 +55,8 @@ pub enum DaemonError {
         #[source]
         source: std::io::Error,
     },
+    #[error("cannot start the thread that stores calibrations: {0}")]
+    StateWriter(#[source] std::io::Error),
     #[error(transparent)]
     Capture(#[from] crate::capture::CaptureError),
     #[error(transparent)]
@@ -108,18 +111,12 @@ impl Sensors {
         source: usize,
         reading: &crate::sample::Reading,
         emit: &mut dyn FnMut(Lane, String),
-        store: &mut dyn FnMut(&Calibration) -> Result<(), String>,
+        store: &mut dyn FnMut(&Calibration),
     ) {
         for (src, sensor) in &mut self.sensors {
             if *src == source && sensor.wants(reading.stream) {
                 if let Some(accepted) = sensor.on_reading(reading, emit) {
-                    // Readings go on with the new calibration in memory; the
-                    // stored file stays as it was, and subscribers are told.
-                    if let Err(message) = store(&accepted) {
-                        tracing::error!("{message}");
-                        let line = serde_json::json!({ "class": "ERROR", "sensor": sensor.name(), "message": message });
-                        emit(Lane::Control, line.to_string());
-                    }
+                    store(&accepted);
                 }
             }
         }
@@ -155,6 +152,12 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
     let notifier = Notifier::from_env();
     let store = StateStore::open(&config.daemon.state_dir)?;
     let mut sensors = Sensors::build(&config, Some(&store));
+    let (failures_tx, mut save_failures) = mpsc::unbounded_channel::<SaveFailure>();
+    let writer = StateWriter::spawn(
+        move |c: &Calibration| store.save(c).map_err(|e| e.to_string()),
+        failures_tx,
+    )
+    .map_err(DaemonError::StateWriter)?;
     let hub = Hub::new(config.outputs.queue);
     // Sources stop first; outputs only once the last line is published.
     let (stop_tx, stop_rx) = watch::channel(false);
@@ -316,7 +319,7 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
         let hub = hub.clone();
         move |lane: Lane, line: String| hub.publish(lane, Arc::from(line))
     };
-    let mut save = |c: &Calibration| store.save(c).map_err(|e| e.to_string());
+    let mut save = |c: &Calibration| writer.save(c);
 
     loop {
         tokio::select! {
@@ -325,6 +328,7 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
                 let Some((index, event)) = event else { break };
                 handle_event(index, event, &mut sources, &mut sensors, &mut publish(&hub), &mut save);
             }
+            Some(failure) = save_failures.recv() => report_save_failure(&hub, failure),
             Some((command, reply)) = commands.recv() => {
                 match command {
                     ClientCommand::Recalibrate { sensor } => {
@@ -381,6 +385,14 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
             &mut save,
         );
     }
+    // Stored before the last STATUS; a hung disk is not waited for beyond
+    // what systemd's stop timeout leaves.
+    if !writer.finish(Duration::from_secs(5)).await {
+        tracing::error!("a calibration was still being stored after 5 s; it may be lost");
+    }
+    while let Ok(failure) = save_failures.try_recv() {
+        report_save_failure(&hub, failure);
+    }
     hub.publish(
         Lane::Control,
         Arc::from(sensors.status_line(unix_now(), &source_statuses(&sources), Some(&hub))),
@@ -396,13 +408,25 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
     Ok(())
 }
 
+/// Readings go on with the new calibration in memory; the stored file stays
+/// as it was, and the log and subscribers are told.
+fn report_save_failure(hub: &Hub, failure: SaveFailure) {
+    tracing::error!("{}", failure.message);
+    let line = serde_json::json!({
+        "class": "ERROR",
+        "sensor": failure.sensor,
+        "message": failure.message,
+    });
+    hub.publish(Lane::Control, Arc::from(line.to_string()));
+}
+
 fn handle_event(
     index: usize,
     event: SourceEvent,
     sources: &mut [SourceHandle],
     sensors: &mut Sensors,
     emit: &mut dyn FnMut(Lane, String),
-    store: &mut dyn FnMut(&Calibration) -> Result<(), String>,
+    store: &mut dyn FnMut(&Calibration),
 ) {
     match event {
         SourceEvent::Reading(reading) => sensors.on_reading(index, &reading, emit, store),
@@ -515,7 +539,7 @@ pub fn replay_through_pipeline(
             index,
             &reading,
             &mut |_, line| lines.push(line),
-            &mut |_| Ok(()),
+            &mut |_| {},
         );
         for line in lines {
             if let Err(e) = write_line(&line, out) {
