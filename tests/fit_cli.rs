@@ -274,6 +274,8 @@ fn missing_file() {
         msg.contains("/no/such/recording.csv: cannot read the file"),
         "{msg}"
     );
+    // The operating system's reason, once.
+    assert_eq!(msg.matches("No such file or directory").count(), 1, "{msg}");
 }
 
 #[test]

@@ -337,9 +337,15 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
+            // Library errors often name their cause in their own text; a
+            // cause already said is not said twice.
             let mut message = format!("fieldcal: error: {err}");
             for cause in err.chain().skip(1) {
-                message.push_str(&format!(": {cause}"));
+                let cause = cause.to_string();
+                if !message.contains(&cause) {
+                    message.push_str(": ");
+                    message.push_str(&cause);
+                }
             }
             eprintln!("{message}");
             ExitCode::FAILURE
