@@ -92,6 +92,22 @@ fn assert_failed_save_reported_and_readings_go_on(daemon: &mut FaultDaemon, sock
     assert!(daemon.is_running(), "{}", daemon.stderr());
 }
 
+/// Once the state directory works again: a recalibration is accepted as
+/// number `id` and reaches `file`.
+fn assert_next_calibration_stored(daemon: &mut FaultDaemon, socket: &Path, file: &Path, id: u64) {
+    send_unix_command(socket, r#"{"command":"recalibrate"}"#);
+    let next = daemon.wait_for(LONG, "the next CALIBRATION", |v| is_class(v, "CALIBRATION"));
+    assert_eq!(next["id"], id, "{next}");
+    let deadline = Instant::now() + LONG;
+    while stored_id(file) != id {
+        assert!(
+            Instant::now() < deadline,
+            "calibration {id} was never stored"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 /// Simulates a state directory that became unusable while the daemon runs
 /// (as root, chmod would not stop the write): the directory is renamed
 /// away and a regular file put at its path, so every write under it fails
@@ -117,16 +133,7 @@ fn an_unusable_state_directory_keeps_the_old_file_and_readings_go_on() {
     );
     assert!(temp_files(&state).is_empty(), "{:?}", temp_files(&state));
     // The directory is back: the next accepted calibration is stored.
-    send_unix_command(&socket, r#"{"command":"recalibrate"}"#);
-    let third = daemon.wait_for(LONG, "the third CALIBRATION", |v| {
-        is_class(v, "CALIBRATION")
-    });
-    assert_eq!(third["id"], 3, "{third}");
-    let deadline = Instant::now() + LONG;
-    while stored_id(&state.join("compass.json")) != 3 {
-        assert!(Instant::now() < deadline, "calibration 3 was never stored");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    assert_next_calibration_stored(&mut daemon, &socket, &state.join("compass.json"), 3);
     assert!(daemon.terminate().success(), "{}", daemon.stderr());
 }
 
@@ -267,16 +274,7 @@ fn a_really_full_filesystem_keeps_the_old_file_and_readings_go_on() {
 
     // Space again: the next accepted calibration is stored.
     std::fs::remove_file(&filler).unwrap();
-    send_unix_command(&socket, r#"{"command":"recalibrate"}"#);
-    let third = daemon.wait_for(LONG, "the third CALIBRATION", |v| {
-        is_class(v, "CALIBRATION")
-    });
-    assert_eq!(third["id"], 3, "{third}");
-    let deadline = Instant::now() + LONG;
-    while stored_id(&state.join("compass.json")) != 3 {
-        assert!(Instant::now() < deadline, "calibration 3 was never stored");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    assert_next_calibration_stored(&mut daemon, &socket, &state.join("compass.json"), 3);
     assert!(daemon.terminate().success(), "{}", daemon.stderr());
 }
 
