@@ -21,6 +21,7 @@ use serde::Serialize;
 
 use super::FitError;
 use super::effects::{self, Effect, model_name};
+use super::heading::coverage;
 use super::nonlinear::{ModelFit, fit_model};
 use super::residuals::{self, NoiseFloor, Residuals, analyse, is_time_like};
 use crate::sample::Dataset;
@@ -44,6 +45,13 @@ pub const TAIL_EXPECTED_SLACK: f64 = 2.0;
 /// The verdict calls the remainder noise when the final rms is within this
 /// fraction above the noise floor.
 pub const NOISE_TOLERANCE: f64 = 0.2;
+/// A candidate whose calibrated samples cover this many degrees of heading
+/// less than the current model's did not find an effect: it folded the turn
+/// onto an arc of a larger circle, where the relative residual |s|/r - 1
+/// shrinks with r (drift or a covariate that rises through one turn can do
+/// this, since time then follows heading). Real effects move headings by a
+/// few degrees at most.
+pub const FOLD_DEG: f64 = 30.0;
 /// An rms below this is rounding, not noise or structure.
 const NUMERICAL_RMS: f64 = 1e-12;
 /// A harmonic (or trend) counts as structure in the verdict when it exceeds
@@ -258,6 +266,17 @@ fn candidate_effects(data: &Dataset, model: &[Effect]) -> Vec<Effect> {
         .collect()
 }
 
+/// Heading coverage of a fit's calibrated samples, flagged ones left out.
+fn covered_deg(fit: &ModelFit) -> f64 {
+    let used = fit
+        .headings
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| fit.flagged.binary_search(i).is_err())
+        .map(|(_, h)| *h);
+    coverage(used).covered_deg
+}
+
 fn with_effect(model: &[Effect], effect: &Effect) -> Vec<Effect> {
     let mut effects = model.to_vec();
     effects.push(effect.clone());
@@ -269,6 +288,7 @@ fn with_effect(model: &[Effect], effect: &Effect) -> Vec<Effect> {
 fn rank(data: &Dataset, model: &[Effect], current: &ModelFit, res: &Residuals) -> Vec<Candidate> {
     let n = data.len();
     let base_bic = bic(current, n);
+    let covered_now = covered_deg(current);
     let mut candidates: Vec<Candidate> = candidate_effects(data, model)
         .into_iter()
         .filter_map(|effect| {
@@ -287,13 +307,22 @@ fn rank(data: &Dataset, model: &[Effect], current: &ModelFit, res: &Residuals) -
             let gate = effect != Effect::Outliers || tails_heavy(res);
             let unknowns_added = (fit.unknowns + fit.flagged.len())
                 .saturating_sub(current.unknowns + current.flagged.len());
+            let covered = covered_deg(&fit);
+            let folded = covered < covered_now - FOLD_DEG;
+            let evidence = if folded {
+                format!(
+                    "not an effect: the fit folds the turn onto {covered:.0}° of heading (the model without it covers {covered_now:.0}°), a larger circle through an arc of the samples"
+                )
+            } else {
+                evidence(&effect, res, data)
+            };
             Some(Candidate {
-                evidence: evidence(&effect, res, data),
+                evidence,
                 effect,
                 rms: fit.rms,
                 unknowns_added,
                 delta_bic,
-                supported: gate && delta_bic < -BIC_MARGIN,
+                supported: gate && !folded && delta_bic < -BIC_MARGIN,
             })
         })
         .collect();
@@ -527,6 +556,81 @@ mod data_tests {
             res.tail_max_sd > EXTREME_SDS && tails_heavy(&res),
             "{res:?}"
         );
+    }
+
+    /// Gains 2.2:1 apart make the radial residual twice as noisy at some
+    /// headings as at others; one scale for all headings saw those
+    /// headings' ordinary samples as 4-SD tails and suggested `outliers` in
+    /// about one clean recording in six. Spikes must still be found.
+    #[test]
+    fn unequal_gains_are_not_outliers_and_spikes_still_are() {
+        let sensor = |seed: u64, turns: f64| SimSensor {
+            gain_x: 0.8,
+            gain_y: 1.76,
+            offset_x: 300.0,
+            offset_y: -200.0,
+            noise: 5.0,
+            period: 0.02,
+            turns,
+            seed,
+            ..Default::default()
+        };
+        let mut tails = 0;
+        for seed in 1..=30 {
+            let data = sensor(seed, if seed % 2 == 0 { 1.0 } else { 3.0 })
+                .simulate()
+                .unwrap();
+            let fit = fit_model(&data, &effects::PAPER).unwrap();
+            if tails_heavy(&analyse(&data, &fit)) {
+                tails += 1;
+            }
+        }
+        assert!(tails <= 1, "{tails} of 30 clean recordings had heavy tails");
+
+        let mut spiky = sensor(7, 1.0).simulate().unwrap();
+        for i in [40, 170, 333] {
+            spiky.x[i] += 25.0 * 5.0;
+        }
+        let fit = fit_model(&spiky, &effects::PAPER).unwrap();
+        assert!(tails_heavy(&analyse(&spiky, &fit)));
+    }
+
+    /// A strongly coupled sensor turned once: drift, with time following
+    /// heading, could fold the turn onto a 150° arc of a larger circle and
+    /// reach a lower relative rms than the true effect. It is refused, and
+    /// cross-axis is suggested.
+    #[test]
+    fn a_fit_that_folds_the_turn_is_not_an_effect() {
+        let data = SimSensor {
+            gain_x: 1.471,
+            gain_y: 1.179,
+            offset_x: 325.7,
+            offset_y: 1731.7,
+            noise: 5.0,
+            period: 0.03,
+            turn_seconds: 5.0,
+            seed: 155_379,
+            effects: crate::sim::SimEffects {
+                cross_axis_deg: 10.0,
+                ..Default::default()
+            },
+            ..Default::default()
+        }
+        .simulate()
+        .unwrap();
+        let d = diagnose(&data, &[]).unwrap();
+        assert_eq!(d.suggested, Some(Effect::CrossAxis), "{:?}", d.candidates);
+        let drift = d.candidates.iter().find(|c| c.effect == Effect::Drift);
+        let drift = drift.expect("drift is a candidate");
+        assert!(!drift.supported, "{drift:?}");
+        assert!(
+            drift.evidence.contains("folds the turn"),
+            "{}",
+            drift.evidence
+        );
+        // What is left is the simulated noise, 5 counts on about 1180.
+        let last = d.ladder.last().unwrap();
+        assert!(last.rms > 0.003 && last.rms < 0.0045, "{last:?}");
     }
 }
 

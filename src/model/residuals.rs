@@ -63,7 +63,8 @@ pub struct Residuals {
     /// ~1/10 of the run, in time order (None with fewer than 20 samples).
     pub time_structure: Option<f64>,
     pub covariates: Vec<CovariateLink>,
-    /// Samples with |e - median| > 4 robust SD.
+    /// Samples with |e - median| > 4 robust SD, the SD taken at each
+    /// sample's heading when the noise depends on heading (unequal gains).
     pub tail_count: usize,
     /// What Gaussian noise would give: n · P(|Z| > 4).
     pub tail_expected: f64,
@@ -129,6 +130,96 @@ pub fn robust_sd(values: &[f64]) -> f64 {
     let m = median(values);
     let dev: Vec<f64> = values.iter().map(|v| (v - m).abs()).collect();
     MAD_TO_SD * median(&dev)
+}
+
+/// Each group of headings needs this many samples for its own scale.
+const MIN_GROUP: usize = 10;
+/// The two halves' scales must differ by this many standard errors of
+/// ln(MAD) before the noise is taken to depend on heading.
+const SCALE_SPLIT_SES: f64 = 3.0;
+/// Standard error of ln(MAD) per 1/√n for Gaussian data (the MAD's
+/// asymptotic variance is 1.36 σ²/n).
+const LN_MAD_SE: f64 = 1.166;
+
+/// The noise of e as it varies with heading. Each calibrated axis carries
+/// its raw noise times its own gain, so where the noisier axis lies along
+/// the field the radial residual is noisier: σ(θ)² = α·cos²θ + β·sin²θ.
+/// With gains 2:1 apart, one scale for all headings would see the noisier
+/// half's ordinary samples as 4-SD tails. The model is used only when the
+/// two halves (|cos θ| above or below |sin θ|) differ by more than their
+/// estimation noise; otherwise every heading has the same scale.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct HeadingScale {
+    alpha: f64,
+    beta: f64,
+}
+
+impl HeadingScale {
+    const UNIFORM: HeadingScale = HeadingScale {
+        alpha: 1.0,
+        beta: 1.0,
+    };
+
+    fn estimate(deviations: &[f64], theta: &[f64]) -> HeadingScale {
+        let (mut along_x, mut along_y) = (Vec::new(), Vec::new());
+        let (mut cos2_x, mut cos2_y) = (0.0, 0.0);
+        for (&d, &t) in deviations.iter().zip(theta) {
+            let c2 = t.cos().powi(2);
+            if c2 >= 0.5 {
+                along_x.push(d);
+                cos2_x += c2;
+            } else {
+                along_y.push(d);
+                cos2_y += c2;
+            }
+        }
+        let (nx, ny) = (along_x.len(), along_y.len());
+        if nx < MIN_GROUP || ny < MIN_GROUP {
+            return HeadingScale::UNIFORM;
+        }
+        let (sx, sy) = (robust_sd(&along_x), robust_sd(&along_y));
+        let se = LN_MAD_SE * (1.0 / nx as f64 + 1.0 / ny as f64).sqrt();
+        if !(sx > 0.0 && sy > 0.0) || (sx / sy).ln().abs() <= SCALE_SPLIT_SES * se {
+            return HeadingScale::UNIFORM;
+        }
+        // Each half's variance is the model's at its mean cos²θ.
+        let (cx, cy) = (cos2_x / nx as f64, cos2_y / ny as f64);
+        let (vx, vy) = (sx * sx, sy * sy);
+        let det = cx - cy;
+        if det <= 1e-6 {
+            return HeadingScale::UNIFORM;
+        }
+        let floor = 0.05 * vx.max(vy);
+        HeadingScale {
+            alpha: ((vx * (1.0 - cy) - vy * (1.0 - cx)) / det).max(floor),
+            beta: ((vy * cx - vx * cy) / det).max(floor),
+        }
+    }
+
+    /// The relative noise SD at heading `theta` (any common factor).
+    fn at(&self, theta: f64) -> f64 {
+        let c2 = theta.cos().powi(2);
+        (self.alpha * c2 + self.beta * (1.0 - c2)).sqrt()
+    }
+}
+
+/// Deviations from the median in units of the noise at their heading,
+/// scaled so their robust SD is 1: what the tail count compares with 4.
+fn standardized(e: &[f64], theta: &[f64]) -> Vec<f64> {
+    let m = median(e);
+    let deviations: Vec<f64> = e.iter().map(|v| v - m).collect();
+    let scale = HeadingScale::estimate(&deviations, theta);
+    let z: Vec<f64> = deviations
+        .iter()
+        .zip(theta)
+        .map(|(d, &t)| d / scale.at(t))
+        .collect();
+    let sd = robust_sd(&z);
+    if sd > 0.0 && sd.is_finite() {
+        z.iter().map(|v| v / sd).collect()
+    } else {
+        vec![0.0; z.len()]
+    }
 }
 
 /// Least squares of e on `[1, cos kθ, sin kθ]`, k = 1..=4, jointly (the
@@ -308,19 +399,10 @@ pub fn analyse(data: &Dataset, fit: &ModelFit) -> Residuals {
         })
         .collect();
 
-    let m = median(&e);
     let sd = robust_sd(&e);
-    let tail_count = if sd > 0.0 {
-        e.iter().filter(|v| (*v - m).abs() > TAIL_SDS * sd).count()
-    } else {
-        0
-    };
-
-    let tail_max_sd = if sd > 0.0 {
-        e.iter().map(|v| (v - m).abs() / sd).fold(0.0, f64::max)
-    } else {
-        0.0
-    };
+    let z = standardized(&e, &theta);
+    let tail_count = z.iter().filter(|v| v.abs() > TAIL_SDS).count();
+    let tail_max_sd = z.iter().map(|v| v.abs()).fold(0.0, f64::max);
 
     Residuals {
         harmonics: harmonics(&e, &theta),
