@@ -85,3 +85,23 @@ fn bad_input_is_a_clean_error() {
     let message = run_err(&["diagnose", &sim_mild(), "--effects", "covariate:temp"]);
     assert!(message.contains("temp"), "{message}");
 }
+
+/// A real accelerometer turned about its y axis, diagnosed on (acc_y, acc_z):
+/// acc_y is the axis of the turn, so the points never go round. The answer
+/// names the cause (the columns, or the turn), not only the fit's failure.
+#[test]
+fn axes_that_did_not_turn_are_named_as_the_cause() {
+    let file = common::shared_path(
+        "data/real/sunsided-set-1/rotate-360ccw-around-y-pointing-left/mpu6050.csv",
+    );
+    assert!(file.exists(), "missing {}", file.display());
+    let file = file.to_str().unwrap();
+    let msg = run_err(&["diagnose", file, "--x", "acc_y", "--y", "acc_z"]);
+    assert!(msg.contains("mpu6050.csv: no diagnosis"), "{msg}");
+    assert!(msg.contains("go only 102° round"), "{msg}");
+    assert!(msg.contains("--x and --y"), "{msg}");
+    // The axes that did turn are diagnosed.
+    let out = run_ok(&["diagnose", file, "--x", "acc_x", "--y", "acc_z", "--json"]);
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert!(v["baseline"]["rms"].as_f64().unwrap() < 0.1, "{out}");
+}

@@ -68,6 +68,14 @@ pub enum FitError {
         tolerance: f64,
     },
     #[error(
+        "the fit did not converge, and the readings go only {covered_deg:.0}° round the closed-form ellipse (the largest gap runs {gap_deg:.0}° from {gap_start_deg:.0}°): the columns chosen as x and y may not be the axes that turned (choose them with --x and --y), or the turn was not complete"
+    )]
+    NoTurn {
+        covered_deg: f64,
+        gap_deg: f64,
+        gap_start_deg: f64,
+    },
+    #[error(
         "the fit did not converge after {iterations} iterations ({what}); the model may not suit these readings: try fewer effects"
     )]
     NoConvergence {

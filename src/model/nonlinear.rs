@@ -18,7 +18,8 @@ use serde::Serialize;
 
 use super::FitError;
 use super::effects::Effect;
-use super::heading::circle_centre;
+use super::fit::DEFAULT_MIN_COVERAGE_DEG;
+use super::heading::{circle_centre, coverage};
 use super::paper::{PaperCalibration, closed_form};
 use crate::sample::Dataset;
 
@@ -345,7 +346,8 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
             &mut lambda,
             tolerance,
             iterations,
-        )?;
+        )
+        .map_err(|e| explain_failure(e, data, &start))?;
         if settled {
             break;
         }
@@ -464,6 +466,32 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
 /// the readings fit no ellipse of the paper's family (strong coupling,
 /// spikes), the best circle, from which the general model may still get
 /// there. A failure of both reports the closed form's reason.
+/// A fit that fails on readings that never went round is a problem of the
+/// turn or of the columns chosen, not of the model: say so.
+fn explain_failure(error: FitError, data: &Dataset, start: &PaperCalibration) -> FitError {
+    if !matches!(
+        error,
+        FitError::NoConvergence { .. } | FitError::NotFinite { .. } | FitError::NonPositive { .. }
+    ) {
+        return error;
+    }
+    let turn = coverage(
+        data.x
+            .iter()
+            .zip(&data.y)
+            .map(|(&x, &y)| start.heading(x, y)),
+    );
+    if turn.covered_deg < DEFAULT_MIN_COVERAGE_DEG {
+        FitError::NoTurn {
+            covered_deg: turn.covered_deg,
+            gap_deg: turn.largest_gap_deg,
+            gap_start_deg: turn.gap_start_deg,
+        }
+    } else {
+        error
+    }
+}
+
 fn starting_point(data: &Dataset) -> Result<PaperCalibration, FitError> {
     let closed = closed_form(&data.x, &data.y).and_then(|theta| theta.to_calibration());
     let error = match closed {
