@@ -1,7 +1,9 @@
 //! Fit timings: the closed form against the paper's gradient descent, on the
 //! shipped one-turn recordings (`tests/data/`) and on simulations of one
 //! rotation of 200, 2,000 and 200,000 samples; and the general model with
-//! every effect (Levenberg-Marquardt, IRLS) on data carrying those effects.
+//! every effect (Levenberg-Marquardt, IRLS) on data carrying those effects;
+//! and the diagnosis the daemon runs on every completed rotation (all
+//! candidate effects fitted and ranked), on one rotation of 200 and 2,000.
 //!
 //! Run: `cargo bench --bench fit`
 
@@ -11,6 +13,7 @@ use std::time::{Duration, Instant};
 
 use criterion::{BenchmarkId, Criterion, SamplingMode, criterion_group, criterion_main};
 use fieldcal::io::csv::{ColumnSpec, read_dataset};
+use fieldcal::model::diagnose::diagnose;
 use fieldcal::model::effects::parse_list;
 use fieldcal::model::nonlinear::fit_model;
 use fieldcal::model::paper::{GradientDescentOptions, closed_form, gradient_descent};
@@ -146,9 +149,33 @@ fn by_size(c: &mut Criterion) {
     group.finish();
 }
 
+/// What a completed rotation costs the daemon beyond the fit: the
+/// diagnosis that finds its noise floor and the `suggested` effect, run in
+/// the event loop, so it bounds the pause one rotation puts on readings.
+fn live_diagnosis(c: &mut Criterion) {
+    let mut group = c.benchmark_group("diagnosis of one rotation");
+    for n in [200, 2_000] {
+        let d = paper_rotation(n);
+        let started = Instant::now();
+        match diagnose(&d, &[]) {
+            Ok(found) => println!(
+                "diagnosis, {n} samples: {} candidates, suggested {:?}, one run {:.3} ms",
+                found.candidates.len(),
+                found.suggested.map(|e| e.to_string()),
+                started.elapsed().as_secs_f64() * 1e3
+            ),
+            Err(e) => println!("diagnosis, {n} samples: {e}"),
+        }
+        group.bench_function(BenchmarkId::new("diagnose", n), |b| {
+            b.iter(|| diagnose(black_box(&d), &[]))
+        });
+    }
+    group.finish();
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(20).measurement_time(Duration::from_secs(3));
-    targets = shipped_turns, by_size
+    targets = shipped_turns, by_size, live_diagnosis
 }
 criterion_main!(benches);
