@@ -20,6 +20,7 @@ fn json_on_a_clean_recording_suggests_nothing() {
         "baseline",
         "candidates",
         "suggested",
+        "close_second",
         "ladder",
         "noise_floor",
         "noise_floor_method",
@@ -34,6 +35,7 @@ fn json_on_a_clean_recording_suggests_nothing() {
     );
     assert!(v["baseline"]["rms"].as_f64().unwrap() > 0.0);
     assert!(v["suggested"].is_null(), "{out}");
+    assert!(v["close_second"].is_null(), "{out}");
     assert!(v["candidates"].is_array());
     for c in v["candidates"].as_array().unwrap() {
         assert!(c["effect"].is_string() && c["rms"].is_number(), "{c}");

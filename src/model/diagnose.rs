@@ -94,6 +94,11 @@ pub struct Diagnosis {
     pub candidates: Vec<Candidate>,
     /// None: the model is enough.
     pub suggested: Option<Effect>,
+    /// A supported effect that explains the residual about as well as the
+    /// suggested one (BIC within [`BIC_MARGIN`]): the data cannot tell them
+    /// apart, and the person should know (a temperature that rises and falls
+    /// through a single turn follows heading, as cross-axis coupling does).
+    pub close_second: Option<Effect>,
     /// Baseline, then each added effect, in order.
     pub ladder: Vec<Step>,
     pub final_residuals: Residuals,
@@ -353,6 +358,12 @@ pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitErr
         .first()
         .filter(|c| c.supported)
         .map(|c| c.effect.clone());
+    let close_second = match candidates.as_slice() {
+        [first, second, ..] if first.supported && second.supported => {
+            (second.delta_bic - first.delta_bic < BIC_MARGIN).then(|| second.effect.clone())
+        }
+        _ => None,
+    };
 
     let baseline_step = step_of(&base_fit, &model, n);
     let mut ladder = vec![baseline_step.clone()];
@@ -394,6 +405,7 @@ pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitErr
         baseline_residuals,
         candidates,
         suggested,
+        close_second,
         ladder,
         final_residuals: current_res,
         noise_floor,
@@ -631,6 +643,39 @@ mod data_tests {
         // What is left is the simulated noise, 5 counts on about 1180.
         let last = d.ladder.last().unwrap();
         assert!(last.rms > 0.003 && last.rms < 0.0045, "{last:?}");
+        // Nothing else comes close.
+        assert_eq!(d.close_second, None);
+    }
+
+    /// Through a single turn, a temperature that warms and cools follows
+    /// heading, and cross-axis coupling explains its effect about as well:
+    /// the suggestion names both rather than pretend to know.
+    #[test]
+    fn a_cause_that_follows_heading_is_named_with_its_rival() {
+        let data = SimSensor {
+            gain_x: 1.536,
+            gain_y: 1.035,
+            offset_x: -1058.0,
+            offset_y: -1723.0,
+            noise: 10.0,
+            period: 0.2,
+            start_heading_deg: 17.5,
+            seed: 14_685_220_468_055_014_633,
+            effects: crate::sim::SimEffects {
+                temp_per_c: Some([0.0, 17.1]),
+                ..Default::default()
+            },
+            ..Default::default()
+        }
+        .simulate()
+        .unwrap();
+        let d = diagnose(&data, &[]).unwrap();
+        let temp = Effect::Covariate("temp".into());
+        let pair = [d.suggested.clone(), d.close_second.clone()];
+        assert!(
+            pair.contains(&Some(temp)) && pair.contains(&Some(Effect::CrossAxis)),
+            "{pair:?}"
+        );
     }
 }
 

@@ -61,6 +61,9 @@ struct DiagnosisJson<'a> {
     candidates: &'a [Candidate],
     /// The effect to add next, or null when the model is enough.
     suggested: Option<&'a Effect>,
+    /// A supported effect within the BIC margin of the suggested one: the
+    /// data cannot tell the two apart. Null otherwise.
+    close_second: Option<&'a Effect>,
     ladder: &'a [Step],
     noise_floor: f64,
     noise_floor_method: &'a str,
@@ -77,6 +80,7 @@ impl<'a> DiagnosisJson<'a> {
             baseline: &d.baseline,
             candidates: &d.candidates,
             suggested: d.suggested.as_ref(),
+            close_second: d.close_second.as_ref(),
             ladder: &d.ladder,
             noise_floor: d.noise_floor.rms,
             noise_floor_method: &d.noise_floor.method,
@@ -125,9 +129,13 @@ fn render_text(d: &Diagnosis, file: &str) -> String {
             ));
         }
     }
-    match &d.suggested {
-        Some(effect) => out.push_str(&format!("suggested: {effect}\n\n")),
-        None => out.push_str("suggested: none (the model is enough)\n\n"),
+    match (&d.suggested, &d.close_second) {
+        (Some(effect), Some(second)) => out.push_str(&format!(
+            "suggested: {effect}, though {second} explains the residual about as well (BIC within {margin}): this recording cannot tell them apart; more turns, or the cause varying at other headings, would\n\n",
+            margin = fieldcal::model::diagnose::BIC_MARGIN
+        )),
+        (Some(effect), None) => out.push_str(&format!("suggested: {effect}\n\n")),
+        (None, _) => out.push_str("suggested: none (the model is enough)\n\n"),
     }
     out.push_str("ladder:\n");
     for (i, step) in d.ladder.iter().enumerate() {
