@@ -54,6 +54,8 @@ fn calibration_suggests_the_missing_effect_and_the_configuration_adds_it() {
     let paper = calibration(capture, "\"paper\"", dir.path());
     assert_eq!(paper["accepted"], true, "{paper}");
     assert_eq!(paper["suggested"], "cross-axis", "{paper}");
+    // Two turns and a clear second harmonic: no rival comes close.
+    assert!(paper.get("close_second").is_none(), "{paper}");
     let floor = paper["noise_floor"].as_f64().unwrap();
     // Noise of 2 counts on a field of 1000.
     assert!((0.0015..0.003).contains(&floor), "noise floor {floor}");

@@ -67,6 +67,10 @@ pub struct CalibrationMessage<'a> {
     /// add it to the sensor's `model` in the configuration.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub suggested: Option<String>,
+    /// An effect that explains the rotation's residual about as well as the
+    /// suggested one (one turn cannot tell them apart; see `diagnose`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub close_second: Option<String>,
 }
 
 impl<'a> CalibrationMessage<'a> {
@@ -88,6 +92,7 @@ impl<'a> CalibrationMessage<'a> {
             terms: (!calibration.terms.is_none()).then_some(calibration.terms),
             noise_floor: None,
             suggested: None,
+            close_second: None,
         }
     }
 }

@@ -167,7 +167,13 @@ impl Sensor {
         // that the configuration should add it.
         let insight = diagnose(&rotation, &self.effects).ok();
         let noise_floor = insight.as_ref().map(|d| d.noise_floor.rms);
-        let suggested = insight.and_then(|d| d.suggested).map(|e| e.to_string());
+        let (suggested, close_second) = match insight {
+            Some(d) => (
+                d.suggested.map(|e| e.to_string()),
+                d.close_second.map(|e| e.to_string()),
+            ),
+            None => (None, None),
+        };
         if let Err(reason) = acceptance::check(&report, &self.limits) {
             // A fit outside the limits is published with its numbers, so the
             // user sees how far off it was.
@@ -177,6 +183,7 @@ impl Sensor {
                 terms: (!terms.is_none()).then_some(terms),
                 noise_floor,
                 suggested,
+                close_second,
                 ..self.rejection(time, &reason, report.n, report.coverage.covered_deg, fit_ms)
             };
             emit(Lane::Control, to_line(&message));
@@ -199,6 +206,7 @@ impl Sensor {
             origin: "rotation",
             noise_floor,
             suggested,
+            close_second,
             ..CalibrationMessage::loaded(&calibration)
         };
         emit(Lane::Control, to_line(&message));
@@ -306,6 +314,7 @@ impl Sensor {
             terms: None,
             noise_floor: None,
             suggested: None,
+            close_second: None,
         }
     }
 
