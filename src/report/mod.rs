@@ -4,6 +4,7 @@ pub mod diagnosis;
 pub mod fit;
 pub mod html;
 pub mod plots;
+mod scale;
 
 /// Formats a number with `digits` significant digits, without exponent for
 /// the magnitudes sensor readings take, so columns of raw counts and unit
