@@ -233,3 +233,80 @@ async fn a_missing_port_is_retried_without_spinning_and_stops_promptly() {
         .unwrap();
     assert!(started.elapsed() < Duration::from_secs(2));
 }
+
+/// A port the user may not open: `record`, run as an unprivileged user,
+/// says so with what to do (the dialout group), keeps retrying, and
+/// records once the permission is granted, with no restart. Needs root to
+/// make the port unreadable to another user and to run as `nobody`.
+#[test]
+fn a_port_without_permission_is_explained_and_retried() {
+    use std::io::Write;
+    use std::os::unix::fs::PermissionsExt;
+    use std::os::unix::process::CommandExt;
+    use std::process::{Command, Stdio};
+
+    // SAFETY: geteuid(2) has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!("skipped: needs root to open a port as another user");
+        return;
+    }
+    const NOBODY: u32 = 65_534;
+    let (mut master, slave) = serialport::TTYPort::pair().expect("pty pair");
+    let port = serialport::SerialPort::name(&slave).expect("pty name");
+    std::fs::set_permissions(&port, std::fs::Permissions::from_mode(0o600)).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o777)).unwrap();
+    let output = dir.path().join("denied.fcap");
+    let mut command = Command::new(env!("CARGO_BIN_EXE_fieldcal"));
+    command
+        .args(["record", "--port", &port, "--duration", "4", "-o"])
+        .arg(&output)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        // As root, std drops the supplementary groups before setuid.
+        .uid(NOBODY)
+        .gid(NOBODY);
+    let child = match command.spawn() {
+        Ok(child) => child,
+        // The checkout may sit where that user cannot reach it.
+        Err(e) if e.raw_os_error() == Some(libc::EACCES) => {
+            eprintln!(
+                "skipped: user {NOBODY} cannot execute {} ({e})",
+                env!("CARGO_BIN_EXE_fieldcal")
+            );
+            return;
+        }
+        Err(e) => panic!("cannot start fieldcal: {e}"),
+    };
+    // Denied for a while, then granted: the next retry (every 2 s) opens it.
+    std::thread::sleep(Duration::from_millis(700));
+    std::fs::set_permissions(&port, std::fs::Permissions::from_mode(0o666)).unwrap();
+    let frame = FalconFrame {
+        mag: [100, 200, 300],
+        accel: [0, 0, 4096],
+        rate: [0, 0, 0],
+        timer: 0,
+    }
+    .encode();
+    let deadline = Instant::now() + Duration::from_millis(3800);
+    while Instant::now() < deadline {
+        let _ = master.write_all(&frame);
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let out = child.wait_with_output().expect("fieldcal record");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(&format!("{port}: permission denied")) && stderr.contains("dialout"),
+        "no advice naming the port and the group:\n{stderr}"
+    );
+    // Said once, not at every retry.
+    assert_eq!(stderr.matches("permission denied").count(), 1, "{stderr}");
+    assert!(
+        !stdout.contains("recorded 0 chunks"),
+        "nothing recorded after the permission was granted: {stdout}\n{stderr}"
+    );
+    drop(slave);
+}
