@@ -125,6 +125,37 @@ impl Dataset {
     }
 }
 
+/// What a device reported in one frame or one poll, in raw counts, stamped
+/// with the host's receive time. Devices fill the fields they have.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub struct Reading {
+    /// Host receive time in seconds: since the Unix epoch for a live source,
+    /// since the start of the capture for a replay.
+    pub time: f64,
+    /// Which byte stream of its source the reading came from: 0 for a
+    /// Falcon-GX, the chip's place in the poll list for an I2C bridge.
+    #[serde(default)]
+    pub stream: u8,
+    /// Magnetometer x, y, z in counts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mag: Option<[i16; 3]>,
+    /// Accelerometer x, y, z in counts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub accel: Option<[i16; 3]>,
+    /// Angular rate x, y, z in counts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gyro: Option<[i16; 3]>,
+    /// Temperature register, in counts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub temp_raw: Option<i16>,
+    /// Temperature in degrees Celsius, where the chip's conversion is known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub temp_c: Option<f64>,
+    /// The device's own frame timer (Falcon-GX), which wraps at 65536.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub timer: Option<u16>,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -156,35 +187,4 @@ mod tests {
         let err = Dataset::from_xy(vec![1.0, f64::NAN], vec![1.0, 2.0]).unwrap_err();
         assert!(matches!(err, DatasetError::NonFinite { row: 1, .. }));
     }
-}
-
-/// What a device reported in one frame or one poll, in raw counts, stamped
-/// with the host's receive time. Devices fill the fields they have.
-#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
-pub struct Reading {
-    /// Host receive time in seconds: since the Unix epoch for a live source,
-    /// since the start of the capture for a replay.
-    pub time: f64,
-    /// Which byte stream of its source the reading came from: 0 for a
-    /// Falcon-GX, the chip's place in the poll list for an I2C bridge.
-    #[serde(default)]
-    pub stream: u8,
-    /// Magnetometer x, y, z in counts.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub mag: Option<[i16; 3]>,
-    /// Accelerometer x, y, z in counts.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub accel: Option<[i16; 3]>,
-    /// Angular rate x, y, z in counts.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub gyro: Option<[i16; 3]>,
-    /// Temperature register, in counts.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub temp_raw: Option<i16>,
-    /// Temperature in degrees Celsius, where the chip's conversion is known.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub temp_c: Option<f64>,
-    /// The device's own frame timer (Falcon-GX), which wraps at 65536.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub timer: Option<u16>,
 }

@@ -7,7 +7,7 @@ mod common;
 use std::io::{BufRead, BufReader, Write};
 use std::time::{Duration, Instant};
 
-use common::daemon::{Daemon, is_class, unix_now, write_config};
+use common::daemon::{Daemon, is_class, replay_config, unix_now, write_config};
 use common::pty::FalconPty;
 use fieldcal::mock::usb_iss::MockUsbIss;
 use fieldcal::protocol::chips::Chip;
@@ -245,50 +245,11 @@ axes = ["x", "y"]
     assert!(daemon.terminate().success());
 }
 
-fn replay_config(
-    dir: &std::path::Path,
-    capture: &str,
-    speed: &str,
-    outputs: &str,
-) -> std::path::PathBuf {
-    write_config(
-        dir,
-        &format!(
-            r#"
-[daemon]
-state_dir = "{state}"
-status_interval_s = 0.2
-
-[outputs]
-{outputs}
-
-[[source]]
-name = "imu"
-kind = "replay"
-file = "{capture}"
-speed = {speed}
-
-[[sensor]]
-name = "compass"
-source = "imu"
-field = "mag"
-axes = ["x", "y"]
-"#,
-            state = dir.join("state").display(),
-        ),
-    )
-}
-
 #[test]
 fn a_restart_corrects_the_first_reading_with_the_stored_calibration() {
     let dir = tempfile::tempdir().unwrap();
     let capture = common::repo_path("tests/data/falcon_garbage.fcap");
-    let config = replay_config(
-        dir.path(),
-        capture.to_str().unwrap(),
-        "\"max\"",
-        "stdout = true",
-    );
+    let config = replay_config(dir.path(), &capture, "\"max\"", "stdout = true");
     let mut first_run = Daemon::start(&config, &[]);
     let (_, calibration) = first_run.wait_for(Duration::from_secs(20), "a CALIBRATION", |v| {
         is_class(v, "CALIBRATION")
@@ -332,12 +293,7 @@ fn a_corrupt_state_file_is_set_aside_and_reported() {
     )
     .unwrap();
     let capture = common::repo_path("tests/data/falcon_turn.fcap");
-    let config = replay_config(
-        dir.path(),
-        capture.to_str().unwrap(),
-        "\"max\"",
-        "stdout = true",
-    );
+    let config = replay_config(dir.path(), &capture, "\"max\"", "stdout = true");
     let mut daemon = Daemon::start(&config, &[]);
     let (_, reading) = daemon.wait_for(Duration::from_secs(10), "a READING", |v| {
         is_class(v, "READING")
@@ -420,7 +376,7 @@ fn a_subscriber_that_never_reads_slows_nobody_and_its_drops_are_counted() {
         l.local_addr().unwrap().port()
     };
     let outputs = format!("stdout = false\ntcp = \"127.0.0.1:{port}\"\nqueue = 256");
-    let config = replay_config(dir.path(), capture.to_str().unwrap(), "1000.0", &outputs);
+    let config = replay_config(dir.path(), &capture, "1000.0", &outputs);
     let started = Instant::now();
     let mut daemon = Daemon::start(&config, &[]);
     let connect = || {

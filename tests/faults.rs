@@ -14,10 +14,9 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::daemon::is_class;
+use common::daemon::{Daemon, is_class, replay_config};
 use common::faults::{
-    FaultDaemon, XorShift, connect_tcp, free_port, long_capture, replay_config, send_unix_command,
-    temp_files, vm_rss_kb,
+    XorShift, connect_tcp, free_port, long_capture, send_unix_command, temp_files, vm_rss_kb,
 };
 use fieldcal::daemon::Calibration;
 use fieldcal::daemon::state::StateStore;
@@ -39,13 +38,13 @@ fn stored_id(path: &Path) -> u64 {
 fn daemon_with_a_stored_calibration(
     dir: &Path,
     adjust: impl FnOnce(&mut Command),
-) -> (FaultDaemon, std::path::PathBuf, Vec<u8>) {
+) -> (Daemon, std::path::PathBuf, Vec<u8>) {
     let capture = long_capture(dir, 100);
     let socket = dir.join("fieldcal.sock");
     let outputs = format!("stdout = true\nunix = \"{}\"", socket.display());
     let config = replay_config(dir, &capture, "20.0", &outputs);
-    let mut daemon = FaultDaemon::start(&config, adjust);
-    let first = daemon.wait_for(LONG, "the first CALIBRATION", |v| {
+    let mut daemon = Daemon::start_with(&config, adjust);
+    let first = daemon.wait_for_value(LONG, "the first CALIBRATION", |v| {
         is_class(v, "CALIBRATION")
     });
     assert_eq!(first["accepted"], true, "{first}");
@@ -64,14 +63,14 @@ fn daemon_with_a_stored_calibration(
 /// After a recalibration whose save failed: an ERROR line for the sensor,
 /// a log line naming the file, and READINGs that go on corrected by the
 /// new calibration (id 2), held in memory only.
-fn assert_failed_save_reported_and_readings_go_on(daemon: &mut FaultDaemon, socket: &Path) {
+fn assert_failed_save_reported_and_readings_go_on(daemon: &mut Daemon, socket: &Path) {
     send_unix_command(socket, r#"{"command":"recalibrate"}"#);
-    let second = daemon.wait_for(LONG, "the second CALIBRATION", |v| {
+    let second = daemon.wait_for_value(LONG, "the second CALIBRATION", |v| {
         is_class(v, "CALIBRATION")
     });
     assert_eq!(second["accepted"], true, "{second}");
     assert_eq!(second["id"], 2, "{second}");
-    let error = daemon.wait_for(LONG, "an ERROR line", |v| is_class(v, "ERROR"));
+    let error = daemon.wait_for_value(LONG, "an ERROR line", |v| is_class(v, "ERROR"));
     assert_eq!(error["sensor"], "compass", "{error}");
     let message = error["message"].as_str().unwrap();
     assert!(message.contains("compass.json"), "{error}");
@@ -83,7 +82,7 @@ fn assert_failed_save_reported_and_readings_go_on(daemon: &mut FaultDaemon, sock
         "no error log line naming the file:\n{log}"
     );
     for _ in 0..20 {
-        let reading = daemon.wait_for(LONG, "a READING after the failed save", |v| {
+        let reading = daemon.wait_for_value(LONG, "a READING after the failed save", |v| {
             is_class(v, "READING")
         });
         assert_eq!(reading["calibrated"], true, "{reading}");
@@ -94,9 +93,9 @@ fn assert_failed_save_reported_and_readings_go_on(daemon: &mut FaultDaemon, sock
 
 /// Once the state directory works again: a recalibration is accepted as
 /// number `id` and reaches `file`.
-fn assert_next_calibration_stored(daemon: &mut FaultDaemon, socket: &Path, file: &Path, id: u64) {
+fn assert_next_calibration_stored(daemon: &mut Daemon, socket: &Path, file: &Path, id: u64) {
     send_unix_command(socket, r#"{"command":"recalibrate"}"#);
-    let next = daemon.wait_for(LONG, "the next CALIBRATION", |v| is_class(v, "CALIBRATION"));
+    let next = daemon.wait_for_value(LONG, "the next CALIBRATION", |v| is_class(v, "CALIBRATION"));
     assert_eq!(next["id"], id, "{next}");
     let deadline = Instant::now() + LONG;
     while stored_id(file) != id {
@@ -429,25 +428,25 @@ fn killed_mid_write_the_state_file_is_old_or_new() {
 }
 
 /// The subscriber count of the next STATUS on the daemon's stdout.
-fn next_subscribers(daemon: &mut FaultDaemon) -> u64 {
-    let status = daemon.wait_for(LONG, "a STATUS", |v| is_class(v, "STATUS"));
+fn next_subscribers(daemon: &mut Daemon) -> u64 {
+    let status = daemon.wait_for_value(LONG, "a STATUS", |v| is_class(v, "STATUS"));
     status["subscribers"].as_u64().unwrap()
 }
 
 /// Waits for a STATUS with exactly `n` subscribers.
-fn wait_subscribers(daemon: &mut FaultDaemon, n: u64) {
-    daemon.wait_for(LONG, &format!("a STATUS with {n} subscribers"), |v| {
+fn wait_subscribers(daemon: &mut Daemon, n: u64) {
+    daemon.wait_for_value(LONG, &format!("a STATUS with {n} subscribers"), |v| {
         is_class(v, "STATUS") && v["subscribers"] == n
     });
 }
 
-fn streaming_daemon(dir: &Path) -> (FaultDaemon, u16) {
+fn streaming_daemon(dir: &Path) -> (Daemon, u16) {
     let capture = long_capture(dir, 100);
     let port = free_port();
     let outputs = format!("stdout = true\ntcp = \"127.0.0.1:{port}\"");
     let config = replay_config(dir, &capture, "20.0", &outputs);
-    let mut daemon = FaultDaemon::start(&config, |_| {});
-    daemon.wait_for(LONG, "a READING", |v| is_class(v, "READING"));
+    let mut daemon = Daemon::start_with(&config, |_| {});
+    daemon.wait_for_value(LONG, "a READING", |v| is_class(v, "READING"));
     (daemon, port)
 }
 

@@ -3,7 +3,7 @@
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, ExitStatus, Stdio};
+use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, channel};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -35,16 +35,58 @@ pub fn write_config(dir: &Path, text: &str) -> PathBuf {
     path
 }
 
+/// A configuration replaying `capture` at `speed` (a TOML value: `20.0`,
+/// `"max"`) with a state directory `<dir>/state`, STATUS every 0.2 s, and
+/// the given `[outputs]` lines.
+pub fn replay_config(dir: &Path, capture: &Path, speed: &str, outputs: &str) -> PathBuf {
+    write_config(
+        dir,
+        &format!(
+            r#"
+[daemon]
+state_dir = "{state}"
+status_interval_s = 0.2
+
+[outputs]
+{outputs}
+
+[[source]]
+name = "imu"
+kind = "replay"
+file = "{capture}"
+speed = {speed}
+
+[[sensor]]
+name = "compass"
+source = "imu"
+field = "mag"
+axes = ["x", "y"]
+"#,
+            state = dir.join("state").display(),
+            capture = capture.display(),
+        ),
+    )
+}
+
 impl Daemon {
     pub fn start(config: &Path, env: &[(&str, &str)]) -> Daemon {
+        Daemon::start_with(config, |command| {
+            for (k, v) in env {
+                command.env(k, v);
+            }
+        })
+    }
+
+    /// Starts the daemon; `adjust` may change the command before the spawn
+    /// (environment, a `pre_exec` for signal dispositions or limits).
+    pub fn start_with(config: &Path, adjust: impl FnOnce(&mut Command)) -> Daemon {
         let mut command = fieldcal();
         command
             .args(["run", "--config", config.to_str().unwrap()])
+            .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
-        for (k, v) in env {
-            command.env(k, v);
-        }
+        adjust(&mut command);
         let mut child = command.spawn().expect("start fieldcal run");
         let stdout = child.stdout.take().unwrap();
         let stderr_pipe = child.stderr.take().unwrap();
@@ -83,6 +125,30 @@ impl Daemon {
         self.stderr.lock().unwrap().clone()
     }
 
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// True while the child has not exited.
+    pub fn is_running(&mut self) -> bool {
+        self.child.try_wait().unwrap().is_none()
+    }
+
+    /// Waits until the log (stderr) contains `needle`.
+    pub fn wait_for_log(&self, timeout: Duration, needle: &str) -> String {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let log = self.stderr();
+            if log.contains(needle) {
+                return log;
+            }
+            if Instant::now() > deadline {
+                panic!("no log line with {needle:?} within {timeout:?}; stderr:\n{log}");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
     /// The next line that satisfies `want`, with its arrival time.
     pub fn wait_for(
         &mut self,
@@ -110,6 +176,16 @@ impl Daemon {
         }
     }
 
+    /// [`Daemon::wait_for`] when the arrival time does not matter.
+    pub fn wait_for_value(
+        &mut self,
+        timeout: Duration,
+        what: &str,
+        want: impl Fn(&Value) -> bool,
+    ) -> Value {
+        self.wait_for(timeout, what, want).1
+    }
+
     /// Every remaining line until the daemon closes its stdout.
     pub fn drain(&mut self, timeout: Duration) -> Vec<Value> {
         let deadline = Instant::now() + timeout;
@@ -129,11 +205,10 @@ impl Daemon {
         }
     }
 
+    /// SIGTERM, then the exit status (10 s at most).
     pub fn terminate(&mut self) -> ExitStatus {
-        let pid = self.child.id().to_string();
-        let _ = std::process::Command::new("kill")
-            .args(["-TERM", &pid])
-            .status();
+        // SAFETY: kill(2) on our own child's pid; no memory is touched.
+        unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM) };
         self.wait(Duration::from_secs(10))
     }
 
