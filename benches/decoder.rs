@@ -9,26 +9,15 @@ use std::time::{Duration, Instant};
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use fieldcal::protocol::falcon::FalconDecoder;
-use fieldcal::sim::{FalconWire, SimSensor};
+
+#[path = "support/mod.rs"]
+mod support;
 
 /// Turns of 200 frames: 900 turns = 180,000 frames, about 4.2 MB.
 const TURNS: f64 = 900.0;
 
 fn capture_bytes() -> Vec<u8> {
-    let sensor = SimSensor {
-        offset_x: 30.0,
-        offset_y: -20.0,
-        gain_x: 1.05,
-        noise: 3.0,
-        turns: TURNS,
-        ..Default::default()
-    };
-    let (_, chunks) = sensor
-        .falcon_capture(&FalconWire {
-            garbage: 0.01,
-            ..Default::default()
-        })
-        .expect("simulated capture");
+    let (_, chunks) = support::falcon_chunks(&support::compass(TURNS));
     chunks.into_iter().flat_map(|c| c.bytes).collect()
 }
 

@@ -4,12 +4,15 @@
 //!
 //! Needs the release binary: `cargo build --release && cargo bench --bench memory`
 
+use std::io::Write;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use fieldcal::capture::CaptureWriter;
-use fieldcal::sim::{FalconWire, SimSensor};
+use fieldcal::sim::SimSensor;
+
+#[path = "support/mod.rs"]
+mod support;
 
 const SENSORS: usize = 4;
 
@@ -46,31 +49,14 @@ fn main() {
         // 20 turns of 200 frames, each sensor a different one.
         let sensor = SimSensor {
             offset_x: 30.0 + 10.0 * k as f64,
-            offset_y: -20.0,
-            gain_x: 1.05,
-            noise: 3.0,
-            turns: 20.0,
             seed: k as u64 + 1,
-            ..Default::default()
+            ..support::compass(20.0)
         };
-        let (header, chunks) = sensor
-            .falcon_capture(&FalconWire {
-                garbage: 0.01,
-                ..Default::default()
-            })
-            .expect("simulated capture");
         let file = dir.path().join(format!("imu{k}.fcap"));
-        let mut writer = CaptureWriter::new(
-            std::io::BufWriter::new(std::fs::File::create(&file).expect("capture file")),
-            &header,
-        )
-        .expect("capture header");
-        for c in &chunks {
-            writer
-                .write_chunk(c.time, c.stream, &c.bytes)
-                .expect("capture chunk");
-        }
-        writer.flush().expect("capture written");
+        let out = std::io::BufWriter::new(std::fs::File::create(&file).expect("capture file"));
+        support::write_capture(out, &sensor)
+            .flush()
+            .expect("capture written");
         text.push_str(&format!(
             "\n[[source]]\nname = \"imu{k}\"\nkind = \"replay\"\nfile = \"{}\"\nspeed = 10.0\n\n[[sensor]]\nname = \"compass{k}\"\nsource = \"imu{k}\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n",
             file.display()

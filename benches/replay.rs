@@ -8,10 +8,12 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use fieldcal::capture::{CaptureFile, CaptureWriter, parse_capture};
+use fieldcal::capture::{CaptureFile, parse_capture};
 use fieldcal::daemon::config::{Config, parse};
 use fieldcal::daemon::run::replay_through_pipeline;
-use fieldcal::sim::{FalconWire, SimSensor};
+
+#[path = "support/mod.rs"]
+mod support;
 use fieldcal::source::replay::Speed;
 
 /// Turns of 200 frames (50 ms apart): 500 turns = 100,000 frames.
@@ -24,27 +26,7 @@ fn pipeline_config() -> Config {
 }
 
 fn long_capture() -> CaptureFile {
-    let sensor = SimSensor {
-        offset_x: 30.0,
-        offset_y: -20.0,
-        gain_x: 1.05,
-        noise: 3.0,
-        turns: TURNS,
-        ..Default::default()
-    };
-    let (header, chunks) = sensor
-        .falcon_capture(&FalconWire {
-            garbage: 0.01,
-            ..Default::default()
-        })
-        .expect("simulated capture");
-    let mut writer = CaptureWriter::new(Vec::new(), &header).expect("capture header");
-    for chunk in &chunks {
-        writer
-            .write_chunk(chunk.time, chunk.stream, &chunk.bytes)
-            .expect("capture chunk");
-    }
-    let bytes = writer.into_inner().expect("capture bytes");
+    let bytes = support::write_capture(Vec::new(), &support::compass(TURNS));
     parse_capture(&bytes, "long.fcap").expect("capture parses")
 }
 
