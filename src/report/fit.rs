@@ -61,6 +61,26 @@ impl<'a> FitJson<'a> {
     }
 }
 
+/// Width of the value column of the text reports.
+const VALUE_WIDTH: usize = 22;
+
+/// One `label  value  note` line of a text report, trailing blanks trimmed.
+fn push_line(out: &mut String, value_width: usize, label: &str, value: &str, note: &str) {
+    out.push_str(format!("{label:<10}{value:<value_width$}{note}").trim_end());
+    out.push('\n');
+}
+
+impl FitSource<'_> {
+    /// The first lines of every text report: the file and its axes.
+    fn header(&self, value_width: usize) -> String {
+        let mut out = String::new();
+        push_line(&mut out, value_width, "file", self.file, "");
+        let axes = format!("x = {}, y = {}", self.x_column, self.y_column);
+        push_line(&mut out, value_width, "axes", &axes, "");
+        out
+    }
+}
+
 /// The report for a person.
 pub fn render_text(report: &FitReport, source: FitSource<'_>) -> String {
     let c = &report.calibration;
@@ -72,17 +92,10 @@ pub fn render_text(report: &FitReport, source: FitSource<'_>) -> String {
         (Solver::Lsq, _) => "lsq (closed-form least squares, eq. 6)".into(),
     };
     let cov = &report.coverage;
-    let mut out = String::new();
+    let mut out = source.header(VALUE_WIDTH);
     let mut line = |label: &str, value: String, note: &str| {
-        out.push_str(format!("{label:<10}{value:<22}{note}").trim_end());
-        out.push('\n');
+        push_line(&mut out, VALUE_WIDTH, label, &value, note)
     };
-    line("file", source.file.to_string(), "");
-    line(
-        "axes",
-        format!("x = {}, y = {}", source.x_column, source.y_column),
-        "",
-    );
     line(
         "model",
         format!("paper ({})", PAPER_EFFECTS.join("+")),
@@ -211,17 +224,11 @@ pub fn render_model_text(
     elapsed: Duration,
     source: FitSource<'_>,
 ) -> String {
-    let mut out = String::new();
+    // Values carry their standard errors: a wider column.
+    let mut out = source.header(VALUE_WIDTH + 8);
     let mut line = |label: &str, value: String, note: &str| {
-        out.push_str(format!("{label:<10}{value:<30}{note}").trim_end());
-        out.push('\n');
+        push_line(&mut out, VALUE_WIDTH + 8, label, &value, note)
     };
-    line("file", source.file.to_string(), "");
-    line(
-        "axes",
-        format!("x = {}, y = {}", source.x_column, source.y_column),
-        "",
-    );
     line("model", model_name(&fit.effects), "");
     line(
         "solver",

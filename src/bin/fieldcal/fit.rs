@@ -50,12 +50,7 @@ pub fn fit(args: FitArgs) -> Result<()> {
             .zip(&data.y)
             .map(|(&x, &y)| report.calibration.apply(x, y))
             .unzip();
-        write_calibrated(output, data.t.as_deref(), &cx, &cy).with_context(|| {
-            format!(
-                "cannot write the calibrated samples to {}",
-                output.display()
-            )
-        })?;
+        write_output(output, data.t.as_deref(), &cx, &cy)?;
     }
 
     let source = FitSource {
@@ -88,12 +83,7 @@ fn fit_effects(
 
     if let Some(output) = &args.output {
         let (cx, cy): (Vec<f64>, Vec<f64>) = fit.calibrated.iter().copied().unzip();
-        write_calibrated(output, data.t.as_deref(), &cx, &cy).with_context(|| {
-            format!(
-                "cannot write the calibrated samples to {}",
-                output.display()
-            )
-        })?;
+        write_output(output, data.t.as_deref(), &cx, &cy)?;
     }
     let source = FitSource {
         file,
@@ -125,4 +115,14 @@ fn finish_progress() {
     if std::io::stderr().is_terminal() {
         eprint!("\r{:60}\r", "");
     }
+}
+
+/// `--output FILE`: every sample's calibrated x, y (and t).
+fn write_output(output: &std::path::Path, t: Option<&[f64]>, x: &[f64], y: &[f64]) -> Result<()> {
+    write_calibrated(output, t, x, y).with_context(|| {
+        format!(
+            "cannot write the calibrated samples to {}",
+            output.display()
+        )
+    })
 }
