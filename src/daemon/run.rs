@@ -315,7 +315,8 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
     let mut watchdog_tick = tokio::time::interval(watchdog.unwrap_or(Duration::from_secs(3600)));
     watchdog_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
 
-    let publish = |hub: &Hub| {
+    // Made once: the readings' path should not clone the hub per event.
+    let mut emit = {
         let hub = hub.clone();
         move |lane: Lane, line: String| hub.publish(lane, Arc::from(line))
     };
@@ -326,7 +327,7 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
             _ = shutdown.changed() => break,
             event = events.recv() => {
                 let Some((index, event)) = event else { break };
-                handle_event(index, event, &mut sources, &mut sensors, &mut publish(&hub), &mut save);
+                handle_event(index, event, &mut sources, &mut sensors, &mut emit, &mut save);
             }
             Some(failure) = save_failures.recv() => report_save_failure(&hub, failure),
             Some((command, reply)) = commands.recv() => {
@@ -381,7 +382,7 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
             event,
             &mut sources,
             &mut sensors,
-            &mut publish(&hub),
+            &mut emit,
             &mut save,
         );
     }
