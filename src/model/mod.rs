@@ -3,6 +3,8 @@
 //! - [`paper`]: the paper's model `s_x = a*x + b, s_y = y + d, |s| = r`, its
 //!   closed-form least squares (eq. 6) and its gradient descent (eqs. 7-21).
 //! - [`heading`]: where on the circle the samples lie (coverage of the turn).
+//! - [`gyro`]: a gyroscope as a heading reference, and a model's heading
+//!   error against it.
 //! - [`fit`]: fitting a recording end to end, with the checks a user needs.
 //! - [`effects`]: the catalogue of physical effects a model can add.
 //! - [`nonlinear`]: the paper's model plus any effects, fitted by
@@ -13,6 +15,7 @@
 pub mod diagnose;
 pub mod effects;
 pub mod fit;
+pub mod gyro;
 pub mod heading;
 pub mod nonlinear;
 pub mod paper;
