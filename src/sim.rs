@@ -530,7 +530,9 @@ impl SimSensor {
         // A separate stream of randomness, so adding garbage does not change
         // the sensor's noise.
         let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ 0x0067_6172_6261_6765);
-        let rate_counts = (360.0 / self.turn_seconds * 10.0).round() as i16;
+        // The true turn rate, in the frame's gyro scale, about z.
+        let rate_counts = (360.0 / self.turn_seconds * crate::protocol::falcon::RATE_LSB_PER_DEG_S)
+            .round() as i16;
         let t = data.t.as_deref().unwrap_or(&[]);
         let mut chunks = Vec::with_capacity(data.len());
         let mut debt = 0.0f64;

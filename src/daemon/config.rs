@@ -65,6 +65,15 @@
 //! field = "mag"             # mag | accel | gyro
 //! axes = ["x", "y"]         # the two axes that turn, two different of x, y, z
 //! model = "paper"           # or ["offset", "scale"], or "offset+scale"
+//! # The gyro axis about which the sensor turns, for the heading check of
+//! # each CALIBRATION: "x", "y", "z" or "none". Default: the axis
+//! # perpendicular to `axes` when the sensor's stream carries a gyro (a
+//! # Falcon-GX frame, an MPU-6050), else none.
+//! gyro = "z"
+//! gyro_chip = "mpu6050"     # the gyro of another chip of the same source
+//!                           # (then `gyro` is required: mountings differ)
+//! gyro_lsb_per_deg_s = 131.0  # counts per deg/s; default the chip's
+//!                           # (MPU-6050 at +-250 deg/s: 131; Falcon-GX: 10)
 //! [sensor.rotation]         # the rotation buffer's settings
 //! [sensor.limits]           # the acceptance limits of a fit
 //! ```
@@ -271,6 +280,23 @@ pub struct SensorConfig {
     pub effects: Vec<String>,
     pub rotation: RotationSettings,
     pub limits: LimitSettings,
+    /// Where the heading check of each rotation takes its gyro from.
+    pub gyro: GyroChoice,
+}
+
+/// The gyro a sensor's heading is checked against (`gyro`, `gyro_chip`,
+/// `gyro_lsb_per_deg_s`).
+#[derive(Debug, Clone, PartialEq)]
+pub enum GyroChoice {
+    /// The angular rate about the turn's axis: `axis` of the gyro of the
+    /// source's stream `stream`, `lsb_per_deg_s` counts per degree/second.
+    Rate {
+        stream: u8,
+        axis: Axis,
+        lsb_per_deg_s: f64,
+    },
+    /// No heading check, and why (said in each CALIBRATION).
+    Off(String),
 }
 
 impl Config {
@@ -469,6 +495,9 @@ struct RawSensor {
     field: Field,
     axes: Vec<Axis>,
     model: Option<toml::Value>,
+    gyro: Option<String>,
+    gyro_chip: Option<String>,
+    gyro_lsb_per_deg_s: Option<f64>,
     #[serde(default)]
     rotation: RotationSettings,
     #[serde(default)]
@@ -719,6 +748,7 @@ impl Checker<'_> {
                 }
             };
             let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
+            let gyro = self.check_gyro(&key, &s, axes, stream, src_name, stream_list)?;
             if let Err(problem) = s.rotation.validate() {
                 return Err(self.error(&format!("{key}.rotation"), problem));
             }
@@ -734,6 +764,7 @@ impl Checker<'_> {
                 effects,
                 rotation: s.rotation,
                 limits: s.limits,
+                gyro,
             });
         }
 
@@ -1218,6 +1249,172 @@ impl Checker<'_> {
         Ok(effects.iter().map(Effect::to_string).collect())
     }
 
+    /// The gyro of a sensor's heading check: the keys `gyro`, `gyro_chip`
+    /// and `gyro_lsb_per_deg_s` of `sensor[i]` (`key`).
+    fn check_gyro(
+        &self,
+        key: &str,
+        s: &RawSensor,
+        axes: [Axis; 2],
+        own: StreamDesc,
+        source: &str,
+        streams: &[StreamDesc],
+    ) -> Result<GyroChoice, ConfigError> {
+        let axis_key = format!("{key}.gyro");
+        let chosen = match s.gyro.as_deref().map(str::trim) {
+            None => None,
+            Some("none") => {
+                if s.gyro_chip.is_some() {
+                    return Err(self.error(
+                        &format!("{key}.gyro_chip"),
+                        "given with gyro = \"none\": name the gyro axis, or leave gyro_chip out",
+                    ));
+                }
+                return Ok(GyroChoice::Off(
+                    "no heading check: gyro = \"none\" in the configuration".into(),
+                ));
+            }
+            Some("x") => Some(Axis::X),
+            Some("y") => Some(Axis::Y),
+            Some("z") => Some(Axis::Z),
+            Some(other) => {
+                return Err(self.error(
+                    &axis_key,
+                    format!(
+                        "\"{other}\" is not a gyro axis: give \"x\", \"y\" or \"z\" (the \
+                         gyro axis the sensor turns about) or \"none\""
+                    ),
+                ));
+            }
+        };
+        let stream = match s.gyro_chip.as_deref() {
+            None => own,
+            Some(text) => self.gyro_stream(&format!("{key}.gyro_chip"), text, source, streams)?,
+        };
+        let has_gyro = stream.fields().contains(&Field::Gyro);
+        if !has_gyro {
+            return match chosen {
+                None => Ok(GyroChoice::Off(format!(
+                    "no heading check: {} of source '{source}' has no gyro (give gyro_chip for \
+                     another chip's)",
+                    stream.describe()
+                ))),
+                Some(_) => Err(self.error(
+                    &axis_key,
+                    format!(
+                        "{} of source '{source}' has no gyro: give gyro_chip = \"NAME\" for \
+                         another chip's, or leave gyro out",
+                        stream.describe()
+                    ),
+                )),
+            };
+        }
+        let same_stream = stream.id == own.id;
+        let axis = match chosen {
+            Some(axis) if same_stream && axes.contains(&axis) => {
+                return Err(self.error(
+                    &axis_key,
+                    format!(
+                        "\"{}\" is one of the two axes that turn ({}, {}): the turn is about the \
+                         third, give it, or \"none\"",
+                        axis.name(),
+                        axes[0].name(),
+                        axes[1].name()
+                    ),
+                ));
+            }
+            Some(axis) => axis,
+            None if !same_stream => {
+                return Err(self.error(
+                    &axis_key,
+                    "missing: with gyro_chip, say which of its axes the sensor turns about \
+                     (\"x\", \"y\" or \"z\"): chips are not always mounted alike",
+                ));
+            }
+            None if s.field == Field::Gyro => {
+                return Ok(GyroChoice::Off(
+                    "no heading check: the sensor is itself the gyro".into(),
+                ));
+            }
+            None => [Axis::X, Axis::Y, Axis::Z]
+                .into_iter()
+                .find(|a| !axes.contains(a))
+                .unwrap_or(Axis::Z),
+        };
+        let lsb_key = format!("{key}.gyro_lsb_per_deg_s");
+        let lsb_per_deg_s = match (s.gyro_lsb_per_deg_s, gyro_lsb_per_deg_s(stream)) {
+            (Some(v), _) if v.is_finite() && v > 0.0 && v <= 1e6 => v,
+            (Some(v), _) => {
+                return Err(self.error(
+                    &lsb_key,
+                    format!("{v}: give the gyro's counts per degree/second, above 0 (at most 1e6)"),
+                ));
+            }
+            (None, Some(v)) => v,
+            (None, None) => {
+                return Err(self.error(
+                    &lsb_key,
+                    format!(
+                        "missing: the scale of the gyro of {} is not known; give its counts per \
+                         degree/second",
+                        stream.describe()
+                    ),
+                ));
+            }
+        };
+        Ok(GyroChoice::Rate {
+            stream: stream.id,
+            axis,
+            lsb_per_deg_s,
+        })
+    }
+
+    /// The stream of the chip named by `gyro_chip` on a sensor's source.
+    fn gyro_stream(
+        &self,
+        key: &str,
+        text: &str,
+        source: &str,
+        streams: &[StreamDesc],
+    ) -> Result<StreamDesc, ConfigError> {
+        let (want, address) = parse_chip(text).map_err(|problem| self.error(key, problem))?;
+        let listed = streams
+            .iter()
+            .map(|s| s.describe())
+            .collect::<Vec<_>>()
+            .join(", ");
+        let matches: Vec<StreamDesc> = streams
+            .iter()
+            .filter(|s| {
+                s.chip
+                    .is_some_and(|(c, a)| c == want && address.is_none_or(|w| w == a))
+            })
+            .copied()
+            .collect();
+        match matches.as_slice() {
+            [one] if one.fields().contains(&Field::Gyro) => Ok(*one),
+            [one] => Err(self.error(
+                key,
+                format!("{} has no gyro: name a chip that has one", one.describe()),
+            )),
+            [] if streams.iter().all(|s| s.chip.is_none()) => Err(self.error(
+                key,
+                format!(
+                    "source '{source}' is of Falcon-GX frames, which have no chips: leave \
+                     gyro_chip out (the frame's own gyro is used)"
+                ),
+            )),
+            [] => Err(self.error(
+                key,
+                format!("'{text}' is not on source '{source}': its chips are {listed}"),
+            )),
+            _ => Err(self.error(
+                key,
+                format!("'{text}' is ambiguous on source '{source}' ({listed}): give NAME@ADDR"),
+            )),
+        }
+    }
+
     fn check_name(&self, key: &str, name: &str) -> Result<(), ConfigError> {
         let problem = if name.is_empty() {
             Some("empty".to_string())
@@ -1253,6 +1450,17 @@ impl Checker<'_> {
             key,
             format!("{value} seconds: give a number of seconds above 0 and at most {max}"),
         ))
+    }
+}
+
+/// Counts per degree/second of a stream's gyro, where the chip (or frame)
+/// defines it: the MPU-6050 as the bridge sets it up (+-250 deg/s), the
+/// Falcon-GX-style frame as this project defines it.
+fn gyro_lsb_per_deg_s(stream: StreamDesc) -> Option<f64> {
+    match stream.chip {
+        None => Some(falcon::RATE_LSB_PER_DEG_S),
+        Some((Chip::Mpu6050, _)) => Some(crate::protocol::chips::mpu6050::GYRO_LSB_PER_DEG_S),
+        Some(_) => None,
     }
 }
 

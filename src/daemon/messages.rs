@@ -5,6 +5,7 @@ use serde::Serialize;
 
 use super::Calibration;
 use super::rotation::Progress;
+use crate::model::gyro::HeadingCheck;
 use crate::model::paper::PaperCalibration;
 use crate::source::CountersSnapshot;
 
@@ -71,6 +72,46 @@ pub struct CalibrationMessage<'a> {
     /// suggested one (one turn cannot tell them apart; see `diagnose`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub close_second: Option<String>,
+    /// The fitted model's heading against the integrated gyro of the
+    /// sensor's source, when a check was possible.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heading_vs_gyro: Option<HeadingVsGyro>,
+    /// Why the heading could not be checked against a gyro, when a model
+    /// was fitted but no check was possible.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heading_check: Option<String>,
+}
+
+/// A rotation's heading error against the integrated gyro: the gyro's
+/// scale, sign and bias fitted over the rotation, the rest is the model's.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HeadingVsGyro {
+    /// Which gyro axis, such as `gyro_z`.
+    pub gyro_column: String,
+    /// Root mean square of the heading error, degrees.
+    pub rms_deg: f64,
+    /// Largest minus smallest heading error, degrees.
+    pub peak_to_peak_deg: f64,
+    /// Samples compared.
+    pub n: usize,
+    /// Fitted factor from the integrated gyro angle to heading (its sign
+    /// says which way the gyro axis points).
+    pub gyro_scale: f64,
+    /// Fitted gyro bias, degrees/second.
+    pub gyro_bias_deg_s: f64,
+}
+
+impl From<&HeadingCheck> for HeadingVsGyro {
+    fn from(c: &HeadingCheck) -> Self {
+        HeadingVsGyro {
+            gyro_column: c.gyro_column.clone(),
+            rms_deg: c.rms_deg,
+            peak_to_peak_deg: c.peak_to_peak_deg,
+            n: c.n,
+            gyro_scale: c.gyro_scale,
+            gyro_bias_deg_s: c.gyro_bias_deg_s,
+        }
+    }
 }
 
 impl<'a> CalibrationMessage<'a> {
@@ -93,6 +134,8 @@ impl<'a> CalibrationMessage<'a> {
             noise_floor: None,
             suggested: None,
             close_second: None,
+            heading_vs_gyro: None,
+            heading_check: None,
         }
     }
 }

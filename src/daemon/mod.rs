@@ -70,14 +70,18 @@ impl Calibration {
     /// The corrected reading of a raw sample: the cubic terms removed, then
     /// the paper's gains and offsets with the cross-axis coupling.
     pub fn apply(&self, x: f64, y: f64) -> (f64, f64) {
-        let t = &self.terms;
-        let (x2, y2) = if t.cubic_scale > 0.0 {
-            let s2 = t.cubic_scale * t.cubic_scale;
-            (x + t.k[0] * x * x * x / s2, y + t.k[1] * y * y * y / s2)
-        } else {
-            (x, y)
-        };
-        let p = &self.params;
-        (p.a * x2 + p.b + t.c * (y2 + p.d), y2 + p.d)
+        apply(&self.params, &self.terms, x, y)
     }
+}
+
+/// The corrected reading of a raw sample under a model's parameters and
+/// terms (see [`Calibration::apply`]); also for fits not (yet) accepted.
+pub fn apply(p: &PaperCalibration, t: &Terms, x: f64, y: f64) -> (f64, f64) {
+    let (x2, y2) = if t.cubic_scale > 0.0 {
+        let s2 = t.cubic_scale * t.cubic_scale;
+        (x + t.k[0] * x * x * x / s2, y + t.k[1] * y * y * y / s2)
+    } else {
+        (x, y)
+    };
+    (p.a * x2 + p.b + t.c * (y2 + p.d), y2 + p.d)
 }

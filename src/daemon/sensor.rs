@@ -6,14 +6,17 @@
 use std::time::Instant;
 
 use super::acceptance::{self, Limits};
-use super::config::{Axis, Field, SensorConfig};
-use super::messages::{CalibrationMessage, ReadingMessage, SensorState, SensorStatus, to_line};
+use super::config::{Axis, Field, GyroChoice, SensorConfig};
+use super::messages::{
+    CalibrationMessage, HeadingVsGyro, ReadingMessage, SensorState, SensorStatus, to_line,
+};
 use super::publish::Lane;
 use super::rotation::{RotationBuffer, RotationEvent};
 use super::{Calibration, Terms};
 use crate::model::diagnose::diagnose;
 use crate::model::effects::{Effect, parse_list};
 use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper};
+use crate::model::gyro::{GyroUnits, HeadingReference};
 use crate::model::heading::coverage;
 use crate::model::nonlinear::{cubic_scale, fit_model};
 use crate::sample::Dataset;
@@ -35,6 +38,100 @@ pub struct Sensor {
     fits_accepted: u64,
     fits_rejected: u64,
     last_rejection: Option<String>,
+    /// The gyro rate kept beside the rotation, for its heading check.
+    gyro: Option<GyroTrack>,
+}
+
+/// The angular rate about the turn's axis, in degrees/second, with its
+/// times, kept while the sensor collects a rotation: one push per reading;
+/// integrated and compared once per rotation.
+#[derive(Debug, Clone)]
+struct GyroTrack {
+    stream: u8,
+    /// Index of the axis in the reading's gyro triad.
+    axis: usize,
+    lsb_per_deg_s: f64,
+    /// `gyro_x`, `gyro_y` or `gyro_z`, as the messages name it.
+    column: String,
+    t: Vec<f64>,
+    rate: Vec<f64>,
+    /// Most entries held: the older half is dropped when full, so memory
+    /// stays bounded however long the sensor collects.
+    cap: usize,
+}
+
+impl GyroTrack {
+    fn new(choice: &GyroChoice, max_samples: usize) -> Option<Self> {
+        let GyroChoice::Rate {
+            stream,
+            axis,
+            lsb_per_deg_s,
+        } = *choice
+        else {
+            return None;
+        };
+        Some(GyroTrack {
+            stream,
+            axis: axis.index(),
+            lsb_per_deg_s,
+            column: format!("gyro_{}", axis.name()),
+            t: Vec::new(),
+            rate: Vec::new(),
+            // A rotation holds at most max_samples readings of the sensor;
+            // a gyro polled beside it adds as many.
+            cap: 2 * max_samples.max(1),
+        })
+    }
+
+    /// Keeps the rate of a reading that carries this gyro. O(1) amortised.
+    fn keep(&mut self, reading: &Reading) {
+        let Some(triad) = reading.gyro.filter(|_| reading.stream == self.stream) else {
+            return;
+        };
+        let time = reading.time;
+        // The integration needs increasing times; a repeated or earlier
+        // time (as the rotation buffer also ignores) is left out.
+        if !time.is_finite() || self.t.last().is_some_and(|&last| time <= last) {
+            return;
+        }
+        if self.t.len() >= self.cap {
+            let half = self.cap / 2;
+            self.t.drain(..half);
+            self.rate.drain(..half);
+        }
+        self.t.push(time);
+        self.rate
+            .push(f64::from(triad[self.axis]) / self.lsb_per_deg_s);
+    }
+
+    fn clear(&mut self) {
+        self.t.clear();
+        self.rate.clear();
+    }
+
+    /// The heading check of a rotation: samples at times `t` whose model
+    /// headings are `headings_rad`. Uses the rates from the last one at or
+    /// before the rotation's first sample to the first at or after its last.
+    fn check(&self, t: &[f64], headings_rad: &[f64]) -> Result<HeadingVsGyro, String> {
+        let (Some(&first), Some(&last)) = (t.first(), t.last()) else {
+            return Err("no samples to check".into());
+        };
+        let lo = self.t.partition_point(|&g| g <= first).saturating_sub(1);
+        let hi = (self.t.partition_point(|&g| g < last) + 1).min(self.t.len());
+        let (gyro_t, rate) = match (self.t.get(lo..hi), self.rate.get(lo..hi)) {
+            (Some(gt), Some(r)) if !gt.is_empty() => (gt, r),
+            _ => {
+                return Err(format!("no {} readings during the rotation", self.column));
+            }
+        };
+        let reference =
+            HeadingReference::from_rates(&self.column, t, gyro_t, rate, GyroUnits::DegPerSecond)
+                .map_err(|e| e.to_string())?;
+        let check = reference
+            .check(headings_rad, &[])
+            .map_err(|e| e.to_string())?;
+        Ok(HeadingVsGyro::from(&check))
+    }
 }
 
 impl Sensor {
@@ -43,6 +140,7 @@ impl Sensor {
     pub fn new(config: SensorConfig, stored: Option<Calibration>) -> Self {
         let limits = config.limits.clone();
         let buffer = RotationBuffer::new(config.rotation.clone());
+        let gyro = GyroTrack::new(&config.gyro, buffer.config().max_samples);
         // The configuration checked the names; an unparsable list (not
         // possible from a checked file) falls back to the paper's model.
         let effects = parse_list(&config.effects.join(","))
@@ -64,6 +162,7 @@ impl Sensor {
             fits_accepted: 0,
             fits_rejected: 0,
             last_rejection: None,
+            gyro,
         }
     }
 
@@ -79,9 +178,10 @@ impl Sensor {
         self.current.as_ref()
     }
 
-    /// Whether a reading from `stream` of the sensor's source belongs to it.
+    /// Whether a reading from `stream` of the sensor's source belongs to it
+    /// (its own stream, or the stream of the gyro its heading is checked by).
     pub fn wants(&self, stream: u8) -> bool {
-        self.config.stream == stream
+        self.config.stream == stream || self.gyro.as_ref().is_some_and(|g| g.stream == stream)
     }
 
     /// The two turning axes of a reading, if it carries the sensor's field.
@@ -105,6 +205,9 @@ impl Sensor {
     /// until a new one is accepted.
     pub fn recalibrate(&mut self) {
         self.buffer.reset();
+        if let Some(gyro) = &mut self.gyro {
+            gyro.clear();
+        }
         self.state = if self.current.is_some() {
             SensorState::Recalibrating
         } else {
@@ -116,6 +219,15 @@ impl Sensor {
     /// exists), feeds the rotation buffer while collecting, and fits when the
     /// rotation is complete. Returns a newly accepted calibration, to store.
     pub fn on_reading(&mut self, reading: &Reading, emit: &mut Emit<'_>) -> Option<Calibration> {
+        if self.state != SensorState::Calibrated
+            && let Some(gyro) = &mut self.gyro
+        {
+            gyro.keep(reading);
+        }
+        if reading.stream != self.config.stream {
+            // Only the gyro of another chip: kept above, nothing to publish.
+            return None;
+        }
         let (x, y) = self.axes_of(reading)?;
         self.readings += 1;
         emit(Lane::Reading, self.reading_line(reading.time, x, y));
@@ -174,6 +286,11 @@ impl Sensor {
             ),
             None => (None, None),
         };
+        let heading = self.heading_check(&rotation, &report, &terms);
+        let (heading_vs_gyro, heading_check) = match heading {
+            Ok(check) => (Some(check), None),
+            Err(why) => (None, Some(why)),
+        };
         if let Err(reason) = acceptance::check(&report, &self.limits) {
             // A fit outside the limits is published with its numbers, so the
             // user sees how far off it was.
@@ -184,6 +301,8 @@ impl Sensor {
                 noise_floor,
                 suggested,
                 close_second,
+                heading_vs_gyro,
+                heading_check,
                 ..self.rejection(time, &reason, report.n, report.coverage.covered_deg, fit_ms)
             };
             emit(Lane::Control, to_line(&message));
@@ -207,20 +326,67 @@ impl Sensor {
             noise_floor,
             suggested,
             close_second,
+            heading_vs_gyro,
+            heading_check,
             ..CalibrationMessage::loaded(&calibration)
         };
         emit(Lane::Control, to_line(&message));
-        tracing::info!(
-            sensor = %self.config.name,
-            id = calibration.id,
-            rms = calibration.rms,
-            "calibration accepted"
-        );
+        match (&message.heading_vs_gyro, &message.heading_check) {
+            (Some(h), _) => tracing::info!(
+                sensor = %self.config.name,
+                id = calibration.id,
+                rms = calibration.rms,
+                heading_rms_deg = h.rms_deg,
+                heading_peak_to_peak_deg = h.peak_to_peak_deg,
+                "calibration accepted; heading against {}: {:.2}° rms",
+                h.gyro_column,
+                h.rms_deg
+            ),
+            (None, why) => tracing::info!(
+                sensor = %self.config.name,
+                id = calibration.id,
+                rms = calibration.rms,
+                "calibration accepted; heading not checked: {}",
+                why.as_deref().unwrap_or("no gyro")
+            ),
+        }
         self.next_id += 1;
         self.fits_accepted += 1;
         self.state = SensorState::Calibrated;
         self.current = Some(calibration.clone());
         Some(calibration)
+    }
+
+    /// The fitted model's heading against the gyro kept beside the
+    /// rotation, or why there is none. Information only: it never rejects a
+    /// fit. O(n) in the rotation's samples; empties the gyro track.
+    fn heading_check(
+        &mut self,
+        rotation: &Dataset,
+        report: &FitReport,
+        terms: &Terms,
+    ) -> Result<HeadingVsGyro, String> {
+        let Some(gyro) = &mut self.gyro else {
+            return Err(match &self.config.gyro {
+                GyroChoice::Off(why) => why.clone(),
+                GyroChoice::Rate { .. } => "no heading check: no gyro".into(),
+            });
+        };
+        let t = rotation.t.as_deref().unwrap_or(&[]);
+        let headings: Vec<f64> = rotation
+            .x
+            .iter()
+            .zip(&rotation.y)
+            .map(|(&x, &y)| {
+                let (cx, cy) = super::apply(&report.calibration, terms, x, y);
+                cy.atan2(cx)
+            })
+            .collect();
+        let checked = gyro
+            .check(t, &headings)
+            .map_err(|e| format!("no heading check against {}: {e}", gyro.column));
+        gyro.clear();
+        checked
     }
 
     /// Fits the rotation with the sensor's model: the paper's closed form,
@@ -315,6 +481,8 @@ impl Sensor {
             noise_floor: None,
             suggested: None,
             close_second: None,
+            heading_vs_gyro: None,
+            heading_check: None,
         }
     }
 

@@ -28,6 +28,13 @@ pub const START_CONTINUOUS: [u8; 3] = [0x10, 0x00, 0x02];
 pub const STOP_CONTINUOUS: [u8; 3] = [0x10, 0x00, 0x00];
 /// Line speed, 8N1.
 pub const BAUD: u32 = 38_400;
+/// Angular-rate counts per degree/second of this project's Falcon-GX-style
+/// frame (what `fieldcal simulate --format falcon` writes). A real device's
+/// scale is value / (32768000 / gain) with the gain in its EEPROM
+/// (protocols.md §1, not verified): give it as the sensor's
+/// `gyro_lsb_per_deg_s`. The heading check fits the gyro's scale anyway, so
+/// a wrong value shows as a `gyro_scale` away from 1, not as a heading error.
+pub const RATE_LSB_PER_DEG_S: f64 = 10.0;
 /// One frame per period in continuous mode.
 pub const NOMINAL_PERIOD: Duration = Duration::from_millis(50);
 

@@ -7,6 +7,10 @@ pub const SMPLRT_DIV: u8 = 0x19;
 pub const CONFIG: u8 = 0x1A;
 /// Bits 4:3 = +-250/500/1000/2000 deg/s (131/65.5/32.8/16.4 LSB per deg/s).
 pub const GYRO_CONFIG: u8 = 0x1B;
+/// Gyro counts per degree/second as [`INIT`] sets it up (GYRO_CONFIG
+/// FS_SEL = 0, +-250 deg/s): 131 LSB/(deg/s), MPU-6000/6050 Product
+/// Specification rev 3.4, table 6.1.
+pub const GYRO_LSB_PER_DEG_S: f64 = 131.0;
 /// Bits 4:3 = +-2/4/8/16 g (16384/8192/4096/2048 LSB/g).
 pub const ACCEL_CONFIG: u8 = 0x1C;
 /// First of 14 data bytes: AX AY AZ TEMP GX GY GZ, big-endian i16.
