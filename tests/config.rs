@@ -651,3 +651,196 @@ fn bad_numbers_are_refused_with_the_allowed_range() {
     let text = format!("[daemon]\nstatus_interval_s = 0\n{base}");
     assert_refused(&text, "daemon.status_interval_s", Some(2), &["above 0"]);
 }
+
+#[test]
+fn the_heading_gyro_defaults_to_the_axis_the_sensor_turns_about() {
+    use fieldcal::daemon::config::GyroChoice;
+    let text = format!(
+        "{SOURCES}
+[[sensor]]
+name = \"falcon\"
+source = \"imu\"
+field = \"mag\"
+axes = [\"x\", \"y\"]
+
+[[sensor]]
+name = \"tilt\"
+source = \"bridge\"
+chip = \"mpu6050\"
+field = \"accel\"
+axes = [\"z\", \"x\"]
+
+[[sensor]]
+name = \"compass\"
+source = \"bridge\"
+chip = \"lsm303dlhc-mag\"
+field = \"mag\"
+axes = [\"x\", \"y\"]
+
+[[sensor]]
+name = \"joined\"
+source = \"bridge\"
+chip = \"lsm303dlhc-mag\"
+field = \"mag\"
+axes = [\"x\", \"z\"]
+gyro_chip = \"mpu6050\"
+gyro = \"z\"
+
+[[sensor]]
+name = \"off\"
+source = \"imu\"
+field = \"mag\"
+axes = [\"x\", \"y\"]
+gyro = \"none\"
+
+[[sensor]]
+name = \"scaled\"
+source = \"imu\"
+field = \"accel\"
+axes = [\"y\", \"z\"]
+gyro_lsb_per_deg_s = 57.3
+"
+    );
+    let config = parse(&text, &config_path()).unwrap();
+    let gyro: Vec<&GyroChoice> = config.sensors.iter().map(|s| &s.gyro).collect();
+    // The Falcon-GX frame's own gyro at the frame's scale, about z.
+    assert_eq!(
+        *gyro[0],
+        GyroChoice::Rate {
+            stream: 0,
+            axis: Axis::Z,
+            lsb_per_deg_s: 10.0
+        }
+    );
+    // The MPU-6050's gyro at +-250 deg/s: 131 counts per deg/s.
+    assert_eq!(
+        *gyro[1],
+        GyroChoice::Rate {
+            stream: 0,
+            axis: Axis::Y,
+            lsb_per_deg_s: 131.0
+        }
+    );
+    assert_eq!(
+        *gyro[2],
+        GyroChoice::Off(
+            "no heading check: lsm303dlhc-mag@0x1e of source 'bridge' has no gyro (give \
+             gyro_chip for another chip's)"
+                .into()
+        )
+    );
+    // Another chip's gyro, on its own stream, about the axis given.
+    assert_eq!(
+        *gyro[3],
+        GyroChoice::Rate {
+            stream: 0,
+            axis: Axis::Z,
+            lsb_per_deg_s: 131.0
+        }
+    );
+    assert_eq!(config.sensors[3].stream, 1);
+    assert_eq!(
+        *gyro[4],
+        GyroChoice::Off("no heading check: gyro = \"none\" in the configuration".into())
+    );
+    assert_eq!(
+        *gyro[5],
+        GyroChoice::Rate {
+            stream: 0,
+            axis: Axis::X,
+            lsb_per_deg_s: 57.3
+        }
+    );
+}
+
+#[test]
+fn heading_gyro_mistakes_are_named_at_their_line() {
+    let falcon = |extra: &str| {
+        format!(
+            "{SOURCES}\n[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n{extra}\n"
+        )
+    };
+    let text = falcon("gyro = \"w\"");
+    assert_refused(
+        &text,
+        "sensor[0].gyro",
+        Some(line_of(&text, "gyro =")),
+        &["\"w\" is not a gyro axis", "\"none\""],
+    );
+    let text = falcon("gyro = \"x\"");
+    assert_refused(
+        &text,
+        "sensor[0].gyro",
+        Some(line_of(&text, "gyro =")),
+        &["one of the two axes that turn (x, y)"],
+    );
+    let text = falcon("gyro_chip = \"mpu6050\"\ngyro = \"z\"");
+    assert_refused(
+        &text,
+        "sensor[0].gyro_chip",
+        Some(line_of(&text, "gyro_chip")),
+        &["Falcon-GX frames", "leave gyro_chip out"],
+    );
+    let text = falcon("gyro_lsb_per_deg_s = 0.0");
+    assert_refused(
+        &text,
+        "sensor[0].gyro_lsb_per_deg_s",
+        Some(line_of(&text, "gyro_lsb")),
+        &["above 0"],
+    );
+    let text = falcon("gyro_axis = \"z\"");
+    assert_refused(
+        &text,
+        "sensor[0].gyro_axis",
+        Some(line_of(&text, "gyro_axis")),
+        &[
+            "unknown field `gyro_axis`",
+            "`gyro_chip`",
+            "`gyro_lsb_per_deg_s`",
+        ],
+    );
+
+    let mag = |extra: &str| {
+        sensor(&format!(
+            "chip = \"lsm303dlhc-mag\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n{extra}"
+        ))
+    };
+    let text = mag("gyro = \"z\"");
+    assert_refused(
+        &text,
+        "sensor[0].gyro",
+        Some(line_of(&text, "gyro =")),
+        &[
+            "lsm303dlhc-mag@0x1e of source 'bridge' has no gyro",
+            "gyro_chip",
+        ],
+    );
+    let text = mag("gyro_chip = \"mpu6050\"");
+    assert_refused(
+        &text,
+        "sensor[0].gyro",
+        None,
+        &["missing", "chips are not always mounted alike"],
+    );
+    let text = mag("gyro_chip = \"lsm303dlhc-mag\"\ngyro = \"z\"");
+    assert_refused(
+        &text,
+        "sensor[0].gyro_chip",
+        Some(line_of(&text, "gyro_chip")),
+        &["lsm303dlhc-mag@0x1e has no gyro"],
+    );
+    let text = mag("gyro_chip = \"adxl345\"\ngyro = \"z\"");
+    assert_refused(
+        &text,
+        "sensor[0].gyro_chip",
+        Some(line_of(&text, "gyro_chip")),
+        &["'adxl345' is not on source 'bridge'", "mpu6050@0x68"],
+    );
+    let text = mag("gyro_chip = \"mpu6050\"\ngyro = \"none\"");
+    assert_refused(
+        &text,
+        "sensor[0].gyro_chip",
+        Some(line_of(&text, "gyro_chip")),
+        &["gyro = \"none\""],
+    );
+}

@@ -162,7 +162,11 @@ pub fn replay(
                         match chip.decode(&chunk.bytes, chunk.time) {
                             Ok(reading) => {
                                 summary.readings += 1;
-                                emit(reading);
+                                // As the live bridge stamps it: the chip's stream.
+                                emit(Reading {
+                                    stream: chunk.stream,
+                                    ..reading
+                                });
                             }
                             Err(e) => {
                                 summary.chip_errors += 1;

@@ -1,0 +1,267 @@
+//! The daemon's heading check: each CALIBRATION of a sensor whose source
+//! carries a gyro says how far the fitted model's heading strays from the
+//! integrated gyro (`heading_vs_gyro`), or why no check was possible
+//! (`heading_check`); a failed check never rejects a calibration.
+
+mod common;
+
+use std::path::Path;
+
+use common::run;
+use fieldcal::capture::{CaptureHeader, CaptureWriter, StreamInfo, StreamKind, VERSION};
+use fieldcal::protocol::chips::Chip;
+use fieldcal::sample::Reading;
+use fieldcal::sim::SimSensor;
+use serde_json::Value;
+
+/// Replays `capture` through the daemon's pipeline with the `[[sensor]]`
+/// tables `sensors` on a replay source `imu`; returns the CALIBRATION
+/// lines and the log (stderr).
+fn calibrations(capture: &Path, sensors: &str, dir: &Path) -> (Vec<Value>, String) {
+    let config = dir.join("gyro.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[outputs]\nstdout = true\n[[source]]\nname = \"imu\"\nkind = \"replay\"\nfile = \"{}\"\n{sensors}",
+            capture.display()
+        ),
+    )
+    .unwrap();
+    let capture = capture.to_str().unwrap();
+    let r = run(&[
+        "replay",
+        capture,
+        "--config",
+        config.to_str().unwrap(),
+        "--speed",
+        "max",
+    ]);
+    assert_eq!(r.code, Some(0), "replay failed: {}", r.stderr);
+    let lines = r
+        .stdout
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .filter(|v| v["class"] == "CALIBRATION")
+        .collect();
+    (lines, r.stderr)
+}
+
+const COMPASS: &str =
+    "[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n";
+
+fn f(v: &Value) -> f64 {
+    v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"))
+}
+
+/// The rms heading error the noise alone makes, in degrees: per sample the
+/// noise across the circle is sqrt(sigma^2 + 1/12) counts per raw axis (the
+/// frame's rounding to whole counts adds 1/12), the x axis scaled by the
+/// fitted a, over the calibrated radius r.
+fn noise_heading_deg(sigma: f64, calibration: &Value) -> f64 {
+    let a = f(&calibration["params"]["a"]);
+    let r = f(&calibration["params"]["r"]);
+    let per_axis = (sigma * sigma + 1.0 / 12.0).sqrt();
+    (per_axis * ((a * a + 1.0) / 2.0).sqrt() / r).to_degrees()
+}
+
+#[test]
+fn a_falcon_turn_is_checked_against_its_gyro_to_within_the_noise() {
+    let dir = tempfile::tempdir().unwrap();
+    for (noise, seed, gain_x, offset_x) in [
+        (1.0, 4, 1.0, 0.0),
+        (3.0, 5, 1.1, 150.0),
+        (10.0, 6, 0.8, -900.0),
+    ] {
+        let capture = dir.path().join(format!("turn{seed}.fcap"));
+        common::run_ok(&[
+            "simulate",
+            "--format",
+            "falcon",
+            "--noise",
+            &noise.to_string(),
+            "--seed",
+            &seed.to_string(),
+            "--gain-x",
+            &gain_x.to_string(),
+            "--offset-x",
+            &offset_x.to_string(),
+            "--turns",
+            "1.5",
+            "-o",
+            capture.to_str().unwrap(),
+        ]);
+        let (found, log) = calibrations(&capture, COMPASS, dir.path());
+        let calibration = &found[0];
+        assert_eq!(calibration["accepted"], true, "{calibration}");
+        let check = &calibration["heading_vs_gyro"];
+        assert_eq!(check["gyro_column"], "gyro_z", "{calibration}");
+        assert_eq!(check["n"], calibration["n"], "{calibration}");
+        assert!(calibration.get("heading_check").is_none(), "{calibration}");
+        // The simulated frames carry the true rate at the frame's scale.
+        assert!(
+            (f(&check["gyro_scale"]) - 1.0).abs() < 0.01,
+            "{calibration}"
+        );
+        // The gyro is exact: what remains is the field sensor's noise, whose
+        // rms over ~200 samples is within a few percent of its deviation.
+        let expected = noise_heading_deg(noise, calibration);
+        let rms = f(&check["rms_deg"]);
+        assert!(
+            (0.8 * expected..1.25 * expected).contains(&rms),
+            "noise {noise}: heading rms {rms}°, the noise makes {expected}°: {calibration}"
+        );
+        assert!(f(&check["peak_to_peak_deg"]) > 2.0 * rms, "{calibration}");
+        assert!(log.contains("heading against gyro_z"), "{log}");
+    }
+}
+
+#[test]
+fn a_check_that_fails_is_said_and_does_not_reject_the_calibration() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = common::repo_path("tests/data/falcon_turn.fcap");
+    // 16 counts per deg/s on frames written at 10: the gyro reads 1.6 times
+    // too slow, beyond any gyro about the turn's axis (±3 % sensitivity, or
+    // cos 45° of the rate when tilted).
+    let sensor = format!("{COMPASS}gyro_lsb_per_deg_s = 16.0\n");
+    let (found, log) = calibrations(&capture, &sensor, dir.path());
+    let calibration = &found[0];
+    assert_eq!(calibration["accepted"], true, "{calibration}");
+    assert!(
+        calibration.get("heading_vs_gyro").is_none(),
+        "{calibration}"
+    );
+    let why = calibration["heading_check"].as_str().unwrap();
+    assert!(
+        why.starts_with("no heading check against gyro_z: the heading turns 1.60 times"),
+        "{why}"
+    );
+    assert!(
+        why.contains("is not the axis about which the sensor turned"),
+        "{why}"
+    );
+    assert!(
+        log.contains("calibration accepted; heading not checked: no heading check against gyro_z"),
+        "{log}"
+    );
+
+    // 131 counts per deg/s (an MPU-6050's): the gyro seems not to turn.
+    let sensor = format!("{COMPASS}gyro_lsb_per_deg_s = 131.0\n");
+    let (found, _) = calibrations(&capture, &sensor, dir.path());
+    assert_eq!(found[0]["accepted"], true, "{}", found[0]);
+    let why = found[0]["heading_check"].as_str().unwrap();
+    assert!(
+        why.starts_with(
+            "no heading check against gyro_z: the gyro 'gyro_z' turns through only 27°"
+        ),
+        "{why}"
+    );
+
+    // Turned off in the configuration: said so.
+    let sensor = format!("{COMPASS}gyro = \"none\"\n");
+    let (found, _) = calibrations(&capture, &sensor, dir.path());
+    assert_eq!(
+        found[0]["heading_check"],
+        "no heading check: gyro = \"none\" in the configuration"
+    );
+    assert!(found[0].get("heading_vs_gyro").is_none());
+}
+
+/// A bridge polling an LSM303DLHC magnetometer (stream 0) turning once in
+/// 6 s, and an MPU-6050 (stream 1) 4 ms after it whose gyro z reads the true
+/// rate at 131 counts per deg/s: a capture of two streams on one clock.
+fn bridge_capture(path: &Path, noise: f64) {
+    let sim = SimSensor {
+        field: 500.0,
+        offset_x: 60.0,
+        offset_y: -40.0,
+        gain_x: 1.05,
+        noise,
+        period: 0.03,
+        turn_seconds: 6.0,
+        turns: 1.5,
+        seed: 9,
+        ..Default::default()
+    };
+    let data = sim.simulate().unwrap();
+    let header = CaptureHeader {
+        version: VERSION,
+        streams: vec![
+            StreamInfo {
+                id: 0,
+                kind: StreamKind::Chip {
+                    chip: Chip::Lsm303dlhcMag,
+                    address: Chip::Lsm303dlhcMag.default_address(),
+                },
+            },
+            StreamInfo {
+                id: 1,
+                kind: StreamKind::Chip {
+                    chip: Chip::Mpu6050,
+                    address: Chip::Mpu6050.default_address(),
+                },
+            },
+        ],
+        port: None,
+        baud: None,
+        started_unix: 0.0,
+        nominal_period_s: sim.period,
+        note: Some("test: mag and gyro on one bridge".into()),
+    };
+    let file = std::fs::File::create(path).unwrap();
+    let mut out = CaptureWriter::new(std::io::BufWriter::new(file), &header).unwrap();
+    let rate = (360.0 / sim.turn_seconds * 131.0).round() as i16;
+    let t = data.t.as_ref().unwrap();
+    for i in 0..data.len() {
+        let mag = Reading {
+            mag: Some([data.x[i].round() as i16, data.y[i].round() as i16, 100]),
+            ..Reading::default()
+        };
+        out.write_chunk(t[i], 0, &Chip::Lsm303dlhcMag.encode(&mag))
+            .unwrap();
+        let imu = Reading {
+            accel: Some([0, 0, 16384]),
+            gyro: Some([3, -2, rate]),
+            temp_c: Some(25.0),
+            ..Reading::default()
+        };
+        out.write_chunk(t[i] + 0.004, 1, &Chip::Mpu6050.encode(&imu))
+            .unwrap();
+    }
+    out.flush().unwrap();
+}
+
+#[test]
+fn a_gyro_on_another_chip_of_the_bridge_is_joined_by_time_and_a_chip_without_one_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("bridge.fcap");
+    let noise = 2.0;
+    bridge_capture(&capture, noise);
+    let sensors = "[[sensor]]\nname = \"alone\"\nsource = \"imu\"\nchip = \"lsm303dlhc-mag\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n\
+                   [[sensor]]\nname = \"joined\"\nsource = \"imu\"\nchip = \"lsm303dlhc-mag\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n\
+                   gyro_chip = \"mpu6050\"\ngyro = \"z\"\n";
+    let (found, _) = calibrations(&capture, sensors, dir.path());
+    let alone = found.iter().find(|c| c["sensor"] == "alone").unwrap();
+    assert_eq!(alone["accepted"], true, "{alone}");
+    assert!(alone.get("heading_vs_gyro").is_none(), "{alone}");
+    assert_eq!(
+        alone["heading_check"],
+        "no heading check: lsm303dlhc-mag@0x1e of source 'imu' has no gyro (give gyro_chip for another chip's)"
+    );
+    let joined = found.iter().find(|c| c["sensor"] == "joined").unwrap();
+    assert_eq!(joined["accepted"], true, "{joined}");
+    // Both sensors fitted the same samples.
+    assert_eq!(joined["params"], alone["params"]);
+    let check = &joined["heading_vs_gyro"];
+    assert_eq!(check["gyro_column"], "gyro_z", "{joined}");
+    // All but the first and last sample: the first gyro poll came 4 ms after
+    // the first, and the one after the last had not come when the rotation
+    // completed, so those two lie outside the gyro's time span.
+    assert_eq!(f(&check["n"]), f(&joined["n"]) - 2.0, "{joined}");
+    assert!((f(&check["gyro_scale"]) - 1.0).abs() < 0.01, "{joined}");
+    let expected = noise_heading_deg(noise, joined);
+    let rms = f(&check["rms_deg"]);
+    assert!(
+        (0.8 * expected..1.25 * expected).contains(&rms),
+        "heading rms {rms}°, the noise makes {expected}°: {joined}"
+    );
+}
