@@ -265,3 +265,153 @@ fn a_gyro_on_another_chip_of_the_bridge_is_joined_by_time_and_a_chip_without_one
         "heading rms {rms}°, the noise makes {expected}°: {joined}"
     );
 }
+
+/// Rows of a CSV of numbers, after its header.
+fn rows(path: &Path) -> Vec<Vec<f64>> {
+    std::fs::read_to_string(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.trim().parse().unwrap()).collect())
+        .collect()
+}
+
+#[test]
+fn a_real_hand_turn_is_checked_against_the_boards_mpu6050() {
+    use fieldcal::daemon::Terms;
+    use fieldcal::daemon::apply;
+    use fieldcal::model::fit::{FitOptions, fit_paper};
+    use fieldcal::model::gyro::{GyroUnits, HeadingReference};
+
+    // sunsided set 1, the turns about z: the HMC5883L's x and z turn (in
+    // gauss = counts / 1090), the MPU-6050's gyro z reads the turn (deg/s),
+    // on one clock. Put back into counts on a bridge capture: the
+    // magnetometer as stream 0 (an LSM303DLHC's registers carry the same
+    // 12-bit counts), the MPU-6050 as stream 1 at its 131 counts per deg/s.
+    let run = common::shared_path("data/real/sunsided-set-1/rotate-360ccw-around-z-pointing-up");
+    let mag = rows(&run.join("hmc5883l_mag.csv"));
+    let imu = rows(&run.join("mpu6050.csv"));
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("real-z.fcap");
+    let header = CaptureHeader {
+        version: VERSION,
+        streams: vec![
+            StreamInfo {
+                id: 0,
+                kind: StreamKind::Chip {
+                    chip: Chip::Lsm303dlhcMag,
+                    address: Chip::Lsm303dlhcMag.default_address(),
+                },
+            },
+            StreamInfo {
+                id: 1,
+                kind: StreamKind::Chip {
+                    chip: Chip::Mpu6050,
+                    address: Chip::Mpu6050.default_address(),
+                },
+            },
+        ],
+        port: None,
+        baud: None,
+        started_unix: 0.0,
+        nominal_period_s: 0.01,
+        note: Some("sunsided set 1, z run".into()),
+    };
+    let counts = |v: f64, per_unit: f64| (v * per_unit).round() as i16;
+    let mut records: Vec<(f64, u8, Vec<u8>)> = Vec::new();
+    for r in &mag {
+        let reading = Reading {
+            mag: Some([
+                counts(r[1], 1090.0),
+                counts(r[2], 1090.0),
+                counts(r[3], 1090.0),
+            ]),
+            ..Reading::default()
+        };
+        records.push((r[0], 0, Chip::Lsm303dlhcMag.encode(&reading)));
+    }
+    for r in &imu {
+        let reading = Reading {
+            accel: Some([
+                counts(r[1], 16384.0),
+                counts(r[2], 16384.0),
+                counts(r[3], 16384.0),
+            ]),
+            gyro: Some([
+                counts(r[4], 131.0),
+                counts(r[5], 131.0),
+                counts(r[6], 131.0),
+            ]),
+            temp_c: Some(r[7]),
+            ..Reading::default()
+        };
+        records.push((r[0], 1, Chip::Mpu6050.encode(&reading)));
+    }
+    records.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let file = std::fs::File::create(&capture).unwrap();
+    let mut out = CaptureWriter::new(std::io::BufWriter::new(file), &header).unwrap();
+    for (t, stream, bytes) in &records {
+        out.write_chunk(*t, *stream, bytes).unwrap();
+    }
+    out.flush().unwrap();
+    drop(out);
+
+    let sensors = "[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nchip = \"lsm303dlhc-mag\"\nfield = \"mag\"\naxes = [\"x\", \"z\"]\n\
+                   gyro_chip = \"mpu6050\"\ngyro = \"z\"\n";
+    let (found, _) = calibrations(&capture, sensors, dir.path());
+    let calibration = &found[0];
+    let check = &calibration["heading_vs_gyro"];
+    assert_eq!(check["gyro_column"], "gyro_z", "{calibration}");
+
+    // The same check made offline on the rotation the daemon fitted (its
+    // first n magnetometer samples, in counts), with the gyro's readings
+    // that had come when the rotation completed (those before its last
+    // sample): the daemon reports exactly what the model's functions give.
+    let n = calibration["n"].as_u64().unwrap() as usize;
+    let t: Vec<f64> = mag[..n].iter().map(|r| r[0]).collect();
+    let x: Vec<f64> = mag[..n]
+        .iter()
+        .map(|r| f64::from(counts(r[1], 1090.0)))
+        .collect();
+    let z: Vec<f64> = mag[..n]
+        .iter()
+        .map(|r| f64::from(counts(r[3], 1090.0)))
+        .collect();
+    let fit = fit_paper(&x, &z, &FitOptions::default(), &mut |_| {}).unwrap();
+    let headings: Vec<f64> = x
+        .iter()
+        .zip(&z)
+        .map(|(&x, &z)| {
+            let (cx, cz) = apply(&fit.calibration, &Terms::default(), x, z);
+            cz.atan2(cx)
+        })
+        .collect();
+    let last = t[n - 1];
+    let joined: Vec<&Vec<f64>> = {
+        let after = imu.iter().position(|r| r[0] >= last).unwrap();
+        imu[..after].iter().collect()
+    };
+    let gyro_t: Vec<f64> = joined.iter().map(|r| r[0]).collect();
+    let rate: Vec<f64> = joined
+        .iter()
+        .map(|r| f64::from(counts(r[6], 131.0)) / 131.0)
+        .collect();
+    let offline =
+        HeadingReference::from_rates("gyro_z", &t, &gyro_t, &rate, GyroUnits::DegPerSecond)
+            .unwrap()
+            .check(&headings, &[])
+            .unwrap();
+    assert_eq!(f(&check["n"]), offline.n as f64, "{calibration}");
+    for (key, value) in [
+        ("rms_deg", offline.rms_deg),
+        ("peak_to_peak_deg", offline.peak_to_peak_deg),
+        ("gyro_scale", offline.gyro_scale),
+        ("gyro_bias_deg_s", offline.gyro_bias_deg_s),
+    ] {
+        assert!(
+            (f(&check[key]) - value).abs() <= 1e-9 * value.abs().max(1.0),
+            "{key}: daemon {} offline {value}",
+            check[key]
+        );
+    }
+}

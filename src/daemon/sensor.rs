@@ -507,3 +507,64 @@ impl Sensor {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn falcon_sensor(extra: &str) -> Sensor {
+        let text = format!(
+            "[[source]]\nname = \"imu\"\nkind = \"falcon\"\nport = \"/dev/null\"\n\
+             [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n{extra}"
+        );
+        let config = crate::daemon::config::parse(&text, std::path::Path::new("t.toml")).unwrap();
+        Sensor::new(config.sensors[0].clone(), None)
+    }
+
+    fn reading(time: f64, mag: [i16; 2], rate_z: i16) -> Reading {
+        Reading {
+            time,
+            mag: Some([mag[0], mag[1], 0]),
+            gyro: Some([7, -7, rate_z]),
+            ..Reading::default()
+        }
+    }
+
+    #[test]
+    fn the_gyro_track_stays_bounded_and_keeps_the_rate_in_deg_per_s() {
+        let mut sensor = falcon_sensor("[sensor.rotation]\nmax_samples = 200\n");
+        // A sensor that never turns, for far longer than a rotation may take.
+        for i in 0..20_000 {
+            let r = reading(f64::from(i) * 0.05, [100 + (i % 3) as i16, 50], 360);
+            sensor.on_reading(&r, &mut |_, _| {});
+            let track = sensor.gyro.as_ref().unwrap();
+            assert!(track.t.len() <= 400, "{} held at {i}", track.t.len());
+            assert_eq!(track.t.len(), track.rate.len());
+        }
+        let track = sensor.gyro.as_ref().unwrap();
+        // 360 counts at the frame's 10 counts per deg/s, about z.
+        assert!(track.rate.iter().all(|&r| r == 36.0));
+        // A repeated or earlier time is left out; another stream's too.
+        let last = *track.t.last().unwrap();
+        let n = track.t.len();
+        sensor.on_reading(&reading(last, [0, 0], 1), &mut |_, _| {});
+        sensor.on_reading(&reading(last - 1.0, [0, 0], 1), &mut |_, _| {});
+        let other = Reading {
+            stream: 1,
+            ..reading(last + 1.0, [0, 0], 1)
+        };
+        sensor.on_reading(&other, &mut |_, _| {});
+        assert_eq!(sensor.gyro.as_ref().unwrap().t.len(), n);
+        // Recalibrating starts afresh.
+        sensor.recalibrate();
+        assert!(sensor.gyro.as_ref().unwrap().t.is_empty());
+    }
+
+    #[test]
+    fn without_a_gyro_nothing_is_kept() {
+        let sensor = falcon_sensor("gyro = \"none\"\n");
+        assert!(sensor.gyro.is_none());
+        assert!(!sensor.wants(1));
+        assert!(sensor.wants(0));
+    }
+}
