@@ -211,12 +211,12 @@ fn bridge_capture(path: &Path, noise: f64) {
     let mut out = CaptureWriter::new(std::io::BufWriter::new(file), &header).unwrap();
     let rate = (360.0 / sim.turn_seconds * 131.0).round() as i16;
     let t = data.t.as_ref().unwrap();
-    for i in 0..data.len() {
+    for ((&time, &x), &y) in t.iter().zip(&data.x).zip(&data.y) {
         let mag = Reading {
-            mag: Some([data.x[i].round() as i16, data.y[i].round() as i16, 100]),
+            mag: Some([x.round() as i16, y.round() as i16, 100]),
             ..Reading::default()
         };
-        out.write_chunk(t[i], 0, &Chip::Lsm303dlhcMag.encode(&mag))
+        out.write_chunk(time, 0, &Chip::Lsm303dlhcMag.encode(&mag))
             .unwrap();
         let imu = Reading {
             accel: Some([0, 0, 16384]),
@@ -224,7 +224,7 @@ fn bridge_capture(path: &Path, noise: f64) {
             temp_c: Some(25.0),
             ..Reading::default()
         };
-        out.write_chunk(t[i] + 0.004, 1, &Chip::Mpu6050.encode(&imu))
+        out.write_chunk(time + 0.004, 1, &Chip::Mpu6050.encode(&imu))
             .unwrap();
     }
     out.flush().unwrap();
