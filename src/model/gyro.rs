@@ -284,14 +284,14 @@ impl HeadingReference {
         }
         let mut skip_iter = skip.iter().copied().peekable();
         let mut idx = Vec::with_capacity(n_all);
-        for i in 0..n_all {
+        for (i, (angle, heading)) in self.angle_deg.iter().zip(headings_rad).enumerate() {
             while skip_iter.peek().is_some_and(|&s| s < i) {
                 skip_iter.next();
             }
             if skip_iter.peek() == Some(&i) {
                 continue;
             }
-            if self.angle_deg[i].is_finite() && headings_rad[i].is_finite() {
+            if angle.is_finite() && heading.is_finite() {
                 idx.push(i);
             }
         }

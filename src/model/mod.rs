@@ -11,7 +11,9 @@
 //!   Levenberg-Marquardt.
 //! - [`residuals`]: what a fit's residual still holds, and its noise floor.
 //! - [`diagnose`]: which effect the data supports, step by step.
+//! - [`check`]: whether a stored calibration holds on another recording.
 
+pub mod check;
 pub mod diagnose;
 pub mod effects;
 pub mod fit;
@@ -97,6 +99,10 @@ pub enum FitError {
         "the readings do not determine the parameter '{parameter}' (its column is constant or a combination of others); drop the effect that adds it"
     )]
     Undetermined { parameter: String },
+    #[error(
+        "the stored calibration has no finite value of '{parameter}', which its model needs: the file is incomplete; store it again with `fieldcal fit --json`"
+    )]
+    MissingParameter { parameter: String },
     #[error(
         "the fit reached a non-finite value of '{parameter}': the model does not suit these readings"
     )]

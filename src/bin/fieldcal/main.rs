@@ -13,7 +13,11 @@ mod simulate;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use anyhow::Context as _;
 use clap::{Args, Parser, Subcommand, ValueEnum};
+
+use fieldcal::model::gyro::{GyroUnits, HeadingReference};
+use fieldcal::sample::Dataset;
 
 use fieldcal::model::fit::{DEFAULT_MIN_COVERAGE_DEG, Solver};
 use fieldcal::model::paper::PAPER_LEARNING_RATE;
@@ -124,6 +128,12 @@ struct CsvInput {
     /// Column holding time in seconds [default: the first of t, t_s, time, time_s]
     #[arg(long, value_name = "COL")]
     t: Option<String>,
+    /// A gyroscope axis about the turn's axis, as a heading reference: COLUMN of this CSV, or FILE:COLUMN of a second CSV on the same clock (joined by that file's time column t, t_s, time or time_s).
+    #[arg(long, value_name = "[FILE:]COLUMN")]
+    gyro: Option<String>,
+    /// Units of the --gyro column.
+    #[arg(long, value_enum, value_name = "UNITS", default_value_t = GyroUnits::DegPerSecond)]
+    gyro_units: GyroUnits,
 }
 
 impl CsvInput {
@@ -134,6 +144,65 @@ impl CsvInput {
             t: self.t.clone(),
         };
         Ok(fieldcal::io::csv::read_dataset(&self.file, &spec)?)
+    }
+
+    /// The recording, and the gyro's heading reference when --gyro names
+    /// one. A gyro column of the recording itself is not a covariate: it is
+    /// taken out of the dataset's covariates.
+    fn read_with_reference(&self) -> anyhow::Result<(Dataset, Option<HeadingReference>)> {
+        let mut data = self.read()?;
+        let Some(gyro) = &self.gyro else {
+            return Ok((data, None));
+        };
+        // FILE:COLUMN splits at the last ':' (a path may hold one).
+        let (file, column) = match gyro.rsplit_once(':') {
+            Some((file, column)) => (Some(PathBuf::from(file)), column),
+            None => (None, gyro.as_str()),
+        };
+        if column.is_empty() || file.as_ref().is_some_and(|f| f.as_os_str().is_empty()) {
+            anyhow::bail!(
+                "--gyro '{gyro}': give a column of the recording (--gyro gyro_z) or a file and its column (--gyro imu.csv:gyro_z)"
+            );
+        }
+        let main = self.file.display();
+        let Some(sample_t) = data.t.clone() else {
+            anyhow::bail!(
+                "{main}: the recording has no time column (t, t_s, time or time_s, or choose one with --t), and the gyro '{column}' is integrated over time"
+            );
+        };
+        let reference = match &file {
+            None => {
+                let Some(k) = data.covariates.iter().position(|c| c.name == column) else {
+                    let mut names = vec![data.x_name.clone(), data.y_name.clone()];
+                    names.extend(data.covariates.iter().map(|c| c.name.clone()));
+                    anyhow::bail!(
+                        "{main}: no gyro column '{column}' among the numeric columns other than the axes and time ({}); name it with --gyro COLUMN, or --gyro FILE:COLUMN for a second file",
+                        names.join(", ")
+                    );
+                };
+                let rate = data.covariates.remove(k).values;
+                HeadingReference::from_rates(column, &sample_t, &sample_t, &rate, self.gyro_units)
+                    .with_context(|| format!("{main}: gyro '{column}'"))?
+            }
+            Some(file) => {
+                let series = fieldcal::io::csv::read_series(file, column, "the gyro", "--gyro")?;
+                HeadingReference::from_rates(
+                    column,
+                    &sample_t,
+                    &series.t,
+                    &series.values,
+                    self.gyro_units,
+                )
+                .with_context(|| {
+                    format!(
+                        "{}: gyro '{column}' against {main} (joined by time: '{}' there)",
+                        file.display(),
+                        series.time_name
+                    )
+                })?
+            }
+        };
+        Ok((data, Some(reference)))
     }
 }
 
