@@ -41,6 +41,7 @@ fn hidden(effect: &Effect, size: f64, noise: f64, run_s: f64) -> SimEffects {
         // A 2 A motor moves it by 10 or 20 SDs.
         Effect::Covariate(_) => e.current_per_a = Some([5.0 * size * noise, 2.5 * size * noise]),
         Effect::Cubic => e.cubic = [0.015 * size, 0.01 * size],
+        Effect::CubicCentred => e.cubic_centred = [0.015 * size, 0.01 * size],
         // 2 % or 4 % of the samples spiked.
         Effect::Outliers => e.outliers = 0.02 * size,
         Effect::Offset | Effect::Scale => {}
@@ -56,6 +57,7 @@ fn each_hidden_effect_is_suggested_first_and_the_ladder_reaches_the_noise() {
         Effect::Covariate("temp".into()),
         Effect::Covariate("current".into()),
         Effect::Cubic,
+        Effect::CubicCentred,
         Effect::Outliers,
     ];
     let mut failures = Vec::new();

@@ -48,8 +48,12 @@ pub struct Calibration {
     pub terms: Terms,
 }
 
-/// The live-correctable effects' terms: cross-axis coupling `c`, and the
-/// odd cubic per axis `k` relative to the full scale `cubic_scale`.
+/// The live-correctable effects' terms: cross-axis coupling `c`, the odd
+/// cubic per axis `k` relative to the full scale `cubic_scale`, and the odd
+/// cubic about the turn's centre `kc` relative to the turn's radius per
+/// axis `turn_radius` (raw units, as `centre`). The centred terms are left
+/// out of the JSON when absent, and default to absent, so state files
+/// written before them still load and read the same.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct Terms {
     #[serde(default)]
@@ -58,6 +62,16 @@ pub struct Terms {
     pub k: [f64; 2],
     #[serde(default)]
     pub cubic_scale: f64,
+    #[serde(default, skip_serializing_if = "is_zero_pair")]
+    pub kc: [f64; 2],
+    #[serde(default, skip_serializing_if = "is_zero_pair")]
+    pub centre: [f64; 2],
+    #[serde(default, skip_serializing_if = "is_zero_pair")]
+    pub turn_radius: [f64; 2],
+}
+
+fn is_zero_pair(pair: &[f64; 2]) -> bool {
+    *pair == [0.0; 2]
 }
 
 impl Terms {
@@ -67,16 +81,22 @@ impl Terms {
 }
 
 impl Calibration {
-    /// The corrected reading of a raw sample: the cubic terms removed, then
-    /// the paper's gains and offsets with the cross-axis coupling.
+    /// The corrected reading of a raw sample: the cubic terms removed (about
+    /// the sensor's zero and about the turn's centre), then the paper's
+    /// gains and offsets with the cross-axis coupling.
     pub fn apply(&self, x: f64, y: f64) -> (f64, f64) {
         let t = &self.terms;
-        let (x2, y2) = if t.cubic_scale > 0.0 {
+        let (mut x2, mut y2) = if t.cubic_scale > 0.0 {
             let s2 = t.cubic_scale * t.cubic_scale;
             (x + t.k[0] * x * x * x / s2, y + t.k[1] * y * y * y / s2)
         } else {
             (x, y)
         };
+        if t.turn_radius.iter().all(|s| *s > 0.0) {
+            let (vx, vy) = (x - t.centre[0], y - t.centre[1]);
+            x2 += t.kc[0] * vx * vx * vx / (t.turn_radius[0] * t.turn_radius[0]);
+            y2 += t.kc[1] * vy * vy * vy / (t.turn_radius[1] * t.turn_radius[1]);
+        }
         let p = &self.params;
         (p.a * x2 + p.b + t.c * (y2 + p.d), y2 + p.d)
     }
