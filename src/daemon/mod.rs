@@ -101,3 +101,48 @@ impl Calibration {
         (p.a * x2 + p.b + t.c * (y2 + p.d), y2 + p.d)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A state file written before the centred cubic (terms c, k and
+    /// cubic_scale only) loads with no centred term and corrects as before;
+    /// one with the centred term corrects with it, and a calibration
+    /// without it writes none of its fields.
+    #[test]
+    fn terms_without_the_centred_cubic_still_load() {
+        let old = r#"{"sensor":"s","id":3,"model":"offset+scale+cubic","params":{"a":1.0,"b":-10.0,"d":5.0,"r":100.0},
+            "rms":0.01,"coverage_deg":360.0,"n":200,"time":1.0,"terms":{"c":0.0,"k":[0.02,0.01],"cubic_scale":200.0}}"#;
+        let cal: Calibration = serde_json::from_str(old).unwrap();
+        assert_eq!(cal.terms.kc, [0.0; 2]);
+        assert_eq!(cal.terms.turn_radius, [0.0; 2]);
+        let (x, y) = (150.0, -40.0);
+        let x2 = x + 0.02 * x * x * x / 200.0f64.powi(2);
+        let y2 = y + 0.01 * y * y * y / 200.0f64.powi(2);
+        assert_eq!(cal.apply(x, y), (x2 - 10.0, y2 + 5.0));
+        let json = serde_json::to_string(&cal).unwrap();
+        assert!(!json.contains("kc") && !json.contains("centre"), "{json}");
+
+        let centred = Calibration {
+            model: "offset+scale+cubic-centred".into(),
+            terms: Terms {
+                kc: [0.04, -0.03],
+                centre: [10.0, -5.0],
+                turn_radius: [90.0, 100.0],
+                ..Terms::default()
+            },
+            ..cal
+        };
+        let back: Calibration =
+            serde_json::from_str(&serde_json::to_string(&centred).unwrap()).unwrap();
+        assert_eq!(back, centred);
+        let (vx, vy) = (x - 10.0, y + 5.0);
+        let want = (
+            x + 0.04 * vx * vx * vx / 8100.0 - 10.0,
+            y - 0.03 * vy * vy * vy / 10_000.0 + 5.0,
+        );
+        let got = centred.apply(x, y);
+        assert!((got.0 - want.0).abs() < 1e-12 && (got.1 - want.1).abs() < 1e-12);
+    }
+}
