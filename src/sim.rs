@@ -63,6 +63,10 @@ pub struct SimEffects {
     /// Odd non-linearity per axis, [x, y]: the reading falls short of the
     /// linear one by this fraction at full scale (the largest static reading).
     pub cubic: [f64; 2],
+    /// Odd non-linearity per axis about the turn's centre, [x, y]: the
+    /// reading falls short by that fraction at the turn's amplitude, about
+    /// the turn's centre (a proof mass about its zero-g point).
+    pub cubic_centred: [f64; 2],
     /// Fraction of samples hit by a spike of 20 to 50 noise SDs.
     pub outliers: f64,
 }
@@ -76,6 +80,7 @@ impl Default for SimEffects {
             temp_rise: 10.0,
             current_per_a: None,
             cubic: [0.0; 2],
+            cubic_centred: [0.0; 2],
             outliers: 0.0,
         }
     }
@@ -85,8 +90,9 @@ impl Default for SimEffects {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SimTruth {
     /// Every parameter of the full model, by name (a, b, d, r, c, drift_x,
-    /// drift_y, temp_x, temp_y, current_x, current_y, k_x, k_y), in the
-    /// fit's units: k in terms of the data's own full scale.
+    /// drift_y, temp_x, temp_y, current_x, current_y, k_x, k_y, kc_x, kc_y),
+    /// in the fit's units: k in terms of the data's own full scale, kc in
+    /// terms of the turn's radius the fit takes from the closed form.
     pub params: std::collections::BTreeMap<String, f64>,
     /// Indices of the samples hit by spikes, ascending.
     pub outliers: Vec<usize>,
@@ -105,17 +111,42 @@ fn temperature(time: f64, duration: f64, rise: f64) -> f64 {
     }
 }
 
-/// Solves `raw + k*raw^3/fs^2 = linear` for raw by Newton's method (the
-/// model's cubic correction inverted, so the model can undo it exactly).
-fn compress(linear: f64, k: f64, fs: f64) -> f64 {
-    if k == 0.0 || fs <= 0.0 {
+/// An odd cubic `k*(raw - centre)^3/scale^2` of the model.
+#[derive(Clone, Copy)]
+struct CubicTerm {
+    k: f64,
+    centre: f64,
+    scale: f64,
+}
+
+impl CubicTerm {
+    /// k/scale², 0 when the term is absent.
+    fn q(&self) -> f64 {
+        if self.scale > 0.0 {
+            self.k / (self.scale * self.scale)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Solves `raw + Σ k*(raw - centre)^3/scale^2 = linear` for raw by Newton's
+/// method (the model's cubic corrections inverted, so the model can undo
+/// them exactly).
+fn compress(linear: f64, terms: [CubicTerm; 2]) -> f64 {
+    let q = terms.map(|t| t.q());
+    if q.iter().all(|q| *q == 0.0) {
         return linear;
     }
-    let q = k / (fs * fs);
     let mut raw = linear;
     for _ in 0..50 {
-        let f = raw + q * raw * raw * raw - linear;
-        let slope = 1.0 + 3.0 * q * raw * raw;
+        let mut f = raw - linear;
+        let mut slope = 1.0;
+        for (term, q) in terms.iter().zip(q) {
+            let u = raw - term.centre;
+            f += q * u * u * u;
+            slope += 3.0 * q * u * u;
+        }
         if slope <= 0.0 {
             break;
         }
@@ -220,7 +251,7 @@ impl SimSensor {
             }
         }
         let e = &self.effects;
-        let effect_checks: [(&'static str, f64, &'static str, bool); 5] = [
+        let effect_checks: [(&'static str, f64, &'static str, bool); 6] = [
             (
                 "effect cross-axis",
                 e.cross_axis_deg,
@@ -232,6 +263,12 @@ impl SimSensor {
                 e.cubic[0].abs().max(e.cubic[1].abs()),
                 "a fraction between -0.25 and 0.25",
                 e.cubic.iter().all(|k| k.abs() <= 0.25),
+            ),
+            (
+                "effect cubic-centred",
+                e.cubic_centred[0].abs().max(e.cubic_centred[1].abs()),
+                "a fraction between -0.25 and 0.25",
+                e.cubic_centred.iter().all(|k| k.abs() <= 0.25),
             ),
             (
                 "effect outliers",
@@ -371,15 +408,37 @@ impl SimSensor {
         for (i, &time) in t.iter().enumerate() {
             let heading = start + rate * time;
             let (moving_x, moving_y) = moving(i);
+            let centre_x = self.offset_x + mean_x;
+            let centre_y = self.offset_y + mean_y;
             let static_x = compress(
-                self.gain_x * self.field * heading.cos() + self.offset_x + mean_x,
-                e.cubic[0],
-                full_scale,
+                self.gain_x * self.field * heading.cos() + centre_x,
+                [
+                    CubicTerm {
+                        k: e.cubic[0],
+                        centre: 0.0,
+                        scale: full_scale,
+                    },
+                    CubicTerm {
+                        k: e.cubic_centred[0],
+                        centre: centre_x,
+                        scale: self.gain_x * self.field,
+                    },
+                ],
             );
             let static_y = compress(
-                self.gain_y * self.field * (heading + tilt).sin() + self.offset_y + mean_y,
-                e.cubic[1],
-                full_scale,
+                self.gain_y * self.field * (heading + tilt).sin() + centre_y,
+                [
+                    CubicTerm {
+                        k: e.cubic[1],
+                        centre: 0.0,
+                        scale: full_scale,
+                    },
+                    CubicTerm {
+                        k: e.cubic_centred[1],
+                        centre: centre_y,
+                        scale: self.gain_y * self.field,
+                    },
+                ],
             );
             let mut xi = static_x + (moving_x - mean_x) + noise.sample(&mut rng);
             let mut yi = static_y + (moving_y - mean_y) + noise.sample(&mut rng);
@@ -448,6 +507,15 @@ impl SimSensor {
         let a = self.gain_y / (self.gain_x * tilt.cos());
         // The model's cubic is scaled by the data's own largest reading.
         let scale_ratio = (crate::model::nonlinear::cubic_scale(data) / full_scale).powi(2);
+        // The centred cubic is scaled by the turn's radius per axis as the
+        // fit finds it (the closed form's), against the true amplitudes.
+        let radius_ratio = match crate::model::nonlinear::turn_frame(data) {
+            Ok(frame) => [
+                (frame.radius[0] / (self.gain_x * self.field)).powi(2),
+                (frame.radius[1] / (self.gain_y * self.field)).powi(2),
+            ],
+            Err(_) => [1.0; 2],
+        };
         let params = [
             ("a", a),
             ("b", -a * offset_x),
@@ -462,6 +530,8 @@ impl SimSensor {
             ("current_y", cy),
             ("k_x", e.cubic[0] * scale_ratio),
             ("k_y", e.cubic[1] * scale_ratio),
+            ("kc_x", e.cubic_centred[0] * radius_ratio[0]),
+            ("kc_y", e.cubic_centred[1] * radius_ratio[1]),
         ]
         .into_iter()
         .map(|(name, value)| (name.to_string(), value + 0.0))

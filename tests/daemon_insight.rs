@@ -73,3 +73,96 @@ fn calibration_suggests_the_missing_effect_and_the_configuration_adds_it() {
     let c = added["terms"]["c"].as_f64().unwrap();
     assert!((c + 3f64.to_radians().tan()).abs() < 0.003, "c {c}");
 }
+
+/// A sensor whose non-linearity is about the turn's centre (an accelerometer
+/// about its zero-g point): the daemon configured with `cubic-centred`
+/// stores the term with its centre and radius, and corrects live readings
+/// with it onto the circle to within the noise, where the paper's model
+/// leaves the cubic's error.
+#[test]
+fn the_daemon_corrects_a_non_linearity_about_the_turns_centre() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("cc.fcap");
+    let capture = capture.to_str().unwrap();
+    run_ok(&[
+        "simulate",
+        "--format",
+        "falcon",
+        "--effect",
+        "cubic-centred=0.04,0.03",
+        "--turns",
+        "3",
+        "--noise",
+        "2",
+        "--offset-x",
+        "1500",
+        "--offset-y",
+        "-1200",
+        "-o",
+        capture,
+    ]);
+    // The corrected readings after the calibration, as |s|/r - 1.
+    let errors = |model: &str| -> (Value, Vec<f64>) {
+        let config = dir.path().join(format!("{}.toml", model.len()));
+        std::fs::write(
+            &config,
+            format!(
+                "[outputs]\nstdout = true\n[[source]]\nname = \"imu\"\nkind = \"replay\"\nfile = \"{capture}\"\n\
+                 [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\nmodel = {model}\n"
+            ),
+        )
+        .unwrap();
+        let out = run_ok(&[
+            "replay",
+            capture,
+            "--config",
+            config.to_str().unwrap(),
+            "--speed",
+            "max",
+        ]);
+        let lines: Vec<Value> = out
+            .lines()
+            .map(|l| serde_json::from_str::<Value>(l).unwrap())
+            .collect();
+        let cal = lines
+            .iter()
+            .find(|v| v["class"] == "CALIBRATION")
+            .expect("a CALIBRATION")
+            .clone();
+        let r = cal["params"]["r"].as_f64().unwrap();
+        let errors = lines
+            .iter()
+            .filter(|v| v["class"] == "READING" && v["calibrated"] == true)
+            .map(|v| {
+                let s = &v["corrected"];
+                s[0].as_f64().unwrap().hypot(s[1].as_f64().unwrap()) / r - 1.0
+            })
+            .collect();
+        (cal, errors)
+    };
+    let rms = |e: &[f64]| (e.iter().map(|e| e * e).sum::<f64>() / e.len() as f64).sqrt();
+    let (cal, centred) = errors("[\"paper\", \"cubic-centred\"]");
+    assert_eq!(cal["accepted"], true, "{cal}");
+    assert_eq!(cal["model"], "offset+scale+cubic-centred");
+    let terms = &cal["terms"];
+    let centre = [
+        terms["centre"][0].as_f64().unwrap(),
+        terms["centre"][1].as_f64().unwrap(),
+    ];
+    assert!(
+        (centre[0] - 1500.0).abs() < 5.0 && (centre[1] + 1200.0).abs() < 5.0,
+        "{terms}"
+    );
+    let kc = terms["kc"][0].as_f64().unwrap();
+    assert!((kc - 0.04).abs() < 0.02, "{terms}");
+    assert!(centred.len() > 300, "{} corrected readings", centred.len());
+    let (_, paper) = errors("\"paper\"");
+    // Noise of 2 counts on a field of 1000, in the radial direction.
+    assert!(rms(&centred) < 0.0025, "with the term: {}", rms(&centred));
+    assert!(
+        rms(&paper) > 2.0 * rms(&centred),
+        "paper {} vs {}",
+        rms(&paper),
+        rms(&centred)
+    );
+}

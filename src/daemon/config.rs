@@ -114,11 +114,12 @@ const NAME_MAX: usize = 64;
 /// The effects the daemon can fit and apply to live readings: those that
 /// depend on the reading alone (drift needs the time base and covariates a
 /// logged column at correction time).
-const LIVE_EFFECTS: [Effect; 5] = [
+const LIVE_EFFECTS: [Effect; 6] = [
     Effect::Offset,
     Effect::Scale,
     Effect::CrossAxis,
     Effect::Cubic,
+    Effect::CubicCentred,
     Effect::Outliers,
 ];
 

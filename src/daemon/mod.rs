@@ -48,8 +48,12 @@ pub struct Calibration {
     pub terms: Terms,
 }
 
-/// The live-correctable effects' terms: cross-axis coupling `c`, and the
-/// odd cubic per axis `k` relative to the full scale `cubic_scale`.
+/// The live-correctable effects' terms: cross-axis coupling `c`, the odd
+/// cubic per axis `k` relative to the full scale `cubic_scale`, and the odd
+/// cubic about the turn's centre `kc` relative to the turn's radius per
+/// axis `turn_radius` (raw units, as `centre`). The centred terms are left
+/// out of the JSON when absent, and default to absent, so state files
+/// written before them still load and read the same.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct Terms {
     #[serde(default)]
@@ -58,6 +62,16 @@ pub struct Terms {
     pub k: [f64; 2],
     #[serde(default)]
     pub cubic_scale: f64,
+    #[serde(default, skip_serializing_if = "is_zero_pair")]
+    pub kc: [f64; 2],
+    #[serde(default, skip_serializing_if = "is_zero_pair")]
+    pub centre: [f64; 2],
+    #[serde(default, skip_serializing_if = "is_zero_pair")]
+    pub turn_radius: [f64; 2],
+}
+
+fn is_zero_pair(pair: &[f64; 2]) -> bool {
+    *pair == [0.0; 2]
 }
 
 impl Terms {
@@ -67,8 +81,9 @@ impl Terms {
 }
 
 impl Calibration {
-    /// The corrected reading of a raw sample: the cubic terms removed, then
-    /// the paper's gains and offsets with the cross-axis coupling.
+    /// The corrected reading of a raw sample: the cubic terms removed (about
+    /// the sensor's zero and about the turn's centre), then the paper's
+    /// gains and offsets with the cross-axis coupling.
     pub fn apply(&self, x: f64, y: f64) -> (f64, f64) {
         apply(&self.params, &self.terms, x, y)
     }
@@ -77,11 +92,61 @@ impl Calibration {
 /// The corrected reading of a raw sample under a model's parameters and
 /// terms (see [`Calibration::apply`]); also for fits not (yet) accepted.
 pub fn apply(p: &PaperCalibration, t: &Terms, x: f64, y: f64) -> (f64, f64) {
-    let (x2, y2) = if t.cubic_scale > 0.0 {
+    let (mut x2, mut y2) = if t.cubic_scale > 0.0 {
         let s2 = t.cubic_scale * t.cubic_scale;
         (x + t.k[0] * x * x * x / s2, y + t.k[1] * y * y * y / s2)
     } else {
         (x, y)
     };
+    if t.turn_radius.iter().all(|s| *s > 0.0) {
+        let (vx, vy) = (x - t.centre[0], y - t.centre[1]);
+        x2 += t.kc[0] * vx * vx * vx / (t.turn_radius[0] * t.turn_radius[0]);
+        y2 += t.kc[1] * vy * vy * vy / (t.turn_radius[1] * t.turn_radius[1]);
+    }
     (p.a * x2 + p.b + t.c * (y2 + p.d), y2 + p.d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A state file written before the centred cubic (terms c, k and
+    /// cubic_scale only) loads with no centred term and corrects as before;
+    /// one with the centred term corrects with it, and a calibration
+    /// without it writes none of its fields.
+    #[test]
+    fn terms_without_the_centred_cubic_still_load() {
+        let old = r#"{"sensor":"s","id":3,"model":"offset+scale+cubic","params":{"a":1.0,"b":-10.0,"d":5.0,"r":100.0},
+            "rms":0.01,"coverage_deg":360.0,"n":200,"time":1.0,"terms":{"c":0.0,"k":[0.02,0.01],"cubic_scale":200.0}}"#;
+        let cal: Calibration = serde_json::from_str(old).unwrap();
+        assert_eq!(cal.terms.kc, [0.0; 2]);
+        assert_eq!(cal.terms.turn_radius, [0.0; 2]);
+        let (x, y) = (150.0, -40.0);
+        let x2 = x + 0.02 * x * x * x / 200.0f64.powi(2);
+        let y2 = y + 0.01 * y * y * y / 200.0f64.powi(2);
+        assert_eq!(cal.apply(x, y), (x2 - 10.0, y2 + 5.0));
+        let json = serde_json::to_string(&cal).unwrap();
+        assert!(!json.contains("kc") && !json.contains("centre"), "{json}");
+
+        let centred = Calibration {
+            model: "offset+scale+cubic-centred".into(),
+            terms: Terms {
+                kc: [0.04, -0.03],
+                centre: [10.0, -5.0],
+                turn_radius: [90.0, 100.0],
+                ..Terms::default()
+            },
+            ..cal
+        };
+        let back: Calibration =
+            serde_json::from_str(&serde_json::to_string(&centred).unwrap()).unwrap();
+        assert_eq!(back, centred);
+        let (vx, vy) = (x - 10.0, y + 5.0);
+        let want = (
+            x + 0.04 * vx * vx * vx / 8100.0 - 10.0,
+            y - 0.03 * vy * vy * vy / 10_000.0 + 5.0,
+        );
+        let got = centred.apply(x, y);
+        assert!((got.0 - want.0).abs() < 1e-12 && (got.1 - want.1).abs() < 1e-12);
+    }
 }

@@ -18,7 +18,7 @@ use crate::model::effects::{Effect, parse_list};
 use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper};
 use crate::model::gyro::{GyroUnits, HeadingReference};
 use crate::model::heading::coverage;
-use crate::model::nonlinear::{cubic_scale, fit_model};
+use crate::model::nonlinear::{cubic_scale, fit_model, turn_frame};
 use crate::sample::Dataset;
 use crate::sample::Reading;
 
@@ -426,6 +426,20 @@ impl Sensor {
             } else {
                 0.0
             },
+            ..Terms::default()
+        };
+        let terms = if self.effects.contains(&Effect::CubicCentred) {
+            // The frame the fit held fixed; the fit above succeeded, so the
+            // same starting point does.
+            let frame = turn_frame(&rotation).map_err(|e| (e.to_string(), n))?;
+            Terms {
+                kc: [fit.value("kc_x"), fit.value("kc_y")],
+                centre: frame.centre,
+                turn_radius: frame.radius,
+                ..terms
+            }
+        } else {
+            terms
         };
         let report = FitReport {
             solver: Solver::Lsq,

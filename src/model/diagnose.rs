@@ -225,6 +225,11 @@ fn evidence_base(effect: &Effect, res: &Residuals, data: &Dataset) -> String {
             percent(harmonic(res, 4)),
             percent(harmonic(res, 2))
         ),
+        Effect::CubicCentred => format!(
+            "the residual's 2nd and 4th harmonics of heading ({} and {} of the field), about the turn's centre, are the signature of an odd cubic non-linearity centred on the turn",
+            percent(harmonic(res, 2)),
+            percent(harmonic(res, 4))
+        ),
         Effect::Drift => match (res.time_trend, res.time_structure) {
             (Some(slope), _) => format!(
                 "the residual trends by {} of the field per minute",

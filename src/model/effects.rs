@@ -19,8 +19,13 @@ pub enum Effect {
     Drift,
     /// Offset linear in a logged quantity (temperature, motor current...).
     Covariate(String),
-    /// Amplifier or sensor non-linearity near its range: odd cubic term per axis.
+    /// Amplifier or sensor non-linearity near its range: odd cubic term per
+    /// axis, about the sensor's zero.
     Cubic,
+    /// Non-linearity about the centre of the turn (an accelerometer's proof
+    /// mass about its zero-g point, an amplifier centred on the operating
+    /// point): odd cubic term per axis about the turn's centre.
+    CubicCentred,
     /// Spikes, bumps, bad frames: a robust fit, with the points flagged.
     Outliers,
 }
@@ -30,10 +35,11 @@ pub const PAPER: [Effect; 2] = [Effect::Offset, Effect::Scale];
 
 /// Effects that can be added to the paper's model, but for covariates,
 /// which come from the recording's columns.
-pub const OPTIONAL: [Effect; 4] = [
+pub const OPTIONAL: [Effect; 5] = [
     Effect::CrossAxis,
     Effect::Drift,
     Effect::Cubic,
+    Effect::CubicCentred,
     Effect::Outliers,
 ];
 
@@ -43,7 +49,7 @@ impl Effect {
         match self {
             Effect::Offset | Effect::Scale | Effect::Outliers => 0,
             Effect::CrossAxis => 1,
-            Effect::Drift | Effect::Covariate(_) | Effect::Cubic => 2,
+            Effect::Drift | Effect::Covariate(_) | Effect::Cubic | Effect::CubicCentred => 2,
         }
     }
 
@@ -62,6 +68,7 @@ impl fmt::Display for Effect {
             Effect::Drift => f.write_str("drift"),
             Effect::Covariate(column) => write!(f, "covariate:{column}"),
             Effect::Cubic => f.write_str("cubic"),
+            Effect::CubicCentred => f.write_str("cubic-centred"),
             Effect::Outliers => f.write_str("outliers"),
         }
     }
@@ -83,6 +90,7 @@ impl FromStr for Effect {
             "cross-axis" => Effect::CrossAxis,
             "drift" => Effect::Drift,
             "cubic" => Effect::Cubic,
+            "cubic-centred" => Effect::CubicCentred,
             "outliers" => Effect::Outliers,
             other => match other.strip_prefix("covariate:") {
                 Some(column) if !column.is_empty() => Effect::Covariate(column.to_string()),
@@ -91,7 +99,7 @@ impl FromStr for Effect {
                 }
                 None => {
                     return Err(format!(
-                        "'{other}' is not an effect; the catalogue is offset, scale, cross-axis, drift, covariate:<column>, cubic, outliers"
+                        "'{other}' is not an effect; the catalogue is offset, scale, cross-axis, drift, covariate:<column>, cubic, cubic-centred, outliers"
                     ));
                 }
             },
@@ -143,6 +151,7 @@ mod tests {
             "drift",
             "covariate:temp_c",
             "cubic",
+            "cubic-centred",
             "outliers",
         ] {
             assert_eq!(name.parse::<Effect>().unwrap().to_string(), name);

@@ -4,8 +4,12 @@
 //! Per sample i (raw x, y; time t; covariates c_k):
 //! - moving offsets: `x1 = x - drift_x*(t - mean t) - Σ g_xk*(c_k - mean c_k)`,
 //!   the same for y, centred so that b and d stay the mean offsets;
-//! - odd non-linearity: `x2 = x1 + k_x*x1^3/S^2`, with `S` = [`cubic_scale`]
-//!   (a fixed scale of the data, so k_x is a fraction at full scale);
+//! - odd non-linearity about the sensor's zero: `x2 = x1 + k_x*x1^3/S^2`,
+//!   with `S` = [`cubic_scale`] (a fixed scale of the data, so k_x is a
+//!   fraction at full scale); and about the turn's centre (`cubic-centred`):
+//!   `+ kc_x*(x1 - c_x)^3/S_x^2`, with the centre `c_x` and radius `S_x` of
+//!   the turn in raw units ([`TurnFrame`]) fixed at the paper's closed form,
+//!   so kc_x is a fraction at the turn's amplitude (the same for y);
 //! - the paper's linear part plus cross-axis: `s_x = a*x2 + b + c*(y2 + d)`,
 //!   `s_y = y2 + d`;
 //! - residual `e = |s|/r - 1`, the magnitude error as a fraction of the field.
@@ -14,7 +18,7 @@
 //! weights) and flags samples far outside the robust spread.
 
 use nalgebra::{DMatrix, DVector};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::FitError;
 use super::effects::Effect;
@@ -38,6 +42,13 @@ pub const MAX_ITERATIONS: usize = 500;
 const LOOSE_COST_TOLERANCE: f64 = 1e-8;
 /// IRLS rounds before giving up on the weights settling.
 const MAX_IRLS_ROUNDS: usize = 60;
+/// `cubic` and `cubic-centred` in one model are the same term when the
+/// turn is centred on the sensor's zero: their columns then differ only by
+/// the even term `3 c x^2 / S^2` of the centre c. When an axis's centre is
+/// within this many of its standard errors of zero (the usual 3-sigma test
+/// of "different from zero"), the data cannot tell the two apart on that
+/// axis, and the fit says so instead of returning two huge opposite values.
+pub const SAME_CENTRE_SES: f64 = 3.0;
 
 /// One fitted parameter with its standard error.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -109,6 +120,44 @@ pub fn cubic_scale(data: &Dataset) -> f64 {
         .fold(0.0f64, |m, v| m.max(v.abs()))
 }
 
+/// The fixed frame of the `cubic-centred` term: the turn's centre and its
+/// radius per axis, in raw units, from the paper's closed form (the model's
+/// starting point): `centre = (-b/a, -d)`, `radius = (r/a, r)`.
+///
+/// Held fixed during the fit, as [`cubic_scale`] is for `cubic`. A free
+/// centre would add two unknowns whose columns, `-3 kc (x - c)^2 / S^2`,
+/// vanish when kc does: on a sensor without the effect they would be
+/// undetermined. Fixing it biases nothing measurable: an odd cubic about
+/// the centre keeps the turn symmetric about that centre, so the closed
+/// form finds it to within its noise, and a centre off by `dc` leaves only
+/// an even term `3 kc dc / S` of the field, far below the noise for `dc`
+/// of the order of noise / sqrt(n) (the linear and constant parts of the
+/// expansion of `(x - c - dc)^3` go into the gain and offset).
+/// tests/nonlinear.rs checks that kc is recovered within its standard error.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TurnFrame {
+    /// The turn's centre (x, y), raw units.
+    pub centre: [f64; 2],
+    /// The turn's radius along x and along y, raw units.
+    pub radius: [f64; 2],
+}
+
+impl TurnFrame {
+    /// The frame of the paper's calibration `s_x = a x + b, s_y = y + d, |s| = r`.
+    pub fn of(paper: &PaperCalibration) -> Self {
+        TurnFrame {
+            centre: [-paper.b / paper.a, -paper.d],
+            radius: [paper.r / paper.a, paper.r],
+        }
+    }
+}
+
+/// The frame the `cubic-centred` term of a fit of `data` uses (the fit's
+/// starting point): what the daemon stores to correct live readings.
+pub fn turn_frame(data: &Dataset) -> Result<TurnFrame, FitError> {
+    starting_point(data).map(|start| TurnFrame::of(&start))
+}
+
 /// Where each unknown sits in the parameter vector, and the centred
 /// columns the moving offsets use.
 struct Layout<'a> {
@@ -124,6 +173,12 @@ struct Layout<'a> {
     cubic: Option<usize>,
     /// 1/S^2 of the cubic term.
     inv_scale_sq: f64,
+    /// Index of kc_x (kc_y follows).
+    centred: Option<usize>,
+    /// The turn's centre, and 1/S_x^2, 1/S_y^2, of the centred cubic (set
+    /// from the starting point by [`Layout::set_frame`]).
+    centre: [f64; 2],
+    inv_radius_sq: [f64; 2],
     names: Vec<String>,
 }
 
@@ -176,6 +231,13 @@ impl<'a> Layout<'a> {
         } else {
             None
         };
+        let centred = if effects.contains(&Effect::CubicCentred) {
+            let index = push("kc_x".into());
+            push("kc_y".into());
+            Some(index)
+        } else {
+            None
+        };
         let scale = cubic_scale(data);
         Ok(Layout {
             x: &data.x,
@@ -189,8 +251,19 @@ impl<'a> Layout<'a> {
             } else {
                 0.0
             },
+            centred,
+            centre: [0.0; 2],
+            inv_radius_sq: [0.0; 2],
             names,
         })
+    }
+
+    /// Fixes the centred cubic's frame.
+    fn set_frame(&mut self, frame: &TurnFrame) {
+        self.centre = frame.centre;
+        self.inv_radius_sq = frame
+            .radius
+            .map(|s| if s > 0.0 { 1.0 / (s * s) } else { 0.0 });
     }
 
     fn unknowns(&self) -> usize {
@@ -218,6 +291,16 @@ impl<'a> Layout<'a> {
             y2 += p[k + 1] * y1 * y1 * y1 * self.inv_scale_sq;
             dx2 += 3.0 * p[k] * x1 * x1 * self.inv_scale_sq;
             dy2 += 3.0 * p[k + 1] * y1 * y1 * self.inv_scale_sq;
+        }
+        // Deviations from the turn's centre, scaled by its radius.
+        let (mut vx, mut vy) = (0.0, 0.0);
+        if let Some(k) = self.centred {
+            vx = x1 - self.centre[0];
+            vy = y1 - self.centre[1];
+            x2 += p[k] * vx * vx * vx * self.inv_radius_sq[0];
+            y2 += p[k + 1] * vy * vy * vy * self.inv_radius_sq[1];
+            dx2 += 3.0 * p[k] * vx * vx * self.inv_radius_sq[0];
+            dy2 += 3.0 * p[k + 1] * vy * vy * self.inv_radius_sq[1];
         }
         let c = self.cross.map_or(0.0, |k| p[k]);
         let sy = y2 + d;
@@ -254,6 +337,10 @@ impl<'a> Layout<'a> {
             if let Some(k) = self.cubic {
                 row[k] = ux2 * x1 * x1 * x1 * self.inv_scale_sq;
                 row[k + 1] = uy2 * y1 * y1 * y1 * self.inv_scale_sq;
+            }
+            if let Some(k) = self.centred {
+                row[k] = ux2 * vx * vx * vx * self.inv_radius_sq[0];
+                row[k + 1] = uy2 * vy * vy * vy * self.inv_radius_sq[1];
             }
         }
         (sx, sy, e)
@@ -341,7 +428,7 @@ pub fn apply_model(
 /// Fits the model made of `effects` (the paper's plus any others) to the
 /// recording, by Levenberg-Marquardt started from the paper's closed form.
 pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitError> {
-    let layout = Layout::new(data, effects)?;
+    let mut layout = Layout::new(data, effects)?;
     let unknowns = layout.unknowns();
     let n = data.len();
     if n < unknowns + 1 {
@@ -352,6 +439,7 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
         });
     }
     let start = starting_point(data)?;
+    layout.set_frame(&TurnFrame::of(&start));
     let mut p = vec![0.0; unknowns];
     p[..4].copy_from_slice(&[start.a, start.b, start.d, start.r]);
 
@@ -448,6 +536,18 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
         .map(|c| c.inverse())
         .ok_or_else(|| undetermined(&layout, &jtj))?;
     let sigma_sq = weighted_cost / (n - unknowns) as f64;
+    if let Some(kc) = layout.centred.filter(|_| layout.cubic.is_some()) {
+        // The centre's standard errors: x's is b's over a, y's is d's.
+        let se = |j: usize| (covariance[(j, j)] * sigma_sq).max(0.0).sqrt();
+        let centre_se = [se(1) / p[0].abs(), se(2)];
+        for axis in 0..2 {
+            if !(layout.centre[axis].abs() > SAME_CENTRE_SES * centre_se[axis]) {
+                return Err(FitError::Undetermined {
+                    parameter: layout.names[kc + axis].clone(),
+                });
+            }
+        }
+    }
     let params: Vec<Param> = layout
         .names
         .iter()
@@ -707,6 +807,60 @@ mod tests {
             );
         }
         assert!(fit.rms <= closed.rms(&data.x, &data.y) * 1.0001);
+    }
+
+    /// The Jacobian row `evaluate` returns is the derivative of e, checked
+    /// against central differences for every unknown of a model with every
+    /// term that shapes the reading (both cubics, cross-axis, drift and a
+    /// covariate, all non-zero, so each term's chain rule through the others
+    /// is exercised), at samples all round the turn.
+    #[test]
+    fn jacobian_rows_match_central_differences() {
+        let data = SimSensor {
+            gain_x: 1.3,
+            offset_x: 900.0,
+            offset_y: -600.0,
+            noise: 3.0,
+            turns: 2.0,
+            effects: crate::sim::SimEffects {
+                temp_per_c: Some([2.0, -1.0]),
+                ..Default::default()
+            },
+            ..Default::default()
+        }
+        .simulate()
+        .unwrap();
+        let effects = crate::model::effects::parse_list(
+            "cross-axis,drift,covariate:temp,cubic,cubic-centred",
+        )
+        .unwrap();
+        let mut layout = Layout::new(&data, &effects).unwrap();
+        let start = starting_point(&data).unwrap();
+        layout.set_frame(&TurnFrame::of(&start));
+        let k = layout.unknowns();
+        assert_eq!(k, 4 + 1 + 2 + 2 + 2 + 2);
+        let mut p = vec![start.a, start.b, start.d, start.r];
+        // c, drift, temp, k, kc: each a few percent, with both signs.
+        p.extend([0.03, 0.4, -0.3, 1.5, -2.0, 0.04, -0.02, 0.05, -0.03]);
+        let mut row = vec![0.0; k];
+        for i in (0..data.len()).step_by(23) {
+            layout.evaluate(&p, i, Some(&mut row));
+            for j in 0..k {
+                let h = 1e-6 * p[j].abs().max(1e-2);
+                let mut up = p.clone();
+                up[j] += h;
+                let mut down = p.clone();
+                down[j] -= h;
+                let numeric = (layout.evaluate(&up, i, None).2 - layout.evaluate(&down, i, None).2)
+                    / (2.0 * h);
+                assert!(
+                    (row[j] - numeric).abs() <= 1e-5 * numeric.abs() + 1e-8,
+                    "sample {i}, {}: analytic {} vs numeric {numeric}",
+                    layout.names[j],
+                    row[j]
+                );
+            }
+        }
     }
 
     #[test]

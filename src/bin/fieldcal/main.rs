@@ -215,7 +215,7 @@ struct FitArgs {
     solver: Solver,
     /// Fit the paper's model plus these effects by Levenberg-Marquardt
     /// (comma- or plus-separated: cross-axis, drift, covariate:<column>,
-    /// cubic, outliers; `paper` is offset+scale).
+    /// cubic, cubic-centred, outliers; `paper` is offset+scale).
     #[arg(long, value_name = "LIST", value_parser = parse_effect_list)]
     effects: Option<EffectList>,
     /// Print one JSON object on stdout instead of the text report.
@@ -303,6 +303,7 @@ struct SimulateArgs {
     /// covariate:temp=X[,Y]: counts per °C of a `temp` column (20 °C, rising by --temp-rise, cooling back after half-way);
     /// covariate:current=X[,Y]: counts per A of a `current` column (a motor switching 0 A / 2 A);
     /// cubic=X[,Y]: the reading falls short by that fraction at full scale;
+    /// cubic-centred=X[,Y]: the reading falls short by that fraction at the turn's amplitude, about the turn's centre;
     /// outliers=F: that fraction of samples hit by spikes of 20 to 50 noise SDs.
     #[arg(long = "effect", value_name = "EFFECT=VALUE", value_parser = simulate::parse_effect, verbatim_doc_comment)]
     effect: Vec<simulate::SimEffectArg>,

@@ -110,11 +110,12 @@ pub enum SimEffectArg {
     Temp([f64; 2]),
     Current([f64; 2]),
     Cubic([f64; 2]),
+    CubicCentred([f64; 2]),
     Outliers(f64),
 }
 
 /// Parses `cross-axis=3deg`, `drift=0.5,-0.3`, `covariate:temp=4`,
-/// `cubic=0.02`, `outliers=0.01`...
+/// `cubic=0.02`, `cubic-centred=0.02`, `outliers=0.01`...
 pub fn parse_effect(text: &str) -> Result<SimEffectArg, String> {
     let (name, value) = text.split_once('=').ok_or_else(|| {
         format!("'{text}' needs a value, as in cross-axis=3deg, drift=0.5, covariate:temp=4, cubic=0.02 or outliers=0.01")
@@ -141,10 +142,11 @@ pub fn parse_effect(text: &str) -> Result<SimEffectArg, String> {
         "covariate:temp" => SimEffectArg::Temp(pair(value)?),
         "covariate:current" => SimEffectArg::Current(pair(value)?),
         "cubic" => SimEffectArg::Cubic(pair(value)?),
+        "cubic-centred" => SimEffectArg::CubicCentred(pair(value)?),
         "outliers" => SimEffectArg::Outliers(number(value)?),
         other => {
             return Err(format!(
-                "'{other}' is not an effect the simulator has; choose cross-axis, drift, covariate:temp, covariate:current, cubic or outliers"
+                "'{other}' is not an effect the simulator has; choose cross-axis, drift, covariate:temp, covariate:current, cubic, cubic-centred or outliers"
             ));
         }
     })
@@ -162,6 +164,7 @@ fn sim_effects(args: &[SimEffectArg], temp_rise: f64) -> SimEffects {
             SimEffectArg::Temp(v) => effects.temp_per_c = Some(v),
             SimEffectArg::Current(v) => effects.current_per_a = Some(v),
             SimEffectArg::Cubic(v) => effects.cubic = v,
+            SimEffectArg::CubicCentred(v) => effects.cubic_centred = v,
             SimEffectArg::Outliers(f) => effects.outliers = f,
         }
     }
