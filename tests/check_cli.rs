@@ -446,3 +446,25 @@ fn the_real_z_run_holds_against_its_own_calibration() {
     let h = report["heading_vs_gyro"]["rms_deg"].as_f64().unwrap();
     assert!((h - 6.15).abs() < 0.1, "{h}");
 }
+
+#[test]
+fn a_recording_that_did_not_turn_is_an_error_not_a_verdict() {
+    let dir = tempfile::tempdir().unwrap();
+    let run1 = simulate(dir.path(), "run1.csv", 1, 150.0);
+    let (cal, _) = fit_json(dir.path(), &run1, &[]);
+    let arc = dir.path().join("arc.csv");
+    run_ok(&[
+        "simulate",
+        "--turns",
+        "0.33",
+        "--noise",
+        "5",
+        "--output",
+        s(&arc),
+    ]);
+    let err = run_err(&["check", s(&arc), "--calibration", s(&cal)]);
+    assert!(
+        err.contains("arc.csv") && err.contains("cover only"),
+        "{err}"
+    );
+}
