@@ -774,6 +774,43 @@ fn huber_weight(e: f64, scale: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn apply_model_reproduces_the_fit() {
+        let sensor = crate::sim::SimSensor {
+            gain_x: 1.1,
+            offset_x: 50.0,
+            noise: 3.0,
+            effects: crate::sim::SimEffects {
+                cross_axis_deg: 2.0,
+                cubic: [0.02, 0.0],
+                drift_per_s: [0.5, -0.3],
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let data = sensor.simulate().unwrap();
+        let effects = crate::model::effects::parse_list("cross-axis,cubic,drift").unwrap();
+        let fit = fit_model(&data, &effects).unwrap();
+        let applied = apply_model(&data, &effects, &fit.params, None).unwrap();
+        for (i, (sx, sy, e)) in applied.iter().enumerate() {
+            let (fx, fy) = fit.calibrated[i];
+            assert!((sx - fx).abs() < 1e-9 && (sy - fy).abs() < 1e-9);
+            assert!((e - fit.residuals[i]).abs() < 1e-12);
+        }
+        let missing: Vec<Param> = fit
+            .params
+            .iter()
+            .filter(|p| p.name != "c")
+            .cloned()
+            .collect();
+        assert_eq!(
+            apply_model(&data, &effects, &missing, None),
+            Err(FitError::MissingParameter {
+                parameter: "c".into()
+            })
+        );
+    }
     use crate::model::effects::PAPER;
     use crate::sim::SimSensor;
 

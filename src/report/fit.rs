@@ -237,6 +237,11 @@ pub struct ModelFitJson<'a> {
     pub fit_seconds: f64,
     /// The heading error against a gyro (null without --gyro).
     pub heading_vs_gyro: Option<&'a HeadingCheck>,
+    /// With the cubic effect: the full scale S its `k` refers to (the
+    /// largest |x| or |y| of the recording), so `check` applies it to
+    /// another recording unchanged.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cubic_scale: Option<f64>,
 }
 
 impl<'a> ModelFitJson<'a> {
@@ -273,6 +278,7 @@ impl<'a> ModelFitJson<'a> {
             largest_gap_deg: coverage.largest_gap_deg,
             fit_seconds: elapsed.as_secs_f64(),
             heading_vs_gyro: heading,
+            cubic_scale: None,
         }
     }
 }

@@ -115,13 +115,11 @@ fn fit_effects(
         y_column: &data.y_name,
     };
     let text = if args.json {
-        serde_json::to_string(&ModelFitJson::new(
-            &fit,
-            &coverage,
-            elapsed,
-            heading.as_ref(),
-            source,
-        ))? + "\n"
+        let mut json = ModelFitJson::new(&fit, &coverage, elapsed, heading.as_ref(), source);
+        json.cubic_scale = effects
+            .contains(&Effect::Cubic)
+            .then(|| fieldcal::model::nonlinear::cubic_scale(data));
+        serde_json::to_string(&json)? + "\n"
     } else {
         render_model_text(&fit, &coverage, elapsed, heading.as_ref(), source)
     };

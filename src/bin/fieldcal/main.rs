@@ -1,6 +1,7 @@
 //! The `fieldcal` command: parses arguments and wires the library together.
 //! One module per subcommand; the work itself lives in the library.
 
+mod check;
 mod diagnose;
 mod fit;
 mod output;
@@ -40,6 +41,8 @@ struct Cli {
 enum Command {
     /// Fit the paper's calibration (or the paper's model plus --effects) to a CSV recording of one full turn.
     Fit(FitArgs),
+    /// Apply a stored calibration to another recording: does it hold, and which parameter moved?
+    Check(CheckArgs),
     /// Rank the effects the data supports, add them one by one down to the noise floor.
     Diagnose(DiagnoseArgs),
     /// Write a simulated sensor turned in a constant field: a CSV, or a Falcon-GX capture.
@@ -173,11 +176,17 @@ impl CsvInput {
         let reference = match &file {
             None => {
                 let Some(k) = data.covariates.iter().position(|c| c.name == column) else {
-                    let mut names = vec![data.x_name.clone(), data.y_name.clone()];
-                    names.extend(data.covariates.iter().map(|c| c.name.clone()));
-                    anyhow::bail!(
-                        "{main}: no gyro column '{column}' among the numeric columns other than the axes and time ({}); name it with --gyro COLUMN, or --gyro FILE:COLUMN for a second file",
+                    let names: Vec<&str> =
+                        data.covariates.iter().map(|c| c.name.as_str()).collect();
+                    let names = if names.is_empty() {
+                        "none".to_string()
+                    } else {
                         names.join(", ")
+                    };
+                    anyhow::bail!(
+                        "{main}: no gyro column '{column}' among the numeric columns other than the axes ({}, {}) and time (they are: {names}); name it with --gyro COLUMN, or --gyro FILE:COLUMN for a second file",
+                        data.x_name,
+                        data.y_name
                     );
                 };
                 let rate = data.covariates.remove(k).values;
@@ -233,6 +242,21 @@ struct FitArgs {
     /// paper-gd: learning rate (the paper's is 0.73).
     #[arg(long, value_name = "ALPHA", default_value_t = PAPER_LEARNING_RATE, value_parser = parse_positive)]
     learning_rate: f64,
+}
+
+#[derive(Debug, Args)]
+struct CheckArgs {
+    #[command(flatten)]
+    input: CsvInput,
+    /// The stored calibration: the JSON of `fieldcal fit --json` (the paper's model or --effects), or a daemon state file.
+    #[arg(long, value_name = "FILE")]
+    calibration: PathBuf,
+    /// Print one JSON object on stdout instead of the text report.
+    #[arg(long)]
+    json: bool,
+    /// Heading coverage the new recording must reach, in degrees.
+    #[arg(long, value_name = "DEG", default_value_t = DEFAULT_MIN_COVERAGE_DEG, value_parser = parse_coverage)]
+    min_coverage: f64,
 }
 
 #[derive(Debug, Args)]
@@ -400,6 +424,7 @@ fn main() -> ExitCode {
         Command::Run(args) => run::run(args),
         Command::Fit(args) => fit::fit(args),
         Command::Diagnose(args) => diagnose::diagnose(args),
+        Command::Check(args) => check::check(args),
         Command::Simulate(args) => simulate::simulate(args),
         Command::Record(args) => record::record(args),
         Command::Replay(args) => replay::replay(args),
