@@ -109,6 +109,14 @@ impl GyroTrack {
         self.rate.clear();
     }
 
+    /// Drops the rates of a rotation that was given up, keeping the last
+    /// one at or before `time` (where the new rotation starts) and after.
+    fn forget_before(&mut self, time: f64) {
+        let keep_from = self.t.partition_point(|&g| g < time).saturating_sub(1);
+        self.t.drain(..keep_from);
+        self.rate.drain(..keep_from);
+    }
+
     /// The heading check of a rotation: samples at times `t` whose model
     /// headings are `headings_rad`. Uses the rates from the last one at or
     /// before the rotation's first sample to the first at or after its last.
@@ -237,6 +245,9 @@ impl Sensor {
         match self.buffer.push(reading.time, x, y) {
             RotationEvent::Collecting => None,
             RotationEvent::Rejected { reason } => {
+                if let Some(gyro) = &mut self.gyro {
+                    gyro.forget_before(reading.time);
+                }
                 tracing::warn!(sensor = %self.config.name, "{reason}");
                 self.reject(reading.time, reason, 0, 0.0, 0.0, emit);
                 None
@@ -556,6 +567,9 @@ mod tests {
             assert_eq!(track.t.len(), track.rate.len());
         }
         let track = sensor.gyro.as_ref().unwrap();
+        // The last rejection (not turning, every 10 s = 200 readings) let go
+        // of the rates before it: the track holds the current try's.
+        assert!(track.t.len() <= 201, "{}", track.t.len());
         // 360 counts at the frame's 10 counts per deg/s, about z.
         assert!(track.rate.iter().all(|&r| r == 36.0));
         // A repeated or earlier time is left out; another stream's too.
