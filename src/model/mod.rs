@@ -47,7 +47,7 @@ pub enum FitError {
         needed: f64,
     },
     #[error(
-        "{percent:.0} % of the readings lie within half the radius of the centre: the two axes fill a disc rather than trace a ring, so the sensor did not turn in the plane of {x} and {y} (a tumble, or the wrong columns: choose the two axes that turned with --x and --y)"
+        "{percent:.1} % of the readings lie within half the radius of the centre: the two axes fill a disc rather than trace a ring, so the sensor did not turn in the plane of {x} and {y} (a tumble, or the wrong columns: choose the two axes that turned with --x and --y)"
     )]
     DiscNotRing { percent: f64, x: String, y: String },
     #[error(
