@@ -271,7 +271,8 @@ fn readings_that_never_turned_are_refused_by_every_command() {
     let line: Vec<(f64, f64)> = (0..300)
         .map(|i| (i as f64 * 2.0, i as f64 + still.sample(&mut rng)))
         .collect();
-    let cases: Vec<(&str, Vec<(f64, f64)>, &str)> = vec![
+    type Case = (&'static str, Vec<(f64, f64)>, &'static str);
+    let cases: Vec<Case> = vec![
         ("still.csv", cloud, "the readings form a cloud"),
         (
             "arc.csv",
@@ -283,7 +284,7 @@ fn readings_that_never_turned_are_refused_by_every_command() {
             on_ring(|i| 40.0 * (i as f64 * 0.05).sin(), 600, 2.0),
             "the readings go only 8",
         ),
-        ("line.csv", line, "the sensor did not turn"),
+        ("line.csv", line, "the readings go only"),
         (
             "five.csv",
             on_ring(|i| i as f64 * 72.0, 5, 0.0),
