@@ -224,12 +224,13 @@ fn a_half_turn_is_refused_with_its_coverage() {
             ..Default::default()
         };
         match fit_paper(&data.x, &data.y, &options, &mut |_| {}) {
-            Err(FitError::InsufficientCoverage {
-                found_deg,
+            // The turn gate refuses it before either solver runs.
+            Err(FitError::NoFullTurn {
+                covered_deg,
                 needed_deg,
                 ..
             }) => {
-                assert!((found_deg - 180.0).abs() < 5.0, "{found_deg}");
+                assert!((covered_deg - 180.0).abs() < 5.0, "{covered_deg}");
                 assert_eq!(needed_deg, 300.0);
             }
             other => panic!("{solver:?}: expected a coverage error, got {other:?}"),

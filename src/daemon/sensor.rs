@@ -19,6 +19,7 @@ use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper};
 use crate::model::gyro::{GyroUnits, HeadingReference};
 use crate::model::heading::coverage;
 use crate::model::nonlinear::{cubic_scale, fit_model, turn_frame};
+use crate::model::turn::check_turn;
 use crate::sample::Dataset;
 use crate::sample::Reading;
 
@@ -422,6 +423,9 @@ impl Sensor {
                 .map_err(|e| (e.to_string(), n))?;
             return Ok((report, Terms::default(), rotation));
         }
+        // fit_paper runs the turn gate itself; the general model must too.
+        check_turn(&rotation.x, &rotation.y, options.min_coverage_deg)
+            .map_err(|e| (e.to_string(), n))?;
         let started = Instant::now();
         let fit = fit_model(&rotation, &self.effects).map_err(|e| (e.to_string(), n))?;
         let covered = coverage(fit.headings.iter().copied());

@@ -381,6 +381,8 @@ pub fn check(
     reference: Option<&HeadingReference>,
     min_coverage_deg: f64,
 ) -> Result<CheckReport, CheckError> {
+    // A turn, or no check: the same gate as `fit` and `diagnose`.
+    crate::model::turn::check_turn_of(data, min_coverage_deg).map_err(CheckError::Refit)?;
     let paper =
         stored.source == StoredSource::FitPaper || stored.effects.iter().all(Effect::is_paper);
     // The refit, with its standard errors and the samples it set aside.

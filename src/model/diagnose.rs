@@ -347,6 +347,7 @@ fn rank(data: &Dataset, model: &[Effect], current: &ModelFit, res: &Residuals) -
 /// Diagnoses a recording, starting from the model `baseline` (the paper's
 /// effects are always included).
 pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitError> {
+    super::turn::check_turn_of(data, super::fit::DEFAULT_MIN_COVERAGE_DEG)?;
     let mut model: Vec<Effect> = effects::PAPER.to_vec();
     for e in baseline {
         if !model.contains(e) {

@@ -1,5 +1,6 @@
 //! Fitting a recording with the paper's model, with the checks a user needs:
-//! enough samples, a real ellipse, and a turn that covers the circle.
+//! a turn (see [`super::turn`]), a real ellipse, and a turn that covers the
+//! circle.
 
 use std::time::{Duration, Instant};
 
@@ -11,6 +12,7 @@ use super::paper::{
     GradientDescentOptions, GradientDescentProgress, PaperCalibration, Theta, closed_form,
     gradient_descent,
 };
+use super::turn::check_turn;
 
 /// The effects that make up the paper's model, by their catalogue names.
 pub const PAPER_EFFECTS: [&str; 2] = ["offset", "scale"];
@@ -78,6 +80,9 @@ pub fn fit_paper(
     options: &FitOptions,
     progress: &mut dyn FnMut(GradientDescentProgress),
 ) -> Result<FitReport, FitError> {
+    // A turn, or no calibration: before any solver, so that no solver's
+    // failure (or success on noise) speaks for readings that never turned.
+    check_turn(x, y, options.min_coverage_deg)?;
     let started = Instant::now();
     let (theta, iterations) = match options.solver {
         Solver::Lsq => (closed_form(x, y), None),

@@ -12,6 +12,7 @@
 //! - [`residuals`]: what a fit's residual still holds, and its noise floor.
 //! - [`diagnose`]: which effect the data supports, step by step.
 //! - [`check`]: whether a stored calibration holds on another recording.
+//! - [`turn`]: whether the readings show a turn at all, before any fit.
 
 pub mod check;
 pub mod diagnose;
@@ -22,11 +23,49 @@ pub mod heading;
 pub mod nonlinear;
 pub mod paper;
 pub mod residuals;
+pub mod turn;
+
+use crate::report::significant;
 
 /// Why a fit could not produce a calibration. Messages say what was found
 /// and what to do; the caller adds which file or sensor it was.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FitError {
+    #[error(
+        "{found} samples are too few to show a turn: fieldcal needs at least {needed} to tell a turn from a sensor that stood still; record a full rotation"
+    )]
+    TooFewToTurn { found: usize, needed: usize },
+    #[error(
+        "reading {index} is not a finite number (x = {x}, y = {y}); remove it from the recording"
+    )]
+    NonFiniteReading { index: usize, x: f64, y: f64 },
+    #[error(
+        "the readings form a cloud {} across around ({}, {}): their spread is only {}× the noise ({}), and a turn needs {needed}×: the sensor did not turn; turn it a full rotation in a constant field",
+        significant(*.across, 2), significant(*.centre_x, 4), significant(*.centre_y, 4), significant(*.ratio, 2), significant(*.noise, 2)
+    )]
+    NotTurning {
+        across: f64,
+        centre_x: f64,
+        centre_y: f64,
+        ratio: f64,
+        noise: f64,
+        needed: f64,
+    },
+    #[error(
+        "{percent:.1} % of the readings lie within half the radius of the centre: the two axes fill a disc rather than trace a ring, so the sensor did not turn in the plane of {x} and {y} (a tumble, or the wrong columns: choose the two axes that turned with --x and --y)"
+    )]
+    DiscNotRing { percent: f64, x: String, y: String },
+    #[error(
+        "the readings go only {covered_deg:.0}° round their centre (the largest gap runs {gap_deg:.0}° from {gap_start_deg:.0}°), and a fit needs {needed_deg:.0}°: the sensor did not turn a full rotation in the plane of {x} and {y}; turn it a full rotation in a constant field, choose the two axes that turned with --x and --y, or lower the required coverage"
+    )]
+    NoFullTurn {
+        covered_deg: f64,
+        gap_deg: f64,
+        gap_start_deg: f64,
+        needed_deg: f64,
+        x: String,
+        y: String,
+    },
     #[error(
         "{found} samples are too few: the model has {unknowns} unknowns and needs at least {needed} samples"
     )]

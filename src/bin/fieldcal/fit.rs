@@ -13,6 +13,7 @@ use fieldcal::model::gyro::{HeadingCheck, HeadingReference};
 use fieldcal::model::heading::coverage;
 use fieldcal::model::nonlinear::fit_model;
 use fieldcal::model::paper::{GradientDescentOptions, GradientDescentProgress, closed_form_se};
+use fieldcal::model::turn::check_turn_of;
 use fieldcal::report::fit::{FitJson, FitSource, ModelFitJson, render_model_text, render_text};
 
 use crate::FitArgs;
@@ -30,6 +31,9 @@ pub fn fit(args: FitArgs) -> Result<()> {
         min_coverage_deg: args.min_coverage,
     };
     let file = args.input.file.display().to_string();
+    // A turn, or no calibration: the same gate for both models, naming the
+    // recording's columns.
+    check_turn_of(&data, args.min_coverage).with_context(|| format!("{file}: no calibration"))?;
     if let Some(effects) = &args.effects {
         if args.solver != fieldcal::model::fit::Solver::Lsq {
             anyhow::bail!(

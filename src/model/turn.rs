@@ -1,0 +1,523 @@
+//! Whether the readings show a turn at all: the gate every fit, diagnosis
+//! and acceptance passes before any solver runs.
+//!
+//! A model of a turning sensor fits anything: noise around one point is an
+//! ellipse too, and its "headings" cover every direction. So the physics is
+//! checked on the readings themselves, in four gates:
+//!
+//! - A, enough samples to judge ([`MIN_TURN_SAMPLES`]);
+//! - B, a ring, not a cloud: the spread of the readings stands at least
+//!   [`RADIUS_OVER_NOISE`] times above their noise;
+//! - C, a ring, not a disc: almost no readings near the centre
+//!   ([`MAX_HOLE_FRACTION`] within [`HOLE_RADIUS`] of the median radius), as a
+//!   tumble or two axes that are not the turning plane give;
+//! - D, round the centre: the readings near the ring (radius within
+//!   [`RING_BAND`] of the median) cover the required heading.
+//!
+//! Everything is O(n log n) (medians by sorting, one least-squares fit of
+//! four unknowns), so the daemon runs it on every rotation.
+
+use serde::Serialize;
+
+use super::FitError;
+use super::heading::{Coverage, circle_centre, coverage};
+use super::paper::closed_form;
+use crate::sample::Dataset;
+
+/// Fewest samples from which the gates can tell a turn. A coverage of 300°
+/// needs at least 6 samples even when evenly spread (360° less one gap of
+/// 360°/n); and the noise (gate B) is a robust SD of n - 2 second
+/// differences, whose relative standard error, 1.17/sqrt(n - 2) for the
+/// 1.4826·MAD (its efficiency is 37 %), must stay well below the factor
+/// between a turn at the threshold (10×) and a still cloud (1.4×): at 12
+/// samples it is 37 %, so a cloud cannot reach 10× by chance of the estimate.
+pub const MIN_TURN_SAMPLES: usize = 12;
+
+/// Smallest spread of the readings (rms distance from their mean: the radius,
+/// for a full ring) over their noise (per axis). ArduPilot's
+/// CompassCalibrator accepts a fit whose rms residual ("fitness") is at most
+/// 16 mGauss (AP_COMPASS_CALIBRATION_FITNESS_DEFAULT) and a field radius of
+/// at least 150 mGauss (FIELD_RADIUS_MIN): a radius 9.4 times the residual
+/// at the edge of acceptance. Below 10×, one sample's heading scatters by
+/// more than atan(1/10) ≈ 6°, more than a compass calibration is for.
+pub const RADIUS_OVER_NOISE: f64 = 10.0;
+
+/// Radius, as a fraction of the median distance from the centre, inside
+/// which a reading lies in the "hole" of a ring.
+pub const HOLE_RADIUS: f64 = 0.5;
+
+/// Largest fraction of readings allowed in the hole. A ring whose noise is at
+/// most r/10 (gate B) reaches half the radius only at 5 SD (a fraction below
+/// 1e-6); a uniformly filled disc puts (1/2)² · (median radius)²/R² ≈ 12 %
+/// there, and two axes of a sphere tumbled evenly (the projection of a
+/// uniform sphere is uniform in the third coordinate) about 10 %. 5 % sits
+/// between them and leaves a ring room for a few percent of spikes.
+pub const MAX_HOLE_FRACTION: f64 = 0.05;
+
+/// Distances from the centre, as fractions of the median, of the readings
+/// whose headings count toward coverage: a spike or a stray point far inside
+/// or outside the ring would otherwise open headings the turn never reached.
+pub const RING_BAND: [f64; 2] = [0.5, 1.5];
+
+/// Least noise, in units of the largest reading: four decades above the
+/// rounding of f64 (1.1e-16), so that readings equal but for rounding count
+/// as a point, while noiseless simulated turns still pass by far.
+const ROUNDING_FLOOR: f64 = 1e-12;
+
+/// 1.4826 · MAD is the SD of Gaussian values.
+const MAD_TO_SD: f64 = 1.4826;
+
+/// Where the centre of the turn came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CentreFrom {
+    /// The paper's closed form (eq. 6): distances in calibrated units.
+    Paper,
+    /// Kåsa's circle, when no ellipse of the paper's family fits.
+    Circle,
+    /// The mean of the readings, when neither fits.
+    Mean,
+}
+
+/// What the gates measured, in the data's own units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TurnCheck {
+    pub n: usize,
+    /// Centre of the turn, raw x and y.
+    pub centre: [f64; 2],
+    pub centre_from: CentreFrom,
+    /// Median distance of the readings from the centre (raw units, along
+    /// each reading's own direction).
+    pub radius: f64,
+    /// Rms distance of the readings from their mean.
+    pub spread: f64,
+    /// Noise per axis: the smaller of the second-difference and the radial
+    /// estimate, floored at the quantisation.
+    pub noise: f64,
+    pub spread_over_noise: f64,
+    /// Fraction of readings within [`HOLE_RADIUS`] of the median radius.
+    pub hole_fraction: f64,
+    /// Readings in the [`RING_BAND`], whose headings make the coverage.
+    pub ring_samples: usize,
+    pub coverage: Coverage,
+}
+
+/// Checks that `(x, y)` trace a turn; `x` and `y` are named "x" and "y" in
+/// the messages. See [`check_turn_of`] for a recording's own column names.
+pub fn check_turn(x: &[f64], y: &[f64], min_coverage_deg: f64) -> Result<TurnCheck, FitError> {
+    check_named(x, y, ["x", "y"], min_coverage_deg)
+}
+
+/// [`check_turn`] on a recording, naming its columns in the messages.
+pub fn check_turn_of(data: &Dataset, min_coverage_deg: f64) -> Result<TurnCheck, FitError> {
+    check_named(
+        &data.x,
+        &data.y,
+        [&data.x_name, &data.y_name],
+        min_coverage_deg,
+    )
+}
+
+fn check_named(
+    x: &[f64],
+    y: &[f64],
+    names: [&str; 2],
+    min_coverage_deg: f64,
+) -> Result<TurnCheck, FitError> {
+    let n = x.len().min(y.len());
+    // Gate A.
+    if n < MIN_TURN_SAMPLES || x.len() != y.len() {
+        return Err(FitError::TooFewToTurn {
+            found: n,
+            needed: MIN_TURN_SAMPLES,
+        });
+    }
+    if let Some(i) = (0..n).find(|&i| !(x[i].is_finite() && y[i].is_finite())) {
+        return Err(FitError::NonFiniteReading {
+            index: i,
+            x: x[i],
+            y: y[i],
+        });
+    }
+    // One common scale brings every value into [-1, 1]: nothing below can
+    // overflow (a difference of two values near f64::MAX would), the solvers
+    // see well-conditioned inputs, and the aspect ratio is kept.
+    let scale = x
+        .iter()
+        .chain(y)
+        .fold(0.0f64, |m, v| m.max(v.abs()))
+        .max(f64::MIN_POSITIVE);
+    let u: Vec<f64> = x.iter().map(|v| v / scale).collect();
+    let v: Vec<f64> = y.iter().map(|v| v / scale).collect();
+
+    let nf = n as f64;
+    let (mu, mv) = (u.iter().sum::<f64>() / nf, v.iter().sum::<f64>() / nf);
+    let spread = (u
+        .iter()
+        .zip(&v)
+        .map(|(a, b)| (a - mu).powi(2) + (b - mv).powi(2))
+        .sum::<f64>()
+        / nf)
+        .sqrt();
+
+    let ring = Ring::about_centre(&u, &v, (mu, mv));
+    let noise_diff =
+        (0.5 * (second_difference_sd(&u).powi(2) + second_difference_sd(&v).powi(2))).sqrt();
+    let quantum = quantum(&u).max(quantum(&v));
+    let noise = noise_diff
+        .min(ring.radial_noise)
+        .max(quantum / 12f64.sqrt())
+        .max(ROUNDING_FLOOR);
+    let ratio = if noise > 0.0 {
+        spread / noise
+    } else if spread > 0.0 {
+        f64::INFINITY
+    } else {
+        0.0
+    };
+
+    let check = TurnCheck {
+        n,
+        centre: [ring.centre.0 * scale, ring.centre.1 * scale],
+        centre_from: ring.from,
+        radius: ring.raw_radius * scale,
+        spread: spread * scale,
+        noise: noise * scale,
+        spread_over_noise: ratio,
+        hole_fraction: ring.hole_fraction,
+        ring_samples: ring.ring_samples,
+        coverage: ring.coverage,
+    };
+    // Gate B.
+    if !(ratio >= RADIUS_OVER_NOISE) {
+        return Err(FitError::NotTurning {
+            across: 2.0 * check.spread,
+            centre_x: mu * scale,
+            centre_y: mv * scale,
+            ratio,
+            noise: check.noise,
+            needed: RADIUS_OVER_NOISE,
+        });
+    }
+    // Gate C.
+    if check.hole_fraction > MAX_HOLE_FRACTION {
+        return Err(FitError::DiscNotRing {
+            percent: 100.0 * check.hole_fraction,
+            x: names[0].to_string(),
+            y: names[1].to_string(),
+        });
+    }
+    // Gate D.
+    if check.coverage.covered_deg + 1e-9 < min_coverage_deg {
+        return Err(FitError::NoFullTurn {
+            covered_deg: check.coverage.covered_deg,
+            gap_deg: check.coverage.largest_gap_deg,
+            gap_start_deg: check.coverage.gap_start_deg,
+            needed_deg: min_coverage_deg,
+            x: names[0].to_string(),
+            y: names[1].to_string(),
+        });
+    }
+    Ok(check)
+}
+
+/// The readings seen from the centre of the turn (scaled units).
+struct Ring {
+    centre: (f64, f64),
+    from: CentreFrom,
+    raw_radius: f64,
+    radial_noise: f64,
+    hole_fraction: f64,
+    ring_samples: usize,
+    coverage: Coverage,
+}
+
+impl Ring {
+    /// The centre from the paper's closed form, else Kåsa's circle, else
+    /// `mean`; distances in calibrated units when the paper's fit exists.
+    fn about_centre(u: &[f64], v: &[f64], mean: (f64, f64)) -> Ring {
+        let n = u.len();
+        // Calibrated (sx, sy) and raw (dx, dy) offsets from the centre.
+        let mut cal: Vec<(f64, f64)> = Vec::with_capacity(n);
+        let mut raw: Vec<(f64, f64)> = Vec::with_capacity(n);
+        let paper = closed_form(u, v)
+            .and_then(|t| t.to_calibration())
+            .ok()
+            .filter(|c| [c.a, c.b, c.d, c.r].iter().all(|p| p.is_finite()) && c.a > 0.0);
+        let (centre, from) = if let Some(c) = paper {
+            for (&x, &y) in u.iter().zip(v) {
+                let (sx, sy) = c.apply(x, y);
+                cal.push((sx, sy));
+                raw.push((sx / c.a, sy));
+            }
+            ((-c.b / c.a, -c.d), CentreFrom::Paper)
+        } else {
+            let (centre, from) = match circle_centre(u, v) {
+                Ok(c) if c.0.is_finite() && c.1.is_finite() => (c, CentreFrom::Circle),
+                _ => (mean, CentreFrom::Mean),
+            };
+            for (&x, &y) in u.iter().zip(v) {
+                let d = (x - centre.0, y - centre.1);
+                cal.push(d);
+                raw.push(d);
+            }
+            (centre, from)
+        };
+        let rho: Vec<f64> = cal.iter().map(|(a, b)| a.hypot(*b)).collect();
+        let rho_raw: Vec<f64> = raw.iter().map(|(a, b)| a.hypot(*b)).collect();
+        let median_rho = median(&mut rho.clone());
+        let raw_radius = median(&mut rho_raw.clone());
+
+        // Radial residual, taken back to raw units along each reading's
+        // direction (first order): comparable with the per-axis noise.
+        let radial_noise = if centre_from_fit(from) && median_rho > 0.0 {
+            let mut e: Vec<f64> = rho
+                .iter()
+                .zip(&rho_raw)
+                .map(|(&c, &r)| {
+                    if c > 0.0 {
+                        (c - median_rho) * r / c
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            mad_sd(&mut e)
+        } else {
+            f64::INFINITY
+        };
+
+        let hole = rho
+            .iter()
+            .filter(|&&r| r < HOLE_RADIUS * median_rho)
+            .count();
+        let hole_fraction = if median_rho > 0.0 {
+            hole as f64 / n.max(1) as f64
+        } else {
+            1.0
+        };
+        let band = (RING_BAND[0] * median_rho, RING_BAND[1] * median_rho);
+        let in_band: Vec<f64> = cal
+            .iter()
+            .zip(&rho)
+            .filter(|(_, r)| (band.0..=band.1).contains(*r) && **r > 0.0)
+            .map(|((a, b), _)| b.atan2(*a))
+            .collect();
+        Ring {
+            centre,
+            from,
+            raw_radius,
+            radial_noise,
+            hole_fraction,
+            ring_samples: in_band.len(),
+            coverage: coverage(in_band),
+        }
+    }
+}
+
+fn centre_from_fit(from: CentreFrom) -> bool {
+    from != CentreFrom::Mean
+}
+
+/// Robust SD of white noise from second differences: the difference
+/// x[i+1] - 2 x[i] + x[i-1] cancels a steady motion (a turn sampled densely
+/// moves almost linearly between neighbours) and has variance 6σ².
+fn second_difference_sd(values: &[f64]) -> f64 {
+    let mut d: Vec<f64> = values
+        .windows(3)
+        .map(|w| w[2] - 2.0 * w[1] + w[0])
+        .collect();
+    if d.is_empty() {
+        return 0.0;
+    }
+    mad_sd(&mut d) / 6f64.sqrt()
+}
+
+/// 1.4826 · median absolute deviation from the median.
+fn mad_sd(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let m = median(values);
+    for v in values.iter_mut() {
+        *v = (*v - m).abs();
+    }
+    MAD_TO_SD * median(values)
+}
+
+fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    values.sort_unstable_by(f64::total_cmp);
+    let n = values.len();
+    if n % 2 == 1 {
+        values[n / 2]
+    } else {
+        0.5 * (values[n / 2 - 1] + values[n / 2])
+    }
+}
+
+/// The smallest step between distinct values of an axis: the quantum of an
+/// ADC (0 when the axis holds a single value). A uniform quantisation error
+/// has SD quantum/√12, the least noise any reading carries.
+fn quantum(values: &[f64]) -> f64 {
+    let mut sorted = values.to_vec();
+    sorted.sort_unstable_by(f64::total_cmp);
+    let step = sorted
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|d| *d > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    if step.is_finite() { step } else { 0.0 }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    use super::*;
+
+    fn ring(n: usize, arc_deg: f64, r: f64, noise: f64, seed: u64) -> (Vec<f64>, Vec<f64>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let g = Normal::new(0.0, 1.0).unwrap();
+        (0..n)
+            .map(|i| {
+                let h = (i as f64 / n as f64 * arc_deg).to_radians();
+                (
+                    1.2 * r * h.cos() + 300.0 + noise * g.sample(&mut rng),
+                    r * h.sin() - 100.0 + noise * g.sample(&mut rng),
+                )
+            })
+            .unzip()
+    }
+
+    fn cloud(n: usize, noise: f64, quantum: f64, seed: u64) -> (Vec<f64>, Vec<f64>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let g = Normal::new(0.0, noise).unwrap();
+        let q = |v: f64| {
+            if quantum > 0.0 {
+                (v / quantum).round() * quantum
+            } else {
+                v
+            }
+        };
+        (0..n)
+            .map(|_| {
+                (
+                    q(-120.0 + g.sample(&mut rng)),
+                    q(455.0 + g.sample(&mut rng)),
+                )
+            })
+            .unzip()
+    }
+
+    #[test]
+    fn a_noisy_ring_passes_with_its_figures() {
+        let (x, y) = ring(400, 360.0, 1000.0, 10.0, 1);
+        let c = check_turn(&x, &y, 300.0).unwrap();
+        assert_eq!(c.centre_from, CentreFrom::Paper);
+        assert!((c.centre[0] - 300.0).abs() < 5.0 && (c.centre[1] + 100.0).abs() < 5.0);
+        assert!((c.noise - 10.0).abs() < 2.0, "{c:?}");
+        assert!(c.spread_over_noise > 80.0, "{c:?}");
+        assert_eq!(c.hole_fraction, 0.0);
+        assert!(c.coverage.covered_deg > 355.0, "{c:?}");
+    }
+
+    #[test]
+    fn still_clouds_are_refused_at_every_size_and_quantum() {
+        for (i, n) in [12, 13, 20, 50, 200, 1000, 20_000].into_iter().enumerate() {
+            for seed in 0..20 {
+                for quantum in [0.0, 0.5, 2.0, 10.0] {
+                    let (x, y) = cloud(n, 1.0, quantum, seed * 31 + i as u64);
+                    match check_turn(&x, &y, 300.0) {
+                        Err(FitError::NotTurning { ratio, .. }) => {
+                            assert!(ratio < RADIUS_OVER_NOISE, "n {n} q {quantum}: {ratio}")
+                        }
+                        other => panic!("n {n} seed {seed} q {quantum}: {other:?}"),
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_cloud_message_gives_its_size_centre_and_ratio() {
+        let (x, y) = cloud(300, 0.2, 0.0, 3);
+        let msg = check_turn(&x, &y, 300.0).unwrap_err().to_string();
+        assert!(msg.starts_with("the readings form a cloud 0."), "{msg}");
+        assert!(msg.contains("around (-120.0, 455.0)"), "{msg}");
+        assert!(msg.contains("the sensor did not turn"), "{msg}");
+        // Constant readings: no spread at all.
+        let msg = check_turn(&[5.0; 20], &[7.0; 20], 300.0)
+            .unwrap_err()
+            .to_string();
+        assert!(msg.contains("across around (5.000, 7.000)"), "{msg}");
+        assert!(msg.contains("the sensor did not turn"), "{msg}");
+    }
+
+    #[test]
+    fn a_filled_disc_is_not_a_ring() {
+        // A spiral that fills the disc evenly and moves smoothly, as a
+        // tumble does from one sample to the next.
+        let (x, y): (Vec<f64>, Vec<f64>) = (0..2000)
+            .map(|i| {
+                let r = 500.0 * (i as f64 / 2000.0).sqrt();
+                let h = i as f64 * 0.05;
+                (r * h.cos() + 40.0, r * h.sin())
+            })
+            .unzip();
+        let data = Dataset::new("mag_x", "mag_y", None, x, y, vec![]).unwrap();
+        let err = check_turn_of(&data, 300.0).unwrap_err();
+        let FitError::DiscNotRing { percent, .. } = err else {
+            panic!("{err:?}")
+        };
+        assert!((8.0..16.0).contains(&percent), "{percent}");
+        let msg = err.to_string();
+        assert!(msg.contains("plane of mag_x and mag_y"), "{msg}");
+    }
+
+    #[test]
+    fn arcs_lines_and_few_samples_are_refused() {
+        let (x, y) = ring(200, 120.0, 1000.0, 5.0, 2);
+        match check_turn(&x, &y, 300.0) {
+            Err(FitError::NoFullTurn { covered_deg, .. }) => {
+                assert!((covered_deg - 120.0).abs() < 5.0, "{covered_deg}")
+            }
+            other => panic!("{other:?}"),
+        }
+        // The user may lower the coverage on purpose.
+        assert!(check_turn(&x, &y, 100.0).is_ok());
+        // A line with noise across it.
+        let (x, y) = (
+            (0..300).map(|i| i as f64).collect::<Vec<_>>(),
+            (0..300)
+                .map(|i| 0.5 * i as f64 + (i % 3) as f64)
+                .collect::<Vec<_>>(),
+        );
+        assert!(check_turn(&x, &y, 300.0).is_err());
+        let (x, y) = ring(11, 360.0, 1000.0, 0.0, 0);
+        assert_eq!(
+            check_turn(&x, &y, 300.0).unwrap_err(),
+            FitError::TooFewToTurn {
+                found: 11,
+                needed: 12
+            }
+        );
+    }
+
+    #[test]
+    fn extreme_and_non_finite_values_end_in_an_answer() {
+        let (x, y) = ring(50, 360.0, 1e307, 0.0, 0);
+        let x: Vec<f64> = x.iter().map(|v| v.clamp(-1.7e308, 1.7e308)).collect();
+        assert!(check_turn(&x, &y, 300.0).is_ok());
+        let (mut x, y) = ring(50, 360.0, 1.0, 0.0, 0);
+        x[7] = f64::NAN;
+        assert!(matches!(
+            check_turn(&x, &y, 300.0),
+            Err(FitError::NonFiniteReading { index: 7, .. })
+        ));
+    }
+}
