@@ -464,7 +464,35 @@ fn a_recording_that_did_not_turn_is_an_error_not_a_verdict() {
     ]);
     let err = run_err(&["check", s(&arc), "--calibration", s(&cal)]);
     assert!(
-        err.contains("arc.csv") && err.contains("cover only"),
+        err.contains("arc.csv") && err.contains("go only 118°") && err.contains("did not turn"),
+        "{err}"
+    );
+
+    // A sensor lying still: noise around one point is no turn, whatever
+    // headings the noise seems to cover.
+    let still = dir.path().join("still.csv");
+    let mut text = String::from("t,x,y\n");
+    for i in 0..400u32 {
+        let wobble = |k: u32| f64::from((i * k + 7) % 13) - 6.0;
+        text.push_str(&format!(
+            "{},{},{}\n",
+            f64::from(i) * 0.05,
+            150.0 + 0.3 * wobble(5),
+            -40.0 + 0.3 * wobble(11)
+        ));
+    }
+    std::fs::write(&still, text).unwrap();
+    let err = run_err(&["check", s(&still), "--calibration", s(&cal)]);
+    assert!(
+        err.contains("still.csv") && err.contains("form a cloud") && err.contains("did not turn"),
+        "{err}"
+    );
+    // The same with a calibration of the general model, whose refit goes
+    // through Levenberg-Marquardt rather than the paper's closed form.
+    let (general, _) = fit_json(dir.path(), &run1, &["--effects", "cross-axis"]);
+    let err = run_err(&["check", s(&still), "--calibration", s(&general)]);
+    assert!(
+        err.contains("still.csv") && err.contains("form a cloud") && err.contains("did not turn"),
         "{err}"
     );
 }
