@@ -5,9 +5,10 @@
 //! (fields of 0.5 to 30,000, gains 0.6 to 1.6, offsets up to two fields,
 //! noise 0.05 % to 1 % of the field, one to three turns), at each count.
 //!
-//! Why these case counts suffice (the whole file runs in about 4 minutes
-//! on 2 cores of a test build: one diagnosis of 2,000,000 samples takes
-//! about a minute there, of 200,000 about 5 s):
+//! Why these case counts suffice (measured on 2 cores of a test build, with
+//! other builds running: the clean half takes 100 s, the effects half about
+//! 3 minutes more; one diagnosis of 2,000,000 samples 40 to 70 s, of
+//! 200,000 5 to 9 s):
 //! - Up to 10,000 samples a false alarm is a matter of chance (the noise
 //!   part of ΔBIC is a χ² of a couple of degrees of freedom), so the rate
 //!   is measured: 100 clean sensors per count with at most 3 alarms. Were
