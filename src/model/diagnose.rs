@@ -16,14 +16,23 @@
 //! least [`MIN_TAILS`]), or one sample beyond [`EXTREME_SDS`]. Clean
 //! Gaussian data gives ~0.01 samples beyond 4 SD per 200, so the gate holds
 //! it shut.
+//!
+//! Detectable is not enough: at large n, BIC finds the bias that noise puts
+//! into |s|/r − 1 (σ²/2r², and its heading dependence when the calibrated
+//! noise differs per axis) and would call it an effect. A candidate must
+//! also matter ([`MIN_RMS_DROP`], [`MIN_EXPLAINED_NOISE`]), and its fitted
+//! size must be one that a physical cause of that name produces
+//! ([`PARAM_LIMITS`], [`MAX_GAIN_CHANGE`], parameters resolved above their
+//! standard errors). Every candidate's evidence is built from the numbers
+//! that decided it.
 
 use serde::Serialize;
 
 use super::FitError;
 use super::effects::{self, Effect, model_name};
 use super::heading::coverage;
-use super::nonlinear::{ModelFit, fit_model};
-use super::residuals::{self, NoiseFloor, Residuals, analyse, is_time_like};
+use super::nonlinear::{ModelFit, Param, fit_model};
+use super::residuals::{self, NoiseFloor, Residuals, SetAside, analyse, is_time_like, set_aside};
 use crate::sample::Dataset;
 
 /// An effect is supported when it lowers BIC by more than this (Kass and
@@ -52,6 +61,132 @@ pub const NOISE_TOLERANCE: f64 = 0.2;
 /// this, since time then follows heading). Real effects move headings by a
 /// few degrees at most.
 pub const FOLD_DEG: f64 = 30.0;
+/// Materiality, part 1: a candidate must lower the model's rms by at least
+/// this fraction. On a residual that is noise, an effect explaining an
+/// amplitude A lowers the rms by about A²/2σ², so 3 % is an explained
+/// amplitude of a quarter of the noise ([`MIN_EXPLAINED_NOISE`]); where
+/// structure dominates the residual, a candidate must still move the rms
+/// by more than the few percent its own estimate varies between two runs
+/// of the same sensor (the rms of n samples has a relative SE of 1/√(2n),
+/// 5 % at 200 samples), or nobody would act on it. The noise-induced bias
+/// of |s|/r − 1 lowers the rms by (σ/2r)²/2 at most, 0.03 % of it at 5 %
+/// noise, at any sample count.
+pub const MIN_RMS_DROP: f64 = 0.03;
+/// Materiality, part 2: the amplitude a candidate explains,
+/// √(rms_before² − rms_after²), must be at least this fraction of the noise
+/// floor. Below it the effect moves a calibrated reading (and its heading,
+/// by amplitude/r radians) by less than a quarter of what each sample's
+/// noise does: a calibration with or without it points the same within the
+/// noise. The noise-induced bias explains about σ²/4r² · √2 (its heading
+/// dependence with per-axis noise ratios up to 2.5:1), under 1 % of σ at
+/// 5 % noise, far below this at any n.
+pub const MIN_EXPLAINED_NOISE: f64 = 0.25;
+
+/// The largest non-linearity a `cubic` (and `cubic-centred`) may bend the
+/// reading by at full scale: 10 %. Datasheets give 0.1–0.5 % of full scale
+/// (HMC5883L: ±0.1 % FS at ±2 gauss; MPU-6050: 0.5 % accelerometer
+/// non-linearity; ADXL345: ±0.5 % FS); an amplifier near saturation can do
+/// more, so the limit is twenty times the worst of them and refuses no real
+/// sensor. The fit's k is that fraction at the data's largest reading
+/// (nonlinear.rs), so |k| compares with it directly.
+pub const MAX_CUBIC: f64 = 0.10;
+/// The largest cross-axis coupling, in degrees: 20°. Datasheets give a
+/// cross-axis sensitivity of ±2 % (≈ 1.1°; HMC5883L ±0.2 %, MPU-6050 ±2 %,
+/// ADXL345 ±1 %); soft iron near the sensor and a tilted mounting add more,
+/// so the limit is ten times the worst datasheet figure. ArduPilot's
+/// CompassCalibrator accepts off-diagonals up to 1.0 (45°), but as a sanity
+/// bound on a whole vehicle's 3-D soft-iron matrix, not a coupling one
+/// would believe; PX4's mag calibration checks only that they are finite.
+pub const MAX_CROSS_AXIS_DEG: f64 = 20.0;
+/// [`MAX_CROSS_AXIS_DEG`] as the model's shear c = tan(angle).
+pub const MAX_CROSS_AXIS_SHEAR: f64 = 0.364;
+/// The most an added effect may change the fitted gain ratio a, as a
+/// factor: 1.25. The catalogue at its limits moves it less: a cubic of
+/// [`MAX_CUBIC`] on one axis and its opposite on the other changes the
+/// axes' mean gains by (1 + 0.1)/(1 − 0.1) = 1.22 at most; a coupling of
+/// [`MAX_CROSS_AXIS_DEG`] by 1/cos 20° = 1.06; moving offsets not at all.
+/// ArduPilot's newer CompassCalibrator bounds a scale factor to 1/1.5–1.5
+/// (COMPASS_MAX_SCALE_FACTOR) for the gain itself; a change beyond 1.25 by
+/// one added effect is the fit trading gain for a shape no cause has.
+pub const MAX_GAIN_CHANGE: f64 = 1.25;
+
+/// The most a moving offset (drift over the run, a covariate over its
+/// logged range) may move the reading, as a fraction of the field: 0.6.
+/// ArduPilot's CompassMot rates motor interference below 30 % of the
+/// field as acceptable, 30–60 % as a grey zone and above 60 % as
+/// unacceptable (ArduPilot docs, "Advanced Compass Setup", CompassMot);
+/// a warm-up drift moves a magnetometer's offset by far less (HMC5883L:
+/// offsets stable to a few mG with set/reset). Beyond it the "offset" is
+/// the fit enlarging the circle (time and covariates that follow heading
+/// through a turn can do that) rather than a cause.
+pub const MAX_OFFSET_SWING: f64 = 0.6;
+
+/// A physical limit on one fitted parameter, by the parameter's name.
+#[derive(Debug, Clone, Copy)]
+pub struct ParamLimit {
+    pub param: &'static str,
+    /// The largest |value| a physical cause of that name produces.
+    pub max_abs: f64,
+    /// What the value means, for the evidence: `describe(value)`.
+    pub describe: fn(f64) -> String,
+    /// Where the limit comes from.
+    pub source: &'static str,
+}
+
+fn bends(k: f64) -> String {
+    format!(
+        "bends the reading by {:.1} % at full scale",
+        k.abs() * 100.0
+    )
+}
+
+fn couples(c: f64) -> String {
+    format!("couples the axes by {:.1}°", c.atan().to_degrees().abs())
+}
+
+const CUBIC_SOURCE: &str =
+    "limit 10 % at full scale; datasheets give 0.1–0.5 % (HMC5883L, MPU-6050, ADXL345)";
+
+/// The physical limits, keyed by parameter name (an effect whose parameter
+/// has no row has no size limit beyond its standard error).
+pub const PARAM_LIMITS: [ParamLimit; 5] = [
+    ParamLimit {
+        param: "k_x",
+        max_abs: MAX_CUBIC,
+        describe: bends,
+        source: CUBIC_SOURCE,
+    },
+    ParamLimit {
+        param: "k_y",
+        max_abs: MAX_CUBIC,
+        describe: bends,
+        source: CUBIC_SOURCE,
+    },
+    ParamLimit {
+        param: "kc_x",
+        max_abs: MAX_CUBIC,
+        describe: bends,
+        source: CUBIC_SOURCE,
+    },
+    ParamLimit {
+        param: "kc_y",
+        max_abs: MAX_CUBIC,
+        describe: bends,
+        source: CUBIC_SOURCE,
+    },
+    ParamLimit {
+        param: "c",
+        max_abs: MAX_CROSS_AXIS_SHEAR,
+        describe: couples,
+        source: "limit 20°; datasheets give ±2 % cross-axis sensitivity (≈ 1°), ArduPilot accepts off-diagonals below 1.0",
+    },
+];
+
+/// The limit on a parameter, if it has one.
+pub fn limit_of(param: &str) -> Option<&'static ParamLimit> {
+    PARAM_LIMITS.iter().find(|l| l.param == param)
+}
+
 /// An rms below this is rounding, not noise or structure.
 const NUMERICAL_RMS: f64 = 1e-12;
 /// A harmonic (or trend) counts as structure in the verdict when it exceeds
@@ -64,14 +199,23 @@ pub struct Candidate {
     pub effect: Effect,
     /// Rms the model reaches with this effect added (over the used samples).
     pub rms: f64,
+    /// Rms of the model it was added to.
+    pub rms_before: f64,
+    /// Share of the model's mean-square residual the effect explains,
+    /// 1 − rms²/rms_before².
+    pub explained: f64,
+    /// The effect's own fitted parameters, with standard errors.
+    pub params: Vec<Param>,
     /// Unknowns the effect adds; for `outliers`, the flagged samples (each
     /// costs one unknown in the mean-shift outlier model).
     pub unknowns_added: usize,
     /// BIC with the effect minus BIC without: negative is better.
     pub delta_bic: f64,
-    /// Whether the data supports it (ΔBIC below -[`BIC_MARGIN`], and the
-    /// tail gate for `outliers`).
+    /// Whether the data supports it: ΔBIC below -[`BIC_MARGIN`] (and the
+    /// tail gate for `outliers`), material, within the physical limits,
+    /// resolved above its standard errors, and not folding the turn.
     pub supported: bool,
+    /// Why: built from the numbers that decided `supported`.
     pub evidence: String,
 }
 
@@ -83,12 +227,16 @@ pub struct Step {
     pub rms: f64,
     pub unknowns: usize,
     pub bic: f64,
+    /// Every fitted parameter, with its standard error.
+    pub params: Vec<Param>,
 }
 
 /// The whole answer of `fieldcal diagnose`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Diagnosis {
     pub baseline: Step,
+    /// Logged columns not offered as covariates, and why.
+    pub set_aside: Vec<SetAside>,
     pub baseline_residuals: Residuals,
     /// Ranked best first: supported ones first, then by ΔBIC.
     pub candidates: Vec<Candidate>,
@@ -110,7 +258,10 @@ pub struct Diagnosis {
 /// The criterion, as the report states it.
 pub fn criterion() -> String {
     format!(
-        "BIC: n·ln(RSS/n) + p·ln(n), with n all samples and p the unknowns; an effect is supported when it lowers BIC by more than {BIC_MARGIN}. outliers counts one unknown per flagged sample (the mean-shift outlier model) and must also find at least {MIN_TAILS} samples beyond 4 robust SD, a count Gaussian noise gives with probability below {TAIL_PROBABILITY:e}, or one beyond {EXTREME_SDS} robust SD"
+        "BIC: n·ln(RSS/n) + p·ln(n), with n all samples and p the unknowns; an effect is supported when it lowers BIC by more than {BIC_MARGIN}. outliers counts one unknown per flagged sample (the mean-shift outlier model) and must also find at least {MIN_TAILS} samples beyond 4 robust SD, a count Gaussian noise gives with probability below {TAIL_PROBABILITY:e}, or one beyond {EXTREME_SDS} robust SD. It must also matter: lower the rms by {:.0} % or more and explain an amplitude of at least {MIN_EXPLAINED_NOISE} of the noise floor; and be physical: a cubic within {:.0} % at full scale, a cross-axis within {MAX_CROSS_AXIS_DEG}°, a moving offset within {:.0} % of the field over the run, the gain ratio moved by less than ×{MAX_GAIN_CHANGE}, each effect's parameters resolved above their standard errors",
+        MIN_RMS_DROP * 100.0,
+        MAX_CUBIC * 100.0,
+        MAX_OFFSET_SWING * 100.0
     )
 }
 
@@ -130,6 +281,7 @@ fn step_of(fit: &ModelFit, effects: &[Effect], n: usize) -> Step {
         rms: fit.rms,
         unknowns: fit.unknowns,
         bic: bic(fit, n),
+        params: fit.params.clone(),
     }
 }
 
@@ -162,13 +314,6 @@ fn percent(fraction: f64) -> String {
     format!("{:.2} %", fraction * 100.0)
 }
 
-fn harmonic(res: &Residuals, order: u32) -> f64 {
-    res.harmonics
-        .iter()
-        .find(|h| h.order == order)
-        .map_or(0.0, |h| h.amplitude)
-}
-
 /// A logged column that moves almost in step with time: drift and that
 /// covariate are then hard to tell apart, and the user should know.
 const TIME_LIKE_CORRELATION: f64 = 0.95;
@@ -188,11 +333,11 @@ fn time_twins(data: &Dataset) -> Vec<(String, f64)> {
         .collect()
 }
 
-/// One sentence on why the residual points at this effect.
-fn evidence(effect: &Effect, res: &Residuals, data: &Dataset) -> String {
-    let base = evidence_base(effect, res, data);
+/// What a candidate says beyond its numbers: a drift and a covariate that
+/// follows time cannot be told apart, and the person should know.
+fn caveat(effect: &Effect, data: &Dataset) -> String {
     let twins = time_twins(data);
-    let caveat = match effect {
+    match effect {
         Effect::Drift if !twins.is_empty() => {
             let names: Vec<String> = twins
                 .iter()
@@ -210,66 +355,253 @@ fn evidence(effect: &Effect, res: &Residuals, data: &Dataset) -> String {
             None => String::new(),
         },
         _ => String::new(),
-    };
-    base + &caveat
+    }
 }
 
-fn evidence_base(effect: &Effect, res: &Residuals, data: &Dataset) -> String {
-    match effect {
-        Effect::CrossAxis => format!(
-            "the residual's second harmonic of heading, {} of the field, is the signature of cross-axis coupling",
-            percent(harmonic(res, 2))
-        ),
-        Effect::Cubic => format!(
-            "the residual's 4th harmonic of heading, {} of the field (2nd: {}), is the signature of an odd cubic non-linearity",
-            percent(harmonic(res, 4)),
-            percent(harmonic(res, 2))
-        ),
-        Effect::CubicCentred => format!(
-            "the residual's 2nd and 4th harmonics of heading ({} and {} of the field), about the turn's centre, are the signature of an odd cubic non-linearity centred on the turn",
-            percent(harmonic(res, 2)),
-            percent(harmonic(res, 4))
-        ),
-        Effect::Drift => match (res.time_trend, res.time_structure) {
-            (Some(slope), _) => format!(
-                "the residual trends by {} of the field per minute",
-                percent(slope * 60.0)
-            ),
-            (None, Some(s)) => format!(
-                "the recording has no time column, but a slow smooth of the residual along the run explains {:.0} % of its variance",
-                s * 100.0
-            ),
-            (None, None) => "the recording has no time column to show a drift".to_string(),
-        },
-        Effect::Covariate(column) => match res.covariates.iter().find(|c| &c.column == column) {
-            Some(link) => format!(
-                "the residual follows {column} (correlation {:.2}, {:.0} % of its variance)",
-                link.correlation,
-                link.explained * 100.0
-            ),
-            None if data.covariate(column).is_none() => {
-                format!("the recording has no column {column}")
+/// A number to three significant digits, in plain or scientific notation.
+fn sig(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 || !a.is_finite() {
+        return format!("{v}");
+    }
+    if !(1e-4..1e6).contains(&a) {
+        return format!("{v:.2e}");
+    }
+    let decimals = (2 - a.log10().floor() as i32).clamp(0, 8) as usize;
+    format!("{v:.decimals$}")
+}
+
+/// `name = value ± se`, joined.
+pub fn params_text(params: &[Param]) -> String {
+    params
+        .iter()
+        .map(|p| format!("{} = {} ± {}", p.name, sig(p.value), sig(p.se)))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The parameters `fit` has that `current` lacks: the added effect's own.
+fn own_params(fit: &ModelFit, current: &ModelFit) -> Vec<Param> {
+    fit.params
+        .iter()
+        .filter(|p| current.param(&p.name).is_none())
+        .cloned()
+        .collect()
+}
+
+/// What decided one candidate.
+struct Judgement {
+    supported: bool,
+    evidence: String,
+}
+
+/// Everything a candidate is judged on.
+struct Trial<'a> {
+    data: &'a Dataset,
+    effect: &'a Effect,
+    fit: &'a ModelFit,
+    current: &'a ModelFit,
+    res: &'a Residuals,
+    params: &'a [Param],
+    delta_bic: f64,
+    covered: f64,
+    covered_now: f64,
+}
+
+/// Explained share of the mean-square residual, and explained amplitude.
+fn explained(rms_before: f64, rms_after: f64) -> (f64, f64) {
+    let (before, after) = (rms_before * rms_before, rms_after * rms_after);
+    let share = if before > 0.0 {
+        1.0 - after / before
+    } else {
+        0.0
+    };
+    (share, (before - after).max(0.0).sqrt())
+}
+
+/// The largest swing of a moving offset (drift, covariate) over the
+/// recording, in calibrated units over the field.
+struct Swing {
+    param: String,
+    value: f64,
+    se: f64,
+    fraction: f64,
+    over: String,
+}
+
+fn range(values: &[f64]) -> f64 {
+    let (lo, hi) = values
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(*v), hi.max(*v))
+        });
+    if hi >= lo { hi - lo } else { 0.0 }
+}
+
+fn offset_swing(t: &Trial<'_>) -> Option<Swing> {
+    let (span, over) = match t.effect {
+        Effect::Drift => {
+            let span = range(t.data.t.as_deref()?);
+            (span, format!("the run's {span:.1} s"))
+        }
+        Effect::Covariate(column) => {
+            let span = range(&t.data.covariate(column)?.values);
+            (span, format!("{column}'s range of {}", sig(span)))
+        }
+        _ => return None,
+    };
+    let (a, r) = (t.fit.value("a"), t.fit.value("r"));
+    if !(r > 0.0) {
+        return None;
+    }
+    t.params
+        .iter()
+        .map(|p| {
+            // s_x = a·x + …: an x offset moves the calibrated reading a times.
+            let gain = if p.name.ends_with("_x") { a } else { 1.0 };
+            Swing {
+                param: p.name.clone(),
+                value: p.value,
+                se: p.se,
+                fraction: (p.value * span * gain).abs() / r,
+                over: over.clone(),
             }
-            None => format!("{column} does not change, so the residual cannot follow it"),
-        },
-        Effect::Outliers => format!(
-            "{} samples lie beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}",
-            res.tail_count, res.tail_max_sd, res.tail_expected
+        })
+        .max_by(|a, b| a.fraction.total_cmp(&b.fraction))
+}
+
+/// Judges a candidate, first failing reason first; the evidence is made of
+/// the numbers that decided it.
+fn judge(t: &Trial<'_>) -> Judgement {
+    let (rms0, rms1) = (t.current.rms, t.fit.rms);
+    let (share, amplitude) = explained(rms0, rms1);
+    let numbers = format!(
+        "rms {} → {}, {:.1} % of the residual variance, ΔBIC {:.1}",
+        percent(rms0),
+        percent(rms1),
+        share * 100.0,
+        t.delta_bic
+    );
+    let with_params = if t.params.is_empty() {
+        numbers.clone()
+    } else {
+        format!("{numbers}; {}", params_text(t.params))
+    };
+    let refuse = |evidence: String| Judgement {
+        supported: false,
+        evidence,
+    };
+    if t.covered < t.covered_now - FOLD_DEG {
+        return refuse(format!(
+            "not an effect: the fit folds the turn onto {:.0}° of heading (the model without it covers {:.0}°), a larger circle through an arc of the samples",
+            t.covered, t.covered_now
+        ));
+    }
+    for p in t.params {
+        if let Some(limit) = limit_of(&p.name).filter(|l| p.value.abs() > l.max_abs) {
+            return refuse(format!(
+                "not a physical {}: {} = {} ± {} {}, beyond what any sensor does ({}); {numbers}",
+                t.effect,
+                p.name,
+                sig(p.value),
+                sig(p.se),
+                (limit.describe)(p.value),
+                limit.source
+            ));
+        }
+    }
+    if let Some(swing) = offset_swing(t) {
+        if swing.fraction > MAX_OFFSET_SWING {
+            return refuse(format!(
+                "not a physical {}: {} = {} ± {} moves the offset by {:.0} % of the field over {}, more than the {:.0} % ArduPilot's CompassMot accepts for motor interference; {numbers}",
+                t.effect,
+                swing.param,
+                sig(swing.value),
+                sig(swing.se),
+                swing.fraction * 100.0,
+                swing.over,
+                MAX_OFFSET_SWING * 100.0
+            ));
+        }
+    }
+    let (a0, a1) = (t.current.value("a"), t.fit.value("a"));
+    if a0 > 0.0 && a1 > 0.0 {
+        let factor = (a1 / a0).max(a0 / a1);
+        if factor > MAX_GAIN_CHANGE {
+            return refuse(format!(
+                "not a physical {}: it moves the gain ratio a from {} to {} (×{factor:.2}), more than any effect of the catalogue at its limit (×{MAX_GAIN_CHANGE}); {with_params}",
+                t.effect,
+                sig(a0),
+                sig(a1)
+            ));
+        }
+    }
+    if !t.params.is_empty() && t.params.iter().all(|p| !(p.value.abs() > p.se)) {
+        return refuse(format!(
+            "not resolved: no parameter of {} stands above its standard error ({}); {numbers}",
+            t.effect,
+            params_text(t.params)
+        ));
+    }
+    if !(t.delta_bic < -BIC_MARGIN) {
+        return refuse(format!(
+            "not detectable: ΔBIC {:.1} does not reach -{BIC_MARGIN}; {}",
+            t.delta_bic, with_params
+        ));
+    }
+    if *t.effect == Effect::Outliers && !tails_heavy(t.res) {
+        return refuse(format!(
+            "no outliers: {} samples lie beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}; {numbers}",
+            t.res.tail_count, t.res.tail_max_sd, t.res.tail_expected
+        ));
+    }
+    let drop = if rms0 > 0.0 { 1.0 - rms1 / rms0 } else { 0.0 };
+    if drop < MIN_RMS_DROP {
+        return refuse(format!(
+            "too small to matter: it lowers the rms by {:.2} % (under {:.0} %); {with_params}",
+            drop * 100.0,
+            MIN_RMS_DROP * 100.0
+        ));
+    }
+    let floor = t.res.noise_floor.rms;
+    if amplitude < MIN_EXPLAINED_NOISE * floor {
+        return refuse(format!(
+            "too small to matter: it explains {} of the field, under a quarter of the noise floor {}; {with_params}",
+            percent(amplitude),
+            percent(floor)
+        ));
+    }
+    let extra = if *t.effect == Effect::Outliers {
+        format!(
+            "; {} samples flagged, {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}",
+            t.fit.flagged.len(),
+            t.res.tail_count,
+            t.res.tail_max_sd,
+            t.res.tail_expected
+        )
+    } else {
+        String::new()
+    };
+    Judgement {
+        supported: true,
+        evidence: format!(
+            "explains {} of the field: {with_params}{extra}",
+            percent(amplitude)
         ),
-        Effect::Offset | Effect::Scale => "part of the paper's model".to_string(),
     }
 }
 
 /// The candidate effects for a model: the optional catalogue, and one
-/// covariate per logged column that is not time.
-fn candidate_effects(data: &Dataset, model: &[Effect]) -> Vec<Effect> {
+/// covariate per logged column not set aside (time, constants, copies of
+/// the axes).
+fn candidate_effects(data: &Dataset, model: &[Effect], aside: &[SetAside]) -> Vec<Effect> {
     effects::OPTIONAL
         .iter()
         .cloned()
         .chain(
             data.covariates
                 .iter()
-                .filter(|c| !is_time_like(&c.name))
+                .filter(|c| !is_time_like(&c.name) && !aside.iter().any(|a| a.column == c.name))
                 .map(|c| Effect::Covariate(c.name.clone())),
         )
         .filter(|e| !model.contains(e))
@@ -295,11 +627,17 @@ fn with_effect(model: &[Effect], effect: &Effect) -> Vec<Effect> {
 }
 
 /// Fits and ranks every candidate against `current` (already fitted).
-fn rank(data: &Dataset, model: &[Effect], current: &ModelFit, res: &Residuals) -> Vec<Candidate> {
+fn rank(
+    data: &Dataset,
+    model: &[Effect],
+    current: &ModelFit,
+    res: &Residuals,
+    aside: &[SetAside],
+) -> Vec<Candidate> {
     let n = data.len();
     let base_bic = bic(current, n);
     let covered_now = covered_deg(current);
-    let mut candidates: Vec<Candidate> = candidate_effects(data, model)
+    let mut candidates: Vec<Candidate> = candidate_effects(data, model, aside)
         .into_iter()
         .filter_map(|effect| {
             let effects = with_effect(model, &effect);
@@ -314,25 +652,30 @@ fn rank(data: &Dataset, model: &[Effect], current: &ModelFit, res: &Residuals) -
                 return None;
             }
             let delta_bic = bic(&fit, n) - base_bic;
-            let gate = effect != Effect::Outliers || tails_heavy(res);
             let unknowns_added = (fit.unknowns + fit.flagged.len())
                 .saturating_sub(current.unknowns + current.flagged.len());
-            let covered = covered_deg(&fit);
-            let folded = covered < covered_now - FOLD_DEG;
-            let evidence = if folded {
-                format!(
-                    "not an effect: the fit folds the turn onto {covered:.0}° of heading (the model without it covers {covered_now:.0}°), a larger circle through an arc of the samples"
-                )
-            } else {
-                evidence(&effect, res, data)
-            };
+            let params = own_params(&fit, current);
+            let judged = judge(&Trial {
+                data,
+                effect: &effect,
+                fit: &fit,
+                current,
+                res,
+                params: &params,
+                delta_bic,
+                covered: covered_deg(&fit),
+                covered_now,
+            });
             Some(Candidate {
-                evidence,
-                effect,
+                evidence: judged.evidence + &caveat(&effect, data),
                 rms: fit.rms,
+                rms_before: current.rms,
+                explained: explained(current.rms, fit.rms).0,
+                params,
+                effect,
                 unknowns_added,
                 delta_bic,
-                supported: gate && !folded && delta_bic < -BIC_MARGIN,
+                supported: judged.supported,
             })
         })
         .collect();
@@ -356,10 +699,11 @@ pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitErr
     }
     model.sort();
     let n = data.len();
+    let aside = set_aside(data);
 
     let base_fit = fit_model(data, &model)?;
     let baseline_residuals = analyse(data, &base_fit);
-    let candidates = rank(data, &model, &base_fit, &baseline_residuals);
+    let candidates = rank(data, &model, &base_fit, &baseline_residuals, &aside);
     let suggested = candidates
         .first()
         .filter(|c| c.supported)
@@ -388,7 +732,7 @@ pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitErr
         current_res = analyse(data, &fit);
         ladder.push(step_of(&fit, &model, n));
         current = fit;
-        next = rank(data, &model, &current, &current_res)
+        next = rank(data, &model, &current, &current_res, &aside)
             .into_iter()
             .find(|c| c.supported)
             .map(|c| c.effect);
@@ -408,6 +752,7 @@ pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitErr
     );
     Ok(Diagnosis {
         baseline: baseline_step,
+        set_aside: aside,
         baseline_residuals,
         candidates,
         suggested,
@@ -563,7 +908,14 @@ mod data_tests {
         let fit = fit_model(&spiky, &effects::PAPER).unwrap();
         let res = analyse(&spiky, &fit);
         assert!(tails_heavy(&res), "{res:?}");
-        assert!(evidence(&Effect::Outliers, &res, &spiky).contains("beyond 4 robust SD"));
+        let d = diagnose(&spiky, &[]).unwrap();
+        let outliers = d.candidates.iter().find(|c| c.effect == Effect::Outliers);
+        let outliers = outliers.expect("outliers is a candidate");
+        assert!(outliers.supported, "{outliers:?}");
+        assert!(
+            outliers.evidence.contains("beyond 4 robust SD"),
+            "{outliers:?}"
+        );
 
         // One far spike is enough.
         let mut one = data.clone();
@@ -701,14 +1053,12 @@ mod evidence_tests {
             values: t.iter().map(|t| 20.0 + t).collect(),
         };
         let data = Dataset::new("x", "y", Some(t), x, y, vec![temp]).unwrap();
-        let fit = fit_model(&data, &effects::PAPER).unwrap();
-        let res = analyse(&data, &fit);
-        let drift = evidence(&Effect::Drift, &res, &data);
+        let drift = caveat(&Effect::Drift, &data);
         assert!(
-            drift.contains("per minute") && drift.contains("temp_c"),
+            drift.contains("temp_c") && drift.contains("hard to tell apart"),
             "{drift}"
         );
-        let cov = evidence(&Effect::Covariate("temp_c".into()), &res, &data);
+        let cov = caveat(&Effect::Covariate("temp_c".into()), &data);
         assert!(cov.contains("hard to tell apart"), "{cov}");
     }
 }

@@ -540,8 +540,8 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
         // The centre's standard errors: x's is b's over a, y's is d's.
         let se = |j: usize| (covariance[(j, j)] * sigma_sq).max(0.0).sqrt();
         let centre_se = [se(1) / p[0].abs(), se(2)];
-        for axis in 0..2 {
-            if !(layout.centre[axis].abs() > SAME_CENTRE_SES * centre_se[axis]) {
+        for (axis, (centre, se)) in layout.centre.iter().zip(centre_se).enumerate() {
+            if !(centre.abs() > SAME_CENTRE_SES * se) {
                 return Err(FitError::Undetermined {
                     parameter: layout.names[kc + axis].clone(),
                 });

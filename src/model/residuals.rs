@@ -86,6 +86,106 @@ pub fn is_time_like(name: &str) -> bool {
     ) || lower.starts_with("time")
 }
 
+/// A column whose variance the chosen axes explain beyond this R² is a
+/// (nearly) linear copy of them, not a covariate. Fitted as one, it can
+/// only recombine x and y linearly, which is the business of scale and
+/// cross-axis, and its coefficients' standard errors are inflated by
+/// 1/√(1 − R²) ≥ 10 (a variance inflation factor ≥ 100, ten times the
+/// usual VIF 10 alarm of regression diagnostics, Marquardt 1970; Kutner et
+/// al., Applied Linear Statistical Models, §10.5). An axis logged again in
+/// other units (`mag_z_uT` beside `mag_z_lsb`) gives R² ≈ 1 less rounding;
+/// the third axis of a sensor turned in a plane tilted from its own is the
+/// other two plus noise, and lands here too.
+pub const COPY_R2: f64 = 0.99;
+
+/// A logged column that is not offered as a covariate, and why.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SetAside {
+    pub column: String,
+    pub reason: String,
+}
+
+/// R² of `u` regressed on `[1, x, y]`, and on `[1, x]` and `[1, y]` alone;
+/// None when `u` is constant.
+fn r2_on_axes(u: &[f64], x: &[f64], y: &[f64]) -> Option<(f64, f64, f64)> {
+    let n = u.len().min(x.len()).min(y.len());
+    if n < 3 {
+        return None;
+    }
+    let mean = |v: &[f64]| v[..n].iter().sum::<f64>() / n as f64;
+    let (mu, mx, my) = (mean(u), mean(x), mean(y));
+    let (mut suu, mut sxx, mut syy, mut sxy, mut sux, mut suy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    for i in 0..n {
+        let (du, dx, dy) = (u[i] - mu, x[i] - mx, y[i] - my);
+        suu += du * du;
+        sxx += dx * dx;
+        syy += dy * dy;
+        sxy += dx * dy;
+        sux += du * dx;
+        suy += du * dy;
+    }
+    if !(suu > 0.0) || !suu.is_finite() {
+        return None;
+    }
+    let single = |s: f64, ss: f64| if ss > 0.0 { s * s / (ss * suu) } else { 0.0 };
+    let r2x = single(sux, sxx);
+    let r2y = single(suy, syy);
+    let det = sxx * syy - sxy * sxy;
+    let r2 = if det > 0.0 {
+        let bx = (sux * syy - suy * sxy) / det;
+        let by = (suy * sxx - sux * sxy) / det;
+        (bx * sux + by * suy) / suu
+    } else {
+        r2x.max(r2y)
+    };
+    let clamp = |v: f64| {
+        if v.is_finite() {
+            v.clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    };
+    Some((clamp(r2), clamp(r2x), clamp(r2y)))
+}
+
+/// The logged columns that are not covariate candidates, with the reason:
+/// time (the `drift` effect's business), a constant, or a (nearly) linear
+/// copy of the chosen axes (R² above [`COPY_R2`]).
+pub fn set_aside(data: &Dataset) -> Vec<SetAside> {
+    data.covariates
+        .iter()
+        .filter_map(|c| {
+            let reason = if is_time_like(&c.name) {
+                "time, which the drift effect covers".to_string()
+            } else {
+                match r2_on_axes(&c.values, &data.x, &data.y) {
+                    None => "constant: the residual cannot follow it".to_string(),
+                    Some((r2, r2x, r2y)) if r2 > COPY_R2 => {
+                        if r2x.max(r2y) > COPY_R2 {
+                            let (axis, single) = if r2x >= r2y {
+                                (&data.x_name, r2x)
+                            } else {
+                                (&data.y_name, r2y)
+                            };
+                            format!("a copy of {axis} in other units (R² {single:.4})")
+                        } else {
+                            format!(
+                                "a linear combination of {} and {} (R² {r2:.4}): the axes in the plane of the turn already carry it",
+                                data.x_name, data.y_name
+                            )
+                        }
+                    }
+                    Some(_) => return None,
+                }
+            };
+            Some(SetAside {
+                column: c.name.clone(),
+                reason,
+            })
+        })
+        .collect()
+}
+
 /// Indices of the samples the fit used (all but the flagged ones), in time
 /// order when the data has times (input order otherwise).
 fn used_in_time_order(data: &Dataset, fit: &ModelFit) -> Vec<usize> {
@@ -383,10 +483,11 @@ pub fn analyse(data: &Dataset, fit: &ModelFit) -> Residuals {
         .and_then(|t| line(&t, &e))
         .map(|(slope, _)| slope);
 
+    let aside = set_aside(data);
     let covariates = data
         .covariates
         .iter()
-        .filter(|c| !is_time_like(&c.name))
+        .filter(|c| !aside.iter().any(|a| a.column == c.name))
         .filter_map(|c| {
             let u = column(&c.values)?;
             let (slope, correlation) = line(&u, &e)?;
@@ -490,6 +591,71 @@ mod tests {
         assert!((slope - 0.002).abs() < 2e-4, "{slope}");
         assert!(corr > 0.9, "{corr}");
         assert!(line(&vec![1.0; n], &e).is_none());
+    }
+
+    #[test]
+    fn copies_constants_and_time_are_set_aside() {
+        use crate::sample::Covariate;
+        let n = 300;
+        let theta: Vec<f64> = (0..n).map(|i| i as f64 * 0.03).collect();
+        let noise = gaussian(n, 0.01, 11);
+        let x: Vec<f64> = theta.iter().map(|t| 400.0 * t.cos() + 30.0).collect();
+        let y: Vec<f64> = theta.iter().map(|t| 380.0 * t.sin() - 10.0).collect();
+        let column = |name: &str, values: Vec<f64>| Covariate {
+            name: name.into(),
+            values,
+        };
+        let covariates = vec![
+            // y again, in µT rounded to 0.1.
+            column(
+                "y_uT",
+                y.iter()
+                    .map(|v| (v * 0.092 * 10.0).round() / 10.0)
+                    .collect(),
+            ),
+            // A third axis of a plane tilted by 20°: x and y plus noise.
+            column(
+                "z",
+                x.iter()
+                    .zip(&y)
+                    .zip(&noise)
+                    .map(|((x, y), e)| 0.3 * x - 0.2 * y + 50.0 + e)
+                    .collect(),
+            ),
+            column("supply", vec![5.0; n]),
+            column("timestamp", (0..n).map(|i| i as f64).collect()),
+            // A real covariate: warms through the run, independent of x, y.
+            column("temp", (0..n).map(|i| 20.0 + i as f64 * 0.01).collect()),
+        ];
+        let data = Dataset::new("x", "y", None, x, y, covariates).unwrap();
+        let aside = set_aside(&data);
+        let reason = |name: &str| {
+            aside
+                .iter()
+                .find(|a| a.column == name)
+                .map(|a| a.reason.clone())
+        };
+        assert!(
+            reason("y_uT")
+                .unwrap()
+                .starts_with("a copy of y in other units (R² 1.0000)"),
+            "{aside:?}"
+        );
+        assert!(
+            reason("z")
+                .unwrap()
+                .starts_with("a linear combination of x and y"),
+            "{aside:?}"
+        );
+        assert!(
+            reason("supply").unwrap().starts_with("constant"),
+            "{aside:?}"
+        );
+        assert!(
+            reason("timestamp").unwrap().starts_with("time"),
+            "{aside:?}"
+        );
+        assert_eq!(reason("temp"), None, "{aside:?}");
     }
 
     #[test]

@@ -4,9 +4,10 @@
 use anyhow::{Context, Result};
 use serde::Serialize;
 
+use fieldcal::model::diagnose::params_text;
 use fieldcal::model::diagnose::{Candidate, Diagnosis, Step, diagnose as run_diagnosis};
 use fieldcal::model::effects::{Effect, parse_list};
-use fieldcal::model::residuals::Residuals;
+use fieldcal::model::residuals::{Residuals, SetAside};
 
 use crate::DiagnoseArgs;
 use crate::output::write_stdout;
@@ -58,6 +59,8 @@ pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
 struct DiagnosisJson<'a> {
     file: &'a str,
     baseline: &'a Step,
+    /// Logged columns not offered as covariates: `{column, reason}`.
+    set_aside: &'a [SetAside],
     candidates: &'a [Candidate],
     /// The effect to add next, or null when the model is enough.
     suggested: Option<&'a Effect>,
@@ -78,6 +81,7 @@ impl<'a> DiagnosisJson<'a> {
         DiagnosisJson {
             file,
             baseline: &d.baseline,
+            set_aside: &d.set_aside,
             candidates: &d.candidates,
             suggested: d.suggested.as_ref(),
             close_second: d.close_second.as_ref(),
@@ -110,6 +114,12 @@ fn render_text(d: &Diagnosis, file: &str) -> String {
         pct(d.noise_floor.rms),
         d.noise_floor.method
     ));
+    for aside in &d.set_aside {
+        out.push_str(&format!("set aside  {}: {}\n", aside.column, aside.reason));
+    }
+    if !d.set_aside.is_empty() {
+        out.push('\n');
+    }
     if d.candidates.is_empty() {
         out.push_str("candidates: none could be fitted\n");
     } else {
@@ -149,6 +159,7 @@ fn render_text(d: &Diagnosis, file: &str) -> String {
             step.model,
             pct(step.rms)
         ));
+        out.push_str(&format!("     {}\n", params_text(&step.params)));
     }
     out.push_str(&format!("  noise floor {}\n\n", pct(d.noise_floor.rms)));
     out.push_str(&format!("verdict: {}\n", d.verdict));
