@@ -89,7 +89,7 @@ fn the_daemon_corrects_a_non_linearity_about_the_turns_centre() {
         "--format",
         "falcon",
         "--effect",
-        "cubic-centred=0.04,0.03",
+        "cubic-centred=0.04",
         "--turns",
         "3",
         "--noise",

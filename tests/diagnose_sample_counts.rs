@@ -127,7 +127,8 @@ fn sensor(job: &Job) -> SimSensor {
         }
         Some(Effect::Cubic) => effects.cubic = pair(rng.random_range(0.002..0.06), &mut rng),
         Some(Effect::CubicCentred) => {
-            effects.cubic_centred = pair(rng.random_range(0.002..0.06), &mut rng)
+            let size = rng.random_range(0.002..0.06);
+            effects.cubic_centred = if rng.random_bool(0.5) { size } else { -size };
         }
         Some(Effect::Outliers) => effects.outliers = rng.random_range(0.01..0.05),
         Some(other) => panic!("{other} is not hidden by this sweep"),

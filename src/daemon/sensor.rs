@@ -448,7 +448,7 @@ impl Sensor {
             // same starting point does.
             let frame = turn_frame(&rotation).map_err(|e| (e.to_string(), n))?;
             Terms {
-                kc: [fit.value("kc_x"), fit.value("kc_y")],
+                kc: [fit.value("kc"); 2],
                 centre: frame.centre,
                 turn_radius: frame.radius,
                 ..terms

@@ -362,7 +362,7 @@ fn meaning(name: &str) -> String {
         "b" | "d" => "the offset (hard iron, zero-g bias) changed between runs".into(),
         "r" => "the field magnitude changed (another place, or both gains changed)".into(),
         "c" => "the cross-axis coupling (soft iron, mounting) changed".into(),
-        "k_x" | "k_y" => "the non-linearity changed".into(),
+        "k_x" | "k_y" | "kc" => "the non-linearity changed".into(),
         "drift_x" | "drift_y" => "the drift during the run differs".into(),
         other => format!("the term '{other}' changed"),
     }

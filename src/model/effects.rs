@@ -49,7 +49,8 @@ impl Effect {
         match self {
             Effect::Offset | Effect::Scale | Effect::Outliers => 0,
             Effect::CrossAxis => 1,
-            Effect::Drift | Effect::Covariate(_) | Effect::Cubic | Effect::CubicCentred => 2,
+            Effect::CubicCentred => 1,
+            Effect::Drift | Effect::Covariate(_) | Effect::Cubic => 2,
         }
     }
 
