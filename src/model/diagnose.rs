@@ -1061,3 +1061,159 @@ mod evidence_tests {
         assert!(cov.contains("hard to tell apart"), "{cov}");
     }
 }
+
+#[cfg(test)]
+mod judge_tests {
+    use super::*;
+    use crate::sim::SimSensor;
+
+    fn fit(params: &[(&str, f64, f64)], rms: f64) -> ModelFit {
+        let n = 1000;
+        ModelFit {
+            effects: vec![],
+            params: params
+                .iter()
+                .map(|&(name, value, se)| Param {
+                    name: name.into(),
+                    value,
+                    se,
+                })
+                .collect(),
+            rms,
+            n,
+            unknowns: params.len(),
+            residuals: vec![rms; n],
+            headings: vec![0.0; n],
+            calibrated: vec![(1.0, 0.0); n],
+            flagged: vec![],
+            weights: vec![1.0; n],
+            iterations: 1,
+            rss: rms * rms * n as f64,
+        }
+    }
+
+    const PAPER_PARAMS: [(&str, f64, f64); 4] = [
+        ("a", 1.0, 0.001),
+        ("b", 10.0, 0.1),
+        ("d", -5.0, 0.1),
+        ("r", 1000.0, 1.0),
+    ];
+
+    /// Judges `effect` with `own` parameters (and `a` moved to `a1`) taking
+    /// the rms from 2 % to `rms1` at ΔBIC -500, noise floor 1 %.
+    fn judged(effect: Effect, own: &[(&str, f64, f64)], a1: f64, rms1: f64) -> Judgement {
+        let data = SimSensor {
+            noise: 10.0,
+            ..Default::default()
+        }
+        .simulate()
+        .unwrap();
+        let current = fit(&PAPER_PARAMS, 0.02);
+        let mut with: Vec<(&str, f64, f64)> = PAPER_PARAMS.to_vec();
+        with[0].1 = a1;
+        with.extend_from_slice(own);
+        let candidate = fit(&with, rms1);
+        let mut res = analyse(&data, &fit_model(&data, &effects::PAPER).unwrap());
+        res.noise_floor.rms = 0.01;
+        let params = own_params(&candidate, &current);
+        judge(&Trial {
+            data: &data,
+            effect: &effect,
+            fit: &candidate,
+            current: &current,
+            res: &res,
+            params: &params,
+            delta_bic: -500.0,
+            covered: 360.0,
+            covered_now: 360.0,
+        })
+    }
+
+    #[test]
+    fn a_physical_effect_that_matters_is_supported_with_its_numbers() {
+        let j = judged(
+            Effect::Cubic,
+            &[("k_x", 0.03, 0.001), ("k_y", 0.0, 0.001)],
+            1.0,
+            0.012,
+        );
+        assert!(j.supported, "{}", j.evidence);
+        assert!(
+            j.evidence.contains("rms 2.00 % → 1.20 %")
+                && j.evidence.contains("k_x = 0.0300 ± 0.00100"),
+            "{}",
+            j.evidence
+        );
+    }
+
+    #[test]
+    fn a_cubic_beyond_the_limit_is_not_physical() {
+        let j = judged(
+            Effect::Cubic,
+            &[("k_x", -1.15, 0.02), ("k_y", 0.0, 0.01)],
+            1.0,
+            0.012,
+        );
+        assert!(!j.supported);
+        assert!(
+            j.evidence.starts_with("not a physical cubic: k_x = -1.15 ± 0.0200 bends the reading by 115.0 % at full scale"),
+            "{}",
+            j.evidence
+        );
+        // The centred cubic of the `cubic` branch is held to the same limit.
+        assert_eq!(limit_of("kc_x").map(|l| l.max_abs), Some(MAX_CUBIC));
+    }
+
+    #[test]
+    fn a_cross_axis_of_tens_of_degrees_is_not_physical() {
+        assert!((MAX_CROSS_AXIS_SHEAR - MAX_CROSS_AXIS_DEG.to_radians().tan()).abs() < 1e-3);
+        let j = judged(Effect::CrossAxis, &[("c", 0.5, 0.01)], 1.0, 0.012);
+        assert!(!j.supported);
+        assert!(
+            j.evidence.contains("couples the axes by 26.6°"),
+            "{}",
+            j.evidence
+        );
+        let j = judged(Effect::CrossAxis, &[("c", 0.17, 0.01)], 1.0, 0.012);
+        assert!(j.supported, "{}", j.evidence);
+    }
+
+    #[test]
+    fn doubling_the_gain_ratio_is_not_physical() {
+        let j = judged(Effect::Cubic, &[("k_x", 0.05, 0.001)], 2.03, 0.012);
+        assert!(!j.supported);
+        assert!(
+            j.evidence.contains("from 1.00 to 2.03 (×2.03)"),
+            "{}",
+            j.evidence
+        );
+    }
+
+    #[test]
+    fn a_covariate_within_its_standard_error_is_not_resolved() {
+        let j = judged(
+            Effect::Covariate("temp".into()),
+            &[("temp_x", 0.3, 300.0), ("temp_y", -0.1, 250.0)],
+            1.0,
+            0.012,
+        );
+        assert!(!j.supported);
+        assert!(j.evidence.starts_with("not resolved"), "{}", j.evidence);
+    }
+
+    #[test]
+    fn a_detectable_effect_too_small_to_matter_is_not_suggested() {
+        // ΔBIC -500 but the rms moves by 1 %.
+        let j = judged(Effect::Cubic, &[("k_x", 0.01, 0.0001)], 1.0, 0.0198);
+        assert!(!j.supported);
+        assert!(
+            j.evidence.starts_with("too small to matter"),
+            "{}",
+            j.evidence
+        );
+        // A 4 % drop explains 0.56 % of the field, over a quarter of the
+        // 1 % noise floor.
+        let j = judged(Effect::Cubic, &[("k_x", 0.01, 0.0001)], 1.0, 0.0192);
+        assert!(j.supported, "{}", j.evidence);
+    }
+}
