@@ -250,6 +250,113 @@ pub fn parse_dataset<R: Read>(
     })
 }
 
+/// One column of a file against that file's own time column: a gyro axis
+/// recorded beside the sensor on the same clock.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Series {
+    /// The time column found (one of [`DEFAULT_TIME_COLUMNS`]).
+    pub time_name: String,
+    pub t: Vec<f64>,
+    pub values: Vec<f64>,
+}
+
+/// Reads `column` and the file's time column (the first of
+/// [`DEFAULT_TIME_COLUMNS`]). `role` and `flag` say in messages what the
+/// column is for and which option names it.
+pub fn read_series(
+    path: &Path,
+    column: &str,
+    role: &'static str,
+    flag: &'static str,
+) -> Result<Series, CsvError> {
+    let file = File::open(path).map_err(|source| CsvError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    parse_series(
+        io::BufReader::with_capacity(1 << 16, file),
+        path,
+        column,
+        role,
+        flag,
+    )
+}
+
+/// [`read_series`] from any reader; `path` is used in messages only.
+pub fn parse_series<R: Read>(
+    reader: R,
+    path: &Path,
+    column: &str,
+    role: &'static str,
+    flag: &'static str,
+) -> Result<Series, CsvError> {
+    let mut csv = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .flexible(false)
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_reader(reader);
+    let header = csv.byte_headers().map_err(|e| csv_error(path, e))?.clone();
+    if header.is_empty() || (header.len() == 1 && header[0].is_empty()) {
+        return Err(CsvError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
+    let names: Vec<String> = header
+        .iter()
+        .map(|h| String::from_utf8_lossy(h).into_owned())
+        .collect();
+    let find = |name: &str| names.iter().position(|n| n == name);
+    let value_index = find(column).ok_or_else(|| CsvError::MissingColumn {
+        path: path.to_path_buf(),
+        name: column.to_string(),
+        role,
+        flag,
+        available: names.join(", "),
+    })?;
+    let t_index = DEFAULT_TIME_COLUMNS
+        .iter()
+        .find_map(|t| find(t))
+        .ok_or_else(|| CsvError::MissingColumn {
+            path: path.to_path_buf(),
+            name: DEFAULT_TIME_COLUMNS.join(" or "),
+            role: "time (a second file is joined to the recording by time)",
+            flag,
+            available: names.join(", "),
+        })?;
+    if t_index == value_index {
+        return Err(CsvError::SameAxis {
+            path: path.to_path_buf(),
+            x: format!("'{column}' ({role})"),
+            y: "time".into(),
+        });
+    }
+    let mut t = Vec::new();
+    let mut values = Vec::new();
+    let mut record = csv::ByteRecord::new();
+    while csv
+        .read_byte_record(&mut record)
+        .map_err(|e| csv_error(path, e))?
+    {
+        let line = record.position().map_or(0, |p| p.line());
+        for (i, out) in [(t_index, &mut t), (value_index, &mut values)] {
+            let value = parse_number(&record[i]).map_err(|problem| CsvError::BadValue {
+                path: path.to_path_buf(),
+                line,
+                column: names[i].clone(),
+                field: i + 1,
+                problem,
+            })?;
+            out.push(value);
+        }
+    }
+    Ok(Series {
+        time_name: names[t_index].clone(),
+        t,
+        values,
+    })
+}
+
 /// Parses one field as a finite number, or says what is wrong with it.
 fn parse_number(field: &[u8]) -> Result<f64, String> {
     let text =
@@ -376,6 +483,43 @@ mod tests {
             Path::new("mem.csv"),
             &ColumnSpec::default(),
         )
+    }
+
+    #[test]
+    fn reads_a_series_against_its_time() {
+        let text = "t_s,gyro_x,gyro_z\n0.0,1,2\n0.1,3,4\n";
+        let s = parse_series(
+            text.as_bytes(),
+            Path::new("g.csv"),
+            "gyro_z",
+            "the gyro",
+            "--gyro",
+        )
+        .unwrap();
+        assert_eq!(s.time_name, "t_s");
+        assert_eq!(s.t, vec![0.0, 0.1]);
+        assert_eq!(s.values, vec![2.0, 4.0]);
+        let err = parse_series(
+            text.as_bytes(),
+            Path::new("g.csv"),
+            "gyro",
+            "the gyro",
+            "--gyro",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("g.csv") && err.contains("'gyro'"), "{err}");
+        assert!(err.contains("gyro_x, gyro_z"), "{err}");
+        let err = parse_series(
+            "a,b\n1,2\n".as_bytes(),
+            Path::new("g.csv"),
+            "b",
+            "the gyro",
+            "--gyro",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("time"), "{err}");
     }
 
     #[test]

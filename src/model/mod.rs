@@ -3,16 +3,21 @@
 //! - [`paper`]: the paper's model `s_x = a*x + b, s_y = y + d, |s| = r`, its
 //!   closed-form least squares (eq. 6) and its gradient descent (eqs. 7-21).
 //! - [`heading`]: where on the circle the samples lie (coverage of the turn).
+//! - [`gyro`]: a gyroscope as a heading reference, and a model's heading
+//!   error against it.
 //! - [`fit`]: fitting a recording end to end, with the checks a user needs.
 //! - [`effects`]: the catalogue of physical effects a model can add.
 //! - [`nonlinear`]: the paper's model plus any effects, fitted by
 //!   Levenberg-Marquardt.
 //! - [`residuals`]: what a fit's residual still holds, and its noise floor.
 //! - [`diagnose`]: which effect the data supports, step by step.
+//! - [`check`]: whether a stored calibration holds on another recording.
 
+pub mod check;
 pub mod diagnose;
 pub mod effects;
 pub mod fit;
+pub mod gyro;
 pub mod heading;
 pub mod nonlinear;
 pub mod paper;
@@ -94,6 +99,10 @@ pub enum FitError {
         "the readings do not determine the parameter '{parameter}' (its column is constant or a combination of others); drop the effect that adds it"
     )]
     Undetermined { parameter: String },
+    #[error(
+        "the stored calibration has no finite value of '{parameter}', which its model needs: the file is incomplete; store it again with `fieldcal fit --json`"
+    )]
+    MissingParameter { parameter: String },
     #[error(
         "the fit reached a non-finite value of '{parameter}': the model does not suit these readings"
     )]

@@ -303,6 +303,41 @@ impl<'a> Layout<'a> {
     }
 }
 
+/// Applies the stored parameters of the model `effects` to a recording:
+/// `(s_x, s_y, e)` for every sample. Drift and covariate terms are taken
+/// about the recording's own mean time and mean covariate value (as the fit
+/// takes them), so the stored `b` and `d` are the offsets at those means.
+/// `cubic_scale`: the full scale S the stored `k` refers to (the fitted
+/// recording's); `None` takes this recording's.
+pub fn apply_model(
+    data: &Dataset,
+    effects: &[Effect],
+    params: &[Param],
+    cubic_scale: Option<f64>,
+) -> Result<Vec<(f64, f64, f64)>, FitError> {
+    let mut layout = Layout::new(data, effects)?;
+    if let Some(scale) = cubic_scale.filter(|s| *s > 0.0 && s.is_finite()) {
+        layout.inv_scale_sq = 1.0 / (scale * scale);
+    }
+    let p: Vec<f64> = layout
+        .names
+        .iter()
+        .map(|name| {
+            params
+                .iter()
+                .find(|q| &q.name == name)
+                .map(|q| q.value)
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| FitError::MissingParameter {
+                    parameter: name.clone(),
+                })
+        })
+        .collect::<Result<_, _>>()?;
+    Ok((0..data.len())
+        .map(|i| layout.evaluate(&p, i, None))
+        .collect())
+}
+
 /// Fits the model made of `effects` (the paper's plus any others) to the
 /// recording, by Levenberg-Marquardt started from the paper's closed form.
 pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitError> {
@@ -639,6 +674,43 @@ fn huber_weight(e: f64, scale: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn apply_model_reproduces_the_fit() {
+        let sensor = crate::sim::SimSensor {
+            gain_x: 1.1,
+            offset_x: 50.0,
+            noise: 3.0,
+            effects: crate::sim::SimEffects {
+                cross_axis_deg: 2.0,
+                cubic: [0.02, 0.0],
+                drift_per_s: [0.5, -0.3],
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let data = sensor.simulate().unwrap();
+        let effects = crate::model::effects::parse_list("cross-axis,cubic,drift").unwrap();
+        let fit = fit_model(&data, &effects).unwrap();
+        let applied = apply_model(&data, &effects, &fit.params, None).unwrap();
+        for (i, (sx, sy, e)) in applied.iter().enumerate() {
+            let (fx, fy) = fit.calibrated[i];
+            assert!((sx - fx).abs() < 1e-9 && (sy - fy).abs() < 1e-9);
+            assert!((e - fit.residuals[i]).abs() < 1e-12);
+        }
+        let missing: Vec<Param> = fit
+            .params
+            .iter()
+            .filter(|p| p.name != "c")
+            .cloned()
+            .collect();
+        assert_eq!(
+            apply_model(&data, &effects, &missing, None),
+            Err(FitError::MissingParameter {
+                parameter: "c".into()
+            })
+        );
+    }
     use crate::model::effects::PAPER;
     use crate::sim::SimSensor;
 

@@ -8,8 +8,9 @@ use std::time::Duration;
 
 use crate::model::effects::{Effect, model_name};
 use crate::model::fit::{FitReport, PAPER_EFFECTS, Solver};
+use crate::model::gyro::HeadingCheck;
 use crate::model::heading::Coverage;
-use crate::model::nonlinear::ModelFit;
+use crate::model::nonlinear::{ModelFit, Param};
 use crate::model::paper::PaperCalibration;
 
 /// Where the fitted samples came from, for the report.
@@ -30,6 +31,9 @@ pub struct FitJson<'a> {
     pub effects: Vec<&'static str>,
     pub solver: Solver,
     pub params: PaperCalibration,
+    /// Every fitted parameter with its standard error (NaN, printed null,
+    /// where the rows do not give one).
+    pub parameters: Vec<Param>,
     pub theta: [f64; 4],
     pub rms: f64,
     pub n: usize,
@@ -38,10 +42,41 @@ pub struct FitJson<'a> {
     pub coverage_deg: f64,
     pub largest_gap_deg: f64,
     pub fit_seconds: f64,
+    /// The heading error against a gyro (null without --gyro).
+    pub heading_vs_gyro: Option<&'a HeadingCheck>,
+}
+
+/// The paper's parameters with their standard errors, by name.
+pub fn paper_parameters(c: &PaperCalibration, se: Option<&PaperCalibration>) -> Vec<Param> {
+    let se = se.copied().unwrap_or(PaperCalibration {
+        a: f64::NAN,
+        b: f64::NAN,
+        d: f64::NAN,
+        r: f64::NAN,
+    });
+    [
+        ("a", c.a, se.a),
+        ("b", c.b, se.b),
+        ("d", c.d, se.d),
+        ("r", c.r, se.r),
+    ]
+    .into_iter()
+    .map(|(name, value, se)| Param {
+        name: name.into(),
+        value,
+        se,
+    })
+    .collect()
 }
 
 impl<'a> FitJson<'a> {
-    pub fn new(report: &FitReport, source: FitSource<'a>) -> Self {
+    /// `se`: the standard errors of a, b, d, r ([`crate::model::paper::closed_form_se`]).
+    pub fn new(
+        report: &FitReport,
+        se: Option<&PaperCalibration>,
+        heading: Option<&'a HeadingCheck>,
+        source: FitSource<'a>,
+    ) -> Self {
         FitJson {
             file: source.file,
             x_column: source.x_column,
@@ -50,6 +85,7 @@ impl<'a> FitJson<'a> {
             effects: PAPER_EFFECTS.to_vec(),
             solver: report.solver,
             params: report.calibration,
+            parameters: paper_parameters(&report.calibration, se),
             theta: report.theta.0,
             rms: report.rms,
             n: report.n,
@@ -57,6 +93,7 @@ impl<'a> FitJson<'a> {
             coverage_deg: report.coverage.covered_deg,
             largest_gap_deg: report.coverage.largest_gap_deg,
             fit_seconds: report.elapsed.as_secs_f64(),
+            heading_vs_gyro: heading,
         }
     }
 }
@@ -81,8 +118,28 @@ impl FitSource<'_> {
     }
 }
 
-/// The report for a person.
-pub fn render_text(report: &FitReport, source: FitSource<'_>) -> String {
+/// The text line of a heading check: rms and peak-to-peak against the gyro,
+/// and the gyro's fitted scale and bias.
+pub fn heading_line(check: &HeadingCheck) -> (String, String) {
+    (
+        format!(
+            "{:.2}° rms, {:.2}° p-p",
+            check.rms_deg, check.peak_to_peak_deg
+        ),
+        format!(
+            "heading error against the integrated gyro '{}' ({} samples; its fitted scale {:+.3}, bias {:+.3} deg/s)",
+            check.gyro_column, check.n, check.gyro_scale, check.gyro_bias_deg_s
+        ),
+    )
+}
+
+/// The report for a person; `se` gives each parameter its standard error.
+pub fn render_text(
+    report: &FitReport,
+    se: Option<&PaperCalibration>,
+    heading: Option<&HeadingCheck>,
+    source: FitSource<'_>,
+) -> String {
     let c = &report.calibration;
     let solver = match (report.solver, report.iterations) {
         (Solver::PaperGd, Some(n)) => {
@@ -108,14 +165,26 @@ pub fn render_text(report: &FitReport, source: FitSource<'_>) -> String {
         format!("{:.1}°", cov.covered_deg),
         &format!("of heading (largest gap {:.1}°)", cov.largest_gap_deg),
     );
-    line("a", significant(c.a, 7), "gain of x relative to y");
+    let with_se = |value: f64, se: Option<f64>| match se {
+        Some(se) if se.is_finite() => format!("{} ± {}", significant(value, 7), significant(se, 2)),
+        _ => significant(value, 7),
+    };
+    line(
+        "a",
+        with_se(c.a, se.map(|s| s.a)),
+        "gain of x relative to y",
+    );
     line(
         "b",
-        significant(c.b, 7),
+        with_se(c.b, se.map(|s| s.b)),
         "offset of x, after the gain (y units)",
     );
-    line("d", significant(c.d, 7), "offset of y");
-    line("r", significant(c.r, 7), "field magnitude (y units)");
+    line("d", with_se(c.d, se.map(|s| s.d)), "offset of y");
+    line(
+        "r",
+        with_se(c.r, se.map(|s| s.r)),
+        "field magnitude (y units)",
+    );
     line(
         "rms",
         significant(report.rms, 4),
@@ -124,6 +193,10 @@ pub fn render_text(report: &FitReport, source: FitSource<'_>) -> String {
             report.rms * 100.0
         ),
     );
+    if let Some(check) = heading {
+        let (value, note) = heading_line(check);
+        line("heading", value, &note);
+    }
     line(
         "fit time",
         format!("{:.3} ms", report.elapsed.as_secs_f64() * 1e3),
@@ -162,6 +235,13 @@ pub struct ModelFitJson<'a> {
     pub coverage_deg: f64,
     pub largest_gap_deg: f64,
     pub fit_seconds: f64,
+    /// The heading error against a gyro (null without --gyro).
+    pub heading_vs_gyro: Option<&'a HeadingCheck>,
+    /// With the cubic effect: the full scale S its `k` refers to (the
+    /// largest |x| or |y| of the recording), so `check` applies it to
+    /// another recording unchanged.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cubic_scale: Option<f64>,
 }
 
 impl<'a> ModelFitJson<'a> {
@@ -169,6 +249,7 @@ impl<'a> ModelFitJson<'a> {
         fit: &'a ModelFit,
         coverage: &Coverage,
         elapsed: Duration,
+        heading: Option<&'a HeadingCheck>,
         source: FitSource<'a>,
     ) -> Self {
         ModelFitJson {
@@ -196,6 +277,8 @@ impl<'a> ModelFitJson<'a> {
             coverage_deg: coverage.covered_deg,
             largest_gap_deg: coverage.largest_gap_deg,
             fit_seconds: elapsed.as_secs_f64(),
+            heading_vs_gyro: heading,
+            cubic_scale: None,
         }
     }
 }
@@ -222,6 +305,7 @@ pub fn render_model_text(
     fit: &ModelFit,
     coverage: &Coverage,
     elapsed: Duration,
+    heading: Option<&HeadingCheck>,
     source: FitSource<'_>,
 ) -> String {
     // Values carry their standard errors: a wider column.
@@ -267,6 +351,10 @@ pub fn render_model_text(
             fit.rms * 100.0
         ),
     );
+    if let Some(check) = heading {
+        let (value, note) = heading_line(check);
+        line("heading", value, &note);
+    }
     line(
         "fit time",
         format!("{:.3} ms", elapsed.as_secs_f64() * 1e3),

@@ -9,16 +9,17 @@ use anyhow::{Context, Result};
 use fieldcal::io::csv::write_calibrated;
 use fieldcal::model::effects::Effect;
 use fieldcal::model::fit::{FitOptions, fit_paper};
+use fieldcal::model::gyro::{HeadingCheck, HeadingReference};
 use fieldcal::model::heading::coverage;
 use fieldcal::model::nonlinear::fit_model;
-use fieldcal::model::paper::{GradientDescentOptions, GradientDescentProgress};
+use fieldcal::model::paper::{GradientDescentOptions, GradientDescentProgress, closed_form_se};
 use fieldcal::report::fit::{FitJson, FitSource, ModelFitJson, render_model_text, render_text};
 
 use crate::FitArgs;
 use crate::output::write_stdout;
 
 pub fn fit(args: FitArgs) -> Result<()> {
-    let data = args.input.read()?;
+    let (data, reference) = args.input.read_with_reference()?;
     let options = FitOptions {
         solver: args.solver,
         gradient_descent: GradientDescentOptions {
@@ -36,7 +37,7 @@ pub fn fit(args: FitArgs) -> Result<()> {
                 args.solver.name()
             );
         }
-        return fit_effects(&args, &data, &effects.0, &file);
+        return fit_effects(&args, &data, reference.as_ref(), &effects.0, &file);
     }
     let mut progress = progress_printer();
     let report = fit_paper(&data.x, &data.y, &options, &mut progress);
@@ -53,15 +54,33 @@ pub fn fit(args: FitArgs) -> Result<()> {
         write_output(output, data.t.as_deref(), &cx, &cy)?;
     }
 
+    let se = closed_form_se(&data.x, &data.y, &report.theta);
+    let heading = match &reference {
+        Some(reference) => {
+            let headings: Vec<f64> = data
+                .x
+                .iter()
+                .zip(&data.y)
+                .map(|(&x, &y)| report.calibration.heading(x, y))
+                .collect();
+            Some(heading_check(reference, &headings, &[], &file)?)
+        }
+        None => None,
+    };
     let source = FitSource {
         file: &file,
         x_column: &data.x_name,
         y_column: &data.y_name,
     };
     let text = if args.json {
-        serde_json::to_string(&FitJson::new(&report, source))? + "\n"
+        serde_json::to_string(&FitJson::new(
+            &report,
+            se.as_ref(),
+            heading.as_ref(),
+            source,
+        ))? + "\n"
     } else {
-        render_text(&report, source)
+        render_text(&report, se.as_ref(), heading.as_ref(), source)
     };
     write_stdout(text.as_bytes())
 }
@@ -70,6 +89,7 @@ pub fn fit(args: FitArgs) -> Result<()> {
 fn fit_effects(
     args: &FitArgs,
     data: &fieldcal::sample::Dataset,
+    reference: Option<&HeadingReference>,
     effects: &[Effect],
     file: &str,
 ) -> Result<()> {
@@ -85,17 +105,41 @@ fn fit_effects(
         let (cx, cy): (Vec<f64>, Vec<f64>) = fit.calibrated.iter().copied().unzip();
         write_output(output, data.t.as_deref(), &cx, &cy)?;
     }
+    let heading = match reference {
+        Some(reference) => Some(heading_check(reference, &fit.headings, &fit.flagged, file)?),
+        None => None,
+    };
     let source = FitSource {
         file,
         x_column: &data.x_name,
         y_column: &data.y_name,
     };
     let text = if args.json {
-        serde_json::to_string(&ModelFitJson::new(&fit, &coverage, elapsed, source))? + "\n"
+        let mut json = ModelFitJson::new(&fit, &coverage, elapsed, heading.as_ref(), source);
+        json.cubic_scale = effects
+            .contains(&Effect::Cubic)
+            .then(|| fieldcal::model::nonlinear::cubic_scale(data));
+        serde_json::to_string(&json)? + "\n"
     } else {
-        render_model_text(&fit, &coverage, elapsed, source)
+        render_model_text(&fit, &coverage, elapsed, heading.as_ref(), source)
     };
     write_stdout(text.as_bytes())
+}
+
+/// The model's heading against the gyro; a gyro that cannot serve is an
+/// error naming the file and the column.
+pub(crate) fn heading_check(
+    reference: &HeadingReference,
+    headings: &[f64],
+    skip: &[usize],
+    file: &str,
+) -> Result<HeadingCheck> {
+    reference.check(headings, skip).with_context(|| {
+        format!(
+            "{file}: cannot check the heading against the gyro '{}'",
+            reference.column()
+        )
+    })
 }
 
 /// Reports gradient-descent progress on a terminal; silent otherwise.

@@ -1,6 +1,7 @@
 //! The `fieldcal` command: parses arguments and wires the library together.
 //! One module per subcommand; the work itself lives in the library.
 
+mod check;
 mod diagnose;
 mod fit;
 mod output;
@@ -13,7 +14,11 @@ mod simulate;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use anyhow::Context as _;
 use clap::{Args, Parser, Subcommand, ValueEnum};
+
+use fieldcal::model::gyro::{GyroUnits, HeadingReference};
+use fieldcal::sample::Dataset;
 
 use fieldcal::model::fit::{DEFAULT_MIN_COVERAGE_DEG, Solver};
 use fieldcal::model::paper::PAPER_LEARNING_RATE;
@@ -36,6 +41,8 @@ struct Cli {
 enum Command {
     /// Fit the paper's calibration (or the paper's model plus --effects) to a CSV recording of one full turn.
     Fit(FitArgs),
+    /// Apply a stored calibration to another recording: does it hold, and which parameter moved?
+    Check(CheckArgs),
     /// Rank the effects the data supports, add them one by one down to the noise floor.
     Diagnose(DiagnoseArgs),
     /// Write a simulated sensor turned in a constant field: a CSV, or a Falcon-GX capture.
@@ -124,6 +131,12 @@ struct CsvInput {
     /// Column holding time in seconds [default: the first of t, t_s, time, time_s]
     #[arg(long, value_name = "COL")]
     t: Option<String>,
+    /// A gyroscope axis about the turn's axis, as a heading reference: COLUMN of this CSV, or FILE:COLUMN of a second CSV on the same clock (joined by that file's time column t, t_s, time or time_s).
+    #[arg(long, value_name = "[FILE:]COLUMN")]
+    gyro: Option<String>,
+    /// Units of the --gyro column.
+    #[arg(long, value_enum, value_name = "UNITS", default_value_t = GyroUnits::DegPerSecond)]
+    gyro_units: GyroUnits,
 }
 
 impl CsvInput {
@@ -134,6 +147,71 @@ impl CsvInput {
             t: self.t.clone(),
         };
         Ok(fieldcal::io::csv::read_dataset(&self.file, &spec)?)
+    }
+
+    /// The recording, and the gyro's heading reference when --gyro names
+    /// one. A gyro column of the recording itself is not a covariate: it is
+    /// taken out of the dataset's covariates.
+    fn read_with_reference(&self) -> anyhow::Result<(Dataset, Option<HeadingReference>)> {
+        let mut data = self.read()?;
+        let Some(gyro) = &self.gyro else {
+            return Ok((data, None));
+        };
+        // FILE:COLUMN splits at the last ':' (a path may hold one).
+        let (file, column) = match gyro.rsplit_once(':') {
+            Some((file, column)) => (Some(PathBuf::from(file)), column),
+            None => (None, gyro.as_str()),
+        };
+        if column.is_empty() || file.as_ref().is_some_and(|f| f.as_os_str().is_empty()) {
+            anyhow::bail!(
+                "--gyro '{gyro}': give a column of the recording (--gyro gyro_z) or a file and its column (--gyro imu.csv:gyro_z)"
+            );
+        }
+        let main = self.file.display();
+        let Some(sample_t) = data.t.clone() else {
+            anyhow::bail!(
+                "{main}: the recording has no time column (t, t_s, time or time_s, or choose one with --t), and the gyro '{column}' is integrated over time"
+            );
+        };
+        let reference = match &file {
+            None => {
+                let Some(k) = data.covariates.iter().position(|c| c.name == column) else {
+                    let names: Vec<&str> =
+                        data.covariates.iter().map(|c| c.name.as_str()).collect();
+                    let names = if names.is_empty() {
+                        "none".to_string()
+                    } else {
+                        names.join(", ")
+                    };
+                    anyhow::bail!(
+                        "{main}: no gyro column '{column}' among the numeric columns other than the axes ({}, {}) and time (they are: {names}); name it with --gyro COLUMN, or --gyro FILE:COLUMN for a second file",
+                        data.x_name,
+                        data.y_name
+                    );
+                };
+                let rate = data.covariates.remove(k).values;
+                HeadingReference::from_rates(column, &sample_t, &sample_t, &rate, self.gyro_units)
+                    .with_context(|| format!("{main}: gyro '{column}'"))?
+            }
+            Some(file) => {
+                let series = fieldcal::io::csv::read_series(file, column, "the gyro", "--gyro")?;
+                HeadingReference::from_rates(
+                    column,
+                    &sample_t,
+                    &series.t,
+                    &series.values,
+                    self.gyro_units,
+                )
+                .with_context(|| {
+                    format!(
+                        "{}: gyro '{column}' against {main} (joined by time: '{}' there)",
+                        file.display(),
+                        series.time_name
+                    )
+                })?
+            }
+        };
+        Ok((data, Some(reference)))
     }
 }
 
@@ -164,6 +242,21 @@ struct FitArgs {
     /// paper-gd: learning rate (the paper's is 0.73).
     #[arg(long, value_name = "ALPHA", default_value_t = PAPER_LEARNING_RATE, value_parser = parse_positive)]
     learning_rate: f64,
+}
+
+#[derive(Debug, Args)]
+struct CheckArgs {
+    #[command(flatten)]
+    input: CsvInput,
+    /// The stored calibration: the JSON of `fieldcal fit --json` (the paper's model or --effects), or a daemon state file.
+    #[arg(long, value_name = "FILE")]
+    calibration: PathBuf,
+    /// Print one JSON object on stdout instead of the text report.
+    #[arg(long)]
+    json: bool,
+    /// Heading coverage the new recording must reach, in degrees.
+    #[arg(long, value_name = "DEG", default_value_t = DEFAULT_MIN_COVERAGE_DEG, value_parser = parse_coverage)]
+    min_coverage: f64,
 }
 
 #[derive(Debug, Args)]
@@ -330,6 +423,7 @@ fn main() -> ExitCode {
         Command::Run(args) => run::run(args),
         Command::Fit(args) => fit::fit(args),
         Command::Diagnose(args) => diagnose::diagnose(args),
+        Command::Check(args) => check::check(args),
         Command::Simulate(args) => simulate::simulate(args),
         Command::Record(args) => record::record(args),
         Command::Replay(args) => replay::replay(args),

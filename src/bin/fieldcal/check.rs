@@ -1,0 +1,103 @@
+//! `fieldcal check`: does a stored calibration hold on another recording?
+
+use anyhow::{Context, Result};
+
+use fieldcal::model::check::{CheckReport, check as check_calibration, parse_stored};
+use fieldcal::report::significant;
+
+use crate::CheckArgs;
+use crate::output::write_stdout;
+
+/// A calibration file is a few kilobytes; anything far larger is not one.
+const MAX_CALIBRATION_BYTES: u64 = 1 << 20;
+
+pub fn check(args: CheckArgs) -> Result<()> {
+    let cal_path = &args.calibration;
+    let cal_name = cal_path.display();
+    let len = std::fs::metadata(cal_path)
+        .with_context(|| format!("{cal_name}: cannot read the calibration file"))?
+        .len();
+    if len > MAX_CALIBRATION_BYTES {
+        anyhow::bail!(
+            "{cal_name}: {len} bytes is not a calibration file (the JSON of `fieldcal fit --json` or a daemon state file is a few kilobytes)"
+        );
+    }
+    let bytes = std::fs::read(cal_path)
+        .with_context(|| format!("{cal_name}: cannot read the calibration file"))?;
+    let stored = parse_stored(&bytes).with_context(|| format!("{cal_name}"))?;
+    let (data, reference) = args.input.read_with_reference()?;
+    let file = args.input.file.display().to_string();
+    let report = check_calibration(&data, &stored, reference.as_ref(), args.min_coverage)
+        .with_context(|| format!("{file}: cannot check {cal_name} against it"))?;
+    let text = if args.json {
+        serde_json::to_string(&report)? + "\n"
+    } else {
+        render(
+            &report,
+            &file,
+            &cal_name.to_string(),
+            &data.x_name,
+            &data.y_name,
+        )
+    };
+    write_stdout(text.as_bytes())
+}
+
+fn render(report: &CheckReport, file: &str, cal: &str, x: &str, y: &str) -> String {
+    let mut out = String::new();
+    let mut line = |label: &str, value: String| {
+        out.push_str(format!("{label:<12}{value}").trim_end());
+        out.push('\n');
+    };
+    line("file", file.to_string());
+    line("axes", format!("x = {x}, y = {y}"));
+    line("calibration", format!("{cal} ({})", report.model));
+    line(
+        "rms",
+        format!(
+            "{:.3} % with the stored calibration, {:.3} % refitted here{}",
+            report.rms * 100.0,
+            report.refitted_rms * 100.0,
+            report
+                .stored_rms
+                .map(|r| format!(" ({:.3} % on its own recording)", r * 100.0))
+                .unwrap_or_default()
+        ),
+    );
+    if let (Some(h), Some(r)) = (&report.heading_vs_gyro, &report.refitted_heading_vs_gyro) {
+        line(
+            "heading",
+            format!(
+                "{:.2}° rms, {:.2}° p-p against '{}' with the stored calibration; {:.2}° rms refitted here",
+                h.rms_deg, h.peak_to_peak_deg, h.gyro_column, r.rms_deg
+            ),
+        );
+    }
+    line(
+        "parameters",
+        format!(
+            "stored → refitted here, z in standard errors (moved beyond |z| {:.2}: {:.0} % false alarm over {} parameters)",
+            report.z_threshold,
+            report.family_false_alarm * 100.0,
+            report.parameters.len()
+        ),
+    );
+    for p in &report.parameters {
+        let stored = match p.stored_se {
+            Some(se) => format!("{} ± {}", significant(p.stored, 6), significant(se, 2)),
+            None => significant(p.stored, 6),
+        };
+        line(
+            &format!("  {}", p.name),
+            format!(
+                "{stored} → {} ± {}   z {:+.2}{}",
+                significant(p.refitted, 6),
+                significant(p.refitted_se, 2),
+                p.z,
+                if p.moved { "  moved" } else { "" }
+            ),
+        );
+    }
+    line("verdict", report.verdict.clone());
+    out
+}

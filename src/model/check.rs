@@ -1,0 +1,602 @@
+//! Does a stored calibration hold on the next run?
+//!
+//! A calibration stored by `fieldcal fit --json` (the paper's model or
+//! `--effects`) or by the daemon (its state file) is applied to another
+//! recording of the same sensor: its magnitude rms there, its heading error
+//! against a gyro when one is given, and each parameter refitted on the new
+//! recording (same model) next to the stored value, in standard errors.
+//!
+//! A parameter "moved" when |z| = |Δ| / sqrt(se_stored² + se_new²) exceeds
+//! the Bonferroni threshold that keeps the family-wise false-alarm rate at
+//! [`FAMILY_FALSE_ALARM`] over the parameters compared: two-sided, each at
+//! `FAMILY_FALSE_ALARM / m`, so z = Φ⁻¹(1 − FAMILY_FALSE_ALARM / (2m))
+//! (3.02 for the paper's four parameters). The standard errors are the fits'
+//! own (least squares' covariance), which assume independent residuals.
+
+use serde::Serialize;
+use serde_json::Value;
+
+use super::FitError;
+use super::effects::{Effect, model_name, parse_list};
+use super::fit::{FitOptions, fit_paper};
+use super::gyro::{GyroError, HeadingCheck, HeadingReference};
+use super::heading::coverage;
+use super::nonlinear::{Param, apply_model, fit_model};
+use super::paper::{PaperCalibration, closed_form_se};
+use crate::sample::Dataset;
+
+/// Probability that `check` calls any parameter moved when none did (two
+/// runs of the same sensor), over all the parameters compared: 1 %.
+pub const FAMILY_FALSE_ALARM: f64 = 0.01;
+
+/// Where a stored calibration came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StoredSource {
+    /// `fieldcal fit --json` of the paper's model.
+    FitPaper,
+    /// `fieldcal fit --effects ... --json`.
+    FitEffects,
+    /// A daemon state file (`{"format":1,"calibration":{...}}`).
+    DaemonState,
+}
+
+/// A calibration read back from a file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredCalibration {
+    pub source: StoredSource,
+    pub effects: Vec<Effect>,
+    /// The model's parameters; `se` is NaN where the file holds none.
+    pub params: Vec<Param>,
+    /// The full scale the cubic `k` refers to, when the file says.
+    pub cubic_scale: Option<f64>,
+    /// The rms the file reports on its own recording.
+    pub rms: Option<f64>,
+}
+
+impl StoredCalibration {
+    /// Whether the file gave standard errors for all its parameters.
+    pub fn has_se(&self) -> bool {
+        self.params.iter().all(|p| p.se.is_finite())
+    }
+}
+
+/// Why a calibration could not be checked. The caller adds the file names.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CheckError {
+    #[error(
+        "not a calibration fieldcal knows ({problem}); expected the JSON of `fieldcal fit --json` (the paper's model or --effects) or a daemon state file ({{\"format\":1,\"calibration\":{{...}}}})"
+    )]
+    UnknownFormat { problem: String },
+    #[error(
+        "the stored calibration is not usable: {problem}; store it again with `fieldcal fit --json`"
+    )]
+    Invalid { problem: String },
+    #[error("the new recording gives no calibration of the stored model: {0}")]
+    Refit(FitError),
+    #[error("the stored calibration cannot be applied to the new recording: {0}")]
+    Apply(FitError),
+    #[error(transparent)]
+    Gyro(#[from] GyroError),
+}
+
+fn unknown(problem: impl Into<String>) -> CheckError {
+    CheckError::UnknownFormat {
+        problem: problem.into(),
+    }
+}
+
+fn number(v: &Value, key: &str) -> Result<f64, CheckError> {
+    v.get(key)
+        .and_then(Value::as_f64)
+        .ok_or_else(|| unknown(format!("no number '{key}'")))
+}
+
+fn paper_params(params: &Value) -> Result<Vec<Param>, CheckError> {
+    ["a", "b", "d", "r"]
+        .iter()
+        .map(|name| {
+            Ok(Param {
+                name: (*name).into(),
+                value: number(params, name)
+                    .map_err(|_| unknown(format!("no number params.{name}")))?,
+                se: f64::NAN,
+            })
+        })
+        .collect()
+}
+
+/// Reads a stored calibration: `fit --json` of the paper's model or of
+/// `--effects`, or a daemon state file.
+pub fn parse_stored(bytes: &[u8]) -> Result<StoredCalibration, CheckError> {
+    let root: Value =
+        serde_json::from_slice(bytes).map_err(|e| unknown(format!("not JSON: {e}")))?;
+    if !root.is_object() {
+        return Err(unknown("the JSON is not an object"));
+    }
+    let stored = if let Some(cal) = root
+        .get("calibration")
+        .filter(|_| root.get("format").is_some())
+    {
+        let format = root.get("format").and_then(Value::as_u64);
+        if format != Some(u64::from(crate::daemon::state::FORMAT_VERSION)) {
+            return Err(unknown(format!(
+                "a state file of format {}, this fieldcal reads format {}",
+                root["format"],
+                crate::daemon::state::FORMAT_VERSION
+            )));
+        }
+        let calibration: crate::daemon::Calibration = serde_json::from_value(cal.clone())
+            .map_err(|e| unknown(format!("a state file whose calibration does not read: {e}")))?;
+        let effects = parse_list(&calibration.model).map_err(unknown)?;
+        let p = calibration.params;
+        let mut params: Vec<Param> = [("a", p.a), ("b", p.b), ("d", p.d), ("r", p.r)]
+            .into_iter()
+            .map(|(name, value)| Param {
+                name: name.into(),
+                value,
+                se: f64::NAN,
+            })
+            .collect();
+        let t = calibration.terms;
+        let mut push = |name: &str, value: f64| {
+            params.push(Param {
+                name: name.into(),
+                value,
+                se: f64::NAN,
+            })
+        };
+        for effect in &effects {
+            match effect {
+                Effect::Offset | Effect::Scale | Effect::Outliers => {}
+                Effect::CrossAxis => push("c", t.c),
+                Effect::Cubic => {
+                    push("k_x", t.k[0]);
+                    push("k_y", t.k[1]);
+                }
+                other => {
+                    return Err(CheckError::Invalid {
+                        problem: format!(
+                            "the state file's model '{}' has the effect '{other}', whose terms a state file does not store",
+                            calibration.model
+                        ),
+                    });
+                }
+            }
+        }
+        StoredCalibration {
+            source: StoredSource::DaemonState,
+            effects,
+            params,
+            cubic_scale: (t.cubic_scale > 0.0).then_some(t.cubic_scale),
+            rms: Some(calibration.rms),
+        }
+    } else {
+        let solver = root
+            .get("solver")
+            .and_then(Value::as_str)
+            .ok_or_else(|| unknown("no 'solver', and no daemon 'format' and 'calibration'"))?;
+        let params_value = root.get("params").ok_or_else(|| unknown("no 'params'"))?;
+        match solver {
+            "lsq" | "paper-gd" => {
+                let mut params = paper_params(params_value)?;
+                if let Some(list) = root.get("parameters").and_then(Value::as_array) {
+                    for item in list {
+                        let name = item.get("name").and_then(Value::as_str);
+                        let se = item.get("se").and_then(Value::as_f64);
+                        if let (Some(name), Some(se)) = (name, se)
+                            && let Some(p) = params.iter_mut().find(|p| p.name == name)
+                        {
+                            p.se = se;
+                        }
+                    }
+                }
+                StoredCalibration {
+                    source: StoredSource::FitPaper,
+                    effects: crate::model::effects::PAPER.to_vec(),
+                    params,
+                    cubic_scale: None,
+                    rms: root.get("rms").and_then(Value::as_f64),
+                }
+            }
+            "levenberg-marquardt" => {
+                let model = root
+                    .get("model")
+                    .and_then(Value::as_str)
+                    .ok_or_else(|| unknown("no 'model'"))?;
+                let effects = parse_list(model).map_err(unknown)?;
+                let map = params_value
+                    .as_object()
+                    .ok_or_else(|| unknown("'params' is not an object"))?;
+                let se = root.get("se");
+                let params = map
+                    .iter()
+                    .map(|(name, v)| {
+                        Ok(Param {
+                            name: name.clone(),
+                            value: v
+                                .as_f64()
+                                .ok_or_else(|| unknown(format!("params.{name} is not a number")))?,
+                            se: se
+                                .and_then(|s| s.get(name))
+                                .and_then(Value::as_f64)
+                                .unwrap_or(f64::NAN),
+                        })
+                    })
+                    .collect::<Result<Vec<_>, CheckError>>()?;
+                StoredCalibration {
+                    source: StoredSource::FitEffects,
+                    effects,
+                    params,
+                    cubic_scale: root.get("cubic_scale").and_then(Value::as_f64),
+                    rms: root.get("rms").and_then(Value::as_f64),
+                }
+            }
+            other => return Err(unknown(format!("solver '{other}'"))),
+        }
+    };
+    for p in &stored.params {
+        if !p.value.is_finite() {
+            return Err(CheckError::Invalid {
+                problem: format!("{} = {} is not a finite number", p.name, p.value),
+            });
+        }
+    }
+    for name in ["a", "r"] {
+        let v = stored
+            .params
+            .iter()
+            .find(|p| p.name == name)
+            .map_or(f64::NAN, |p| p.value);
+        if !(v > 0.0) {
+            return Err(CheckError::Invalid {
+                problem: format!("{name} = {v} must be positive"),
+            });
+        }
+    }
+    Ok(stored)
+}
+
+/// The inverse of the standard normal distribution function, by Acklam's
+/// rational approximation (relative error below 1.2e-9), for p in (0, 1).
+pub fn normal_quantile(p: f64) -> f64 {
+    const A: [f64; 6] = [
+        -3.969683028665376e1,
+        2.209460984245205e2,
+        -2.759285104469687e2,
+        1.38357751867269e2,
+        -3.066479806614716e1,
+        2.506628277459239,
+    ];
+    const B: [f64; 5] = [
+        -5.447609879822406e1,
+        1.615858368580409e2,
+        -1.556989798598866e2,
+        6.680131188771972e1,
+        -1.328068155288572e1,
+    ];
+    const C: [f64; 6] = [
+        -7.784894002430293e-3,
+        -3.223964580411365e-1,
+        -2.400758277161838,
+        -2.549732539343734,
+        4.374664141464968,
+        2.938163982698783,
+    ];
+    const D: [f64; 4] = [
+        7.784695709041462e-3,
+        3.224671290700398e-1,
+        2.445134137142996,
+        3.754408661907416,
+    ];
+    if !(p > 0.0 && p < 1.0) {
+        return f64::NAN;
+    }
+    let tail = |q: f64| {
+        ((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5]
+    } / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0);
+    if p < 0.02425 {
+        tail((-2.0 * p.ln()).sqrt())
+    } else if p > 1.0 - 0.02425 {
+        -tail((-2.0 * (1.0 - p).ln()).sqrt())
+    } else {
+        let q = p - 0.5;
+        let r = q * q;
+        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
+            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
+    }
+}
+
+/// The |z| beyond which one of `m` parameters is called moved, keeping the
+/// family-wise false alarm at [`FAMILY_FALSE_ALARM`] (Bonferroni, two-sided).
+pub fn moved_threshold(m: usize) -> f64 {
+    normal_quantile(1.0 - FAMILY_FALSE_ALARM / (2.0 * m.max(1) as f64))
+}
+
+/// One parameter: stored, refitted on the new recording, and how far apart.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ParamShift {
+    pub name: String,
+    pub stored: f64,
+    /// Null when the stored file has no standard errors.
+    pub stored_se: Option<f64>,
+    pub refitted: f64,
+    pub refitted_se: f64,
+    /// (refitted − stored) / sqrt(stored_se² + refitted_se²), or over
+    /// refitted_se alone without a stored one.
+    pub z: f64,
+    pub moved: bool,
+}
+
+/// What `fieldcal check` found.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CheckReport {
+    pub model: String,
+    pub stored_source: StoredSource,
+    /// The rms the stored file reports on its own recording.
+    pub stored_rms: Option<f64>,
+    /// Magnitude rms (|s|/r − 1) of the stored calibration on the new recording.
+    pub rms: f64,
+    /// Magnitude rms of the model refitted on the new recording.
+    pub refitted_rms: f64,
+    /// Heading error of the stored calibration against the gyro.
+    pub heading_vs_gyro: Option<HeadingCheck>,
+    /// Heading error of the refitted model against the gyro.
+    pub refitted_heading_vs_gyro: Option<HeadingCheck>,
+    pub parameters: Vec<ParamShift>,
+    /// |z| beyond which a parameter is called moved.
+    pub z_threshold: f64,
+    /// The family-wise false-alarm rate the threshold keeps.
+    pub family_false_alarm: f64,
+    /// Whether z used the stored file's standard errors too.
+    pub stored_has_se: bool,
+    /// True when no parameter moved.
+    pub holds: bool,
+    pub verdict: String,
+}
+
+/// What a parameter's move means, for the verdict.
+fn meaning(name: &str) -> String {
+    match name {
+        "a" => "the gain ratio of the axes changed".into(),
+        "b" | "d" => "the offset (hard iron, zero-g bias) changed between runs".into(),
+        "r" => "the field magnitude changed (another place, or both gains changed)".into(),
+        "c" => "the cross-axis coupling (soft iron, mounting) changed".into(),
+        "k_x" | "k_y" => "the non-linearity changed".into(),
+        "drift_x" | "drift_y" => "the drift during the run differs".into(),
+        other => format!("the term '{other}' changed"),
+    }
+}
+
+/// Formats a number with 4 significant digits.
+fn sig(v: f64) -> String {
+    crate::report::significant(v, 4)
+}
+
+/// Applies `stored` to `data`, refits its model there, and compares.
+/// `min_coverage_deg`: the turn the refit needs, as for `fit`.
+pub fn check(
+    data: &Dataset,
+    stored: &StoredCalibration,
+    reference: Option<&HeadingReference>,
+    min_coverage_deg: f64,
+) -> Result<CheckReport, CheckError> {
+    let paper =
+        stored.source == StoredSource::FitPaper || stored.effects.iter().all(Effect::is_paper);
+    // The refit, with its standard errors and the samples it set aside.
+    let (refitted, refitted_rms, refitted_headings, flagged) = if paper {
+        let options = FitOptions {
+            min_coverage_deg,
+            ..FitOptions::default()
+        };
+        let report =
+            fit_paper(&data.x, &data.y, &options, &mut |_| {}).map_err(CheckError::Refit)?;
+        let se = closed_form_se(&data.x, &data.y, &report.theta).unwrap_or(PaperCalibration {
+            a: f64::NAN,
+            b: f64::NAN,
+            d: f64::NAN,
+            r: f64::NAN,
+        });
+        let c = report.calibration;
+        let params = crate::report::fit::paper_parameters(&c, Some(&se));
+        let headings = data
+            .x
+            .iter()
+            .zip(&data.y)
+            .map(|(&x, &y)| c.heading(x, y))
+            .collect::<Vec<_>>();
+        (params, report.rms, headings, Vec::new())
+    } else {
+        let fit = fit_model(data, &stored.effects).map_err(CheckError::Refit)?;
+        coverage(fit.headings.iter().copied())
+            .require(min_coverage_deg)
+            .map_err(CheckError::Refit)?;
+        (fit.params, fit.rms, fit.headings, fit.flagged)
+    };
+    // The stored calibration on the new recording.
+    let applied = apply_model(data, &stored.effects, &stored.params, stored.cubic_scale)
+        .map_err(CheckError::Apply)?;
+    let mut skip = flagged.iter().copied().peekable();
+    let (mut ss, mut n) = (0.0, 0usize);
+    for (i, (_, _, e)) in applied.iter().enumerate() {
+        while skip.peek().is_some_and(|&s| s < i) {
+            skip.next();
+        }
+        if skip.peek() != Some(&i) {
+            ss += e * e;
+            n += 1;
+        }
+    }
+    let rms = if n > 0 {
+        (ss / n as f64).sqrt()
+    } else {
+        f64::NAN
+    };
+    let headings: Vec<f64> = applied.iter().map(|(sx, sy, _)| sy.atan2(*sx)).collect();
+    let (heading, refitted_heading) = match reference {
+        Some(r) => (
+            Some(r.check(&headings, &flagged)?),
+            Some(r.check(&refitted_headings, &flagged)?),
+        ),
+        None => (None, None),
+    };
+
+    let stored_has_se = stored.has_se();
+    let z_threshold = moved_threshold(stored.params.len());
+    let parameters: Vec<ParamShift> = stored
+        .params
+        .iter()
+        .filter_map(|s| {
+            let new = refitted.iter().find(|p| p.name == s.name)?;
+            let var = new.se * new.se + if stored_has_se { s.se * s.se } else { 0.0 };
+            let delta = new.value - s.value;
+            let z = if var > 0.0 {
+                delta / var.sqrt()
+            } else if delta == 0.0 {
+                0.0
+            } else {
+                f64::NAN
+            };
+            Some(ParamShift {
+                name: s.name.clone(),
+                stored: s.value,
+                stored_se: stored_has_se.then_some(s.se),
+                refitted: new.value,
+                refitted_se: new.se,
+                z,
+                // A z that cannot be computed is not evidence of a move.
+                moved: z.abs() > z_threshold,
+            })
+        })
+        .collect();
+    let moved: Vec<&ParamShift> = parameters.iter().filter(|p| p.moved).collect();
+    let holds = moved.is_empty();
+    let heading_text = heading
+        .as_ref()
+        .map(|h| format!(", heading {:.1}° rms against {}", h.rms_deg, h.gyro_column))
+        .unwrap_or_default();
+    let se_note = if stored_has_se {
+        ""
+    } else {
+        " (the stored file has no standard errors: z uses the new fit's alone)"
+    };
+    let verdict = if holds {
+        format!(
+            "holds: rms {:.2} % (fitted here {:.2} %){heading_text}; no parameter moved beyond {z_threshold:.1} SE{se_note}",
+            rms * 100.0,
+            refitted_rms * 100.0
+        )
+    } else {
+        let parts: Vec<String> = moved
+            .iter()
+            .map(|p| {
+                format!(
+                    "{} moved by {:.1} SE ({} → {} ± {}): {}",
+                    p.name,
+                    p.z.abs(),
+                    sig(p.stored),
+                    sig(p.refitted),
+                    crate::report::significant(p.refitted_se, 2),
+                    meaning(&p.name)
+                )
+            })
+            .collect();
+        format!(
+            "{}; recalibrate (rms {:.2} % with the stored calibration, {:.2} % fitted here{heading_text}){se_note}",
+            parts.join("; "),
+            rms * 100.0,
+            refitted_rms * 100.0
+        )
+    };
+    Ok(CheckReport {
+        model: model_name(&stored.effects),
+        stored_source: stored.source,
+        stored_rms: stored.rms,
+        rms,
+        refitted_rms,
+        heading_vs_gyro: heading,
+        refitted_heading_vs_gyro: refitted_heading,
+        parameters,
+        z_threshold,
+        family_false_alarm: FAMILY_FALSE_ALARM,
+        stored_has_se,
+        holds,
+        verdict,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::SimSensor;
+
+    #[test]
+    fn normal_quantile_matches_tables() {
+        assert!((normal_quantile(0.975) - 1.959964).abs() < 1e-6);
+        assert!((normal_quantile(0.5)).abs() < 1e-12);
+        assert!((normal_quantile(0.001) + 3.090232).abs() < 1e-6);
+        assert!(normal_quantile(0.0).is_nan());
+        // Four parameters at 1 % family-wise.
+        assert!((moved_threshold(4) - 3.023).abs() < 1e-3);
+    }
+
+    fn sensor(seed: u64, offset_x: f64) -> SimSensor {
+        SimSensor {
+            gain_x: 1.08,
+            offset_x,
+            offset_y: -60.0,
+            noise: 10.0,
+            turns: 2.0,
+            turn_seconds: 20.0,
+            seed,
+            ..SimSensor::default()
+        }
+    }
+
+    fn stored_from(data: &Dataset) -> StoredCalibration {
+        let report = fit_paper(&data.x, &data.y, &FitOptions::default(), &mut |_| {}).unwrap();
+        let se = closed_form_se(&data.x, &data.y, &report.theta);
+        StoredCalibration {
+            source: StoredSource::FitPaper,
+            effects: crate::model::effects::PAPER.to_vec(),
+            params: crate::report::fit::paper_parameters(&report.calibration, se.as_ref()),
+            cubic_scale: None,
+            rms: Some(report.rms),
+        }
+    }
+
+    #[test]
+    fn the_same_sensor_holds_and_a_shifted_offset_is_named() {
+        let stored = stored_from(&sensor(1, 150.0).simulate().unwrap());
+        let same = check(&sensor(2, 150.0).simulate().unwrap(), &stored, None, 300.0).unwrap();
+        assert!(same.holds, "{}", same.verdict);
+        assert!(same.verdict.starts_with("holds"), "{}", same.verdict);
+        let moved = check(&sensor(2, 180.0).simulate().unwrap(), &stored, None, 300.0).unwrap();
+        assert!(!moved.holds);
+        let names: Vec<&str> = moved
+            .parameters
+            .iter()
+            .filter(|p| p.moved)
+            .map(|p| p.name.as_str())
+            .collect();
+        assert_eq!(names, ["b"], "{}", moved.verdict);
+        assert!(moved.verdict.starts_with("b moved by"), "{}", moved.verdict);
+    }
+
+    #[test]
+    fn garbage_is_not_a_calibration() {
+        for bytes in [
+            &b"hello"[..],
+            b"[1,2]",
+            b"{\"solver\":\"x\",\"params\":{}}",
+            b"{}",
+        ] {
+            let err = parse_stored(bytes).unwrap_err();
+            assert!(matches!(err, CheckError::UnknownFormat { .. }), "{err}");
+            assert!(err.to_string().contains("fit --json"), "{err}");
+        }
+        let err =
+            parse_stored(br#"{"solver":"lsq","params":{"a":-1,"b":0,"d":0,"r":1}}"#).unwrap_err();
+        assert!(matches!(err, CheckError::Invalid { .. }), "{err}");
+    }
+}

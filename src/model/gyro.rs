@@ -1,0 +1,752 @@
+//! A gyroscope as a heading reference.
+//!
+//! A gyroscope axis about the turn's axis, integrated over time, says how far
+//! the sensor turned between any two samples, independently of the field
+//! sensor. A calibration that is right turns the calibrated heading
+//! `atan2(s_y, s_x)` by the same angle; what differs is heading error the
+//! magnitude `|s|` cannot show (a model can make `|s|` rounder by distorting
+//! where each sample points).
+//!
+//! The gyro is not trusted blindly: its sign depends on how it is mounted,
+//! its sensitivity has a tolerance, an axis tilted by φ from the turn's axis
+//! reads cos φ of the rate, and its zero-rate output drifts. So the check fits
+//! `heading ≈ h0 + scale·angle + bias·(t − mean t)` over the recording and
+//! reports what remains; a `scale` far from ±1 means the column is not the
+//! axis about which the sensor turned.
+
+use serde::Serialize;
+
+/// Units of the gyro's rate column.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+pub enum GyroUnits {
+    #[value(name = "deg/s")]
+    DegPerSecond,
+    #[value(name = "rad/s")]
+    RadPerSecond,
+}
+
+impl GyroUnits {
+    /// Degrees per second in one unit of the column.
+    fn to_deg_per_second(self) -> f64 {
+        match self {
+            GyroUnits::DegPerSecond => 1.0,
+            GyroUnits::RadPerSecond => 180.0 / std::f64::consts::PI,
+        }
+    }
+}
+
+/// Smallest |scale| the fit may find for a gyro about the turn's axis. An
+/// axis tilted by φ from the turn's axis reads cos φ of the rate; 0.7 is
+/// cos 45.6°: beyond that tilt another axis of a 3-axis gyro sees at least as
+/// much of the turn, so this column is the wrong choice. The MPU-6050's
+/// sensitivity tolerance (±3 %, datasheet PS-MPU-6000A-00 §6.1, "Sensitivity
+/// Scale Factor Tolerance") is far inside the bound.
+pub const MIN_GYRO_SCALE: f64 = 0.7;
+
+/// Largest |scale|: the reciprocal of [`MIN_GYRO_SCALE`]. A gyro does not
+/// read more than the rate (±3 % sensitivity); a heading that turns this much
+/// faster than the gyro says is not the gyro's turn.
+pub const MAX_GYRO_SCALE: f64 = 1.0 / MIN_GYRO_SCALE;
+
+/// The gyro's angle must span at least half a turn over the checked samples:
+/// over less, its scale and bias are not pinned down against a heading error
+/// that varies with heading (a second harmonic has a period of half a turn).
+pub const MIN_GYRO_SPAN_DEG: f64 = 180.0;
+
+/// Contiguous time batches for the standard error of a comparison: heading
+/// errors are strongly autocorrelated (they follow heading, which follows
+/// time), so samples are not independent; ~20 batch means are (nearly)
+/// independent and still give the standard error to about ±16 % (1/√(2·19)).
+pub const COMPARISON_BATCHES: usize = 20;
+
+/// Fewest samples a check accepts: two per comparison batch, and far more
+/// than the three parameters fitted.
+pub const MIN_CHECK_SAMPLES: usize = 2 * COMPARISON_BATCHES;
+
+/// Why a gyro cannot serve as a heading reference. Messages say what was
+/// found and what to do; the caller adds the file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GyroError {
+    #[error(
+        "the gyro column '{column}' has {found} values and its time column {times}: each gyro reading needs its time"
+    )]
+    LengthMismatch {
+        column: String,
+        found: usize,
+        times: usize,
+    },
+    #[error(
+        "the gyro column '{column}' has {found} readings; integrating it needs at least 2, over the time of the recording"
+    )]
+    TooFewGyroSamples { column: String, found: usize },
+    #[error("the {what} at row {index} is {value}, not a finite number: remove or repair that row")]
+    NotFinite {
+        what: String,
+        index: usize,
+        value: f64,
+    },
+    #[error(
+        "the {what} go backwards at row {index} ({previous} then {value}): the times must be in increasing order, on one clock"
+    )]
+    NotMonotonic {
+        what: String,
+        index: usize,
+        previous: f64,
+        value: f64,
+    },
+    #[error(
+        "only {overlapping} samples fall within the gyro's time span ({gyro_start} s to {gyro_end} s), and the check needs {needed}; the recording runs from {sample_start} s to {sample_end} s: the two must be on the same clock and overlap"
+    )]
+    NoOverlap {
+        overlapping: usize,
+        needed: usize,
+        gyro_start: f64,
+        gyro_end: f64,
+        sample_start: f64,
+        sample_end: f64,
+    },
+    #[error(
+        "{found} headings were given for {expected} samples: give one heading per sample of the recording"
+    )]
+    HeadingCount { found: usize, expected: usize },
+    #[error(
+        "only {found} samples can be checked against the gyro (with a gyro reading and a finite heading, not flagged), and the check needs {needed}"
+    )]
+    TooFewChecked { found: usize, needed: usize },
+    #[error(
+        "the gyro '{column}' turns through only {span_deg:.0}° over the checked samples, and a heading check needs at least {needed_deg:.0}°: the sensor did not turn about this gyro's axis; choose the gyro axis perpendicular to the two chosen axes (e.g. gyro_z for x and y), or check the units (--gyro-units)"
+    )]
+    NoTurnSeen {
+        column: String,
+        span_deg: f64,
+        needed_deg: f64,
+    },
+    #[error(
+        "the heading turns {scale:.2} times as fast as the gyro '{column}' says (a gyro about the turn's axis gives ±1 within its ±3 % tolerance; the check accepts {min:.2} to {max:.2} in size): this column is not the axis about which the sensor turned; choose the gyro axis perpendicular to the two chosen axes (e.g. gyro_z for x and y), or check the units (--gyro-units)"
+    )]
+    WrongAxis {
+        column: String,
+        scale: f64,
+        min: f64,
+        max: f64,
+    },
+}
+
+/// A gyro's integrated angle at each sample of a recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeadingReference {
+    column: String,
+    /// The gyro's angle in degrees (trapezoid on the gyro's own clock),
+    /// interpolated at each sample time; NaN outside the gyro's time span.
+    angle_deg: Vec<f64>,
+    /// The recording's sample times, in seconds.
+    sample_t: Vec<f64>,
+}
+
+/// Checks a time column: finite and never going backwards.
+fn check_times(what: &str, t: &[f64]) -> Result<(), GyroError> {
+    for (i, &v) in t.iter().enumerate() {
+        if !v.is_finite() {
+            return Err(GyroError::NotFinite {
+                what: what.to_string(),
+                index: i + 1,
+                value: v,
+            });
+        }
+        if i > 0 && v < t[i - 1] {
+            return Err(GyroError::NotMonotonic {
+                what: what.to_string(),
+                index: i + 1,
+                previous: t[i - 1],
+                value: v,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Linear interpolation of `y(x)` at `at`, `x` non-decreasing; NaN outside.
+fn interpolate(x: &[f64], y: &[f64], at: f64) -> f64 {
+    let (Some(&first), Some(&last)) = (x.first(), x.last()) else {
+        return f64::NAN;
+    };
+    if !(at >= first && at <= last) {
+        return f64::NAN;
+    }
+    // First index with x > at (1..=len); the segment is [k-1, k].
+    let k = x.partition_point(|&v| v <= at);
+    if k >= x.len() {
+        return y[x.len() - 1];
+    }
+    let (x0, x1, y0, y1) = (x[k - 1], x[k], y[k - 1], y[k]);
+    let dx = x1 - x0;
+    if dx > 0.0 {
+        y0 + (y1 - y0) * (at - x0) / dx
+    } else {
+        y0
+    }
+}
+
+/// Wraps degrees to (-180, 180].
+fn wrap_deg(d: f64) -> f64 {
+    let w = (d + 180.0).rem_euclid(360.0) - 180.0;
+    if w == -180.0 { 180.0 } else { w }
+}
+
+impl HeadingReference {
+    /// Integrates a gyro's rate (trapezoid, on the gyro's own clock `gyro_t`)
+    /// and interpolates its angle at each sample time `sample_t`.
+    pub fn from_rates(
+        column: &str,
+        sample_t: &[f64],
+        gyro_t: &[f64],
+        rate: &[f64],
+        units: GyroUnits,
+    ) -> Result<Self, GyroError> {
+        if gyro_t.len() != rate.len() {
+            return Err(GyroError::LengthMismatch {
+                column: column.to_string(),
+                found: rate.len(),
+                times: gyro_t.len(),
+            });
+        }
+        if rate.len() < 2 {
+            return Err(GyroError::TooFewGyroSamples {
+                column: column.to_string(),
+                found: rate.len(),
+            });
+        }
+        check_times("sample times", sample_t)?;
+        check_times(&format!("times of the gyro '{column}'"), gyro_t)?;
+        if let Some(i) = rate.iter().position(|r| !r.is_finite()) {
+            return Err(GyroError::NotFinite {
+                what: format!("gyro rate '{column}'"),
+                index: i + 1,
+                value: rate[i],
+            });
+        }
+        let k = units.to_deg_per_second();
+        let mut angle = Vec::with_capacity(rate.len());
+        let mut acc = 0.0;
+        angle.push(acc);
+        for i in 1..rate.len() {
+            acc += 0.5 * (rate[i - 1] + rate[i]) * k * (gyro_t[i] - gyro_t[i - 1]);
+            angle.push(acc);
+        }
+        let angle_deg: Vec<f64> = sample_t
+            .iter()
+            .map(|&t| interpolate(gyro_t, &angle, t))
+            .collect();
+        let overlapping = angle_deg.iter().filter(|a| a.is_finite()).count();
+        if overlapping < MIN_CHECK_SAMPLES {
+            return Err(GyroError::NoOverlap {
+                overlapping,
+                needed: MIN_CHECK_SAMPLES,
+                gyro_start: gyro_t[0],
+                gyro_end: gyro_t[gyro_t.len() - 1],
+                sample_start: sample_t.first().copied().unwrap_or(f64::NAN),
+                sample_end: sample_t.last().copied().unwrap_or(f64::NAN),
+            });
+        }
+        Ok(HeadingReference {
+            column: column.to_string(),
+            angle_deg,
+            sample_t: sample_t.to_vec(),
+        })
+    }
+
+    /// The gyro column's name.
+    pub fn column(&self) -> &str {
+        &self.column
+    }
+
+    /// The gyro's integrated angle at each sample, in degrees (NaN outside
+    /// the gyro's time span).
+    pub fn angle_deg(&self) -> &[f64] {
+        &self.angle_deg
+    }
+
+    /// Heading error of a model against the gyro: `headings_rad` are the
+    /// model's calibrated headings atan2(s_y, s_x), one per dataset sample in
+    /// dataset order; samples whose index is in `skip` (ascending; a robust
+    /// fit's flagged samples) are left out. Fits heading_deg ≈ h0 +
+    /// scale·gyro_angle + bias·(t - mean t) by least squares on the unwrapped
+    /// model heading (time order), so the gyro's scale and sign (scale ≈ ±1)
+    /// and its bias are fitted over the recording; errors are what remains,
+    /// wrapped to (-180, 180].
+    pub fn check(&self, headings_rad: &[f64], skip: &[usize]) -> Result<HeadingCheck, GyroError> {
+        let n_all = self.sample_t.len();
+        if headings_rad.len() != n_all {
+            return Err(GyroError::HeadingCount {
+                found: headings_rad.len(),
+                expected: n_all,
+            });
+        }
+        let mut skip_iter = skip.iter().copied().peekable();
+        let mut idx = Vec::with_capacity(n_all);
+        for (i, (angle, heading)) in self.angle_deg.iter().zip(headings_rad).enumerate() {
+            while skip_iter.peek().is_some_and(|&s| s < i) {
+                skip_iter.next();
+            }
+            if skip_iter.peek() == Some(&i) {
+                continue;
+            }
+            if angle.is_finite() && heading.is_finite() {
+                idx.push(i);
+            }
+        }
+        let n = idx.len();
+        if n < MIN_CHECK_SAMPLES {
+            return Err(GyroError::TooFewChecked {
+                found: n,
+                needed: MIN_CHECK_SAMPLES,
+            });
+        }
+        let g: Vec<f64> = idx.iter().map(|&i| self.angle_deg[i]).collect();
+        let t: Vec<f64> = idx.iter().map(|&i| self.sample_t[i]).collect();
+        let (gmin, gmax) = g
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            });
+        let span = gmax - gmin;
+        if !(span >= MIN_GYRO_SPAN_DEG) {
+            return Err(GyroError::NoTurnSeen {
+                column: self.column.clone(),
+                span_deg: span,
+                needed_deg: MIN_GYRO_SPAN_DEG,
+            });
+        }
+        // The model's heading, unwrapped in time order.
+        let mut h = Vec::with_capacity(n);
+        let mut prev = headings_rad[idx[0]].to_degrees();
+        let mut acc = prev;
+        h.push(acc);
+        for &i in &idx[1..] {
+            let d = headings_rad[i].to_degrees();
+            acc += wrap_deg(d - prev);
+            prev = d;
+            h.push(acc);
+        }
+        // Least squares on centred columns: h - mh = s (g - mg) + b (t - mt).
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let (mh, mg, mt) = (mean(&h), mean(&g), mean(&t));
+        let (mut sgg, mut stt, mut sgt, mut sgh, mut sth) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for k in 0..n {
+            let (gc, tc, hc) = (g[k] - mg, t[k] - mt, h[k] - mh);
+            sgg += gc * gc;
+            stt += tc * tc;
+            sgt += gc * tc;
+            sgh += gc * hc;
+            sth += tc * hc;
+        }
+        let det = sgg * stt - sgt * sgt;
+        // When the turn ran at a constant rate, the gyro's angle is a line in
+        // time and its bias cannot be told from its scale; the heading error
+        // is the same either way, so the bias is left out (reported as 0).
+        let (scale, bias) = if stt > 0.0 && det > 1e-9 * sgg * stt {
+            ((sgh * stt - sth * sgt) / det, (sth * sgg - sgh * sgt) / det)
+        } else {
+            (sgh / sgg, 0.0)
+        };
+        if !(scale.abs() >= MIN_GYRO_SCALE && scale.abs() <= MAX_GYRO_SCALE) {
+            return Err(GyroError::WrongAxis {
+                column: self.column.clone(),
+                scale,
+                min: MIN_GYRO_SCALE,
+                max: MAX_GYRO_SCALE,
+            });
+        }
+        let mut errors_deg = vec![f64::NAN; n_all];
+        let (mut ss, mut lo, mut hi) = (0.0, f64::INFINITY, f64::NEG_INFINITY);
+        for k in 0..n {
+            let fitted = mh + scale * (g[k] - mg) + bias * (t[k] - mt);
+            let e = wrap_deg(h[k] - fitted);
+            errors_deg[idx[k]] = e;
+            ss += e * e;
+            lo = lo.min(e);
+            hi = hi.max(e);
+        }
+        Ok(HeadingCheck {
+            gyro_column: self.column.clone(),
+            rms_deg: (ss / n as f64).sqrt(),
+            peak_to_peak_deg: hi - lo,
+            n,
+            gyro_scale: scale,
+            // heading rate = scale·(gyro rate) + bias, so the gyro reads
+            // −bias/scale when the heading stands still.
+            gyro_bias_deg_s: if bias == 0.0 { 0.0 } else { -bias / scale },
+            errors_deg,
+        })
+    }
+}
+
+/// A model's heading error against a gyro.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HeadingCheck {
+    /// The gyro column the heading was checked against.
+    pub gyro_column: String,
+    /// Root mean square of the heading error, degrees.
+    pub rms_deg: f64,
+    /// Largest less smallest heading error, degrees.
+    pub peak_to_peak_deg: f64,
+    /// Samples checked.
+    pub n: usize,
+    /// Heading turned per degree of gyro angle (±1 for a gyro about the turn's
+    /// axis; the sign says how it is mounted).
+    pub gyro_scale: f64,
+    /// What the gyro reads at rest, deg/s (0 when a constant-rate turn leaves
+    /// it undetermined).
+    pub gyro_bias_deg_s: f64,
+    /// Per dataset sample, degrees; NaN where not checked.
+    #[serde(skip)]
+    pub errors_deg: Vec<f64>,
+}
+
+/// How much worse one model's heading is than another's.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct HeadingDelta {
+    /// rms(other) − rms(self) over the samples both checked, degrees.
+    pub delta_rms_deg: f64,
+    /// Its standard error, degrees (NaN with too few samples).
+    pub se_deg: f64,
+}
+
+impl HeadingCheck {
+    /// How much worse `other` (another model on the same samples) is than
+    /// `self`, in rms heading error, with a standard error that respects the
+    /// strong autocorrelation of heading errors (batch means of e_other² −
+    /// e_self² over ~20 contiguous time batches, propagated to rms).
+    pub fn worse_by(&self, other: &HeadingCheck) -> HeadingDelta {
+        let d: Vec<(f64, f64)> = self
+            .errors_deg
+            .iter()
+            .zip(&other.errors_deg)
+            .filter(|(a, b)| a.is_finite() && b.is_finite())
+            .map(|(&a, &b)| (a, b))
+            .collect();
+        let n = d.len();
+        if n == 0 {
+            return HeadingDelta {
+                delta_rms_deg: f64::NAN,
+                se_deg: f64::NAN,
+            };
+        }
+        let ms_self = d.iter().map(|(a, _)| a * a).sum::<f64>() / n as f64;
+        let ms_other = d.iter().map(|(_, b)| b * b).sum::<f64>() / n as f64;
+        let (rs, ro) = (ms_self.sqrt(), ms_other.sqrt());
+        let sum = rs + ro;
+        // rms_o − rms_s = (ms_o − ms_s) / (rms_o + rms_s): exact, and linear
+        // in the mean difference of squares, whose SE the batches give.
+        if !(sum > 0.0) {
+            return HeadingDelta {
+                delta_rms_deg: 0.0,
+                se_deg: 0.0,
+            };
+        }
+        let batches = COMPARISON_BATCHES.min(n / 2);
+        let se_mean = if batches >= 2 {
+            let means: Vec<f64> = (0..batches)
+                .map(|b| {
+                    let (start, end) = (b * n / batches, (b + 1) * n / batches);
+                    d[start..end]
+                        .iter()
+                        .map(|(a, o)| o * o - a * a)
+                        .sum::<f64>()
+                        / (end - start) as f64
+                })
+                .collect();
+            let m = means.iter().sum::<f64>() / batches as f64;
+            let var = means.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (batches - 1) as f64;
+            (var / batches as f64).sqrt()
+        } else {
+            f64::NAN
+        };
+        HeadingDelta {
+            delta_rms_deg: (ms_other - ms_self) / sum,
+            se_deg: se_mean / sum,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// A hand turn: two turns at a varying rate over 40 s, the gyro (scale
+    /// `sign`, a bias) sampled on its own clock at 190 Hz, the sensor at 75 Hz
+    /// starting a little later.
+    struct Turn {
+        sample_t: Vec<f64>,
+        truth_rad: Vec<f64>,
+        gyro_t: Vec<f64>,
+        rate: Vec<f64>,
+    }
+
+    fn heading_at(t: f64) -> f64 {
+        // Degrees: 720° over 40 s with a wobble in rate.
+        18.0 * t + 20.0 * (t * 0.4).sin() + 10.0
+    }
+
+    fn turn(sign: f64, bias: f64) -> Turn {
+        let gyro_t: Vec<f64> = (0..(40.0 * 190.0) as usize)
+            .map(|i| i as f64 / 190.0)
+            .collect();
+        let rate: Vec<f64> = gyro_t
+            .iter()
+            .map(|&t| sign * (18.0 + 8.0 * (t * 0.4).cos()) + bias)
+            .collect();
+        let sample_t: Vec<f64> = (0..(39.0 * 75.0) as usize)
+            .map(|i| 0.3 + i as f64 / 75.0)
+            .collect();
+        let truth_rad = sample_t
+            .iter()
+            .map(|&t| heading_at(t).to_radians())
+            .collect();
+        Turn {
+            sample_t,
+            truth_rad,
+            gyro_t,
+            rate,
+        }
+    }
+
+    fn reference(turn: &Turn) -> HeadingReference {
+        HeadingReference::from_rates(
+            "gyro_z",
+            &turn.sample_t,
+            &turn.gyro_t,
+            &turn.rate,
+            GyroUnits::DegPerSecond,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn a_true_heading_has_no_error_whatever_the_gyro_sign_and_bias() {
+        let t = turn(-1.0, 1.7);
+        let check = reference(&t).check(&t.truth_rad, &[]).unwrap();
+        assert!(check.rms_deg < 0.01, "{check:?}");
+        assert!((check.gyro_scale + 1.0).abs() < 1e-3, "{check:?}");
+        assert!((check.gyro_bias_deg_s - 1.7).abs() < 1e-3, "{check:?}");
+        assert_eq!(check.n, t.sample_t.len());
+    }
+
+    #[test]
+    fn rad_per_second_is_converted() {
+        let t = turn(1.0, 0.0);
+        let rad: Vec<f64> = t.rate.iter().map(|r| r.to_radians()).collect();
+        let r = HeadingReference::from_rates(
+            "g",
+            &t.sample_t,
+            &t.gyro_t,
+            &rad,
+            GyroUnits::RadPerSecond,
+        )
+        .unwrap();
+        let check = r.check(&t.truth_rad, &[]).unwrap();
+        assert!((check.gyro_scale - 1.0).abs() < 1e-3, "{check:?}");
+        assert!(check.rms_deg < 0.01, "{check:?}");
+    }
+
+    #[test]
+    fn a_second_harmonic_distortion_gives_its_rms() {
+        let t = turn(1.0, -0.8);
+        let amp = 3.0_f64;
+        let h: Vec<f64> = t
+            .truth_rad
+            .iter()
+            .map(|&h| h + (amp * (2.0 * h).sin()).to_radians())
+            .collect();
+        let check = reference(&t).check(&h, &[]).unwrap();
+        let check = HeadingCheck {
+            errors_deg: vec![],
+            ..check
+        };
+        // The distortion's own rms over these samples (amp/√2 over whole
+        // turns at an even rate).
+        let expected = (t
+            .truth_rad
+            .iter()
+            .map(|&h| (amp * (2.0 * h).sin()).powi(2))
+            .sum::<f64>()
+            / h.len() as f64)
+            .sqrt();
+        assert!((expected - amp / 2f64.sqrt()).abs() < 0.1);
+        assert!(
+            (check.rms_deg - expected).abs() < 0.05 * expected,
+            "{} vs {expected}",
+            check.rms_deg
+        );
+        // Over turns that are not whole, the fitted scale takes a little of
+        // the harmonic; the peak-to-peak stays near twice the amplitude.
+        let p2p = check.peak_to_peak_deg;
+        assert!(p2p > 1.9 * amp && p2p < 2.3 * amp, "{p2p}");
+    }
+
+    #[test]
+    fn skipped_samples_are_not_checked() {
+        let t = turn(1.0, 0.0);
+        let mut h = t.truth_rad.clone();
+        h[100] += 1.0;
+        h[200] += 1.0;
+        let r = reference(&t);
+        let check = r.check(&h, &[100, 200]).unwrap();
+        assert!(check.rms_deg < 0.01, "{check:?}");
+        assert!(check.errors_deg[100].is_nan());
+        assert_eq!(check.n, t.sample_t.len() - 2);
+        assert!(r.check(&h, &[]).unwrap().rms_deg > 1.0);
+    }
+
+    #[test]
+    fn worse_by_is_zero_within_its_se_for_copies_and_positive_for_a_distortion() {
+        let t = turn(1.0, 0.5);
+        let r = reference(&t);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let noise = Normal::new(0.0, 1.0_f64.to_radians()).unwrap();
+        // Heading errors follow heading: a slow error common to both, plus
+        // white noise of each.
+        let noisy = |rng: &mut rand_chacha::ChaCha8Rng, extra: f64| -> Vec<f64> {
+            t.truth_rad
+                .iter()
+                .map(|&h| {
+                    h + (2.0 * (3.0 * h).sin() + extra * (2.0 * h).sin()).to_radians()
+                        + noise.sample(rng)
+                })
+                .collect()
+        };
+        let a = r.check(&noisy(&mut rng, 0.0), &[]).unwrap();
+        let b = r.check(&noisy(&mut rng, 0.0), &[]).unwrap();
+        let same = a.worse_by(&b);
+        assert!(same.se_deg > 0.0, "{same:?}");
+        assert!(same.delta_rms_deg.abs() < 3.0 * same.se_deg, "{same:?}");
+        let c = r.check(&noisy(&mut rng, 4.0), &[]).unwrap();
+        let worse = a.worse_by(&c);
+        assert!(worse.delta_rms_deg > 3.0 * worse.se_deg, "{worse:?}");
+        assert!(
+            (worse.delta_rms_deg - (c.rms_deg - a.rms_deg)).abs() < 1e-9,
+            "{worse:?}"
+        );
+        // Antisymmetric.
+        let better = c.worse_by(&a);
+        assert!((better.delta_rms_deg + worse.delta_rms_deg).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_gyro_about_another_axis_is_refused() {
+        let t = turn(1.0, 0.0);
+        // A tilted gyro: 0.3 of the rate (72° off the turn's axis).
+        let rate: Vec<f64> = t.rate.iter().map(|r| 0.3 * r).collect();
+        let r = HeadingReference::from_rates(
+            "gyro_x",
+            &t.sample_t,
+            &t.gyro_t,
+            &rate,
+            GyroUnits::DegPerSecond,
+        )
+        .unwrap();
+        let err = r.check(&t.truth_rad, &[]).unwrap_err();
+        assert!(matches!(err, GyroError::WrongAxis { .. }), "{err}");
+        assert!(err.to_string().contains("gyro_x"), "{err}");
+        // One that barely turns: 0.05 of the rate spans 36°.
+        let rate: Vec<f64> = t.rate.iter().map(|r| 0.05 * r).collect();
+        let r = HeadingReference::from_rates(
+            "gyro_y",
+            &t.sample_t,
+            &t.gyro_t,
+            &rate,
+            GyroUnits::DegPerSecond,
+        )
+        .unwrap();
+        let err = r.check(&t.truth_rad, &[]).unwrap_err();
+        assert!(matches!(err, GyroError::NoTurnSeen { .. }), "{err}");
+    }
+
+    #[test]
+    fn a_tilt_within_the_bound_is_accepted() {
+        let t = turn(1.0, 0.0);
+        // 40° off the turn's axis reads cos 40° = 0.77 of the rate.
+        let rate: Vec<f64> = t
+            .rate
+            .iter()
+            .map(|r| 40f64.to_radians().cos() * r)
+            .collect();
+        let r = HeadingReference::from_rates(
+            "g",
+            &t.sample_t,
+            &t.gyro_t,
+            &rate,
+            GyroUnits::DegPerSecond,
+        )
+        .unwrap();
+        let check = r.check(&t.truth_rad, &[]).unwrap();
+        assert!((check.gyro_scale - 1.0 / 40f64.to_radians().cos()).abs() < 1e-3);
+    }
+
+    #[test]
+    fn bad_inputs_are_errors_not_panics() {
+        let t = turn(1.0, 0.0);
+        let f = |s: &[f64], gt: &[f64], r: &[f64]| {
+            HeadingReference::from_rates("g", s, gt, r, GyroUnits::DegPerSecond)
+        };
+        assert!(matches!(
+            f(&t.sample_t, &t.gyro_t, &t.rate[1..]),
+            Err(GyroError::LengthMismatch { .. })
+        ));
+        assert!(matches!(
+            f(&t.sample_t, &[], &[]),
+            Err(GyroError::TooFewGyroSamples { .. })
+        ));
+        let mut rate = t.rate.clone();
+        rate[5] = f64::NAN;
+        assert!(matches!(
+            f(&t.sample_t, &t.gyro_t, &rate),
+            Err(GyroError::NotFinite { index: 6, .. })
+        ));
+        let mut gt = t.gyro_t.clone();
+        gt.swap(3, 4);
+        assert!(matches!(
+            f(&t.sample_t, &gt, &t.rate),
+            Err(GyroError::NotMonotonic { index: 5, .. })
+        ));
+        let mut st = t.sample_t.clone();
+        st[2] = f64::NAN;
+        assert!(matches!(
+            f(&st, &t.gyro_t, &t.rate),
+            Err(GyroError::NotFinite { .. })
+        ));
+        // Clocks that do not overlap.
+        let late: Vec<f64> = t.sample_t.iter().map(|s| s + 1000.0).collect();
+        let err = f(&late, &t.gyro_t, &t.rate).unwrap_err();
+        assert!(matches!(err, GyroError::NoOverlap { .. }), "{err}");
+        assert!(f(&[], &t.gyro_t, &t.rate).is_err());
+        let r = reference(&t);
+        assert!(matches!(
+            r.check(&t.truth_rad[1..], &[]),
+            Err(GyroError::HeadingCount { .. })
+        ));
+        let nan = vec![f64::NAN; t.sample_t.len()];
+        assert!(matches!(
+            r.check(&nan, &[]),
+            Err(GyroError::TooFewChecked { .. })
+        ));
+        // A skip list out of range or unsorted does not panic.
+        assert!(r.check(&t.truth_rad, &[usize::MAX, 3, 1]).is_ok());
+        // Comparing checks of different lengths or with nothing in common.
+        let empty = HeadingCheck {
+            errors_deg: vec![],
+            ..r.check(&t.truth_rad, &[]).unwrap()
+        };
+        assert!(empty.worse_by(&empty).delta_rms_deg.is_nan());
+    }
+
+    #[test]
+    fn wrap_is_in_the_half_open_interval() {
+        assert_eq!(wrap_deg(180.0), 180.0);
+        assert_eq!(wrap_deg(-180.0), 180.0);
+        assert!((wrap_deg(190.0) + 170.0).abs() < 1e-12);
+        assert!((wrap_deg(-721.0) + 1.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,470 @@
+//! `fieldcal check` and `--gyro`, as a user runs them: simulated runs of
+//! one sensor, and the shared real recordings with their MPU-6050 gyro.
+
+mod common;
+
+use std::fs;
+use std::path::Path;
+
+use common::{run_err, run_ok, shared_path};
+use serde_json::Value;
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A simulated run of one sensor (the same in every call but the seed and
+/// the x offset): 2 turns, noise 10 counts on a field of 1000.
+fn simulate(dir: &Path, name: &str, seed: u64, offset_x: f64) -> std::path::PathBuf {
+    let path = dir.join(name);
+    let (seed, offset_x) = (seed.to_string(), offset_x.to_string());
+    run_ok(&[
+        "simulate",
+        "--gain-x",
+        "1.08",
+        "--offset-x",
+        &offset_x,
+        "--offset-y",
+        "-60",
+        "--noise",
+        "10",
+        "--turns",
+        "2",
+        "--turn-seconds",
+        "20",
+        "--seed",
+        &seed,
+        "--output",
+        s(&path),
+    ]);
+    path
+}
+
+fn fit_json(dir: &Path, csv: &Path, extra: &[&str]) -> (std::path::PathBuf, Value) {
+    let mut args = vec!["fit", s(csv), "--json"];
+    args.extend_from_slice(extra);
+    let out = run_ok(&args);
+    let path = dir.join(format!(
+        "{}.json",
+        csv.file_stem().unwrap().to_str().unwrap()
+    ));
+    fs::write(&path, &out).unwrap();
+    (path, serde_json::from_str(&out).unwrap())
+}
+
+fn check_json(csv: &Path, cal: &Path, extra: &[&str]) -> Value {
+    let mut args = vec!["check", s(csv), "--calibration", s(cal), "--json"];
+    args.extend_from_slice(extra);
+    serde_json::from_str(&run_ok(&args)).unwrap()
+}
+
+fn moved(report: &Value) -> Vec<String> {
+    report["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|p| p["moved"] == true)
+        .map(|p| p["name"].as_str().unwrap().to_string())
+        .collect()
+}
+
+#[test]
+fn fit_json_gives_every_paper_parameter_with_its_standard_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let run1 = simulate(dir.path(), "run1.csv", 1, 150.0);
+    let (_, v) = fit_json(dir.path(), &run1, &[]);
+    let params = v["parameters"].as_array().unwrap();
+    let names: Vec<&str> = params.iter().map(|p| p["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["a", "b", "d", "r"]);
+    for p in params {
+        let (value, se) = (p["value"].as_f64().unwrap(), p["se"].as_f64().unwrap());
+        assert!(se > 0.0 && se.is_finite(), "{p}");
+        assert_eq!(
+            value,
+            v["params"][p["name"].as_str().unwrap()].as_f64().unwrap()
+        );
+    }
+    // b's SE for noise 10 over 800 samples is about 0.5 counts.
+    let se_b = params[1]["se"].as_f64().unwrap();
+    assert!((0.3..0.8).contains(&se_b), "se b {se_b}");
+    assert!(v["heading_vs_gyro"].is_null(), "{v}");
+}
+
+#[test]
+fn two_runs_of_the_same_sensor_hold() {
+    let dir = tempfile::tempdir().unwrap();
+    let run1 = simulate(dir.path(), "run1.csv", 1, 150.0);
+    let run2 = simulate(dir.path(), "run2.csv", 2, 150.0);
+    let (cal, _) = fit_json(dir.path(), &run1, &[]);
+    let report = check_json(&run2, &cal, &[]);
+    assert_eq!(report["holds"], true, "{report}");
+    assert!(moved(&report).is_empty(), "{report}");
+    assert!(report["stored_has_se"] == true);
+    let z_threshold = report["z_threshold"].as_f64().unwrap();
+    assert!((z_threshold - 3.023).abs() < 0.01, "{z_threshold}");
+    let verdict = report["verdict"].as_str().unwrap();
+    assert!(verdict.starts_with("holds: rms"), "{verdict}");
+    // The text report says the same.
+    let text = run_ok(&["check", s(&run2), "--calibration", s(&cal)]);
+    assert!(text.contains("verdict     holds"), "{text}");
+}
+
+#[test]
+fn a_shifted_offset_is_named_in_standard_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let run1 = simulate(dir.path(), "run1.csv", 1, 150.0);
+    let run2 = simulate(dir.path(), "run2.csv", 2, 180.0);
+    let (cal, stored) = fit_json(dir.path(), &run1, &[]);
+    let report = check_json(&run2, &cal, &[]);
+    assert_eq!(report["holds"], false, "{report}");
+    assert_eq!(moved(&report), ["b"], "{report}");
+    let b = report["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["name"] == "b")
+        .unwrap();
+    // b = -a·offset_x: the shift is -30/1.08 counts of y; in the SE of the
+    // two fits, z is that over sqrt(se1² + se2²), within noise (±1) plus
+    // the SEs' own uncertainty (a few %).
+    let se_stored = stored["parameters"][1]["se"].as_f64().unwrap();
+    let se_new = b["refitted_se"].as_f64().unwrap();
+    let expected = -30.0 / 1.08 / (se_stored.powi(2) + se_new.powi(2)).sqrt();
+    let z = b["z"].as_f64().unwrap();
+    assert!(
+        (z - expected).abs() < 3.0 + 0.05 * expected.abs(),
+        "z {z}, expected {expected}"
+    );
+    let verdict = report["verdict"].as_str().unwrap();
+    assert!(
+        verdict.starts_with(&format!("b moved by {:.1} SE", z.abs())),
+        "{verdict}"
+    );
+    assert!(verdict.contains("recalibrate"), "{verdict}");
+}
+
+#[test]
+fn a_model_with_effects_is_refitted_with_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let run1 = simulate(dir.path(), "run1.csv", 1, 150.0);
+    let run2 = simulate(dir.path(), "run2.csv", 2, 150.0);
+    let (cal, _) = fit_json(dir.path(), &run1, &["--effects", "cross-axis,cubic"]);
+    let report = check_json(&run2, &cal, &[]);
+    assert_eq!(report["model"], "offset+scale+cross-axis+cubic");
+    assert_eq!(
+        report["parameters"].as_array().unwrap().len(),
+        7,
+        "{report}"
+    );
+    assert_eq!(report["holds"], true, "{report}");
+    // Seven parameters: a stricter threshold.
+    let z_threshold = report["z_threshold"].as_f64().unwrap();
+    assert!((z_threshold - 3.189).abs() < 0.01, "{z_threshold}");
+}
+
+#[test]
+fn a_daemon_state_file_is_a_calibration_without_standard_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let run1 = simulate(dir.path(), "run1.csv", 1, 150.0);
+    let run2 = simulate(dir.path(), "run2.csv", 2, 150.0);
+    let (_, stored) = fit_json(dir.path(), &run1, &[]);
+    let p = &stored["params"];
+    let state = format!(
+        r#"{{"format":1,"calibration":{{"sensor":"compass","id":3,"model":"offset+scale","params":{{"a":{},"b":{},"d":{},"r":{}}},"rms":{},"coverage_deg":358.0,"n":800,"time":1700000000.5}}}}"#,
+        p["a"], p["b"], p["d"], p["r"], stored["rms"]
+    );
+    let path = dir.path().join("compass.json");
+    fs::write(&path, state).unwrap();
+    let report = check_json(&run2, &path, &[]);
+    assert_eq!(report["stored_source"], "daemon-state");
+    assert_eq!(report["stored_has_se"], false);
+    assert_eq!(report["holds"], true, "{report}");
+    let verdict = report["verdict"].as_str().unwrap();
+    assert!(verdict.contains("has no standard errors"), "{verdict}");
+    // The same state file against a shifted offset: b moved.
+    let run3 = simulate(dir.path(), "run3.csv", 3, 180.0);
+    assert_eq!(moved(&check_json(&run3, &path, &[])), ["b"]);
+}
+
+#[test]
+fn a_file_that_is_no_calibration_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let run1 = simulate(dir.path(), "run1.csv", 1, 150.0);
+    for (name, text) in [
+        ("garbage.json", "this is not json"),
+        ("other.json", r#"{"hello": 1}"#),
+    ] {
+        let path = dir.path().join(name);
+        fs::write(&path, text).unwrap();
+        let err = run_err(&["check", s(&run1), "--calibration", s(&path)]);
+        assert!(err.contains(name), "{err}");
+        assert!(
+            err.contains("fit --json") && err.contains("state file"),
+            "{err}"
+        );
+    }
+    let err = run_err(&["check", s(&run1), "--calibration", "/nonexistent/cal.json"]);
+    assert!(err.contains("/nonexistent/cal.json"), "{err}");
+}
+
+#[test]
+fn a_covariate_the_new_recording_lacks_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let run1 = dir.path().join("warm.csv");
+    run_ok(&[
+        "simulate",
+        "--effect",
+        "covariate:temp=2",
+        "--noise",
+        "5",
+        "--output",
+        s(&run1),
+    ]);
+    let (cal, _) = fit_json(dir.path(), &run1, &["--effects", "covariate:temp"]);
+    let run2 = simulate(dir.path(), "run2.csv", 2, 0.0);
+    let err = run_err(&["check", s(&run2), "--calibration", s(&cal)]);
+    assert!(err.contains("'temp'") && err.contains("run2.csv"), "{err}");
+}
+
+/// A CSV whose own column `gyro` is the rate of the turn (deg/s), at a
+/// varying rate, so its scale and bias are both determined.
+fn turn_with_gyro(dir: &Path) -> std::path::PathBuf {
+    let mut text = String::from("t,x,y,gyro\n");
+    for i in 0..1000 {
+        let t = i as f64 * 0.02;
+        let h = (36.0 * t + 20.0 * (0.5 * t).sin()).to_radians();
+        let rate = 36.0 + 10.0 * (0.5 * t).cos() + 1.5; // a bias of 1.5 deg/s
+        text.push_str(&format!(
+            "{t},{},{},{rate}\n",
+            500.0 * h.cos() + 40.0,
+            450.0 * h.sin() - 10.0
+        ));
+    }
+    let path = dir.join("gyro.csv");
+    fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn a_gyro_column_of_the_recording_is_a_reference_not_a_covariate() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = turn_with_gyro(dir.path());
+    let v: Value =
+        serde_json::from_str(&run_ok(&["fit", s(&csv), "--gyro", "gyro", "--json"])).unwrap();
+    let h = &v["heading_vs_gyro"];
+    assert_eq!(h["gyro_column"], "gyro");
+    assert!(h["rms_deg"].as_f64().unwrap() < 0.05, "{h}");
+    assert!(
+        (h["gyro_scale"].as_f64().unwrap() - 1.0).abs() < 0.01,
+        "{h}"
+    );
+    assert!(
+        (h["gyro_bias_deg_s"].as_f64().unwrap() - 1.5).abs() < 0.05,
+        "{h}"
+    );
+    // Not a covariate any more.
+    let err = run_err(&[
+        "fit",
+        s(&csv),
+        "--gyro",
+        "gyro",
+        "--effects",
+        "covariate:gyro",
+    ]);
+    assert!(err.contains("covariate:gyro"), "{err}");
+    // The same through --effects: the check is there too.
+    let v: Value = serde_json::from_str(&run_ok(&[
+        "fit",
+        s(&csv),
+        "--gyro",
+        "gyro",
+        "--effects",
+        "cross-axis",
+        "--json",
+    ]))
+    .unwrap();
+    assert!(
+        v["heading_vs_gyro"]["rms_deg"].as_f64().unwrap() < 0.05,
+        "{v}"
+    );
+    // In rad/s the same column reads 57 times the turn: refused, by name.
+    let err = run_err(&["fit", s(&csv), "--gyro", "gyro", "--gyro-units", "rad/s"]);
+    assert!(
+        err.contains("'gyro'") && err.contains("--gyro-units"),
+        "{err}"
+    );
+}
+
+#[test]
+fn gyro_errors_name_the_file_and_the_columns() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = turn_with_gyro(dir.path());
+    let err = run_err(&["fit", s(&csv), "--gyro", "gyro_z"]);
+    assert!(
+        err.contains("gyro.csv") && err.contains("'gyro_z'") && err.contains("gyro"),
+        "{err}"
+    );
+    let imu =
+        shared_path("data/real/sunsided-set-1/rotate-360ccw-around-z-pointing-up/mpu6050.csv");
+    let err = run_err(&["fit", s(&csv), "--gyro", &format!("{}:gyro_w", s(&imu))]);
+    assert!(
+        err.contains("mpu6050.csv") && err.contains("gyro_x, gyro_y, gyro_z"),
+        "{err}"
+    );
+    // No time column in the main file.
+    let no_time = dir.path().join("no_time.csv");
+    let text = fs::read_to_string(&csv).unwrap();
+    let stripped: String = text
+        .lines()
+        .map(|l| l.split_once(',').unwrap().1.to_string() + "\n")
+        .collect();
+    fs::write(&no_time, stripped).unwrap();
+    let err = run_err(&["fit", s(&no_time), "--gyro", "gyro"]);
+    assert!(
+        err.contains("no_time.csv") && err.contains("no time column"),
+        "{err}"
+    );
+}
+
+const REAL: &str = "data/real/sunsided-set-1";
+
+/// (run, file, x, y, gyro, sign of the fitted scale, measured rms °)
+const TURNING: [(&str, &str, &str, &str, &str, f64, f64); 4] = [
+    (
+        "rotate-360ccw-around-z-pointing-up",
+        "hmc5883l_mag.csv",
+        "mag_x",
+        "mag_z",
+        "gyro_z",
+        -1.0,
+        6.15,
+    ),
+    (
+        "rotate-360ccw-around-x-pointing-forward",
+        "hmc5883l_mag.csv",
+        "mag_y",
+        "mag_z",
+        "gyro_x",
+        -1.0,
+        2.46,
+    ),
+    (
+        "rotate-360ccw-around-x-pointing-forward",
+        "mpu6050.csv",
+        "acc_y",
+        "acc_z",
+        "gyro_x",
+        -1.0,
+        3.04,
+    ),
+    (
+        "rotate-360ccw-around-y-pointing-left",
+        "mpu6050.csv",
+        "acc_x",
+        "acc_z",
+        "gyro_y",
+        1.0,
+        3.47,
+    ),
+];
+
+#[test]
+fn the_paper_model_heading_against_the_gyro_on_the_real_recordings() {
+    for (run, file, x, y, gyro, sign, measured) in TURNING {
+        let csv = shared_path(&format!("{REAL}/{run}/{file}"));
+        let imu = shared_path(&format!("{REAL}/{run}/mpu6050.csv"));
+        let v: Value = serde_json::from_str(&run_ok(&[
+            "fit",
+            s(&csv),
+            "--x",
+            x,
+            "--y",
+            y,
+            "--gyro",
+            &format!("{}:{gyro}", s(&imu)),
+            "--json",
+        ]))
+        .unwrap();
+        let h = &v["heading_vs_gyro"];
+        let rms = h["rms_deg"].as_f64().unwrap();
+        let p2p = h["peak_to_peak_deg"].as_f64().unwrap();
+        let scale = h["gyro_scale"].as_f64().unwrap();
+        // Hand-turned boards without tilt compensation: a few degrees, the
+        // figure measured here to within a tenth of a degree (the fit is
+        // deterministic), and the gyro about the turn's axis within the
+        // MPU-6050's tolerance and the hand's wobble (±10 %), with the set's
+        // mounting signs.
+        assert!(
+            rms < 10.0 && (rms - measured).abs() < 0.5,
+            "{run} {x}/{y}: rms {rms}"
+        );
+        assert!(p2p > rms && p2p < 60.0, "{run} {x}/{y}: p-p {p2p}");
+        assert!((scale - sign).abs() < 0.1, "{run} {x}/{y}: scale {scale}");
+        assert!(h["gyro_bias_deg_s"].as_f64().unwrap().abs() < 20.0, "{h}");
+        assert_eq!(h["n"].as_u64().unwrap() as f64, v["n"].as_f64().unwrap());
+    }
+}
+
+#[test]
+fn a_gyro_about_another_axis_is_refused_on_the_real_recording() {
+    let dir = format!("{REAL}/rotate-360ccw-around-z-pointing-up");
+    let csv = shared_path(&format!("{dir}/hmc5883l_mag.csv"));
+    let imu = shared_path(&format!("{dir}/mpu6050.csv"));
+    for gyro in ["gyro_x", "gyro_y"] {
+        let err = run_err(&[
+            "fit",
+            s(&csv),
+            "--x",
+            "mag_x",
+            "--y",
+            "mag_z",
+            "--gyro",
+            &format!("{}:{gyro}", s(&imu)),
+        ]);
+        assert!(err.contains(&format!("'{gyro}'")), "{err}");
+        assert!(err.contains("did not turn about this gyro's axis"), "{err}");
+    }
+}
+
+#[test]
+fn the_real_z_run_holds_against_its_own_calibration() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = format!("{REAL}/rotate-360ccw-around-z-pointing-up");
+    let csv = shared_path(&format!("{run}/hmc5883l_mag.csv"));
+    let imu = shared_path(&format!("{run}/mpu6050.csv"));
+    let (cal, _) = fit_json(dir.path(), &csv, &["--x", "mag_x", "--y", "mag_z"]);
+    let gyro = format!("{}:gyro_z", s(&imu));
+    let report = check_json(
+        &csv,
+        &cal,
+        &["--x", "mag_x", "--y", "mag_z", "--gyro", &gyro],
+    );
+    assert_eq!(report["holds"], true, "{report}");
+    for p in report["parameters"].as_array().unwrap() {
+        assert!(p["z"].as_f64().unwrap().abs() < 1e-6, "{p}");
+    }
+    let h = report["heading_vs_gyro"]["rms_deg"].as_f64().unwrap();
+    assert!((h - 6.15).abs() < 0.1, "{h}");
+}
+
+#[test]
+fn a_recording_that_did_not_turn_is_an_error_not_a_verdict() {
+    let dir = tempfile::tempdir().unwrap();
+    let run1 = simulate(dir.path(), "run1.csv", 1, 150.0);
+    let (cal, _) = fit_json(dir.path(), &run1, &[]);
+    let arc = dir.path().join("arc.csv");
+    run_ok(&[
+        "simulate",
+        "--turns",
+        "0.33",
+        "--noise",
+        "5",
+        "--output",
+        s(&arc),
+    ]);
+    let err = run_err(&["check", s(&arc), "--calibration", s(&cal)]);
+    assert!(
+        err.contains("arc.csv") && err.contains("cover only"),
+        "{err}"
+    );
+}
