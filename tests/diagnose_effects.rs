@@ -83,7 +83,7 @@ fn each_hidden_effect_is_suggested_first_and_the_ladder_reaches_the_noise() {
                         let noise_only = fit_model(&clean, &PAPER).unwrap().rms;
                         let case =
                             format!("{effect} size {size} noise {noise} turns {turns} seed {seed}");
-                        let d = match diagnose(&with, &PAPER) {
+                        let d = match diagnose(&with, &PAPER, None) {
                             Ok(d) => d,
                             Err(e) => {
                                 failures.push(format!("{case}: {e}"));
@@ -124,7 +124,7 @@ fn with_no_hidden_effect_the_papers_model_is_enough_in_95_percent_of_seeds() {
             let data = sensor(noise, turns, seed, SimEffects::default())
                 .simulate()
                 .unwrap();
-            let d = diagnose(&data, &PAPER).unwrap();
+            let d = diagnose(&data, &PAPER, None).unwrap();
             if let Some(e) = d.suggested {
                 discoveries.push(format!("seed {seed} noise {noise}: {e}"));
             }

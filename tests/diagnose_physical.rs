@@ -19,7 +19,7 @@ fn real(run: &str, file: &str, x: &str, y: &str) -> Diagnosis {
         t: None,
     };
     let data = read_dataset(&path, &spec).expect("the shared recording reads");
-    diagnose(&data, &[]).expect("diagnosis")
+    diagnose(&data, &[], None).expect("diagnosis")
 }
 
 /// Supported if and only if the evidence says what the effect explains;
@@ -137,7 +137,7 @@ fn a_copy_of_an_axis_is_set_aside_and_named() {
         name: "y_uT".into(),
         values: copy,
     });
-    let d = diagnose(&data, &[]).unwrap();
+    let d = diagnose(&data, &[], None).unwrap();
     let aside = d.set_aside.iter().find(|a| a.column == "y_uT");
     let aside = aside.expect("y_uT is set aside");
     assert!(

@@ -30,6 +30,7 @@ use serde::Serialize;
 
 use super::FitError;
 use super::effects::{self, Effect, model_name};
+use super::gyro::{HeadingCheck, HeadingReference};
 use super::heading::coverage;
 use super::nonlinear::{ModelFit, Param, fit_model};
 use super::residuals::{self, NoiseFloor, Residuals, SetAside, analyse, is_time_like, set_aside};
@@ -187,6 +188,14 @@ pub fn limit_of(param: &str) -> Option<&'static ParamLimit> {
     PARAM_LIMITS.iter().find(|l| l.param == param)
 }
 
+/// With a gyro, a candidate whose heading error against it is worse than
+/// the model's without it by more than this many standard errors (of the
+/// difference, from [`HeadingCheck::worse_by`]'s batch means, which respect
+/// the errors' autocorrelation) is not supported: it makes |s| rounder by
+/// moving where samples point. Two SE: a candidate that leaves the heading
+/// as it was is refused by chance about one time in 40 (one-sided).
+pub const HEADING_WORSE_SES: f64 = 2.0;
+
 /// An rms below this is rounding, not noise or structure.
 const NUMERICAL_RMS: f64 = 1e-12;
 /// A harmonic (or trend) counts as structure in the verdict when it exceeds
@@ -215,6 +224,8 @@ pub struct Candidate {
     /// tail gate for `outliers`), material, within the physical limits,
     /// resolved above its standard errors, and not folding the turn.
     pub supported: bool,
+    /// The heading error against the gyro, when one was given.
+    pub heading_vs_gyro: Option<HeadingCheck>,
     /// Why: built from the numbers that decided `supported`.
     pub evidence: String,
 }
@@ -229,6 +240,8 @@ pub struct Step {
     pub bic: f64,
     /// Every fitted parameter, with its standard error.
     pub params: Vec<Param>,
+    /// The heading error against the gyro, when one was given.
+    pub heading_vs_gyro: Option<HeadingCheck>,
 }
 
 /// The whole answer of `fieldcal diagnose`.
@@ -253,6 +266,8 @@ pub struct Diagnosis {
     pub noise_floor: NoiseFloor,
     pub verdict: String,
     pub criterion: String,
+    /// Whether and how the heading was checked (against a gyro, or not).
+    pub heading: String,
 }
 
 /// The criterion, as the report states it.
@@ -274,8 +289,27 @@ fn bic(fit: &ModelFit, n: usize) -> f64 {
     n * (rss / n).ln() + p * n.ln()
 }
 
-fn step_of(fit: &ModelFit, effects: &[Effect], n: usize) -> Step {
+/// A fit's heading error against the gyro (None without one, or when the
+/// check cannot be made, which is logged).
+fn heading_check(fit: &ModelFit, reference: Option<&HeadingReference>) -> Option<HeadingCheck> {
+    let reference = reference?;
+    match reference.check(&fit.headings, &fit.flagged) {
+        Ok(check) => Some(check),
+        Err(err) => {
+            tracing::debug!("heading against {}: {err}", reference.column());
+            None
+        }
+    }
+}
+
+fn step_of(
+    fit: &ModelFit,
+    effects: &[Effect],
+    n: usize,
+    reference: Option<&HeadingReference>,
+) -> Step {
     Step {
+        heading_vs_gyro: heading_check(fit, reference),
         effects: effects.to_vec(),
         model: model_name(effects),
         rms: fit.rms,
@@ -398,6 +432,8 @@ struct Judgement {
 /// Everything a candidate is judged on.
 struct Trial<'a> {
     data: &'a Dataset,
+    /// Heading checks of the baseline, the current model and the candidate.
+    heading: [Option<&'a HeadingCheck>; 3],
     effect: &'a Effect,
     fit: &'a ModelFit,
     current: &'a ModelFit,
@@ -571,6 +607,29 @@ fn judge(t: &Trial<'_>) -> Judgement {
             percent(floor)
         ));
     }
+    // Worse than the model it is added to, or than the baseline: steps
+    // that each stay within their uncertainty must not add up to a worse
+    // heading than the one the ladder started from.
+    let [baseline, now, with] = t.heading;
+    if let Some(with) = with {
+        for (before, which) in [(now, "without it"), (baseline, "the baseline")] {
+            let Some(before) = before else { continue };
+            let delta = before.worse_by(with);
+            if delta.delta_rms_deg > HEADING_WORSE_SES * delta.se_deg {
+                return refuse(format!(
+                    "distorts heading: makes |s| rounder (rms {} → {}) but moves the heading: {:.1}° ({which}) → {:.1}° rms against {} (+{:.1}° ± {:.1}°); {}",
+                    percent(rms0),
+                    percent(rms1),
+                    before.rms_deg,
+                    with.rms_deg,
+                    with.gyro_column,
+                    delta.delta_rms_deg,
+                    delta.se_deg,
+                    with_params
+                ));
+            }
+        }
+    }
     let extra = if *t.effect == Effect::Outliers {
         format!(
             "; {} samples flagged, {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}",
@@ -630,10 +689,13 @@ fn with_effect(model: &[Effect], effect: &Effect) -> Vec<Effect> {
 fn rank(
     data: &Dataset,
     model: &[Effect],
-    current: &ModelFit,
+    current: (&ModelFit, Option<&HeadingCheck>),
+    baseline_heading: Option<&HeadingCheck>,
     res: &Residuals,
     aside: &[SetAside],
+    reference: Option<&HeadingReference>,
 ) -> Vec<Candidate> {
+    let (current, current_heading) = current;
     let n = data.len();
     let base_bic = bic(current, n);
     let covered_now = covered_deg(current);
@@ -655,8 +717,10 @@ fn rank(
             let unknowns_added = (fit.unknowns + fit.flagged.len())
                 .saturating_sub(current.unknowns + current.flagged.len());
             let params = own_params(&fit, current);
+            let heading_vs_gyro = heading_check(&fit, reference);
             let judged = judge(&Trial {
                 data,
+                heading: [baseline_heading, current_heading, heading_vs_gyro.as_ref()],
                 effect: &effect,
                 fit: &fit,
                 current,
@@ -676,6 +740,7 @@ fn rank(
                 unknowns_added,
                 delta_bic,
                 supported: judged.supported,
+                heading_vs_gyro,
             })
         })
         .collect();
@@ -687,9 +752,31 @@ fn rank(
     candidates
 }
 
+/// What the diagnosis says about the heading: checked against a gyro, or
+/// not, and what held the effects instead.
+pub fn heading_note(reference: Option<&HeadingReference>, checked: bool) -> String {
+    match reference {
+        None => "heading: not checked — no gyro given (--gyro); effects were held to physical limits instead".to_string(),
+        Some(r) if checked => format!(
+            "heading: checked against {}: an effect that makes the heading worse by more than {HEADING_WORSE_SES} standard errors is not supported; the physical limits hold too",
+            r.column()
+        ),
+        Some(r) => format!(
+            "heading: not checked — the gyro {} does not cover enough of the recording; effects were held to physical limits instead",
+            r.column()
+        ),
+    }
+}
+
 /// Diagnoses a recording, starting from the model `baseline` (the paper's
-/// effects are always included).
-pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitError> {
+/// effects are always included). With a gyro `reference`, every step and
+/// candidate carries its heading error against it, and a candidate that
+/// makes the heading worse is not supported.
+pub fn diagnose(
+    data: &Dataset,
+    baseline: &[Effect],
+    reference: Option<&HeadingReference>,
+) -> Result<Diagnosis, FitError> {
     let mut model: Vec<Effect> = effects::PAPER.to_vec();
     for e in baseline {
         if !model.contains(e) {
@@ -702,7 +789,16 @@ pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitErr
 
     let base_fit = fit_model(data, &model)?;
     let baseline_residuals = analyse(data, &base_fit);
-    let candidates = rank(data, &model, &base_fit, &baseline_residuals, &aside);
+    let baseline_step = step_of(&base_fit, &model, n, reference);
+    let candidates = rank(
+        data,
+        &model,
+        (&base_fit, baseline_step.heading_vs_gyro.as_ref()),
+        baseline_step.heading_vs_gyro.as_ref(),
+        &baseline_residuals,
+        &aside,
+        reference,
+    );
     let suggested = candidates
         .first()
         .filter(|c| c.supported)
@@ -714,7 +810,6 @@ pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitErr
         _ => None,
     };
 
-    let baseline_step = step_of(&base_fit, &model, n);
     let mut ladder = vec![baseline_step.clone()];
     let mut current = base_fit;
     let mut current_res = baseline_residuals.clone();
@@ -729,12 +824,21 @@ pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitErr
         };
         model = effects;
         current_res = analyse(data, &fit);
-        ladder.push(step_of(&fit, &model, n));
+        let step = step_of(&fit, &model, n, reference);
+        next = rank(
+            data,
+            &model,
+            (&fit, step.heading_vs_gyro.as_ref()),
+            baseline_step.heading_vs_gyro.as_ref(),
+            &current_res,
+            &aside,
+            reference,
+        )
+        .into_iter()
+        .find(|c| c.supported)
+        .map(|c| c.effect);
+        ladder.push(step);
         current = fit;
-        next = rank(data, &model, &current, &current_res, &aside)
-            .into_iter()
-            .find(|c| c.supported)
-            .map(|c| c.effect);
     }
 
     // The noise floor comes from the final residual: differences of
@@ -749,6 +853,7 @@ pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitErr
         &noise_floor,
         current.residuals.len(),
     );
+    let heading = heading_note(reference, baseline_step.heading_vs_gyro.is_some());
     Ok(Diagnosis {
         baseline: baseline_step,
         set_aside: aside,
@@ -761,6 +866,7 @@ pub fn diagnose(data: &Dataset, baseline: &[Effect]) -> Result<Diagnosis, FitErr
         noise_floor,
         verdict,
         criterion: criterion(),
+        heading,
     })
 }
 
@@ -883,7 +989,7 @@ mod data_tests {
     fn clean_recordings_suggest_nothing() {
         let mut fired = 0;
         for seed in 1..=40 {
-            let d = diagnose(&clean(seed), &[]).unwrap();
+            let d = diagnose(&clean(seed), &[], None).unwrap();
             assert!(d.baseline.rms.is_finite() && d.noise_floor.rms > 0.0);
             if d.suggested.is_some() {
                 fired += 1;
@@ -907,7 +1013,7 @@ mod data_tests {
         let fit = fit_model(&spiky, &effects::PAPER).unwrap();
         let res = analyse(&spiky, &fit);
         assert!(tails_heavy(&res), "{res:?}");
-        let d = diagnose(&spiky, &[]).unwrap();
+        let d = diagnose(&spiky, &[], None).unwrap();
         let outliers = d.candidates.iter().find(|c| c.effect == Effect::Outliers);
         let outliers = outliers.expect("outliers is a candidate");
         assert!(outliers.supported, "{outliers:?}");
@@ -987,7 +1093,7 @@ mod data_tests {
         }
         .simulate()
         .unwrap();
-        let d = diagnose(&data, &[]).unwrap();
+        let d = diagnose(&data, &[], None).unwrap();
         assert_eq!(d.suggested, Some(Effect::CrossAxis), "{:?}", d.candidates);
         let drift = d.candidates.iter().find(|c| c.effect == Effect::Drift);
         let drift = drift.expect("drift is a candidate");
@@ -1026,7 +1132,7 @@ mod data_tests {
         }
         .simulate()
         .unwrap();
-        let d = diagnose(&data, &[]).unwrap();
+        let d = diagnose(&data, &[], None).unwrap();
         let temp = Effect::Covariate("temp".into());
         let pair = [d.suggested.clone(), d.close_second.clone()];
         assert!(
@@ -1118,6 +1224,7 @@ mod judge_tests {
         let params = own_params(&candidate, &current);
         judge(&Trial {
             data: &data,
+            heading: [None, None, None],
             effect: &effect,
             fit: &candidate,
             current: &current,
