@@ -169,3 +169,45 @@ fn gyro_heading_is_reported_for_every_step() {
         assert!(c["heading_vs_gyro"]["rms_deg"].is_number(), "{c}");
     }
 }
+
+/// With --gyro, the report plots each ladder model's heading error against
+/// the gyro; without, there is no such figure.
+#[test]
+fn report_plots_the_heading_error_against_the_gyro() {
+    let dir =
+        common::shared_path("data/real/sunsided-set-1/rotate-360ccw-around-x-pointing-forward");
+    let file = dir.join("mpu6050.csv");
+    let out = tempfile::tempdir().unwrap();
+    let report = out.path().join("with");
+    run_ok(&[
+        "diagnose",
+        file.to_str().unwrap(),
+        "--x",
+        "acc_y",
+        "--y",
+        "acc_z",
+        "--gyro",
+        "gyro_x",
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    let svg = std::fs::read_to_string(report.join("heading_gyro.svg")).expect("heading figure");
+    assert!(
+        svg.contains("Heading error against gyro_x"),
+        "title missing"
+    );
+    assert!(
+        svg.contains("offset+scale+outliers"),
+        "ladder model missing from the legend"
+    );
+    let index = std::fs::read_to_string(report.join("index.html")).unwrap();
+    assert!(index.contains("heading_gyro.svg"));
+    let without = out.path().join("without");
+    run_ok(&[
+        "diagnose",
+        &sim_mild(),
+        "--report",
+        without.to_str().unwrap(),
+    ]);
+    assert!(!without.join("heading_gyro.svg").exists());
+}
