@@ -157,7 +157,7 @@ fn live_diagnosis(c: &mut Criterion) {
     for n in [200, 2_000] {
         let d = paper_rotation(n);
         let started = Instant::now();
-        match diagnose(&d, &[]) {
+        match diagnose(&d, &[], None) {
             Ok(found) => println!(
                 "diagnosis, {n} samples: {} candidates, suggested {:?}, one run {:.3} ms",
                 found.candidates.len(),
@@ -167,7 +167,7 @@ fn live_diagnosis(c: &mut Criterion) {
             Err(e) => println!("diagnosis, {n} samples: {e}"),
         }
         group.bench_function(BenchmarkId::new("diagnose", n), |b| {
-            b.iter(|| diagnose(black_box(&d), &[]))
+            b.iter(|| diagnose(black_box(&d), &[], None))
         });
     }
     group.finish();

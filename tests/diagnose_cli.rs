@@ -107,3 +107,107 @@ fn axes_that_did_not_turn_are_named_as_the_cause() {
     let v: Value = serde_json::from_str(&out).unwrap();
     assert!(v["baseline"]["rms"].as_f64().unwrap() < 0.1, "{out}");
 }
+
+/// Without --gyro the diagnosis says the heading was not checked; every
+/// ladder step lists its parameters with standard errors; the columns set
+/// aside are listed (none here).
+#[test]
+fn json_says_the_heading_was_not_checked_and_lists_parameters() {
+    let out = run_ok(&["diagnose", &sim_mild(), "--json"]);
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(
+        v["heading"].as_str().unwrap(),
+        "heading: not checked — no gyro given (--gyro); effects were held to physical limits instead"
+    );
+    assert!(v["set_aside"].is_array(), "{out}");
+    let params = v["ladder"][0]["params"].as_array().unwrap();
+    let names: Vec<&str> = params.iter().map(|p| p["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["a", "b", "d", "r"]);
+    assert!(
+        params.iter().all(|p| p["se"].as_f64().unwrap() > 0.0),
+        "{out}"
+    );
+    assert!(v["ladder"][0]["heading_vs_gyro"].is_null());
+    let text = run_ok(&["diagnose", &sim_mild()]);
+    assert!(
+        text.contains("heading: not checked — no gyro given (--gyro)"),
+        "{text}"
+    );
+    assert!(text.contains("a = ") && text.contains(" ± "), "{text}");
+}
+
+/// With --gyro, each ladder step reports its heading error against it.
+#[test]
+fn gyro_heading_is_reported_for_every_step() {
+    let dir =
+        common::shared_path("data/real/sunsided-set-1/rotate-360ccw-around-x-pointing-forward");
+    let file = dir.join("hmc5883l_mag.csv");
+    let gyro = format!("{}:gyro_x", dir.join("mpu6050.csv").display());
+    let out = run_ok(&[
+        "diagnose",
+        file.to_str().unwrap(),
+        "--x",
+        "mag_y",
+        "--y",
+        "mag_z",
+        "--gyro",
+        &gyro,
+        "--json",
+    ]);
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert!(
+        v["heading"]
+            .as_str()
+            .unwrap()
+            .starts_with("heading: checked against gyro_x")
+    );
+    for step in v["ladder"].as_array().unwrap() {
+        let rms = step["heading_vs_gyro"]["rms_deg"].as_f64().unwrap();
+        assert!(rms > 0.5 && rms < 5.0, "{step}");
+    }
+    for c in v["candidates"].as_array().unwrap() {
+        assert!(c["heading_vs_gyro"]["rms_deg"].is_number(), "{c}");
+    }
+}
+
+/// With --gyro, the report plots each ladder model's heading error against
+/// the gyro; without, there is no such figure.
+#[test]
+fn report_plots_the_heading_error_against_the_gyro() {
+    let dir =
+        common::shared_path("data/real/sunsided-set-1/rotate-360ccw-around-x-pointing-forward");
+    let file = dir.join("mpu6050.csv");
+    let out = tempfile::tempdir().unwrap();
+    let report = out.path().join("with");
+    run_ok(&[
+        "diagnose",
+        file.to_str().unwrap(),
+        "--x",
+        "acc_y",
+        "--y",
+        "acc_z",
+        "--gyro",
+        "gyro_x",
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    let svg = std::fs::read_to_string(report.join("heading_gyro.svg")).expect("heading figure");
+    assert!(
+        svg.contains("Heading error against gyro_x"),
+        "title missing"
+    );
+    assert!(
+        svg.contains("offset+scale+outliers"),
+        "ladder model missing from the legend"
+    );
+    let index = std::fs::read_to_string(report.join("index.html")).unwrap();
+    assert!(index.contains("heading_gyro.svg"));
+    let without = out.path().join("without");
+    run_ok(&[
+        "diagnose",
+        &sim_mild(),
+        "--report",
+        without.to_str().unwrap(),
+    ]);
+    assert!(!without.join("heading_gyro.svg").exists());
+}

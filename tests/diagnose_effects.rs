@@ -87,7 +87,7 @@ fn each_hidden_effect_is_suggested_first_and_the_ladder_reaches_the_noise() {
                         let noise_only = fit_model(&clean, &PAPER).unwrap().rms;
                         let case =
                             format!("{effect} size {size} noise {noise} turns {turns} seed {seed}");
-                        let d = match diagnose(&with, &PAPER) {
+                        let d = match diagnose(&with, &PAPER, None) {
                             Ok(d) => d,
                             Err(e) => {
                                 failures.push(format!("{case}: {e}"));
@@ -128,7 +128,7 @@ fn with_no_hidden_effect_the_papers_model_is_enough_in_95_percent_of_seeds() {
             let data = sensor(noise, turns, seed, SimEffects::default())
                 .simulate()
                 .unwrap();
-            let d = diagnose(&data, &PAPER).unwrap();
+            let d = diagnose(&data, &PAPER, None).unwrap();
             if let Some(e) = d.suggested {
                 discoveries.push(format!("seed {seed} noise {noise}: {e}"));
             }
@@ -198,7 +198,7 @@ fn the_two_cubics_are_told_apart_off_centre() {
         let mut with = PAPER.to_vec();
         with.push(hidden.clone());
         let true_rms = fit_model(&data, &with).unwrap().rms;
-        let d = diagnose(&data, &PAPER).unwrap();
+        let d = diagnose(&data, &PAPER, None).unwrap();
         if d.baseline.rms <= 1.25 * true_rms {
             continue;
         }
@@ -243,7 +243,7 @@ fn the_two_cubics_are_named_together_when_the_turn_is_centred_on_zero() {
             }
             .simulate()
             .unwrap();
-            let d = diagnose(&data, &PAPER).unwrap();
+            let d = diagnose(&data, &PAPER, None).unwrap();
             eprintln!(
                 "centred on zero, seed {seed} hidden centred={centred}: suggested {:?}, close second {:?}",
                 d.suggested.as_ref().map(|e| e.to_string()),

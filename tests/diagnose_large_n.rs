@@ -46,7 +46,7 @@ fn sweep(sizes: &[(usize, usize)], seed: u64) -> (usize, Vec<String>) {
         for case in 0..cases {
             let sensor = clean(&mut rng, n);
             let data = sensor.simulate().expect("simulation");
-            let d = diagnose(&data, &[]).expect("diagnosis");
+            let d = diagnose(&data, &[], None).expect("diagnosis");
             total += 1;
             // How near the materiality gate the best detectable candidate
             // came, as a fraction of the gate (1 = at the gate).

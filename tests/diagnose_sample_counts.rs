@@ -168,7 +168,7 @@ fn run(job: &Job) -> (Outcome, f64) {
     let data = sensor(job).simulate().expect("simulation");
     assert_eq!(data.len(), job.samples, "{job:?}");
     let started = Instant::now();
-    let d = diagnose(&data, &[]).unwrap_or_else(|e| panic!("{job:?}: {e}"));
+    let d = diagnose(&data, &[], None).unwrap_or_else(|e| panic!("{job:?}: {e}"));
     let seconds = started.elapsed().as_secs_f64();
     let outcome = match &job.hidden {
         None => Outcome::Clean(d.suggested),

@@ -98,7 +98,7 @@ fn random_sensors_get_the_hidden_effect_or_nothing() {
     for case in 0..CASES {
         let (sensor, hidden) = draw(&mut rng);
         let data = sensor.simulate().expect("simulation");
-        let d = diagnose(&data, &[]).expect("diagnosis");
+        let d = diagnose(&data, &[], None).expect("diagnosis");
         match hidden {
             None => {
                 clean += 1;

@@ -289,7 +289,7 @@ impl Sensor {
         // What the rotation's residual says beyond the fit: its noise floor,
         // and an effect the model lacks, so the user beside the robot learns
         // that the configuration should add it.
-        let insight = diagnose(&rotation, &self.effects).ok();
+        let insight = diagnose(&rotation, &self.effects, None).ok();
         let noise_floor = insight.as_ref().map(|d| d.noise_floor.rms);
         let (suggested, close_second) = match insight {
             Some(d) => (

@@ -75,6 +75,19 @@ pub fn report_data(
             .iter()
             .map(|s| (s.model.clone(), s.rms))
             .collect(),
+        heading_errors: diagnosis
+            .ladder
+            .iter()
+            .filter_map(|s| {
+                let check = s.heading_vs_gyro.as_ref()?;
+                Some((s.model.clone(), check.errors_deg.clone()))
+            })
+            .collect(),
+        heading_reference: diagnosis
+            .baseline
+            .heading_vs_gyro
+            .as_ref()
+            .map_or(String::new(), |h| h.gyro_column.clone()),
         summary_html: format!("<pre>{}</pre>", escape(summary)),
     })
 }

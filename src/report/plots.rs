@@ -64,6 +64,12 @@ pub struct ReportData {
     /// The ladder of models, each with the rms (fraction) it reaches, in
     /// the order the effects were added.
     pub ladder: Vec<(String, f64)>,
+    /// Per model of the ladder (when a gyro was given): its name and its
+    /// heading error against the gyro per sample, degrees (NaN where not
+    /// checked). Empty: no gyro, no figure.
+    pub heading_errors: Vec<(String, Vec<f64>)>,
+    /// The gyro column the heading errors are taken against.
+    pub heading_reference: String,
     /// The text of the diagnosis as an HTML fragment, already escaped by the
     /// caller; inserted into the page as is.
     pub summary_html: String,
@@ -313,6 +319,28 @@ pub fn render_figures(data: &ReportData) -> Result<Vec<Figure>, ReportError> {
                 residual_plot(area, &title, &x_desc, values, data, &thin)
             })?,
             file,
+            title,
+        });
+    }
+
+    if !data.heading_errors.is_empty() {
+        let file = "heading_gyro.svg";
+        let title = format!(
+            "Heading error against {}{}",
+            data.heading_reference,
+            thin.note()
+        );
+        figures.push(Figure {
+            file: file.into(),
+            caption: format!(
+                "The heading of each model of the ladder less the heading the gyro {} \
+                 integrates to (its scale, sign and bias fitted), against the heading. A model \
+                 that makes |s| rounder by bending where samples point shows here as a larger \
+                 wave.{}",
+                data.heading_reference,
+                thin.sentence()
+            ),
+            svg: draw(file, |area| heading_error_plot(area, &title, data, &thin))?,
             title,
         });
     }
@@ -688,6 +716,60 @@ fn residual_plot(
                     FLOOR.filled(),
                 )
             });
+    }
+    legend(&mut chart)
+}
+
+/// Colours of the ladder's models in the heading plot, in order.
+const MODEL_COLOURS: [RGBColor; 6] = [
+    BEFORE,
+    AFTER,
+    RGBColor(44, 160, 44),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+];
+
+/// Heading error against the gyro, per model of the ladder, against the
+/// baseline's heading: the residual plots' heading axis and robust scale.
+fn heading_error_plot(
+    area: &Svg,
+    title: &str,
+    data: &ReportData,
+    thin: &Thinning,
+) -> Result<(), DrawError> {
+    let body = area.titled(title, title_style())?;
+    let models: Vec<(&str, Vec<(f64, f64)>)> = data
+        .heading_errors
+        .iter()
+        .map(|(name, errors)| {
+            let points = thin
+                .indices()
+                .filter_map(|i| Some((*data.heading_deg.get(i)?, *errors.get(i)?)))
+                .filter(is_finite_pair)
+                .collect();
+            (name.as_str(), points)
+        })
+        .collect();
+    let values: Vec<f64> = models
+        .iter()
+        .flat_map(|(_, p)| p.iter().map(|q| q.1))
+        .collect();
+    let scale = residual_scale(&values, None);
+    let y = with_legend_room(scale.range.clone(), models.len(), plot_pixels(&body).1);
+    let mut chart = frame(&body, 0.0..360.0, y, "heading (°)", "heading − gyro (°)")?;
+    let size = if values.len() > 2000 { 1 } else { 2 };
+    for (k, (name, points)) in models.iter().enumerate() {
+        let colour = MODEL_COLOURS[k % MODEL_COLOURS.len()];
+        chart
+            .draw_series(
+                points
+                    .iter()
+                    .filter(|p| scale.range.contains(&p.1))
+                    .map(|&p| Circle::new(p, size, colour.mix(0.5).filled())),
+            )?
+            .label(display_label(name, "model").to_string())
+            .legend(move |(x, y)| Circle::new((x, y), 3, colour.filled()));
     }
     legend(&mut chart)
 }

@@ -13,7 +13,7 @@ use crate::DiagnoseArgs;
 use crate::output::write_stdout;
 
 pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
-    let data = args.input.read()?;
+    let (data, reference) = args.input.read_with_reference()?;
     let baseline = parse_list(args.effects.as_deref().unwrap_or("paper"))
         .map_err(anyhow::Error::msg)
         .context("--effects")?;
@@ -28,8 +28,8 @@ pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
         }
     }
     let file = args.input.file.display().to_string();
-    let diagnosis =
-        run_diagnosis(&data, &baseline).with_context(|| format!("{file}: no diagnosis"))?;
+    let diagnosis = run_diagnosis(&data, &baseline, reference.as_ref())
+        .with_context(|| format!("{file}: no diagnosis"))?;
 
     let summary = render_text(&diagnosis, &file);
     if let Some(dir) = &args.report {
@@ -72,6 +72,9 @@ struct DiagnosisJson<'a> {
     noise_floor_method: &'a str,
     verdict: &'a str,
     criterion: &'a str,
+    /// Whether the heading was checked against a gyro, and what held the
+    /// effects when it was not.
+    heading: &'a str,
     baseline_residuals: &'a Residuals,
     final_residuals: &'a Residuals,
 }
@@ -90,6 +93,7 @@ impl<'a> DiagnosisJson<'a> {
             noise_floor_method: &d.noise_floor.method,
             verdict: &d.verdict,
             criterion: &d.criterion,
+            heading: &d.heading,
             baseline_residuals: &d.baseline_residuals,
             final_residuals: &d.final_residuals,
         }
@@ -125,8 +129,11 @@ fn render_text(d: &Diagnosis, file: &str) -> String {
     } else {
         out.push_str("candidates, best first:\n");
         for c in &d.candidates {
+            let heading = c.heading_vs_gyro.as_ref().map_or(String::new(), |h| {
+                format!("heading {:.2}° rms  ", h.rms_deg)
+            });
             out.push_str(&format!(
-                "  {:<22} rms {:>9}  ΔBIC {:>9.1}  {}  {}\n",
+                "  {:<22} rms {:>9}  {heading}ΔBIC {:>9.1}  {}  {}\n",
                 c.effect.to_string(),
                 pct(c.rms),
                 c.delta_bic,
@@ -154,14 +161,21 @@ fn render_text(d: &Diagnosis, file: &str) -> String {
         } else {
             String::from("no noise floor")
         };
+        let heading = step.heading_vs_gyro.as_ref().map_or(String::new(), |h| {
+            format!(
+                "  heading {:.2}° rms, {:.2}° peak to peak against {}",
+                h.rms_deg, h.peak_to_peak_deg, h.gyro_column
+            )
+        });
         out.push_str(&format!(
-            "  {i}. {:<40} rms {:>9}  ({ratio})\n",
+            "  {i}. {:<40} rms {:>9}  ({ratio}){heading}\n",
             step.model,
             pct(step.rms)
         ));
         out.push_str(&format!("     {}\n", params_text(&step.params)));
     }
     out.push_str(&format!("  noise floor {}\n\n", pct(d.noise_floor.rms)));
+    out.push_str(&format!("{}\n", d.heading));
     out.push_str(&format!("verdict: {}\n", d.verdict));
     out.push_str(&format!("criterion: {}\n", d.criterion));
     out
