@@ -105,7 +105,7 @@ fn clean_recordings_from_50_to_2_million_samples_suggest_nothing() {
         (200_000, 10),
         (2_000_000, 4),
     ];
-    let (total, fired) = sweep(&sizes, 0x1a_26e_2026);
+    let (total, fired) = sweep(&sizes, 0x1a26_e202);
     for line in &fired {
         eprintln!("  {line}");
     }
