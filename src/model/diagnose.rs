@@ -189,6 +189,12 @@ pub fn limit_of(param: &str) -> Option<&'static ParamLimit> {
 /// moving where samples point. Two SE: a candidate that leaves the heading
 /// as it was is refused by chance about one time in 40 (one-sided).
 pub const HEADING_WORSE_SES: f64 = 2.0;
+/// ... and by more than this, in degrees of rms heading error: a change
+/// smaller than a tenth of a degree matters to no one who steers by the
+/// heading (Honeywell gives the HMC5883L "1° to 2° compass heading
+/// accuracy"; this is a twentieth of the better figure), however well a
+/// long recording resolves it.
+pub const HEADING_MATTERS_DEG: f64 = 0.1;
 
 /// An rms below this is rounding, not noise or structure.
 const NUMERICAL_RMS: f64 = 1e-12;
@@ -609,7 +615,9 @@ fn judge(t: &Trial<'_>) -> Judgement {
         for (before, which) in [(now, "without it"), (baseline, "the baseline")] {
             let Some(before) = before else { continue };
             let delta = before.worse_by(with);
-            if delta.delta_rms_deg > HEADING_WORSE_SES * delta.se_deg {
+            if delta.delta_rms_deg > HEADING_WORSE_SES * delta.se_deg
+                && delta.delta_rms_deg > HEADING_MATTERS_DEG
+            {
                 return refuse(format!(
                     "distorts heading: makes |s| rounder (rms {} → {}) but moves the heading: {:.1}° ({which}) → {:.1}° rms against {} (+{:.1}° ± {:.1}°); {}",
                     percent(rms0),
@@ -752,7 +760,7 @@ pub fn heading_note(reference: Option<&HeadingReference>, checked: bool) -> Stri
     match reference {
         None => "heading: not checked — no gyro given (--gyro); effects were held to physical limits instead".to_string(),
         Some(r) if checked => format!(
-            "heading: checked against {}: an effect that makes the heading worse by more than {HEADING_WORSE_SES} standard errors is not supported; the physical limits hold too",
+            "heading: checked against {}: an effect that makes the heading worse by more than {HEADING_WORSE_SES} standard errors (and {HEADING_MATTERS_DEG}°) is not supported; the physical limits hold too",
             r.column()
         ),
         Some(r) => format!(

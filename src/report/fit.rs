@@ -293,9 +293,7 @@ fn describe(name: &str) -> String {
         "c" => "cross-axis coupling of y into x".into(),
         "drift_x" | "drift_y" => "offset drift, counts per second".into(),
         "k_x" | "k_y" => "cubic non-linearity, fraction at full scale".into(),
-        "kc" => {
-            "cubic non-linearity about the turn's centre, fraction at the turn's radius".into()
-        }
+        "kc" => "cubic non-linearity about the turn's centre, fraction at the turn's radius".into(),
         other => match other.rsplit_once('_') {
             Some((column, _)) => format!("offset per unit of '{column}'"),
             None => String::new(),
