@@ -148,14 +148,8 @@ fn with_no_hidden_effect_the_papers_model_is_enough_in_95_percent_of_seeds() {
 /// of either sign, noise, one to three turns, sizes from 1 % to 5 % at the
 /// turn's amplitude), the hidden one is suggested first in at least 97 %
 /// of those where it lowers the rms by more than a quarter.
-///
-/// Fails since diag's materiality and physical gates were merged: 117 of
-/// 122 (95.9 %; before them 122 of 122). The misses are cubic-centred
-/// refused or out-ranked by drift: the centred cubic's k_x - k_y is nearly
-/// degenerate with the gain ratio in a magnitude-only fit, so its fitted
-/// size scatters beyond the physical limit on noisy runs.
+
 #[test]
-#[ignore = "117 of 122 (95.9 %) since diag's gates: cubic-centred's k_x - k_y is nearly degenerate with the gain ratio"]
 fn the_two_cubics_are_told_apart_off_centre() {
     use rand::{RngExt, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0xc0b1c);
