@@ -170,6 +170,51 @@ fn gyro_heading_is_reported_for_every_step() {
     }
 }
 
+/// The gyro named by the recording's own path (as a person does who passes
+/// the same mpu6050.csv twice) is the heading reference, not a covariate
+/// candidate, and the diagnosis names it among the columns set aside.
+#[test]
+fn a_gyro_of_the_recording_itself_is_set_aside_not_a_covariate() {
+    let dir =
+        common::shared_path("data/real/sunsided-set-1/rotate-360ccw-around-x-pointing-forward");
+    let file = dir.join("mpu6050.csv");
+    let gyro = format!("{}:gyro_x", file.display());
+    for spec in [gyro.as_str(), "gyro_x"] {
+        let out = run_ok(&[
+            "diagnose",
+            file.to_str().unwrap(),
+            "--x",
+            "acc_y",
+            "--y",
+            "acc_z",
+            "--gyro",
+            spec,
+            "--json",
+        ]);
+        let v: Value = serde_json::from_str(&out).unwrap();
+        let candidates: Vec<&str> = v["candidates"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| c["effect"].as_str().unwrap())
+            .collect();
+        assert!(
+            !candidates.contains(&"covariate:gyro_x"),
+            "{spec}: {candidates:?}"
+        );
+        assert!(
+            candidates.contains(&"covariate:gyro_z"),
+            "{spec}: {candidates:?}"
+        );
+        let aside = v["set_aside"].as_array().unwrap();
+        assert!(
+            aside.iter().any(|a| a["column"] == "gyro_x"
+                && a["reason"].as_str().unwrap().contains("heading reference")),
+            "{spec}: {aside:?}"
+        );
+    }
+}
+
 /// With --gyro, the report plots each ladder model's heading error against
 /// the gyro; without, there is no such figure.
 #[test]

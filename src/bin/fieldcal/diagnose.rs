@@ -28,8 +28,19 @@ pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
         }
     }
     let file = args.input.file.display().to_string();
-    let diagnosis = run_diagnosis(&data, &baseline, reference.as_ref())
+    let mut diagnosis = run_diagnosis(&data, &baseline, reference.as_ref())
         .with_context(|| format!("{file}: no diagnosis"))?;
+    if let Some(gyro) = reference
+        .as_ref()
+        .filter(|_| args.input.gyro_in_recording())
+    {
+        diagnosis
+            .set_aside
+            .push(fieldcal::model::residuals::SetAside {
+                column: gyro.column().to_string(),
+                reason: "the heading reference (--gyro), not a covariate".into(),
+            });
+    }
 
     let summary = render_text(&diagnosis, &file);
     if let Some(dir) = &args.report {

@@ -152,6 +152,27 @@ impl CsvInput {
     /// The recording, and the gyro's heading reference when --gyro names
     /// one. A gyro column of the recording itself is not a covariate: it is
     /// taken out of the dataset's covariates.
+    /// Whether `--gyro` names a column of the recording's own file (by its
+    /// path or by none): that column is then the heading reference and no
+    /// covariate.
+    fn gyro_in_recording(&self) -> bool {
+        let Some(gyro) = &self.gyro else {
+            return false;
+        };
+        match gyro.rsplit_once(':') {
+            None => true,
+            Some((file, _)) => {
+                match (
+                    std::fs::canonicalize(file),
+                    std::fs::canonicalize(&self.file),
+                ) {
+                    (Ok(a), Ok(b)) => a == b,
+                    _ => false,
+                }
+            }
+        }
+    }
+
     fn read_with_reference(&self) -> anyhow::Result<(Dataset, Option<HeadingReference>)> {
         let mut data = self.read()?;
         let Some(gyro) = &self.gyro else {
@@ -173,7 +194,8 @@ impl CsvInput {
                 "{main}: the recording has no time column (t, t_s, time or time_s, or choose one with --t), and the gyro '{column}' is integrated over time"
             );
         };
-        let reference = match &file {
+        let other_file = file.filter(|_| !self.gyro_in_recording());
+        let reference = match &other_file {
             None => {
                 let Some(k) = data.covariates.iter().position(|c| c.name == column) else {
                     let names: Vec<&str> =
