@@ -404,7 +404,7 @@ fn without_heading_pattern(values: &[f64], headings_deg: &[f64]) -> Vec<f64> {
         (0..columns)
             .map(|j| match j {
                 0 => 1.0,
-                j if j % 2 == 1 => (((j + 1) / 2) as f64 * h).cos(),
+                j if j % 2 == 1 => (j.div_ceil(2) as f64 * h).cos(),
                 j => ((j / 2) as f64 * h).sin(),
             })
             .collect()
