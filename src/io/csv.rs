@@ -108,30 +108,40 @@ pub fn read_dataset(path: &Path, spec: &ColumnSpec) -> Result<Dataset, CsvError>
     parse_dataset(io::BufReader::with_capacity(1 << 16, file), path, spec)
 }
 
-/// Reads a recording from any reader; `path` is used in messages only.
-pub fn parse_dataset<R: Read>(
+/// A CSV reader as fieldcal reads recordings (a header line, trimmed
+/// fields, `#` comments), and the header's column names; an empty header
+/// is an error naming the file.
+fn open_with_header<R: Read>(
     reader: R,
     path: &Path,
-    spec: &ColumnSpec,
-) -> Result<Dataset, CsvError> {
+) -> Result<(csv::Reader<R>, Vec<String>), CsvError> {
     let mut csv = csv::ReaderBuilder::new()
         .has_headers(true)
         .flexible(false)
         .trim(csv::Trim::All)
         .comment(Some(b'#'))
         .from_reader(reader);
-    let err_at = |e: csv::Error| csv_error(path, e);
-
-    let header = csv.byte_headers().map_err(err_at)?.clone();
+    let header = csv.byte_headers().map_err(|e| csv_error(path, e))?.clone();
     if header.is_empty() || (header.len() == 1 && header[0].is_empty()) {
         return Err(CsvError::Empty {
             path: path.to_path_buf(),
         });
     }
-    let names: Vec<String> = header
+    let names = header
         .iter()
         .map(|h| String::from_utf8_lossy(h).into_owned())
         .collect();
+    Ok((csv, names))
+}
+
+/// Reads a recording from any reader; `path` is used in messages only.
+pub fn parse_dataset<R: Read>(
+    reader: R,
+    path: &Path,
+    spec: &ColumnSpec,
+) -> Result<Dataset, CsvError> {
+    let (mut csv, names) = open_with_header(reader, path)?;
+    let err_at = |e: csv::Error| csv_error(path, e);
     for (i, name) in names.iter().enumerate() {
         if let Some(j) = names[i + 1..].iter().position(|n| n == name) {
             return Err(CsvError::DuplicateColumn {
@@ -290,22 +300,7 @@ pub fn parse_series<R: Read>(
     role: &'static str,
     flag: &'static str,
 ) -> Result<Series, CsvError> {
-    let mut csv = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .flexible(false)
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .from_reader(reader);
-    let header = csv.byte_headers().map_err(|e| csv_error(path, e))?.clone();
-    if header.is_empty() || (header.len() == 1 && header[0].is_empty()) {
-        return Err(CsvError::Empty {
-            path: path.to_path_buf(),
-        });
-    }
-    let names: Vec<String> = header
-        .iter()
-        .map(|h| String::from_utf8_lossy(h).into_owned())
-        .collect();
+    let (mut csv, names) = open_with_header(reader, path)?;
     let find = |name: &str| names.iter().position(|n| n == name);
     let value_index = find(column).ok_or_else(|| CsvError::MissingColumn {
         path: path.to_path_buf(),
