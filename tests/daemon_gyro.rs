@@ -7,7 +7,6 @@ mod common;
 
 use std::path::Path;
 
-use common::run;
 use fieldcal::capture::{CaptureHeader, CaptureWriter, StreamInfo, StreamKind, VERSION};
 use fieldcal::protocol::chips::Chip;
 use fieldcal::sample::Reading;
@@ -18,32 +17,12 @@ use serde_json::Value;
 /// tables `sensors` on a replay source `imu`; returns the CALIBRATION
 /// lines and the log (stderr).
 fn calibrations(capture: &Path, sensors: &str, dir: &Path) -> (Vec<Value>, String) {
-    let config = dir.join("gyro.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "[outputs]\nstdout = true\n[[source]]\nname = \"imu\"\nkind = \"replay\"\nfile = \"{}\"\n{sensors}",
-            capture.display()
-        ),
-    )
-    .unwrap();
-    let capture = capture.to_str().unwrap();
-    let r = run(&[
-        "replay",
-        capture,
-        "--config",
-        config.to_str().unwrap(),
-        "--speed",
-        "max",
-    ]);
-    assert_eq!(r.code, Some(0), "replay failed: {}", r.stderr);
-    let lines = r
-        .stdout
-        .lines()
-        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+    let (lines, log) = common::replay_through(capture, sensors, dir);
+    let found = lines
+        .into_iter()
         .filter(|v| v["class"] == "CALIBRATION")
         .collect();
-    (lines, r.stderr)
+    (found, log)
 }
 
 const COMPASS: &str =

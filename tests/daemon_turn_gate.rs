@@ -5,7 +5,6 @@
 
 mod common;
 
-use common::run;
 use fieldcal::capture::{CaptureHeader, CaptureWriter, StreamInfo, StreamKind, VERSION};
 use fieldcal::protocol::chips::Chip;
 use fieldcal::sample::Reading;
@@ -49,36 +48,13 @@ fn a_tumble_through_the_daemon_is_refused_as_a_disc() {
     out.flush().unwrap();
     drop(out);
 
-    let config = dir.path().join("tumble.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "[outputs]\nstdout = true\n[[source]]\nname = \"imu\"\nkind = \"replay\"\nfile = \"{}\"\n\
-             [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nchip = \"lsm303dlhc-mag\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n",
-            capture.display()
-        ),
-    )
-    .unwrap();
-    let r = run(&[
-        "replay",
-        capture.to_str().unwrap(),
-        "--config",
-        config.to_str().unwrap(),
-        "--speed",
-        "max",
-    ]);
-    assert_eq!(r.code, Some(0), "replay failed: {}", r.stderr);
-    let calibrations: Vec<Value> = r
-        .stdout
-        .lines()
-        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+    let sensors = "[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nchip = \"lsm303dlhc-mag\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n";
+    let (lines, log) = common::replay_through(&capture, sensors, dir.path());
+    let calibrations: Vec<&Value> = lines
+        .iter()
         .filter(|v| v["class"] == "CALIBRATION")
         .collect();
-    assert!(
-        !calibrations.is_empty(),
-        "no rotation completed: {}",
-        r.stderr
-    );
+    assert!(!calibrations.is_empty(), "no rotation completed: {log}");
     for c in &calibrations {
         assert_eq!(c["accepted"], false, "{c}");
         let reason = c["reason"].as_str().unwrap_or_default();
@@ -89,7 +65,7 @@ fn a_tumble_through_the_daemon_is_refused_as_a_disc() {
     }
     // Nothing was ever corrected.
     assert!(
-        !r.stdout.contains("\"calibrated\":true"),
+        !lines.iter().any(|v| v["calibrated"] == true),
         "a tumble corrected readings"
     );
 }

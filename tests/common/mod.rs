@@ -84,3 +84,38 @@ pub fn run_err(args: &[&str]) -> String {
     assert!(!unquoted.contains("NaN"), "NaN in message: {}", r.stderr);
     r.stderr
 }
+
+/// Replays `capture` at full speed through the daemon's pipeline, with a
+/// replay source `imu` and the `[[sensor]]` tables `sensors`; returns its
+/// published lines (parsed) and its log (stderr). The configuration is
+/// written into `dir`.
+pub fn replay_through(
+    capture: &Path,
+    sensors: &str,
+    dir: &Path,
+) -> (Vec<serde_json::Value>, String) {
+    let config = dir.join("replay.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[outputs]\nstdout = true\n[[source]]\nname = \"imu\"\nkind = \"replay\"\nfile = \"{}\"\n{sensors}",
+            capture.display()
+        ),
+    )
+    .expect("write the configuration");
+    let r = run(&[
+        "replay",
+        capture.to_str().expect("a UTF-8 path"),
+        "--config",
+        config.to_str().expect("a UTF-8 path"),
+        "--speed",
+        "max",
+    ]);
+    assert_eq!(r.code, Some(0), "replay failed: {}", r.stderr);
+    let lines = r
+        .stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("a JSON line"))
+        .collect();
+    (lines, r.stderr)
+}
