@@ -7,7 +7,6 @@ mod common;
 
 use std::path::Path;
 
-use fieldcal::capture::{CaptureHeader, CaptureWriter, StreamInfo, StreamKind, VERSION};
 use fieldcal::protocol::chips::Chip;
 use fieldcal::sample::Reading;
 use fieldcal::sim::SimSensor;
@@ -162,51 +161,30 @@ fn bridge_capture(path: &Path, noise: f64) {
         ..Default::default()
     };
     let data = sim.simulate().unwrap();
-    let header = CaptureHeader {
-        version: VERSION,
-        streams: vec![
-            StreamInfo {
-                id: 0,
-                kind: StreamKind::Chip {
-                    chip: Chip::Lsm303dlhcMag,
-                    address: Chip::Lsm303dlhcMag.default_address(),
-                },
-            },
-            StreamInfo {
-                id: 1,
-                kind: StreamKind::Chip {
-                    chip: Chip::Mpu6050,
-                    address: Chip::Mpu6050.default_address(),
-                },
-            },
-        ],
-        port: None,
-        baud: None,
-        started_unix: 0.0,
-        nominal_period_s: sim.period,
-        note: Some("test: mag and gyro on one bridge".into()),
-    };
-    let file = std::fs::File::create(path).unwrap();
-    let mut out = CaptureWriter::new(std::io::BufWriter::new(file), &header).unwrap();
     let rate = (360.0 / sim.turn_seconds * 131.0).round() as i16;
     let t = data.t.as_ref().unwrap();
+    let mut records = Vec::new();
     for ((&time, &x), &y) in t.iter().zip(&data.x).zip(&data.y) {
         let mag = Reading {
             mag: Some([x.round() as i16, y.round() as i16, 100]),
             ..Reading::default()
         };
-        out.write_chunk(time, 0, &Chip::Lsm303dlhcMag.encode(&mag))
-            .unwrap();
         let imu = Reading {
             accel: Some([0, 0, 16384]),
             gyro: Some([3, -2, rate]),
             temp_c: Some(25.0),
             ..Reading::default()
         };
-        out.write_chunk(time + 0.004, 1, &Chip::Mpu6050.encode(&imu))
-            .unwrap();
+        records.push((time, 0, mag));
+        records.push((time + 0.004, 1, imu));
     }
-    out.flush().unwrap();
+    common::write_bridge_capture(
+        path,
+        &[Chip::Lsm303dlhcMag, Chip::Mpu6050],
+        sim.period,
+        "test: mag and gyro on one bridge",
+        records,
+    );
 }
 
 #[test]
@@ -272,32 +250,8 @@ fn a_real_hand_turn_is_checked_against_the_boards_mpu6050() {
     let imu = rows(&run.join("mpu6050.csv"));
     let dir = tempfile::tempdir().unwrap();
     let capture = dir.path().join("real-z.fcap");
-    let header = CaptureHeader {
-        version: VERSION,
-        streams: vec![
-            StreamInfo {
-                id: 0,
-                kind: StreamKind::Chip {
-                    chip: Chip::Lsm303dlhcMag,
-                    address: Chip::Lsm303dlhcMag.default_address(),
-                },
-            },
-            StreamInfo {
-                id: 1,
-                kind: StreamKind::Chip {
-                    chip: Chip::Mpu6050,
-                    address: Chip::Mpu6050.default_address(),
-                },
-            },
-        ],
-        port: None,
-        baud: None,
-        started_unix: 0.0,
-        nominal_period_s: 0.01,
-        note: Some("sunsided set 1, z run".into()),
-    };
     let counts = |v: f64, per_unit: f64| (v * per_unit).round() as i16;
-    let mut records: Vec<(f64, u8, Vec<u8>)> = Vec::new();
+    let mut records = Vec::new();
     for r in &mag {
         let reading = Reading {
             mag: Some([
@@ -307,7 +261,7 @@ fn a_real_hand_turn_is_checked_against_the_boards_mpu6050() {
             ]),
             ..Reading::default()
         };
-        records.push((r[0], 0, Chip::Lsm303dlhcMag.encode(&reading)));
+        records.push((r[0], 0, reading));
     }
     for r in &imu {
         let reading = Reading {
@@ -324,16 +278,15 @@ fn a_real_hand_turn_is_checked_against_the_boards_mpu6050() {
             temp_c: Some(r[7]),
             ..Reading::default()
         };
-        records.push((r[0], 1, Chip::Mpu6050.encode(&reading)));
+        records.push((r[0], 1, reading));
     }
-    records.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let file = std::fs::File::create(&capture).unwrap();
-    let mut out = CaptureWriter::new(std::io::BufWriter::new(file), &header).unwrap();
-    for (t, stream, bytes) in &records {
-        out.write_chunk(*t, *stream, bytes).unwrap();
-    }
-    out.flush().unwrap();
-    drop(out);
+    common::write_bridge_capture(
+        &capture,
+        &[Chip::Lsm303dlhcMag, Chip::Mpu6050],
+        0.01,
+        "sunsided set 1, z run",
+        records,
+    );
 
     let sensors = "[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nchip = \"lsm303dlhc-mag\"\nfield = \"mag\"\naxes = [\"x\", \"z\"]\n\
                    gyro_chip = \"mpu6050\"\ngyro = \"z\"\n";

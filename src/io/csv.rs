@@ -108,6 +108,24 @@ pub fn read_dataset(path: &Path, spec: &ColumnSpec) -> Result<Dataset, CsvError>
     parse_dataset(io::BufReader::with_capacity(1 << 16, file), path, spec)
 }
 
+/// The number in field `i` of a record, or an error naming the file, the
+/// line, the column and the field.
+fn cell(
+    record: &csv::ByteRecord,
+    i: usize,
+    names: &[String],
+    path: &Path,
+    line: u64,
+) -> Result<f64, CsvError> {
+    parse_number(&record[i]).map_err(|problem| CsvError::BadValue {
+        path: path.to_path_buf(),
+        line,
+        column: names[i].clone(),
+        field: i + 1,
+        problem,
+    })
+}
+
 /// A CSV reader as fieldcal reads recordings (a header line, trimmed
 /// fields, `#` comments), and the header's column names; an empty header
 /// is an error naming the file.
@@ -223,13 +241,7 @@ pub fn parse_dataset<R: Read>(
             if *role == Role::Ignored {
                 continue;
             }
-            let value = parse_number(&record[i]).map_err(|problem| CsvError::BadValue {
-                path: path.to_path_buf(),
-                line,
-                column: names[i].clone(),
-                field: i + 1,
-                problem,
-            })?;
+            let value = cell(&record, i, &names, path, line)?;
             match *role {
                 Role::X => x.push(value),
                 Role::Y => y.push(value),
@@ -335,14 +347,7 @@ pub fn parse_series<R: Read>(
     {
         let line = record.position().map_or(0, |p| p.line());
         for (i, out) in [(t_index, &mut t), (value_index, &mut values)] {
-            let value = parse_number(&record[i]).map_err(|problem| CsvError::BadValue {
-                path: path.to_path_buf(),
-                line,
-                column: names[i].clone(),
-                field: i + 1,
-                problem,
-            })?;
-            out.push(value);
+            out.push(cell(&record, i, &names, path, line)?);
         }
     }
     Ok(Series {
