@@ -11,11 +11,11 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// A daemon configuration replaying `falcon_turn.fcap` (one turn in 10 s)
-/// at `speed`, with its state in `dir`, publishing nothing on stdout.
-fn config(dir: &Path, speed: &str) -> std::path::PathBuf {
+/// at `speed`, with its state in `dir`, publishing on stdout when `stdout`.
+fn config(dir: &Path, speed: &str, stdout: bool) -> std::path::PathBuf {
     let capture = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/falcon_turn.fcap");
     let text = format!(
-        "[daemon]\nstate_dir = {state:?}\n\n[outputs]\nstdout = false\n\n\
+        "[daemon]\nstate_dir = {state:?}\n\n[outputs]\nstdout = {stdout}\n\n\
          [[source]]\nname = \"imu\"\nkind = \"replay\"\nfile = {capture:?}\nspeed = {speed}\n\n\
          [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n",
         state = dir.join("state").display().to_string(),
@@ -26,9 +26,9 @@ fn config(dir: &Path, speed: &str) -> std::path::PathBuf {
     path
 }
 
-/// Runs `fieldcal run` with stderr on a fresh pseudo-terminal of `cols`
-/// columns; returns every byte written to it.
-fn run_on_pty(config: &Path, extra: &[&str], cols: u16) -> Vec<u8> {
+/// Runs `fieldcal run` with stderr (and stdout when `stdout`) on a fresh
+/// pseudo-terminal of `cols` columns; returns every byte written to it.
+fn run_on_pty(config: &Path, extra: &[&str], cols: u16, stdout: bool) -> Vec<u8> {
     let (mut master, mut slave) = (0, 0);
     let size = libc::winsize {
         ws_row: 40,
@@ -57,7 +57,11 @@ fn run_on_pty(config: &Path, extra: &[&str], cols: u16) -> Vec<u8> {
         .env("TERM", "xterm-256color")
         .env_remove("RUST_LOG")
         .stdin(Stdio::null())
-        .stdout(Stdio::null())
+        .stdout(if stdout {
+            Stdio::from(slave.try_clone().unwrap())
+        } else {
+            Stdio::null()
+        })
         .stderr(Stdio::from(slave))
         .spawn()
         .unwrap();
@@ -218,8 +222,10 @@ fn coverage(line: &str) -> Option<u32> {
 #[test]
 fn a_person_at_the_terminal_watches_the_turn_fill_and_the_calibration_arrive() {
     let dir = tempfile::tempdir().unwrap();
-    let config = config(dir.path(), "4.0");
-    let bytes = run_on_pty(&config, &[], 160);
+    // The daemon publishes its JSON lines on the same terminal, as the
+    // shipped demo does.
+    let config = config(dir.path(), "4.0", true);
+    let bytes = run_on_pty(&config, &[], 160, true);
     let screen = Screen::play(&bytes);
     let lines: Vec<&str> = screen
         .history
@@ -256,7 +262,7 @@ fn a_person_at_the_terminal_watches_the_turn_fill_and_the_calibration_arrive() {
         .find(|l| l.starts_with("compass  ["))
         .unwrap();
     assert!(
-        last.starts_with("compass  [####################] 100 %  calibrated #1, rms 0."),
+        last.starts_with("compass  [##########] 100 %  calibrated #1, rms 0."),
         "{visible:#?}"
     );
     let heading = last.split_once(" %, heading check ").unwrap().1;
@@ -282,7 +288,7 @@ fn a_person_at_the_terminal_watches_the_turn_fill_and_the_calibration_arrive() {
 #[test]
 fn without_a_terminal_the_log_has_the_milestones_and_no_live_lines() {
     let dir = tempfile::tempdir().unwrap();
-    let config = config(dir.path(), "5.0");
+    let config = config(dir.path(), "5.0", false);
     let out = Command::new(env!("CARGO_BIN_EXE_fieldcal"))
         .args(["run", "--config"])
         .arg(&config)
@@ -331,8 +337,8 @@ fn without_a_terminal_the_log_has_the_milestones_and_no_live_lines() {
 #[test]
 fn progress_never_on_a_terminal_logs_instead() {
     let dir = tempfile::tempdir().unwrap();
-    let config = config(dir.path(), "\"max\"");
-    let bytes = run_on_pty(&config, &["--progress", "never"], 160);
+    let config = config(dir.path(), "\"max\"", false);
+    let bytes = run_on_pty(&config, &["--progress", "never"], 160, false);
     let screen = Screen::play(&bytes);
     assert!(
         screen.history.iter().all(|l| !l.starts_with("compass  [")),

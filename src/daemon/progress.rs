@@ -35,7 +35,7 @@ pub const REDRAW: Duration = Duration::from_millis(100);
 pub const REJECTION_SHOWN_BELOW_PCT: f64 = 25.0;
 
 /// Cells of the text bar.
-const BAR_CELLS: usize = 20;
+const BAR_CELLS: usize = 10;
 
 /// Most milestone messages kept between two drains (a log that nobody
 /// drains must not grow without bound).
@@ -279,7 +279,7 @@ fn bar(pct: f64) -> String {
 }
 
 /// The line of one sensor, its name padded to `name_width`:
-/// `compass  [############--------]  62 %  missing 120-200°, 340-20°  turn further`.
+/// `compass  [######----]  62 %  missing 120-200°, 340-20°  turn further`.
 pub fn render_line(view: &SensorView, name_width: usize) -> String {
     let name = format!("{:<name_width$}", view.sensor);
     let rotation_line = |r: &RotationView, words: &str| {
@@ -575,6 +575,9 @@ pub struct ProgressFeed {
     shared: Arc<Mutex<Shared>>,
     /// Log the milestones (when nothing is drawn live).
     log: bool,
+    /// The live lines stdout's lines must be printed above, when stdout is
+    /// the same terminal.
+    above: Option<indicatif::MultiProgress>,
 }
 
 impl ProgressFeed {
@@ -583,7 +586,23 @@ impl ProgressFeed {
         ProgressFeed {
             shared: Arc::default(),
             log,
+            above: None,
         }
+    }
+
+    /// Lines the daemon publishes on stdout are printed above the live
+    /// lines of `multi` (for a stdout on the same terminal).
+    pub fn with_stdout_above(self, multi: indicatif::MultiProgress) -> Self {
+        ProgressFeed {
+            above: Some(multi),
+            ..self
+        }
+    }
+
+    /// The writer for `[outputs] stdout`, when it must keep clear of the
+    /// live lines.
+    pub fn stdout_above(&self) -> Option<StdoutAbove> {
+        self.above.clone().map(|multi| StdoutAbove { multi })
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Shared> {
@@ -786,6 +805,42 @@ impl indicatif::TermLike for AnsiStderr {
     }
 }
 
+/// stdout, written above the live lines (indicatif's `suspend`). Only for
+/// a stdout that is a terminal, which takes a write at once: each batch of
+/// lines is written in one blocking call.
+pub struct StdoutAbove {
+    multi: indicatif::MultiProgress,
+}
+
+impl tokio::io::AsyncWrite for StdoutAbove {
+    fn poll_write(
+        self: std::pin::Pin<&mut Self>,
+        _: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        let written = self.multi.suspend(|| {
+            let mut out = std::io::stdout().lock();
+            out.write_all(buf)?;
+            out.flush()
+        });
+        std::task::Poll::Ready(written.map(|()| buf.len()))
+    }
+
+    fn poll_flush(
+        self: std::pin::Pin<&mut Self>,
+        _: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::task::Poll::Ready(std::io::stdout().flush())
+    }
+
+    fn poll_shutdown(
+        self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        self.poll_flush(cx)
+    }
+}
+
 /// A tracing writer that prints above the live lines (indicatif's
 /// `suspend`), so a log line never garbles them.
 #[derive(Clone)]
@@ -842,7 +897,7 @@ mod tests {
         let v = view(Some(collecting(62.5, vec![[120.0, 200.0]], 140)), None);
         assert_eq!(
             render_line(&v, 9),
-            "compass    [#############-------]  62 %  missing 120-200°  turn further"
+            "compass    [######----]  62 %  missing 120-200°  turn further"
         );
     }
 
@@ -854,7 +909,7 @@ mod tests {
         );
         assert_eq!(
             render_line(&v, 7),
-            "compass  [##########----------]  50 %  missing 120-200°, 340-20°  turn further"
+            "compass  [#####-----]  50 %  missing 120-200°, 340-20°  turn further"
         );
         assert_eq!(missing_text(&[]), "");
         assert_eq!(missing_text(&[[0.0, 360.0]]), "missing 0-360°");
@@ -865,7 +920,7 @@ mod tests {
         let v = view(Some(collecting(0.0, vec![[0.0, 360.0]], 0)), None);
         assert_eq!(
             render_line(&v, 7),
-            "compass  [--------------------]   0 %  missing 0-360°  waiting for readings"
+            "compass  [----------]   0 %  missing 0-360°  waiting for readings"
         );
         assert_eq!(
             render_line(&view(None, None), 7),
@@ -887,7 +942,7 @@ mod tests {
                 &view(None, Some(accepted(HeadingNote::Checked { rms_deg: 0.4 }))),
                 7
             ),
-            "compass  [####################] 100 %  calibrated #3, rms 0.31 %, heading check 0.4°"
+            "compass  [##########] 100 %  calibrated #3, rms 0.31 %, heading check 0.4°"
         );
         let why = "no heading check: gyro = \"none\" in the configuration";
         assert_eq!(
@@ -895,7 +950,7 @@ mod tests {
                 &view(None, Some(accepted(HeadingNote::NotChecked(why.into())))),
                 7
             ),
-            format!("compass  [####################] 100 %  calibrated #3, rms 0.31 %, {why}")
+            format!("compass  [##########] 100 %  calibrated #3, rms 0.31 %, {why}")
         );
         let stored = Outcome::Accepted {
             id: 2,
@@ -926,7 +981,7 @@ mod tests {
         assert_eq!(
             line,
             format!(
-                "compass  [--------------------]   0 %  missing 0-360°  rejected: {reason}; turn it steadily in place, away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects"
+                "compass  [----------]   0 %  missing 0-360°  rejected: {reason}; turn it steadily in place, away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects"
             )
         );
         // A quarter turned again: back to the turn.
@@ -936,7 +991,7 @@ mod tests {
         );
         assert_eq!(
             line,
-            "compass  [#####---------------]  25 %  missing 90-360°  turn further"
+            "compass  [###-------]  25 %  missing 90-360°  turn further"
         );
     }
 
@@ -1083,9 +1138,7 @@ mod tests {
         );
         assert_eq!(
             board.lines(),
-            [
-                "compass  [####################] 100 %  calibrated #1, rms 0.31 %, heading check 0.4°"
-            ]
+            ["compass  [##########] 100 %  calibrated #1, rms 0.31 %, heading check 0.4°"]
         );
         // READING and STATUS lines change nothing.
         assert!(

@@ -210,7 +210,10 @@ pub async fn run_with_progress(
     let stdout_task = config.outputs.stdout.then(|| {
         let hub = hub.clone();
         let stop = outputs_stop_rx.clone();
-        tokio::spawn(hub.serve_writer(tokio::io::stdout(), stop))
+        match progress.as_ref().and_then(ProgressFeed::stdout_above) {
+            Some(out) => tokio::spawn(hub.serve_writer(out, stop)),
+            None => tokio::spawn(hub.serve_writer(tokio::io::stdout(), stop)),
+        }
     });
     drop(commands_tx);
 

@@ -21,6 +21,11 @@ pub fn run(args: RunArgs) -> Result<()> {
     crate::init_logging_to(config.daemon.log_format == LogFormat::Json, multi.clone());
     // Without live lines, the milestones go to the log.
     let feed = ProgressFeed::new(!live);
+    // Published lines on the same terminal go above the live lines.
+    let feed = match &multi {
+        Some(multi) if std::io::stdout().is_terminal() => feed.with_stdout_above(multi.clone()),
+        _ => feed,
+    };
     let display = match multi {
         Some(multi) => {
             Some(Live::spawn(feed.clone(), multi).context("cannot start the progress display")?)
