@@ -21,7 +21,6 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::messages::HeadingVsGyro;
 use super::rotation::Progress;
 use super::sensor::Sensor;
 
@@ -122,6 +121,8 @@ pub enum Outcome {
     },
     Rejected {
         reason: String,
+        /// The effect the rotation's residual suggests adding, if any.
+        suggested: Option<String>,
     },
 }
 
@@ -269,6 +270,18 @@ fn accepted_words(
     words
 }
 
+/// The words of a rejection: its reason and what to do, and the effect the
+/// turn suggests when it found one.
+fn rejected_words(reason: &str, suggested: Option<&str>) -> String {
+    let mut words = format!("rejected: {}", explain(reason));
+    if let Some(effect) = suggested {
+        words.push_str(&format!(
+            "; the turn suggests adding the effect {effect} to the sensor's effects"
+        ));
+    }
+    words
+}
+
 fn bar(pct: f64) -> String {
     let filled = ((pct.clamp(0.0, 100.0) / 100.0) * BAR_CELLS as f64).round() as usize;
     format!(
@@ -294,10 +307,10 @@ pub fn render_line(view: &SensorView, name_width: usize) -> String {
         line
     };
     match (&view.rotation, &view.outcome) {
-        (Some(r), Some(Outcome::Rejected { reason }))
+        (Some(r), Some(Outcome::Rejected { reason, suggested }))
             if r.coverage_pct < REJECTION_SHOWN_BELOW_PCT =>
         {
-            rotation_line(r, &format!("rejected: {}", explain(reason)))
+            rotation_line(r, &rejected_words(reason, suggested.as_deref()))
         }
         (Some(r), _) if r.samples == 0 => rotation_line(r, "waiting for readings"),
         (Some(r), _) => rotation_line(r, "turn further"),
@@ -318,8 +331,8 @@ pub fn render_line(view: &SensorView, name_width: usize) -> String {
                 format!("{name}  {} 100 %  {words}", bar(100.0))
             }
         }
-        (None, Some(Outcome::Rejected { reason })) => {
-            format!("{name}  rejected: {}", explain(reason))
+        (None, Some(Outcome::Rejected { reason, suggested })) => {
+            format!("{name}  {}", rejected_words(reason, suggested.as_deref()))
         }
         (None, None) => format!("{name}  waiting for readings"),
     }
@@ -354,12 +367,6 @@ struct CalibrationLine {
 #[derive(Debug, Deserialize)]
 struct HeadingRms {
     rms_deg: f64,
-}
-
-impl From<&HeadingVsGyro> for HeadingNote {
-    fn from(h: &HeadingVsGyro) -> Self {
-        HeadingNote::Checked { rms_deg: h.rms_deg }
-    }
 }
 
 #[derive(Debug, Clone)]
@@ -499,6 +506,7 @@ impl Board {
                     .reason
                     .clone()
                     .unwrap_or_else(|| "the fit was not accepted".into()),
+                suggested: c.suggested.clone(),
             },
         };
         if !stored && c.n > 0 {
@@ -525,14 +533,18 @@ impl Board {
                     ));
                 }
             }
-            Outcome::Rejected { reason } => {
+            Outcome::Rejected { reason, suggested } => {
                 // The buffer has restarted: the next snapshot shows the new try.
                 if let Some(r) = &mut track.view.rotation {
                     r.coverage_pct = 0.0;
                     r.missing = vec![[0.0, 360.0]];
                     r.samples = 0;
                 }
-                logs.push(format!("{}: rejected: {}", c.sensor, explain(reason)));
+                logs.push(format!(
+                    "{}: {}",
+                    c.sensor,
+                    rejected_words(reason, suggested.as_deref())
+                ));
             }
         }
         track.attempt = false;
@@ -624,6 +636,16 @@ impl ProgressFeed {
         let mut shared = self.lock();
         let logs = shared.board.update(&snapshots);
         self.keep(&mut shared, logs);
+        drop(shared);
+        self.flush_logs();
+    }
+
+    /// The last snapshot, at shutdown: the lines show it, nothing is logged
+    /// (a rotation "started" by the last readings would only mislead).
+    pub fn settle<'a>(&self, sensors: impl IntoIterator<Item = &'a Sensor>) {
+        let snapshots: Vec<SensorSnapshot> = sensors.into_iter().map(SensorSnapshot::of).collect();
+        let mut shared = self.lock();
+        shared.board.update(&snapshots);
         drop(shared);
         self.flush_logs();
     }
@@ -970,6 +992,7 @@ mod tests {
         let reason = "rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms)";
         let rejected = Some(Outcome::Rejected {
             reason: reason.into(),
+            suggested: None,
         });
         let line = render_line(
             &view(
@@ -1152,6 +1175,28 @@ mod tests {
             [
                 "compass: rejected: the sensor is not turning: readings spread over only 3.0 counts in 10.0 s (noise about 1.0 counts); turn it a full rotation"
             ]
+        );
+    }
+
+    #[test]
+    fn a_fit_outside_the_limits_shows_its_numbers_reason_and_suggestion() {
+        let mut board = Board::new();
+        board.update(&snapshot(90.0, vec![[330.0, 360.0]], 180));
+        let line = r#"{"class":"CALIBRATION","sensor":"compass","accepted":false,"reason":"rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms)","model":"offset+scale","params":{"a":1.0,"b":0.0,"d":0.0,"r":1.0},"rms":0.073,"coverage_deg":358.0,"n":200,"fit_ms":0.3,"time":10.0,"origin":"rotation","suggested":"cubic"}"#;
+        let words = "rejected: rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms); turn it steadily in place, away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects; the turn suggests adding the effect cubic to the sensor's effects";
+        assert_eq!(
+            board.on_line(line),
+            [
+                "compass: rotation complete, 200 samples over 358°".to_string(),
+                format!("compass: {words}")
+            ]
+        );
+        // The buffer restarted: the line shows the new, empty try and why.
+        assert_eq!(
+            board.lines(),
+            [format!(
+                "compass  [----------]   0 %  missing 0-360°  {words}"
+            )]
         );
     }
 

@@ -418,7 +418,7 @@ pub async fn run_with_progress(
         );
     }
     if let Some(progress) = &progress {
-        progress.update(sensors.sensors.iter().map(|(_, s)| s));
+        progress.settle(sensors.sensors.iter().map(|(_, s)| s));
     }
     // Stored before the last STATUS; a hung disk is not waited for beyond
     // what systemd's stop timeout leaves.
