@@ -354,3 +354,41 @@ fn progress_never_on_a_terminal_logs_instead() {
         screen.history
     );
 }
+
+#[test]
+fn progress_always_draws_even_into_a_pipe() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path(), "\"max\"", false);
+    let out = Command::new(env!("CARGO_BIN_EXE_fieldcal"))
+        .args(["run", "--config"])
+        .arg(&config)
+        .args(["--progress", "always"])
+        .env_remove("RUST_LOG")
+        .env("COLUMNS", "160")
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let screen = Screen::play(&out.stderr);
+    let visible = screen.visible();
+    assert_eq!(
+        visible
+            .iter()
+            .filter(|l| l.starts_with("compass  ["))
+            .count(),
+        1,
+        "{visible:#?}"
+    );
+    assert!(
+        visible
+            .iter()
+            .any(|l| l.starts_with("compass  [##########] 100 %  calibrated #1, rms 0.")),
+        "{visible:#?}"
+    );
+    // The milestones are not logged when the lines are drawn.
+    assert!(
+        !screen.history.iter().any(|l| l.contains("INFO compass: ")),
+        "{:#?}",
+        screen.history
+    );
+}
