@@ -10,6 +10,7 @@ pub mod acceptance;
 pub mod config;
 pub mod messages;
 pub mod notify;
+pub mod progress;
 pub mod publish;
 pub mod rotation;
 pub mod run;

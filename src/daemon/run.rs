@@ -18,6 +18,7 @@ use super::Calibration;
 use super::config::{Config, SourceKind};
 use super::messages::{CalibrationMessage, SourceStatus, StatusMessage, to_line};
 use super::notify::Notifier;
+use super::progress::{ProgressFeed, REDRAW};
 use super::publish::{ClientCommand, Hub, Lane, ReplyTo};
 use super::sensor::Sensor;
 use super::state::StateStore;
@@ -148,7 +149,18 @@ impl Sensors {
 
 /// Runs the daemon until `shutdown` turns true. Returns once sources are
 /// stopped (the Falcon stop command sent) and subscribers flushed.
-pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<(), DaemonError> {
+pub async fn run(config: Config, shutdown: watch::Receiver<bool>) -> Result<(), DaemonError> {
+    run_with_progress(config, shutdown, None).await
+}
+
+/// [`run`], feeding `progress` (the live lines or milestone log of
+/// [`super::progress`]) with a snapshot of the sensors every
+/// [`super::progress::REDRAW`] and with every CALIBRATION line.
+pub async fn run_with_progress(
+    config: Config,
+    mut shutdown: watch::Receiver<bool>,
+    progress: Option<ProgressFeed>,
+) -> Result<(), DaemonError> {
     let notifier = Notifier::from_env();
     let store = StateStore::open(&config.daemon.state_dir)?;
     let mut sensors = Sensors::build(&config, Some(&store));
@@ -198,7 +210,10 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
     let stdout_task = config.outputs.stdout.then(|| {
         let hub = hub.clone();
         let stop = outputs_stop_rx.clone();
-        tokio::spawn(hub.serve_writer(tokio::io::stdout(), stop))
+        match progress.as_ref().and_then(ProgressFeed::stdout_above) {
+            Some(out) => tokio::spawn(hub.serve_writer(out, stop)),
+            None => tokio::spawn(hub.serve_writer(tokio::io::stdout(), stop)),
+        }
     });
     drop(commands_tx);
 
@@ -315,10 +330,21 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
     let mut watchdog_tick = tokio::time::interval(watchdog.unwrap_or(Duration::from_secs(3600)));
     watchdog_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
 
+    let mut progress_tick = tokio::time::interval(REDRAW);
+    progress_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+
     // Made once: the readings' path should not clone the hub per event.
     let mut emit = {
         let hub = hub.clone();
-        move |lane: Lane, line: String| hub.publish(lane, Arc::from(line))
+        let progress = progress.clone();
+        move |lane: Lane, line: String| {
+            if lane == Lane::Control
+                && let Some(progress) = &progress
+            {
+                progress.control_line(&line);
+            }
+            hub.publish(lane, Arc::from(line))
+        }
     };
     let mut save = |c: &Calibration| writer.save(c);
 
@@ -352,6 +378,11 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
                 notifier.status(&status_text(&sensors));
             }
             _ = watchdog_tick.tick(), if watchdog.is_some() => notifier.ping(),
+            _ = progress_tick.tick(), if progress.is_some() => {
+                if let Some(progress) = &progress {
+                    progress.update(sensors.sensors.iter().map(|(_, s)| s));
+                }
+            }
         }
     }
 
@@ -385,6 +416,9 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
             &mut emit,
             &mut save,
         );
+    }
+    if let Some(progress) = &progress {
+        progress.settle(sensors.sensors.iter().map(|(_, s)| s));
     }
     // Stored before the last STATUS; a hung disk is not waited for beyond
     // what systemd's stop timeout leaves.

@@ -97,6 +97,9 @@ struct RunArgs {
     /// The daemon's TOML configuration (see config/fieldcal.toml).
     #[arg(long, value_name = "FILE")]
     config: PathBuf,
+    /// Each sensor's progress on a live line (auto: when stderr is a terminal; otherwise, and with never, log lines at each quarter of the turn and at its end).
+    #[arg(long, value_name = "WHEN", default_value = "auto", value_parser = ["never", "auto", "always"])]
+    progress: String,
 }
 
 #[derive(Debug, Args)]
@@ -473,11 +476,21 @@ fn main() -> ExitCode {
 /// Logs go to stderr, filtered by RUST_LOG (default: info), as text or
 /// as one JSON object per line.
 fn init_logging(json: bool) {
+    init_logging_to(json, None);
+}
+
+/// [`init_logging`], printing above the live progress lines when given.
+fn init_logging_to(json: bool, live: Option<indicatif::MultiProgress>) {
+    use tracing_subscriber::fmt::writer::BoxMakeWriter;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let writer = match live {
+        Some(multi) => BoxMakeWriter::new(fieldcal::daemon::progress::LogWriter::new(multi)),
+        None => BoxMakeWriter::new(std::io::stderr),
+    };
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
-        .with_writer(std::io::stderr)
+        .with_writer(writer)
         .with_target(false);
     let _ = if json {
         builder.json().try_init()

@@ -1,25 +1,50 @@
 //! `fieldcal run --config FILE`: the daemon.
 
+use std::io::IsTerminal as _;
+
 use anyhow::{Context, Result};
 use tokio::sync::watch;
 
 use fieldcal::daemon::config::{LogFormat, load};
+use fieldcal::daemon::progress::{Live, ProgressFeed, ProgressMode, draw_target};
 
 use crate::RunArgs;
 
 pub fn run(args: RunArgs) -> Result<()> {
     // A bad configuration starts nothing: no port is opened, no socket bound.
     let config = load(&args.config)?;
-    crate::init_logging(config.daemon.log_format == LogFormat::Json);
+    let mode: ProgressMode = args.progress.parse().map_err(anyhow::Error::msg)?;
+    let live = mode.live(std::io::stderr().is_terminal());
+    let multi = live.then(|| {
+        indicatif::MultiProgress::with_draw_target(draw_target(mode == ProgressMode::Always))
+    });
+    crate::init_logging_to(config.daemon.log_format == LogFormat::Json, multi.clone());
+    // Without live lines, the milestones go to the log.
+    let feed = ProgressFeed::new(!live);
+    // Published lines on the same terminal go above the live lines.
+    let feed = match &multi {
+        Some(multi) if std::io::stdout().is_terminal() => feed.with_stdout_above(multi.clone()),
+        _ => feed,
+    };
+    let display = match multi {
+        Some(multi) => {
+            Some(Live::spawn(feed.clone(), multi).context("cannot start the progress display")?)
+        }
+        None => None,
+    };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
         .context("cannot start the runtime")?;
-    runtime.block_on(async {
+    let result = runtime.block_on(async {
         let (stop_tx, stop_rx) = watch::channel(false);
         tokio::spawn(crate::signals::forward_signals(stop_tx));
-        fieldcal::daemon::run::run(config, stop_rx).await
-    })?;
+        fieldcal::daemon::run::run_with_progress(config, stop_rx, Some(feed)).await
+    });
+    if let Some(display) = display {
+        display.finish();
+    }
+    result?;
     Ok(())
 }

@@ -1,0 +1,1227 @@
+//! What a person beside the sensor sees while it turns: one line per
+//! sensor with the turned fraction, the headings still missing and what to
+//! do, redrawn live on a terminal; or, when stderr is not a terminal
+//! (systemd, a pipe), a log line at the moments that matter.
+//!
+//! The [`Board`] is pure: sensor snapshots and `CALIBRATION` lines in,
+//! line text and milestone messages out. The daemon's loop feeds it through
+//! a [`ProgressFeed`] (a snapshot at most every [`REDRAW`], so the readings'
+//! path does not pay for it); [`Live`] redraws it from its own thread with
+//! indicatif, and [`LogWriter`] keeps log lines from garbling the live ones.
+//!
+//! The rejection reasons come from the rotation buffer
+//! ([`super::rotation`]), the turn gate and the fit ([`crate::model`]) and
+//! the acceptance limits ([`super::acceptance`]); [`explain`] makes each
+//! say what to do in the daemon's terms.
+
+use std::io::Write;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use serde::Deserialize;
+
+use super::rotation::Progress;
+use super::sensor::Sensor;
+
+/// How often the live lines are redrawn and the loop takes a snapshot:
+/// ten times a second is as fast as a person reads a changing number.
+pub const REDRAW: Duration = Duration::from_millis(100);
+
+/// After a rejection, its reason stays on the sensor's line until the new
+/// try covers this share of the headings again (the person has evidently
+/// turned a quarter more); the log keeps it beyond.
+pub const REJECTION_SHOWN_BELOW_PCT: f64 = 25.0;
+
+/// Cells of the text bar.
+const BAR_CELLS: usize = 10;
+
+/// Most milestone messages kept between two drains (a log that nobody
+/// drains must not grow without bound).
+const MAX_PENDING: usize = 256;
+
+/// `--progress`: when to show the live lines.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProgressMode {
+    /// Never: log lines at the moments that matter instead.
+    Never,
+    /// Live lines when stderr is a terminal, log lines otherwise.
+    Auto,
+    /// Live lines even when stderr is not a terminal (a terminal recorder).
+    Always,
+}
+
+impl ProgressMode {
+    /// Whether the lines are drawn live, given whether stderr is a terminal.
+    pub fn live(self, stderr_is_terminal: bool) -> bool {
+        match self {
+            ProgressMode::Never => false,
+            ProgressMode::Auto => stderr_is_terminal,
+            ProgressMode::Always => true,
+        }
+    }
+}
+
+impl std::str::FromStr for ProgressMode {
+    type Err = String;
+    fn from_str(text: &str) -> Result<Self, String> {
+        match text {
+            "never" => Ok(ProgressMode::Never),
+            "auto" => Ok(ProgressMode::Auto),
+            "always" => Ok(ProgressMode::Always),
+            other => Err(format!(
+                "'{other}' is not a progress mode: give never, auto or always"
+            )),
+        }
+    }
+}
+
+/// How far a sensor's current rotation has got.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RotationView {
+    pub coverage_pct: f64,
+    /// Missing headings as [start, end] degrees; end < start wraps through 0°.
+    pub missing: Vec<[f64; 2]>,
+    pub samples: usize,
+}
+
+impl From<&Progress> for RotationView {
+    fn from(p: &Progress) -> Self {
+        RotationView {
+            coverage_pct: p.coverage_pct,
+            missing: p.missing_sectors.clone(),
+            samples: p.samples,
+        }
+    }
+}
+
+/// The heading check of an accepted fit.
+#[derive(Debug, Clone, PartialEq)]
+pub enum HeadingNote {
+    /// The heading's rms error against the integrated gyro, degrees.
+    Checked { rms_deg: f64 },
+    /// Why no check was possible, as the daemon said it.
+    NotChecked(String),
+    /// Loaded from the state directory: not checked in this run.
+    Unknown,
+}
+
+/// The last fit of a sensor.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Outcome {
+    Accepted {
+        id: u64,
+        /// Fraction of the field.
+        rms: f64,
+        heading: HeadingNote,
+        /// Loaded from the state directory rather than fitted now.
+        stored: bool,
+        /// The effect the rotation's residual suggests adding, if any.
+        suggested: Option<String>,
+    },
+    Rejected {
+        reason: String,
+        /// The effect the rotation's residual suggests adding, if any.
+        suggested: Option<String>,
+    },
+}
+
+/// One sensor's line, as data.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorView {
+    pub sensor: String,
+    /// The rotation being collected (None once calibrated).
+    pub rotation: Option<RotationView>,
+    pub outcome: Option<Outcome>,
+}
+
+/// What the loop hands the board about one sensor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorSnapshot {
+    pub sensor: String,
+    pub rotation: Option<RotationView>,
+    /// The calibration correcting now: (id, rms).
+    pub calibration: Option<(u64, f64)>,
+}
+
+impl SensorSnapshot {
+    pub fn of(sensor: &Sensor) -> Self {
+        let status = sensor.status();
+        SensorSnapshot {
+            sensor: sensor.name().to_string(),
+            rotation: status.rotation.as_ref().map(RotationView::from),
+            calibration: sensor.calibration().map(|c| (c.id, c.rms)),
+        }
+    }
+}
+
+/// "missing 120-200°, 340-20°"; empty when nothing is missing.
+pub fn missing_text(ranges: &[[f64; 2]]) -> String {
+    if ranges.is_empty() {
+        return String::new();
+    }
+    let parts: Vec<String> = ranges
+        .iter()
+        .map(|[a, b]| format!("{a:.0}-{b:.0}°"))
+        .collect();
+    format!("missing {}", parts.join(", "))
+}
+
+/// A reason for a rejection, in the daemon's terms, followed by what to do
+/// when it does not already say so. The turn gate's reasons speak of the
+/// `fit` command's `--x` and `--y`; the daemon's axes are the sensor's
+/// `axes` key. The acceptance limits name their key; each gets its remedy.
+pub fn explain(reason: &str) -> String {
+    let text = reason
+        .replace(
+            "choose the two axes that turned with --x and --y",
+            "give the two axes that turned in the sensor's axes",
+        )
+        .replace(
+            "or lower the required coverage",
+            "or lower limits.min_coverage_deg",
+        );
+    let mut advice: Vec<&str> = Vec::new();
+    for (marker, remedy) in ADVICE {
+        if text.contains(marker) && !advice.contains(remedy) {
+            advice.push(remedy);
+        }
+    }
+    if advice.is_empty() {
+        text
+    } else {
+        format!("{text}; {}", advice.join("; "))
+    }
+}
+
+/// Reasons that do not say what to do, by a marker in their text, with
+/// the remedy. Every other reason the daemon gives ends with its remedy.
+const ADVICE: &[(&str, &str)] = &[
+    (
+        "(limits.min_coverage_deg)",
+        "turn the sensor once all the way round",
+    ),
+    (
+        "(limits.max_rms)",
+        "turn it steadily in place, away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects",
+    ),
+    (
+        "(limits.min_radius)",
+        "check that the sensor's field and axes are the ones that turned, or correct limits.min_radius",
+    ),
+    (
+        "(limits.max_radius)",
+        "check that the sensor's field and axes are the ones that turned, or correct limits.max_radius",
+    ),
+    (
+        "(limits.max_offset_ratio)",
+        "mount the sensor away from magnets, motors and batteries, or raise limits.max_offset_ratio",
+    ),
+    (
+        "(limits.max_scale_ratio)",
+        "check that the sensor's axes are the two that turned, or raise limits.max_scale_ratio",
+    ),
+    (
+        "the rotation cannot be used",
+        "turn the sensor once more, in place and steadily",
+    ),
+    (
+        "fit no ellipse",
+        "check that the sensor's axes are the two that turned, and turn it once more in place",
+    ),
+    (
+        "has no real radius",
+        "check that the sensor's axes are the two that turned, and turn it once more in place",
+    ),
+    (
+        "the model does not suit these readings",
+        "remove the last effect from the sensor's effects, or turn it once more in place",
+    ),
+];
+
+/// The words of an accepted fit: "calibrated #3, rms 0.31 %, heading check 0.4°".
+fn accepted_words(
+    id: u64,
+    rms: f64,
+    heading: &HeadingNote,
+    stored: bool,
+    suggested: Option<&str>,
+) -> String {
+    let mut words = format!(
+        "calibrated #{id}{}, rms {:.2} %",
+        if stored { " (stored)" } else { "" },
+        rms * 100.0
+    );
+    match heading {
+        HeadingNote::Checked { rms_deg } => {
+            words.push_str(&format!(", heading check {rms_deg:.1}°"))
+        }
+        HeadingNote::NotChecked(why) => {
+            words.push_str(", ");
+            words.push_str(why);
+        }
+        HeadingNote::Unknown => {}
+    }
+    if let Some(effect) = suggested {
+        words.push_str(&format!(
+            "; the turn suggests adding the effect {effect} to the sensor's effects"
+        ));
+    }
+    words
+}
+
+/// The words of a rejection: its reason and what to do, and the effect the
+/// turn suggests when it found one.
+fn rejected_words(reason: &str, suggested: Option<&str>) -> String {
+    let mut words = format!("rejected: {}", explain(reason));
+    if let Some(effect) = suggested {
+        words.push_str(&format!(
+            "; the turn suggests adding the effect {effect} to the sensor's effects"
+        ));
+    }
+    words
+}
+
+fn bar(pct: f64) -> String {
+    let filled = ((pct.clamp(0.0, 100.0) / 100.0) * BAR_CELLS as f64).round() as usize;
+    format!(
+        "[{}{}]",
+        "#".repeat(filled),
+        "-".repeat(BAR_CELLS.saturating_sub(filled))
+    )
+}
+
+/// The line of one sensor, its name padded to `name_width`:
+/// `compass  [######----]  62 %  missing 120-200°, 340-20°  turn further`.
+pub fn render_line(view: &SensorView, name_width: usize) -> String {
+    let name = format!("{:<name_width$}", view.sensor);
+    let rotation_line = |r: &RotationView, words: &str| {
+        let mut line = format!("{name}  {} {:>3.0} %", bar(r.coverage_pct), r.coverage_pct);
+        let missing = missing_text(&r.missing);
+        if !missing.is_empty() {
+            line.push_str("  ");
+            line.push_str(&missing);
+        }
+        line.push_str("  ");
+        line.push_str(words);
+        line
+    };
+    match (&view.rotation, &view.outcome) {
+        (Some(r), Some(Outcome::Rejected { reason, suggested }))
+            if r.coverage_pct < REJECTION_SHOWN_BELOW_PCT =>
+        {
+            rotation_line(r, &rejected_words(reason, suggested.as_deref()))
+        }
+        (Some(r), _) if r.samples == 0 => rotation_line(r, "waiting for readings"),
+        (Some(r), _) => rotation_line(r, "turn further"),
+        (
+            None,
+            Some(Outcome::Accepted {
+                id,
+                rms,
+                heading,
+                stored,
+                suggested,
+            }),
+        ) => {
+            let words = accepted_words(*id, *rms, heading, *stored, suggested.as_deref());
+            if *stored {
+                format!("{name}  {words}")
+            } else {
+                format!("{name}  {} 100 %  {words}", bar(100.0))
+            }
+        }
+        (None, Some(Outcome::Rejected { reason, suggested })) => {
+            format!("{name}  {}", rejected_words(reason, suggested.as_deref()))
+        }
+        (None, None) => format!("{name}  waiting for readings"),
+    }
+}
+
+/// The subset of a `CALIBRATION` line the board reads.
+#[derive(Debug, Deserialize)]
+struct CalibrationLine {
+    class: String,
+    sensor: String,
+    accepted: bool,
+    #[serde(default)]
+    id: Option<u64>,
+    #[serde(default)]
+    reason: Option<String>,
+    #[serde(default)]
+    rms: Option<f64>,
+    #[serde(default)]
+    coverage_deg: f64,
+    #[serde(default)]
+    n: usize,
+    #[serde(default)]
+    origin: String,
+    #[serde(default)]
+    suggested: Option<String>,
+    #[serde(default)]
+    heading_vs_gyro: Option<HeadingRms>,
+    #[serde(default)]
+    heading_check: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+struct HeadingRms {
+    rms_deg: f64,
+}
+
+#[derive(Debug, Clone)]
+struct Track {
+    view: SensorView,
+    /// A rotation is under way (its start was logged).
+    attempt: bool,
+    /// Quarters of coverage logged in this attempt (0 to 3).
+    quarter: u8,
+    /// Samples in the last snapshot, to see a restart.
+    samples: usize,
+}
+
+/// Every sensor's line and the milestones to log. Pure.
+#[derive(Debug, Clone, Default)]
+pub struct Board {
+    tracks: Vec<Track>,
+}
+
+impl Board {
+    pub fn new() -> Self {
+        Board::default()
+    }
+
+    fn track(&mut self, sensor: &str) -> &mut Track {
+        let i = match self.tracks.iter().position(|t| t.view.sensor == sensor) {
+            Some(i) => i,
+            None => {
+                self.tracks.push(Track {
+                    view: SensorView {
+                        sensor: sensor.to_string(),
+                        rotation: None,
+                        outcome: None,
+                    },
+                    attempt: false,
+                    quarter: 0,
+                    samples: 0,
+                });
+                self.tracks.len() - 1
+            }
+        };
+        &mut self.tracks[i]
+    }
+
+    /// Takes the loop's snapshot; returns the milestones it crossed, as
+    /// log messages: a rotation started, each quarter of coverage.
+    pub fn update(&mut self, snapshots: &[SensorSnapshot]) -> Vec<String> {
+        let mut logs = Vec::new();
+        for s in snapshots {
+            let track = self.track(&s.sensor);
+            track.view.rotation = s.rotation.clone();
+            if track.view.outcome.is_none()
+                && let Some((id, rms)) = s.calibration
+            {
+                track.view.outcome = Some(Outcome::Accepted {
+                    id,
+                    rms,
+                    heading: HeadingNote::Unknown,
+                    stored: true,
+                    suggested: None,
+                });
+            }
+            let Some(r) = &s.rotation else {
+                track.attempt = false;
+                track.samples = 0;
+                continue;
+            };
+            // The buffer restarted without a CALIBRATION line (a client's
+            // recalibrate): a new attempt.
+            if r.samples < track.samples {
+                track.attempt = false;
+            }
+            track.samples = r.samples;
+            if r.samples == 0 {
+                continue;
+            }
+            if !track.attempt {
+                track.attempt = true;
+                track.quarter = 0;
+                logs.push(format!(
+                    "{}: rotation started; turn the sensor a full rotation",
+                    s.sensor
+                ));
+            }
+            let quarter = (r.coverage_pct / 25.0).floor().clamp(0.0, 3.0) as u8;
+            if quarter > track.quarter {
+                track.quarter = quarter;
+                let missing = missing_text(&r.missing);
+                logs.push(format!(
+                    "{}: {:.0} % of headings covered{}; turn further",
+                    s.sensor,
+                    r.coverage_pct,
+                    if missing.is_empty() {
+                        String::new()
+                    } else {
+                        format!(", {missing}")
+                    }
+                ));
+            }
+        }
+        logs
+    }
+
+    /// Takes a line the daemon published; a `CALIBRATION` line sets the
+    /// sensor's outcome. Returns the milestones as log messages: a rotation
+    /// complete, and the fit accepted or rejected, in the live line's words.
+    pub fn on_line(&mut self, line: &str) -> Vec<String> {
+        let mut logs = Vec::new();
+        if !line.contains("\"CALIBRATION\"") {
+            return logs;
+        }
+        let Ok(c) = serde_json::from_str::<CalibrationLine>(line) else {
+            return logs;
+        };
+        if c.class != "CALIBRATION" {
+            return logs;
+        }
+        let track = self.track(&c.sensor);
+        let stored = c.origin == "state";
+        let outcome = match (c.accepted, c.id, c.rms) {
+            (true, Some(id), Some(rms)) => {
+                let heading = match (&c.heading_vs_gyro, &c.heading_check) {
+                    (Some(h), _) => HeadingNote::Checked { rms_deg: h.rms_deg },
+                    (None, Some(why)) => HeadingNote::NotChecked(why.clone()),
+                    (None, None) => HeadingNote::Unknown,
+                };
+                Outcome::Accepted {
+                    id,
+                    rms,
+                    heading,
+                    stored,
+                    suggested: c.suggested.clone(),
+                }
+            }
+            _ => Outcome::Rejected {
+                reason: c
+                    .reason
+                    .clone()
+                    .unwrap_or_else(|| "the fit was not accepted".into()),
+                suggested: c.suggested.clone(),
+            },
+        };
+        if !stored && c.n > 0 {
+            logs.push(format!(
+                "{}: rotation complete, {} samples over {:.0}°",
+                c.sensor, c.n, c.coverage_deg
+            ));
+        }
+        match &outcome {
+            Outcome::Accepted {
+                id,
+                rms,
+                heading,
+                suggested,
+                ..
+            } => {
+                // Calibrated: the sensor collects no more until asked to.
+                track.view.rotation = None;
+                if !stored {
+                    logs.push(format!(
+                        "{}: {}",
+                        c.sensor,
+                        accepted_words(*id, *rms, heading, false, suggested.as_deref())
+                    ));
+                }
+            }
+            Outcome::Rejected { reason, suggested } => {
+                // The buffer has restarted: the next snapshot shows the new try.
+                if let Some(r) = &mut track.view.rotation {
+                    r.coverage_pct = 0.0;
+                    r.missing = vec![[0.0, 360.0]];
+                    r.samples = 0;
+                }
+                logs.push(format!(
+                    "{}: {}",
+                    c.sensor,
+                    rejected_words(reason, suggested.as_deref())
+                ));
+            }
+        }
+        track.attempt = false;
+        track.quarter = 0;
+        track.samples = 0;
+        track.view.outcome = Some(outcome);
+        logs
+    }
+
+    pub fn views(&self) -> impl Iterator<Item = &SensorView> {
+        self.tracks.iter().map(|t| &t.view)
+    }
+
+    /// The live lines, one per sensor, names aligned.
+    pub fn lines(&self) -> Vec<String> {
+        let width = self
+            .tracks
+            .iter()
+            .map(|t| t.view.sensor.chars().count())
+            .max()
+            .unwrap_or(0);
+        self.tracks
+            .iter()
+            .map(|t| render_line(&t.view, width))
+            .collect()
+    }
+}
+
+#[derive(Debug, Default)]
+struct Shared {
+    board: Board,
+    /// Milestones not yet logged (log mode only).
+    pending: Vec<String>,
+}
+
+/// The daemon's handle on the board: cheap to clone, shared between the
+/// loop (which feeds it) and the display (which reads it).
+#[derive(Debug, Clone)]
+pub struct ProgressFeed {
+    shared: Arc<Mutex<Shared>>,
+    /// Log the milestones (when nothing is drawn live).
+    log: bool,
+    /// The live lines stdout's lines must be printed above, when stdout is
+    /// the same terminal.
+    above: Option<indicatif::MultiProgress>,
+}
+
+impl ProgressFeed {
+    /// A feed whose milestones are logged at info level when `log`.
+    pub fn new(log: bool) -> Self {
+        ProgressFeed {
+            shared: Arc::default(),
+            log,
+            above: None,
+        }
+    }
+
+    /// Lines the daemon publishes on stdout are printed above the live
+    /// lines of `multi` (for a stdout on the same terminal).
+    pub fn with_stdout_above(self, multi: indicatif::MultiProgress) -> Self {
+        ProgressFeed {
+            above: Some(multi),
+            ..self
+        }
+    }
+
+    /// The writer for `[outputs] stdout`, when it must keep clear of the
+    /// live lines.
+    pub fn stdout_above(&self) -> Option<StdoutAbove> {
+        self.above.clone().map(|multi| StdoutAbove { multi })
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Shared> {
+        self.shared.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn keep(&self, shared: &mut Shared, logs: Vec<String>) {
+        if !self.log {
+            return;
+        }
+        shared.pending.extend(logs);
+        let excess = shared.pending.len().saturating_sub(MAX_PENDING);
+        shared.pending.drain(..excess);
+    }
+
+    /// The loop's snapshot of its sensors. O(sensors × sectors).
+    pub fn update<'a>(&self, sensors: impl IntoIterator<Item = &'a Sensor>) {
+        let snapshots: Vec<SensorSnapshot> = sensors.into_iter().map(SensorSnapshot::of).collect();
+        let mut shared = self.lock();
+        let logs = shared.board.update(&snapshots);
+        self.keep(&mut shared, logs);
+        drop(shared);
+        self.flush_logs();
+    }
+
+    /// The last snapshot, at shutdown: the lines show it, nothing is logged
+    /// (a rotation "started" by the last readings would only mislead).
+    pub fn settle<'a>(&self, sensors: impl IntoIterator<Item = &'a Sensor>) {
+        let snapshots: Vec<SensorSnapshot> = sensors.into_iter().map(SensorSnapshot::of).collect();
+        let mut shared = self.lock();
+        shared.board.update(&snapshots);
+        drop(shared);
+        self.flush_logs();
+    }
+
+    /// A control line the daemon published (CALIBRATION lines matter).
+    pub fn control_line(&self, line: &str) {
+        let mut shared = self.lock();
+        let logs = shared.board.on_line(line);
+        self.keep(&mut shared, logs);
+        drop(shared);
+        self.flush_logs();
+    }
+
+    /// Logs the pending milestones at info level.
+    pub fn flush_logs(&self) {
+        if !self.log {
+            return;
+        }
+        let pending = std::mem::take(&mut self.lock().pending);
+        for message in pending {
+            tracing::info!("{message}");
+        }
+    }
+
+    pub fn lines(&self) -> Vec<String> {
+        self.lock().board.lines()
+    }
+}
+
+/// The live display: one indicatif line per sensor, redrawn every
+/// [`REDRAW`] from its own thread (a slow terminal never holds up the
+/// daemon's loop).
+pub struct Live {
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Live {
+    /// Draws `feed`'s lines into `multi` until [`Live::finish`].
+    pub fn spawn(feed: ProgressFeed, multi: indicatif::MultiProgress) -> std::io::Result<Live> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let thread = std::thread::Builder::new().name("progress".into()).spawn({
+            let stop = stop.clone();
+            move || {
+                let mut bars: Vec<indicatif::ProgressBar> = Vec::new();
+                loop {
+                    let last = stop.load(Ordering::Acquire);
+                    draw(&feed, &multi, &mut bars);
+                    if last {
+                        break;
+                    }
+                    std::thread::park_timeout(REDRAW);
+                }
+                // The last state stays on the screen.
+                for bar in &bars {
+                    bar.finish();
+                }
+            }
+        })?;
+        Ok(Live {
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    /// Draws the last state once more and leaves it on the screen.
+    pub fn finish(mut self) {
+        self.stop.store(true, Ordering::Release);
+        if let Some(thread) = self.thread.take() {
+            thread.thread().unpark();
+            let _ = thread.join();
+        }
+    }
+}
+
+impl Drop for Live {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Release);
+        if let Some(thread) = self.thread.take() {
+            thread.thread().unpark();
+            let _ = thread.join();
+        }
+    }
+}
+
+fn draw(
+    feed: &ProgressFeed,
+    multi: &indicatif::MultiProgress,
+    bars: &mut Vec<indicatif::ProgressBar>,
+) {
+    let lines = feed.lines();
+    while bars.len() < lines.len() {
+        let style = indicatif::ProgressStyle::with_template("{msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner());
+        bars.push(multi.add(indicatif::ProgressBar::new(0).with_style(style)));
+    }
+    for (bar, line) in bars.iter().zip(lines) {
+        bar.set_message(line);
+    }
+}
+
+/// The draw target for live lines: stderr, drawn even when it is not a
+/// terminal if `force` (as `--progress always` asks).
+pub fn draw_target(force: bool) -> indicatif::ProgressDrawTarget {
+    use std::io::IsTerminal;
+    if force && !std::io::stderr().is_terminal() {
+        indicatif::ProgressDrawTarget::term_like_with_hz(Box::new(AnsiStderr::from_env()), 10)
+    } else {
+        indicatif::ProgressDrawTarget::stderr_with_hz(10)
+    }
+}
+
+/// stderr driven with ANSI cursor moves, for `--progress always` when
+/// stderr is not a terminal (indicatif hides its own stderr target then).
+#[derive(Debug)]
+struct AnsiStderr {
+    width: u16,
+}
+
+impl AnsiStderr {
+    /// Width from `COLUMNS`, else 80.
+    fn from_env() -> Self {
+        let width = std::env::var("COLUMNS")
+            .ok()
+            .and_then(|c| c.trim().parse::<u16>().ok())
+            .filter(|&w| w >= 20)
+            .unwrap_or(80);
+        AnsiStderr { width }
+    }
+
+    fn out(&self, text: &str) -> std::io::Result<()> {
+        std::io::stderr().lock().write_all(text.as_bytes())
+    }
+}
+
+impl indicatif::TermLike for AnsiStderr {
+    fn width(&self) -> u16 {
+        self.width
+    }
+    fn move_cursor_up(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 {
+            self.out(&format!("\x1b[{n}A"))
+        } else {
+            Ok(())
+        }
+    }
+    fn move_cursor_down(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 {
+            self.out(&format!("\x1b[{n}B"))
+        } else {
+            Ok(())
+        }
+    }
+    fn move_cursor_right(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 {
+            self.out(&format!("\x1b[{n}C"))
+        } else {
+            Ok(())
+        }
+    }
+    fn move_cursor_left(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 {
+            self.out(&format!("\x1b[{n}D"))
+        } else {
+            Ok(())
+        }
+    }
+    fn write_line(&self, s: &str) -> std::io::Result<()> {
+        self.out(&format!("{s}\n"))
+    }
+    fn write_str(&self, s: &str) -> std::io::Result<()> {
+        self.out(s)
+    }
+    fn clear_line(&self) -> std::io::Result<()> {
+        self.out("\r\x1b[2K")
+    }
+    fn flush(&self) -> std::io::Result<()> {
+        std::io::stderr().flush()
+    }
+}
+
+/// stdout, written above the live lines (indicatif's `suspend`). Only for
+/// a stdout that is a terminal, which takes a write at once: each batch of
+/// lines is written in one blocking call.
+pub struct StdoutAbove {
+    multi: indicatif::MultiProgress,
+}
+
+impl tokio::io::AsyncWrite for StdoutAbove {
+    fn poll_write(
+        self: std::pin::Pin<&mut Self>,
+        _: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        let written = self.multi.suspend(|| {
+            let mut out = std::io::stdout().lock();
+            out.write_all(buf)?;
+            out.flush()
+        });
+        std::task::Poll::Ready(written.map(|()| buf.len()))
+    }
+
+    fn poll_flush(
+        self: std::pin::Pin<&mut Self>,
+        _: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::task::Poll::Ready(std::io::stdout().flush())
+    }
+
+    fn poll_shutdown(
+        self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        self.poll_flush(cx)
+    }
+}
+
+/// A tracing writer that prints above the live lines (indicatif's
+/// `suspend`), so a log line never garbles them.
+#[derive(Clone)]
+pub struct LogWriter {
+    multi: indicatif::MultiProgress,
+}
+
+impl LogWriter {
+    pub fn new(multi: indicatif::MultiProgress) -> Self {
+        LogWriter { multi }
+    }
+}
+
+impl Write for LogWriter {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.multi
+            .suspend(|| std::io::stderr().lock().write_all(buf))?;
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        std::io::stderr().flush()
+    }
+}
+
+impl<'a> tracing_subscriber::fmt::MakeWriter<'a> for LogWriter {
+    type Writer = LogWriter;
+    fn make_writer(&'a self) -> LogWriter {
+        self.clone()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn collecting(pct: f64, missing: Vec<[f64; 2]>, samples: usize) -> RotationView {
+        RotationView {
+            coverage_pct: pct,
+            missing,
+            samples,
+        }
+    }
+
+    fn view(rotation: Option<RotationView>, outcome: Option<Outcome>) -> SensorView {
+        SensorView {
+            sensor: "compass".into(),
+            rotation,
+            outcome,
+        }
+    }
+
+    #[test]
+    fn collecting_shows_coverage_missing_headings_and_turn_further() {
+        let v = view(Some(collecting(62.5, vec![[120.0, 200.0]], 140)), None);
+        assert_eq!(
+            render_line(&v, 9),
+            "compass    [######----]  62 %  missing 120-200°  turn further"
+        );
+    }
+
+    #[test]
+    fn a_missing_range_through_zero_reads_across_it() {
+        let v = view(
+            Some(collecting(50.0, vec![[120.0, 200.0], [340.0, 20.0]], 90)),
+            None,
+        );
+        assert_eq!(
+            render_line(&v, 7),
+            "compass  [#####-----]  50 %  missing 120-200°, 340-20°  turn further"
+        );
+        assert_eq!(missing_text(&[]), "");
+        assert_eq!(missing_text(&[[0.0, 360.0]]), "missing 0-360°");
+    }
+
+    #[test]
+    fn before_the_first_reading_it_waits() {
+        let v = view(Some(collecting(0.0, vec![[0.0, 360.0]], 0)), None);
+        assert_eq!(
+            render_line(&v, 7),
+            "compass  [----------]   0 %  missing 0-360°  waiting for readings"
+        );
+        assert_eq!(
+            render_line(&view(None, None), 7),
+            "compass  waiting for readings"
+        );
+    }
+
+    #[test]
+    fn calibrated_shows_id_rms_and_heading_check() {
+        let accepted = |heading| Outcome::Accepted {
+            id: 3,
+            rms: 0.0031,
+            heading,
+            stored: false,
+            suggested: None,
+        };
+        assert_eq!(
+            render_line(
+                &view(None, Some(accepted(HeadingNote::Checked { rms_deg: 0.4 }))),
+                7
+            ),
+            "compass  [##########] 100 %  calibrated #3, rms 0.31 %, heading check 0.4°"
+        );
+        let why = "no heading check: gyro = \"none\" in the configuration";
+        assert_eq!(
+            render_line(
+                &view(None, Some(accepted(HeadingNote::NotChecked(why.into())))),
+                7
+            ),
+            format!("compass  [##########] 100 %  calibrated #3, rms 0.31 %, {why}")
+        );
+        let stored = Outcome::Accepted {
+            id: 2,
+            rms: 0.012,
+            heading: HeadingNote::Unknown,
+            stored: true,
+            suggested: Some("cubic".into()),
+        };
+        assert_eq!(
+            render_line(&view(None, Some(stored)), 7),
+            "compass  calibrated #2 (stored), rms 1.20 %; the turn suggests adding the effect cubic to the sensor's effects"
+        );
+    }
+
+    #[test]
+    fn a_rejection_shows_its_reason_and_what_to_do_until_the_next_try_turns() {
+        let reason = "rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms)";
+        let rejected = Some(Outcome::Rejected {
+            reason: reason.into(),
+            suggested: None,
+        });
+        let line = render_line(
+            &view(
+                Some(collecting(0.0, vec![[0.0, 360.0]], 4)),
+                rejected.clone(),
+            ),
+            7,
+        );
+        assert_eq!(
+            line,
+            format!(
+                "compass  [----------]   0 %  missing 0-360°  rejected: {reason}; turn it steadily in place, away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects"
+            )
+        );
+        // A quarter turned again: back to the turn.
+        let line = render_line(
+            &view(Some(collecting(25.0, vec![[90.0, 360.0]], 60)), rejected),
+            7,
+        );
+        assert_eq!(
+            line,
+            "compass  [###-------]  25 %  missing 90-360°  turn further"
+        );
+    }
+
+    #[test]
+    fn every_reason_says_what_to_do_in_the_daemons_terms() {
+        // The turn gate's reason speaks of the fit command's flags.
+        let gate = "the readings go only 200° round their centre (the largest gap runs 160° from 10°), and a fit needs 300°: the sensor did not turn a full rotation in the plane of x and y; turn it a full rotation in a constant field, choose the two axes that turned with --x and --y, or lower the required coverage";
+        let explained = explain(gate);
+        assert!(!explained.contains("--x"), "{explained}");
+        assert!(explained.ends_with(
+            "give the two axes that turned in the sensor's axes, or lower limits.min_coverage_deg"
+        ));
+        // Two limits failed: both remedies, once each.
+        let two = "heading coverage 250.0° is below the limit of 300.0° (limits.min_coverage_deg); axis gain ratio 2.500 (a = 0.4000) exceeds the limit of 2 (limits.max_scale_ratio)";
+        assert_eq!(
+            explain(two),
+            format!(
+                "{two}; turn the sensor once all the way round; check that the sensor's axes are the two that turned, or raise limits.max_scale_ratio"
+            )
+        );
+        // A reason with its remedy already is left as it is.
+        let buffer = "no full rotation within 60 s: 89 % of headings covered, missing 40° to 80°; turn the sensor once all the way round, steadily";
+        assert_eq!(explain(buffer), buffer);
+    }
+
+    /// Every reason acceptance::check can give gets a remedy.
+    #[test]
+    fn every_acceptance_limit_has_a_remedy() {
+        use crate::daemon::acceptance::{Limits, check};
+        use crate::model::fit::{FitReport, Solver};
+        use crate::model::heading::coverage;
+        use crate::model::paper::PaperCalibration;
+        let report = |a: f64, b: f64, r: f64, rms: f64, covered: f64| {
+            let calibration = PaperCalibration { a, b, d: 0.0, r };
+            let headings = (0..=360)
+                .map(|d| f64::from(d).to_radians())
+                .filter(|h| h.to_degrees() <= covered);
+            FitReport {
+                solver: Solver::Lsq,
+                calibration,
+                theta: calibration.to_theta(),
+                rms,
+                n: 400,
+                iterations: None,
+                coverage: coverage(headings),
+                elapsed: Duration::ZERO,
+            }
+        };
+        let defaults = Limits::default();
+        let min_radius = Limits {
+            min_radius: Some(2000.0),
+            ..Limits::default()
+        };
+        let max_radius = Limits {
+            max_radius: Some(10.0),
+            ..Limits::default()
+        };
+        let cases = [
+            (report(1.0, 0.0, 1000.0, 0.2, 360.0), &defaults),
+            (report(1.0, 0.0, 1000.0, 0.01, 200.0), &defaults),
+            (report(1.0, 1e5, 1000.0, 0.01, 360.0), &defaults),
+            (report(5.0, 0.0, 1000.0, 0.01, 360.0), &defaults),
+            (report(1.0, 0.0, 1000.0, 0.01, 360.0), &min_radius),
+            (report(1.0, 0.0, 1000.0, 0.01, 360.0), &max_radius),
+            (report(1.0, 0.0, f64::NAN, 0.01, 360.0), &defaults),
+            (report(-1.0, 0.0, 1000.0, 0.01, 360.0), &defaults),
+        ];
+        let mut keys = std::collections::BTreeSet::new();
+        for (r, l) in cases {
+            let reason = check(&r, l).unwrap_err();
+            // Each limit the reason names has its own remedy.
+            let named: Vec<&str> = reason
+                .match_indices("(limits.")
+                .filter_map(|(at, _)| {
+                    reason[at..]
+                        .split_once(')')
+                        .map(|(key, _)| &reason[at..=at + key.len()])
+                })
+                .collect();
+            for key in &named {
+                assert!(
+                    ADVICE.iter().any(|(marker, _)| marker == key),
+                    "no remedy for {key} in: {reason}"
+                );
+                keys.insert(key.to_string());
+            }
+            assert!(
+                explain(&reason).len() > reason.len(),
+                "no remedy for: {reason}"
+            );
+        }
+        // Every limit was tried.
+        assert_eq!(keys.len(), 6, "{keys:?}");
+    }
+
+    fn snapshot(pct: f64, missing: Vec<[f64; 2]>, samples: usize) -> Vec<SensorSnapshot> {
+        vec![SensorSnapshot {
+            sensor: "compass".into(),
+            rotation: Some(collecting(pct, missing, samples)),
+            calibration: None,
+        }]
+    }
+
+    #[test]
+    fn the_board_logs_the_moments_that_matter_and_no_more() {
+        let mut board = Board::new();
+        assert!(
+            board
+                .update(&snapshot(0.0, vec![[0.0, 360.0]], 0))
+                .is_empty()
+        );
+        assert_eq!(
+            board.update(&snapshot(0.0, vec![[0.0, 360.0]], 3)),
+            ["compass: rotation started; turn the sensor a full rotation"]
+        );
+        assert!(
+            board
+                .update(&snapshot(10.0, vec![[40.0, 360.0]], 20))
+                .is_empty()
+        );
+        // 20 % to 55 %: one line, at the coverage reached.
+        assert_eq!(
+            board.update(&snapshot(55.0, vec![[200.0, 360.0]], 80)),
+            ["compass: 55 % of headings covered, missing 200-360°; turn further"]
+        );
+        assert!(
+            board
+                .update(&snapshot(60.0, vec![[220.0, 360.0]], 90))
+                .is_empty()
+        );
+        assert_eq!(
+            board
+                .update(&snapshot(80.0, vec![[290.0, 10.0]], 120))
+                .len(),
+            1
+        );
+        let line = r#"{"class":"CALIBRATION","sensor":"compass","accepted":true,"id":1,"model":"offset+scale","params":{"a":1.0,"b":0.0,"d":0.0,"r":1.0},"rms":0.0031,"coverage_deg":360.0,"n":412,"fit_ms":0.2,"time":3.0,"origin":"rotation","heading_vs_gyro":{"gyro_column":"gyro_z","rms_deg":0.43,"peak_to_peak_deg":1.0,"n":400,"gyro_scale":1.0,"gyro_bias_deg_s":0.0}}"#;
+        assert_eq!(
+            board.on_line(line),
+            [
+                "compass: rotation complete, 412 samples over 360°",
+                "compass: calibrated #1, rms 0.31 %, heading check 0.4°"
+            ]
+        );
+        assert_eq!(
+            board.lines(),
+            ["compass  [##########] 100 %  calibrated #1, rms 0.31 %, heading check 0.4°"]
+        );
+        // READING and STATUS lines change nothing.
+        assert!(
+            board
+                .on_line(r#"{"class":"READING","sensor":"compass"}"#)
+                .is_empty()
+        );
+        let rejected = r#"{"class":"CALIBRATION","sensor":"compass","accepted":false,"reason":"the sensor is not turning: readings spread over only 3.0 counts in 10.0 s (noise about 1.0 counts); turn it a full rotation","model":"offset+scale","coverage_deg":0.0,"n":0,"fit_ms":0.0,"time":9.0,"origin":"rotation"}"#;
+        assert_eq!(
+            board.on_line(rejected),
+            [
+                "compass: rejected: the sensor is not turning: readings spread over only 3.0 counts in 10.0 s (noise about 1.0 counts); turn it a full rotation"
+            ]
+        );
+    }
+
+    #[test]
+    fn a_fit_outside_the_limits_shows_its_numbers_reason_and_suggestion() {
+        let mut board = Board::new();
+        board.update(&snapshot(90.0, vec![[330.0, 360.0]], 180));
+        let line = r#"{"class":"CALIBRATION","sensor":"compass","accepted":false,"reason":"rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms)","model":"offset+scale","params":{"a":1.0,"b":0.0,"d":0.0,"r":1.0},"rms":0.073,"coverage_deg":358.0,"n":200,"fit_ms":0.3,"time":10.0,"origin":"rotation","suggested":"cubic"}"#;
+        let words = "rejected: rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms); turn it steadily in place, away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects; the turn suggests adding the effect cubic to the sensor's effects";
+        assert_eq!(
+            board.on_line(line),
+            [
+                "compass: rotation complete, 200 samples over 358°".to_string(),
+                format!("compass: {words}")
+            ]
+        );
+        // The buffer restarted: the line shows the new, empty try and why.
+        assert_eq!(
+            board.lines(),
+            [format!(
+                "compass  [----------]   0 %  missing 0-360°  {words}"
+            )]
+        );
+    }
+
+    #[test]
+    fn a_stored_calibration_shows_until_a_fit_replaces_it() {
+        let mut board = Board::new();
+        let logs = board.update(&[SensorSnapshot {
+            sensor: "compass".into(),
+            rotation: None,
+            calibration: Some((4, 0.002)),
+        }]);
+        assert!(logs.is_empty());
+        assert_eq!(
+            board.lines(),
+            ["compass  calibrated #4 (stored), rms 0.20 %"]
+        );
+    }
+
+    #[test]
+    fn progress_modes() {
+        assert_eq!("auto".parse(), Ok(ProgressMode::Auto));
+        assert!("sometimes".parse::<ProgressMode>().is_err());
+        assert!(!ProgressMode::Auto.live(false));
+        assert!(ProgressMode::Auto.live(true));
+        assert!(!ProgressMode::Never.live(true));
+        assert!(ProgressMode::Always.live(false));
+    }
+}
