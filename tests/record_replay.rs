@@ -385,3 +385,40 @@ fn record_stopped_by_sigterm_before_any_byte_fails_and_leaves_no_file() {
     );
     assert!(!out.exists(), "an empty capture was left behind");
 }
+
+#[test]
+fn simulate_never_overwrites_a_file_without_force() {
+    let dir = tempfile::tempdir().unwrap();
+    for (format, name) in [
+        ("csv", "run.csv"),
+        ("falcon", "run.fcap"),
+        ("falcon-raw", "run.bin"),
+    ] {
+        let path = dir.path().join(name);
+        let file = path.to_str().unwrap();
+        fs::write(&path, "precious").unwrap();
+        let r = run(&["simulate", "--format", format, "--turns", "0.2", "-o", file]);
+        assert_eq!(r.code, Some(1), "{format}: {}", r.stderr);
+        assert!(
+            r.stderr.contains(&format!(
+                "{file} exists: simulate never overwrites a file; choose another --output, or add --force to replace it"
+            )),
+            "{format}: {}",
+            r.stderr
+        );
+        assert_eq!(fs::read_to_string(&path).unwrap(), "precious", "{format}");
+
+        run_ok(&[
+            "simulate", "--format", format, "--turns", "0.2", "-o", file, "--force",
+        ]);
+        let written = fs::read(&path).unwrap();
+        assert!(written.len() > 100, "{format}: {} bytes", written.len());
+        assert_ne!(&written[..8], b"precious", "{format}");
+    }
+    // Only the three files: no temporary file left beside them.
+    assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 3);
+    // A new file needs no --force.
+    let new = dir.path().join("new.csv");
+    run_ok(&["simulate", "--turns", "0.2", "-o", new.to_str().unwrap()]);
+    assert!(fs::read_to_string(&new).unwrap().starts_with("t,x,y\n"));
+}
