@@ -23,7 +23,8 @@ pub struct RecordSummary {
 }
 
 /// Why a recording that ended holds no bytes: the device was not there,
-/// never opened, or opened and stayed silent. Each says what to do.
+/// never became ready (opened and set up), or was ready and stayed silent.
+/// Each says what to do.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum NothingRecorded {
     #[error(
@@ -31,9 +32,9 @@ pub enum NothingRecorded {
     )]
     NoSuchDevice { port: String, seconds: f64 },
     #[error(
-        "{port}: the device never opened, so nothing was recorded in {seconds:.1} s (the warning above says why): check the port's permissions (usually the dialout group) and that no other program holds it, then record again"
+        "{port}: the device never became ready, so nothing was recorded in {seconds:.1} s: the warning above says why (often the port's permissions: the dialout group; or another program holding it; or a chip behind a bridge not answering); fix that, then record again"
     )]
-    NeverOpened { port: String, seconds: f64 },
+    NeverReady { port: String, seconds: f64 },
     #[error(
         "{port}: the device opened but sent no bytes in {seconds:.1} s: check that it is powered and streaming, the line speed, and that --device names what is on the port, then record again"
     )]
@@ -58,7 +59,7 @@ impl RecordSummary {
         Err(if self.connects > 0 {
             NothingRecorded::NoBytes { port, seconds }
         } else if port_exists {
-            NothingRecorded::NeverOpened { port, seconds }
+            NothingRecorded::NeverReady { port, seconds }
         } else {
             NothingRecorded::NoSuchDevice { port, seconds }
         })
@@ -145,7 +146,7 @@ mod tests {
         );
         assert_eq!(
             empty.check_recorded(&port, true, SECS),
-            Err(NothingRecorded::NeverOpened {
+            Err(NothingRecorded::NeverReady {
                 port: port.clone(),
                 seconds: 3.0
             })
