@@ -226,10 +226,10 @@ axes = ["x", "y"]
         std::thread::spawn(move || {
             let mut buf = [0u8; 256];
             while running.load(Ordering::Relaxed) {
-                if let Ok(n) = reader.read(&mut buf) {
-                    if n > 0 {
-                        started.store(true, Ordering::Relaxed);
-                    }
+                if let Ok(n) = reader.read(&mut buf)
+                    && n > 0
+                {
+                    started.store(true, Ordering::Relaxed);
                 }
             }
         })

@@ -18,6 +18,52 @@ pub struct RecordSummary {
     pub bytes: u64,
     pub readings: u64,
     pub disconnects: u64,
+    /// Times the source reported the device open and answering.
+    pub connects: u64,
+}
+
+/// Why a recording that ended holds no bytes: the device was not there,
+/// never became ready (opened and set up), or was ready and stayed silent.
+/// Each says what to do.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum NothingRecorded {
+    #[error(
+        "{port}: no such device, so nothing was recorded in {seconds:.1} s: plug the device in, check the cable and the port path (ls /dev/serial/by-id/), then record again"
+    )]
+    NoSuchDevice { port: String, seconds: f64 },
+    #[error(
+        "{port}: the device never became ready, so nothing was recorded in {seconds:.1} s: the warning above says why (often the port's permissions: the dialout group; or another program holding it; or a chip behind a bridge not answering); fix that, then record again"
+    )]
+    NeverReady { port: String, seconds: f64 },
+    #[error(
+        "{port}: the device opened but sent no bytes in {seconds:.1} s: check that it is powered and streaming, the line speed, and that --device names what is on the port, then record again"
+    )]
+    NoBytes { port: String, seconds: f64 },
+}
+
+impl RecordSummary {
+    /// `Ok` when the recording holds at least one chunk of bytes; otherwise
+    /// why not, from what the source reported and whether the port's path
+    /// exists (`port_exists`, checked by the caller at the end).
+    pub fn check_recorded(
+        &self,
+        port: &str,
+        port_exists: bool,
+        elapsed: Duration,
+    ) -> Result<(), NothingRecorded> {
+        if self.chunks > 0 {
+            return Ok(());
+        }
+        let port = port.to_string();
+        let seconds = elapsed.as_secs_f64();
+        Err(if self.connects > 0 {
+            NothingRecorded::NoBytes { port, seconds }
+        } else if port_exists {
+            NothingRecorded::NeverReady { port, seconds }
+        } else {
+            NothingRecorded::NoSuchDevice { port, seconds }
+        })
+    }
 }
 
 /// Writes every `Raw` event to `writer` (times relative to `started_unix`)
@@ -57,7 +103,7 @@ pub async fn record<W: Write>(
             }
             SourceEvent::Reading(_) => summary.readings += 1,
             SourceEvent::Disconnected { .. } => summary.disconnects += 1,
-            SourceEvent::Connected { .. } => {}
+            SourceEvent::Connected { .. } => summary.connects += 1,
         }
     }
     writer.flush()?;
@@ -68,5 +114,57 @@ async fn sleep_until(deadline: Option<tokio::time::Instant>) {
     match deadline {
         Some(d) => tokio::time::sleep_until(d).await,
         None => std::future::pending().await,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SECS: Duration = Duration::from_secs(3);
+
+    #[test]
+    fn a_recording_with_bytes_is_accepted_whatever_the_port_does_now() {
+        let summary = RecordSummary {
+            chunks: 1,
+            bytes: 23,
+            ..Default::default()
+        };
+        assert_eq!(summary.check_recorded("/dev/ttyUSB0", false, SECS), Ok(()));
+    }
+
+    #[test]
+    fn an_empty_recording_says_why_from_what_the_source_saw() {
+        let empty = RecordSummary::default();
+        let port = "/dev/ttyUSB0".to_string();
+        assert_eq!(
+            empty.check_recorded(&port, false, SECS),
+            Err(NothingRecorded::NoSuchDevice {
+                port: port.clone(),
+                seconds: 3.0
+            })
+        );
+        assert_eq!(
+            empty.check_recorded(&port, true, SECS),
+            Err(NothingRecorded::NeverReady {
+                port: port.clone(),
+                seconds: 3.0
+            })
+        );
+        let silent = RecordSummary {
+            connects: 1,
+            ..Default::default()
+        };
+        let err = silent.check_recorded(&port, true, SECS).unwrap_err();
+        assert_eq!(
+            err,
+            NothingRecorded::NoBytes {
+                port: port.clone(),
+                seconds: 3.0
+            }
+        );
+        let text = err.to_string();
+        assert!(text.starts_with("/dev/ttyUSB0: "), "{text}");
+        assert!(text.contains("sent no bytes in 3.0 s"), "{text}");
     }
 }

@@ -211,7 +211,8 @@ fn simulate_reproduces_the_shipped_files_byte_for_byte() {
             .collect();
         let o = args.iter().position(|a| a == "-o").unwrap();
         let shipped = repo_path(&args[o + 1]);
-        let fresh = dir.path().join("fresh.csv");
+        // A file of its own each time: simulate never overwrites one.
+        let fresh = dir.path().join(format!("fresh{checked}.csv"));
         args[o + 1] = fresh.to_str().unwrap().to_string();
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         run_ok(&args);

@@ -202,7 +202,7 @@ async fn a_stuck_subscriber_loses_its_oldest_readings_only() {
             assert!(last.is_none_or(|l| seq > l), "out of order: {seq} after {last:?}");
             last = Some(seq);
             lines += 1;
-            if seq % CONTROL_EVERY == 0 {
+            if seq.is_multiple_of(CONTROL_EVERY) {
                 seen_controls.push(seq);
             }
             if seq == N - 1 {

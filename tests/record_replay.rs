@@ -204,7 +204,7 @@ fn a_file_that_is_not_a_capture_is_refused() {
 }
 
 #[test]
-fn record_on_a_missing_port_says_which_and_keeps_trying() {
+fn record_on_a_missing_port_says_which_keeps_trying_and_fails_with_nothing_recorded() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("none.fcap");
     let r = run(&[
@@ -216,21 +216,77 @@ fn record_on_a_missing_port_says_which_and_keeps_trying() {
         "--duration",
         "1",
     ]);
-    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    assert_eq!(r.code, Some(1), "{}", r.stderr);
     assert!(
         r.stderr
             .contains("/dev/ttyNOPE42: no such device: check the cable and the port path"),
         "{}",
         r.stderr
     );
-    assert!(r.stderr.contains("recorded 0 chunks"), "{}", r.stderr);
-    // Said once, not once per retry.
+    // Said once while it retries, and once more as the reason it failed.
     assert_eq!(
         r.stderr.matches("no such device").count(),
-        1,
+        2,
         "{}",
         r.stderr
     );
+    assert!(
+        r.stderr.contains(
+            "error: /dev/ttyNOPE42: no such device, so nothing was recorded in 1.0 s: plug the device in"
+        ),
+        "{}",
+        r.stderr
+    );
+    assert!(!r.stderr.contains("recorded 0 chunks"), "{}", r.stderr);
+    assert!(
+        r.stderr
+            .contains(&format!("removed the empty capture {}", out.display())),
+        "{}",
+        r.stderr
+    );
+    assert!(!out.exists(), "an empty capture was left behind");
+}
+
+#[test]
+fn record_from_a_device_that_sends_nothing_fails_and_leaves_no_file() {
+    // A port that opens and stays silent (wrong device, powered off behind
+    // its USB adapter, wrong baud).
+    let pty = FalconPty::plug_in(Vec::new(), Duration::from_millis(50));
+    let port = pty.path().to_str().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("silent.fcap");
+    let r = run(&[
+        "record",
+        "--port",
+        port,
+        "--output",
+        out.to_str().unwrap(),
+        "--duration",
+        "1",
+        "--json",
+    ]);
+    assert_eq!(r.code, Some(1), "{}", r.stderr);
+    assert!(
+        r.stderr.contains(&format!(
+            "error: {port}: the device opened but sent no bytes in 1.0 s"
+        )),
+        "{}",
+        r.stderr
+    );
+    assert!(
+        r.stderr
+            .contains("(this run: --device falcon --baud 38400)"),
+        "{}",
+        r.stderr
+    );
+    assert!(
+        r.stdout.is_empty(),
+        "no summary of a failed run: {}",
+        r.stdout
+    );
+    assert!(!out.exists(), "an empty capture was left behind");
+    // It did open the port and ask for data: the failure is the silence.
+    assert!(pty.commands_seen().0 >= 1, "{:?}", pty.commands_seen());
 }
 
 #[test]
@@ -250,9 +306,55 @@ fn record_never_overwrites_a_capture() {
 
 #[test]
 fn record_stops_cleanly_on_sigterm() {
+    let sensor = SimSensor {
+        turns: 0.5,
+        seed: 7,
+        ..Default::default()
+    };
+    let (_, chunks) = sensor.falcon_capture(&FalconWire::default()).unwrap();
+    let chunks: Vec<Vec<u8>> = chunks.into_iter().map(|c| c.bytes).collect();
+    let pty = FalconPty::plug_in(chunks, Duration::from_millis(20));
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("term.fcap");
     let mut child = fieldcal()
+        .args([
+            "record",
+            "--port",
+            pty.path().to_str().unwrap(),
+            "--output",
+            out.to_str().unwrap(),
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    pty.wait_sent(5, Duration::from_secs(5));
+    std::thread::sleep(Duration::from_millis(100));
+    let pid = child.id().to_string();
+    assert!(
+        std::process::Command::new("kill")
+            .args(["-TERM", &pid])
+            .status()
+            .unwrap()
+            .success()
+    );
+    let started = Instant::now();
+    let status = child.wait().unwrap();
+    assert!(status.success(), "{status:?}");
+    assert!(started.elapsed() < Duration::from_secs(3));
+    let replayed = samples(&run_ok(&[
+        "replay",
+        out.to_str().unwrap(),
+        "--speed",
+        "max",
+    ]));
+    assert!(replayed.len() >= 5, "{} samples kept", replayed.len());
+}
+
+#[test]
+fn record_stopped_by_sigterm_before_any_byte_fails_and_leaves_no_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("term.fcap");
+    let child = fieldcal()
         .args([
             "record",
             "--port",
@@ -273,8 +375,50 @@ fn record_stops_cleanly_on_sigterm() {
             .success()
     );
     let started = Instant::now();
-    let status = child.wait().unwrap();
-    assert!(status.success(), "{status:?}");
+    let output = child.wait_with_output().unwrap();
     assert!(started.elapsed() < Duration::from_secs(3));
-    assert!(out.exists(), "the capture file stays, with its header");
+    assert_eq!(output.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        stderr.contains("/dev/ttyNOPE43: no such device, so nothing was recorded"),
+        "{stderr}"
+    );
+    assert!(!out.exists(), "an empty capture was left behind");
+}
+
+#[test]
+fn simulate_never_overwrites_a_file_without_force() {
+    let dir = tempfile::tempdir().unwrap();
+    for (format, name) in [
+        ("csv", "run.csv"),
+        ("falcon", "run.fcap"),
+        ("falcon-raw", "run.bin"),
+    ] {
+        let path = dir.path().join(name);
+        let file = path.to_str().unwrap();
+        fs::write(&path, "precious").unwrap();
+        let r = run(&["simulate", "--format", format, "--turns", "0.2", "-o", file]);
+        assert_eq!(r.code, Some(1), "{format}: {}", r.stderr);
+        assert!(
+            r.stderr.contains(&format!(
+                "{file} exists: simulate never overwrites a file; choose another --output, or add --force to replace it"
+            )),
+            "{format}: {}",
+            r.stderr
+        );
+        assert_eq!(fs::read_to_string(&path).unwrap(), "precious", "{format}");
+
+        run_ok(&[
+            "simulate", "--format", format, "--turns", "0.2", "-o", file, "--force",
+        ]);
+        let written = fs::read(&path).unwrap();
+        assert!(written.len() > 100, "{format}: {} bytes", written.len());
+        assert_ne!(&written[..8], b"precious", "{format}");
+    }
+    // Only the three files: no temporary file left beside them.
+    assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 3);
+    // A new file needs no --force.
+    let new = dir.path().join("new.csv");
+    run_ok(&["simulate", "--turns", "0.2", "-o", new.to_str().unwrap()]);
+    assert!(fs::read_to_string(&new).unwrap().starts_with("t,x,y\n"));
 }

@@ -166,3 +166,97 @@ fn report_renders_in_headless_chromium() {
     let expected = format!("loaded {n} of {n}", n = svgs.len());
     assert!(dom.contains(&expected), "expected {expected:?} in:\n{dom}");
 }
+
+/// The report of a real recording, whose summary has lines of 200 to 700
+/// characters and, here, a file name of 150 characters with no place to
+/// break: at common widths nothing may run off the right edge of the page,
+/// and nothing may be hidden inside the summary box either. A copy of the
+/// page (the report itself has no scripts) measures its own layout.
+#[test]
+fn the_summary_box_fits_the_page_at_common_widths() {
+    if !Path::new(CHROMIUM).exists() {
+        eprintln!(
+            "skipping the_summary_box_fits_the_page_at_common_widths: {CHROMIUM} not found \
+             (install the Debian package `chromium` to run it)"
+        );
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let real = Path::new(env!("CARGO_MANIFEST_DIR")).join(
+        "../shared/data/real/sunsided-set-1/rotate-360ccw-around-z-pointing-up/hmc5883l_mag.csv",
+    );
+    assert!(real.exists(), "{} is missing", real.display());
+    // A link, not a copy: the real recording is read in place.
+    let long_name = format!("{}.csv", "robot_compass_run_".repeat(8));
+    let recording = tmp.path().join(&long_name);
+    std::os::unix::fs::symlink(&real, &recording).unwrap();
+    let report = tmp.path().join("report");
+    let out = Command::new(env!("CARGO_BIN_EXE_fieldcal"))
+        .arg("diagnose")
+        .arg(&recording)
+        .args(["--x", "mag_x", "--y", "mag_z", "--report"])
+        .arg(&report)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary = String::from_utf8_lossy(&out.stdout);
+    let longest = summary
+        .lines()
+        .map(|l| l.chars().count())
+        .max()
+        .unwrap_or(0);
+    assert!(longest > 200, "the summary's longest line is {longest}");
+
+    let page = std::fs::read_to_string(report.join(INDEX_FILE)).unwrap();
+    let script = "<div id=\"layout-result\">pending</div><script>\n\
+        window.addEventListener('load', () => {\n\
+          const doc = document.documentElement;\n\
+          const box = document.querySelector('.summary');\n\
+          const pre = box.querySelector('pre');\n\
+          const view = doc.clientWidth;\n\
+          const over = [...document.body.querySelectorAll('*')]\n\
+            .filter(e => e.id !== 'layout-result' && e.getBoundingClientRect().right > view + 0.5)\n\
+            .map(e => e.tagName.toLowerCase() + (e.className ? '.' + e.className : ''));\n\
+          const r = {view, page: doc.scrollWidth, box_right: box.getBoundingClientRect().right,\n\
+            box_scroll: box.scrollWidth, box_client: box.clientWidth,\n\
+            pre_scroll: pre.scrollWidth, pre_client: pre.clientWidth, over};\n\
+          document.getElementById('layout-result').textContent = 'LAYOUT ' + JSON.stringify(r) + ' END';\n\
+        });\n</script>\n</body>";
+    let probe = report.join("layout-probe.html");
+    std::fs::write(&probe, page.replace("</body>", script)).unwrap();
+
+    for width in [1280, 800] {
+        let output = chromium(
+            &tmp.path().join(format!("profile-{width}")),
+            &["--dump-dom".into(), format!("--window-size={width},2000")],
+            &file_url(&probe),
+        );
+        assert!(output.status.success());
+        let dom = String::from_utf8_lossy(&output.stdout);
+        let json = dom
+            .split_once("LAYOUT ")
+            .and_then(|(_, rest)| rest.split_once(" END"))
+            .map(|(json, _)| json.replace("&quot;", "\""))
+            .unwrap_or_else(|| panic!("no layout result at {width} px in:\n{dom}"));
+        let r: serde_json::Value = serde_json::from_str(&json).unwrap();
+        let num = |key: &str| r[key].as_f64().unwrap_or_else(|| panic!("{key} in {r}"));
+        assert_eq!(num("view"), f64::from(width), "{r}");
+        assert!(
+            num("page") <= num("view"),
+            "the page scrolls sideways at {width} px: {r}"
+        );
+        assert!(
+            num("box_right") <= num("view"),
+            "the box runs off at {width} px: {r}"
+        );
+        assert!(
+            num("box_scroll") <= num("box_client") && num("pre_scroll") <= num("pre_client"),
+            "the summary is cut or scrolls inside its box at {width} px: {r}"
+        );
+        assert_eq!(r["over"], serde_json::json!([]), "at {width} px: {r}");
+    }
+}

@@ -1442,10 +1442,11 @@ impl Checker<'_> {
     }
 
     fn seconds(&self, key: &str, value: f64, max: f64) -> Result<Duration, ConfigError> {
-        if value > 0.0 && value <= max {
-            if let Ok(d) = Duration::try_from_secs_f64(value) {
-                return Ok(d);
-            }
+        if value > 0.0
+            && value <= max
+            && let Ok(d) = Duration::try_from_secs_f64(value)
+        {
+            return Ok(d);
         }
         Err(self.error(
             key,

@@ -115,10 +115,11 @@ impl Sensors {
         store: &mut dyn FnMut(&Calibration),
     ) {
         for (src, sensor) in &mut self.sensors {
-            if *src == source && sensor.wants(reading.stream) {
-                if let Some(accepted) = sensor.on_reading(reading, emit) {
-                    store(&accepted);
-                }
+            if *src == source
+                && sensor.wants(reading.stream)
+                && let Some(accepted) = sensor.on_reading(reading, emit)
+            {
+                store(&accepted);
             }
         }
     }
@@ -511,10 +512,11 @@ fn status_text(sensors: &Sensors) -> String {
 /// that path is left for bind to report.
 fn remove_stale_socket(path: &std::path::Path) {
     use std::os::unix::fs::FileTypeExt;
-    if let Ok(meta) = std::fs::symlink_metadata(path) {
-        if meta.file_type().is_socket() && std::os::unix::net::UnixStream::connect(path).is_err() {
-            let _ = std::fs::remove_file(path);
-        }
+    if let Ok(meta) = std::fs::symlink_metadata(path)
+        && meta.file_type().is_socket()
+        && std::os::unix::net::UnixStream::connect(path).is_err()
+    {
+        let _ = std::fs::remove_file(path);
     }
 }
 

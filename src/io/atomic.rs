@@ -56,6 +56,34 @@ impl AtomicFile {
         // The rename itself is durable only once the directory is synced.
         File::open(parent_dir(&self.target))?.sync_all()
     }
+
+    /// As [`AtomicFile::commit`], but never replaces a file: if the target
+    /// exists (even one created since [`AtomicFile::create`]) this fails
+    /// with [`io::ErrorKind::AlreadyExists`] and the temporary file is
+    /// removed. The new name is a hard link to the finished file, made
+    /// only if the name is free; where the file system has no hard links
+    /// (FAT on an SD card), the target is checked and then renamed over.
+    pub fn commit_new(mut self) -> io::Result<()> {
+        self.file.sync_all()?;
+        match fs::hard_link(&self.temp, &self.target) {
+            Ok(()) => {
+                self.committed = true;
+                fs::remove_file(&self.temp)?;
+            }
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => return Err(e),
+            Err(_) => {
+                if fs::symlink_metadata(&self.target).is_ok() {
+                    return Err(io::Error::new(
+                        io::ErrorKind::AlreadyExists,
+                        "the file exists",
+                    ));
+                }
+                fs::rename(&self.temp, &self.target)?;
+                self.committed = true;
+            }
+        }
+        File::open(parent_dir(&self.target))?.sync_all()
+    }
 }
 
 impl Drop for AtomicFile {
@@ -98,5 +126,27 @@ mod tests {
         f.as_file_mut().write_all(b"new").unwrap();
         f.commit().unwrap();
         assert_eq!(fs::read_to_string(&target).unwrap(), "new");
+    }
+
+    #[test]
+    fn commit_new_never_replaces_and_leaves_no_temp_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("out.csv");
+        let mut f = AtomicFile::create(&target).unwrap();
+        f.as_file_mut().write_all(b"first").unwrap();
+        f.commit_new().unwrap();
+        assert_eq!(fs::read_to_string(&target).unwrap(), "first");
+
+        // Created after this writer started: still not replaced.
+        let mut f = AtomicFile::create(&target).unwrap();
+        f.as_file_mut().write_all(b"second").unwrap();
+        let err = f.commit_new().unwrap_err();
+        assert_eq!(err.kind(), io::ErrorKind::AlreadyExists);
+        assert_eq!(fs::read_to_string(&target).unwrap(), "first");
+        let names: Vec<_> = fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("out.csv")]);
     }
 }

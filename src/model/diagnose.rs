@@ -566,19 +566,19 @@ fn judge(t: &Trial<'_>) -> Judgement {
             ));
         }
     }
-    if let Some(swing) = offset_swing(t) {
-        if swing.fraction > MAX_OFFSET_SWING {
-            return refuse(format!(
-                "not a physical {}: {} = {} ± {} moves the offset by {:.0} % of the field over {}, more than the {:.0} % ArduPilot's CompassMot accepts for motor interference; {numbers}",
-                t.effect,
-                swing.param,
-                sig(swing.value),
-                sig(swing.se),
-                swing.fraction * 100.0,
-                swing.over,
-                MAX_OFFSET_SWING * 100.0
-            ));
-        }
+    if let Some(swing) = offset_swing(t)
+        && swing.fraction > MAX_OFFSET_SWING
+    {
+        return refuse(format!(
+            "not a physical {}: {} = {} ± {} moves the offset by {:.0} % of the field over {}, more than the {:.0} % ArduPilot's CompassMot accepts for motor interference; {numbers}",
+            t.effect,
+            swing.param,
+            sig(swing.value),
+            sig(swing.se),
+            swing.fraction * 100.0,
+            swing.over,
+            MAX_OFFSET_SWING * 100.0
+        ));
     }
     let (a0, a1) = (t.current.value("a"), t.fit.value("a"));
     if a0 > 0.0 && a1 > 0.0 {

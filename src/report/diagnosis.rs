@@ -3,7 +3,7 @@
 
 use std::f64::consts::TAU;
 
-use super::html::escape;
+use super::html::preformatted;
 use super::plots::ReportData;
 use crate::model::FitError;
 use crate::model::diagnose::Diagnosis;
@@ -88,6 +88,6 @@ pub fn report_data(
             .heading_vs_gyro
             .as_ref()
             .map_or(String::new(), |h| h.gyro_column.clone()),
-        summary_html: format!("<pre>{}</pre>", escape(summary)),
+        summary_html: preformatted(summary),
     })
 }

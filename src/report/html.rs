@@ -21,6 +21,17 @@ pub fn escape(text: &str) -> String {
     out
 }
 
+/// Text as the terminal shows it (a diagnosis), escaped, in a `<pre>` of
+/// one block per line: a line too long for the page wraps with a hanging
+/// indent, so a wrapped row stays distinguishable from the next.
+pub fn preformatted(text: &str) -> String {
+    let lines: String = text
+        .lines()
+        .map(|line| format!("<span class=\"line\">{}</span>", escape(line)))
+        .collect();
+    format!("<pre>{lines}</pre>")
+}
+
 /// Escapes a file name for use as a relative URL in `src`: characters that
 /// would change its meaning in a URL are percent-encoded, then the result is
 /// attribute-escaped.
@@ -35,11 +46,17 @@ fn url(file: &str) -> String {
     escape(&out)
 }
 
+/// Nothing may run off the right edge at any width: the summary's lines
+/// (the diagnosis as the terminal shows it, up to several hundred
+/// characters) wrap inside the box, and a long token with no place to
+/// break (a file name) breaks anywhere rather than widening the page.
 const STYLE: &str = "\
-body { font-family: sans-serif; margin: 2em auto; max-width: 1040px; padding: 0 1em; color: #222; }
+body { font-family: sans-serif; margin: 2em auto; max-width: 1040px; padding: 0 1em; color: #222; overflow-wrap: anywhere; }
 h1 { font-size: 1.5em; }
 h2 { font-size: 1.15em; margin-top: 2em; }
-.summary { background: #f6f6f6; border-left: 4px solid #1f77b4; padding: 0.5em 1em; }
+.summary { background: #f6f6f6; border-left: 4px solid #1f77b4; padding: 0.5em 1em; max-width: 100%; box-sizing: border-box; }
+.summary pre { white-space: pre-wrap; overflow-wrap: anywhere; font-size: 0.85em; line-height: 1.35; margin: 0.5em 0; }
+.summary pre .line { display: block; min-height: 1.35em; padding-left: 4ch; text-indent: -4ch; }
 figure { margin: 1em 0; }
 figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
 figcaption { color: #444; font-size: 0.95em; margin-top: 0.4em; }
@@ -87,5 +104,34 @@ mod tests {
             "a&lt;b&gt;&amp;&quot;c&quot;&#39;d&#39;"
         );
         assert_eq!(url("a b\".svg"), "a%20b%22.svg");
+    }
+
+    #[test]
+    fn preformatted_text_is_one_escaped_block_per_line() {
+        assert_eq!(
+            preformatted("a <b>\n\n  c"),
+            "<pre><span class=\"line\">a &lt;b&gt;</span><span class=\"line\"></span>\
+             <span class=\"line\">  c</span></pre>"
+        );
+    }
+
+    /// The rules that keep the summary box inside the page (the browser
+    /// test, tests/report_browser.rs, measures the layout where Chromium
+    /// is installed).
+    #[test]
+    fn the_summary_wraps_inside_its_box() {
+        let rule = |selector: &str| {
+            STYLE
+                .lines()
+                .find(|l| l.starts_with(&format!("{selector} {{")))
+                .unwrap_or_else(|| panic!("no rule for {selector}"))
+        };
+        let summary = rule(".summary");
+        assert!(summary.contains("max-width: 100%;"), "{summary}");
+        assert!(summary.contains("box-sizing: border-box;"), "{summary}");
+        let pre = rule(".summary pre");
+        assert!(pre.contains("white-space: pre-wrap;"), "{pre}");
+        assert!(pre.contains("overflow-wrap: anywhere;"), "{pre}");
+        assert!(rule("body").contains("overflow-wrap: anywhere;"));
     }
 }

@@ -1000,10 +1000,10 @@ mod tests {
         let mut texts = Vec::new();
         let mut lines = svg.lines();
         while let Some(line) = lines.next() {
-            if line.starts_with("<text") {
-                if let Some(content) = lines.next() {
-                    texts.push((line.to_string(), content.trim().to_string()));
-                }
+            if line.starts_with("<text")
+                && let Some(content) = lines.next()
+            {
+                texts.push((line.to_string(), content.trim().to_string()));
             }
         }
         texts

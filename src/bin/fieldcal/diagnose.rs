@@ -18,13 +18,13 @@ pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
         .map_err(anyhow::Error::msg)
         .context("--effects")?;
     for effect in &baseline {
-        if let Effect::Covariate(column) = effect {
-            if data.covariate(column).is_none() {
-                anyhow::bail!(
-                    "--effects: {}: the recording has no column '{column}'",
-                    args.input.file.display()
-                );
-            }
+        if let Effect::Covariate(column) = effect
+            && data.covariate(column).is_none()
+        {
+            anyhow::bail!(
+                "--effects: {}: the recording has no column '{column}'",
+                args.input.file.display()
+            );
         }
     }
     let file = args.input.file.display().to_string();

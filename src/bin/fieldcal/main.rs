@@ -301,9 +301,12 @@ struct DiagnoseArgs {
 
 #[derive(Debug, Args)]
 struct SimulateArgs {
-    /// Write here instead of stdout (a capture needs a file).
+    /// Write here instead of stdout (a capture needs a file). An existing file is never replaced without --force.
     #[arg(long, short, value_name = "FILE")]
     output: Option<PathBuf>,
+    /// Replace the --output file if it exists.
+    #[arg(long, requires = "output")]
+    force: bool,
     /// What to write: a CSV of x, y, or a capture of a Falcon-GX-style IMU whose magnetometer turns.
     #[arg(long, value_enum, default_value_t = SimFormat::Csv)]
     format: SimFormat,

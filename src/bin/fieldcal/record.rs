@@ -11,7 +11,7 @@ use tokio::sync::{mpsc, watch};
 
 use fieldcal::capture::{CaptureHeader, CaptureWriter, StreamInfo, StreamKind, VERSION};
 use fieldcal::protocol::falcon::NOMINAL_PERIOD;
-use fieldcal::record::record as run_recorder;
+use fieldcal::record::{NothingRecorded, record as run_recorder};
 use fieldcal::source::SourceCounters;
 use fieldcal::source::bridge::{BridgeConfig, spawn_bridge_source};
 use fieldcal::source::serial::{SerialConfig, run_serial_source, unix_now};
@@ -62,6 +62,7 @@ pub fn record(args: RecordArgs) -> Result<()> {
         bail!("at most 255 chips can be recorded at once");
     }
     let started_unix = unix_now();
+    let started = std::time::Instant::now();
     let header = CaptureHeader {
         version: VERSION,
         streams,
@@ -131,6 +132,28 @@ pub fn record(args: RecordArgs) -> Result<()> {
         anyhow::Ok((summary, counters.snapshot()))
     })?;
     let (summary, counters) = summary;
+    let port = args.port.display().to_string();
+    if let Err(nothing) = summary.check_recorded(&port, args.port.exists(), started.elapsed()) {
+        // The file holds only its header: nothing a replay could use. It
+        // was created by this run (create_new above), so removing it loses
+        // nothing.
+        drop(writer);
+        let file = args.output.display();
+        let left = match std::fs::remove_file(&args.output) {
+            Ok(()) => format!("removed the empty capture {file}"),
+            Err(e) => format!("left the empty capture {file} (cannot remove it: {e})"),
+        };
+        let this_run = match (&nothing, args.device) {
+            (NothingRecorded::NoBytes { .. }, DeviceKind::Falcon) => {
+                format!(" (this run: --device falcon --baud {})", args.baud)
+            }
+            (NothingRecorded::NoBytes { .. }, DeviceKind::UsbIss) => {
+                " (this run: --device usb-iss)".to_string()
+            }
+            _ => String::new(),
+        };
+        bail!("{nothing}{this_run}; {left}");
+    }
     eprintln!(
         "recorded {} chunks ({} bytes, {} readings) to {}; frames good {}, bad {}, lost {}, reconnects {}",
         summary.chunks,

@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 
 use fieldcal::capture::CaptureWriter;
 use fieldcal::io::atomic::AtomicFile;
-use fieldcal::io::csv::{write_dataset, write_dataset_to};
+use fieldcal::io::csv::write_dataset_to;
 use fieldcal::sim::{FalconWire, SimEffects, SimSensor};
 
 use crate::output::write_stdout;
@@ -31,12 +31,19 @@ pub fn simulate(args: SimulateArgs) -> Result<()> {
     if args.json && args.output.is_none() {
         bail!("--json prints the true calibration on stdout, so the data needs --output FILE");
     }
+    // Refuse before simulating; the write itself checks again (a file
+    // may appear meanwhile) and never replaces one without --force.
+    if let Some(path) = &args.output
+        && !args.force
+        && std::fs::symlink_metadata(path).is_ok()
+    {
+        bail!("{}", exists_message(path));
+    }
     let (data, model_truth) = sensor.simulate_with_truth()?;
     let n = match args.format {
         SimFormat::Csv => {
             match &args.output {
-                Some(path) => write_dataset(path, &data)
-                    .with_context(|| format!("cannot write {}", path.display()))?,
+                Some(path) => write_file(path, args.force, |out| write_dataset_to(out, &data))?,
                 None => {
                     let mut buffer = Vec::with_capacity(data.len() * 40);
                     write_dataset_to(&mut buffer, &data)?;
@@ -54,12 +61,11 @@ pub fn simulate(args: SimulateArgs) -> Result<()> {
                 ..Default::default()
             };
             let (header, chunks) = sensor.falcon_capture(&wire)?;
-            let written = if args.format == SimFormat::Falcon {
-                write_capture(path, &header, &chunks)
+            if args.format == SimFormat::Falcon {
+                write_file(path, args.force, |out| write_capture(out, &header, &chunks))?;
             } else {
-                write_raw(path, &chunks)
-            };
-            written.with_context(|| format!("cannot write {}", path.display()))?;
+                write_file(path, args.force, |out| write_raw(out, &chunks))?;
+            }
             chunks.len()
         }
     };
@@ -171,30 +177,56 @@ fn sim_effects(args: &[SimEffectArg], temp_rise: f64) -> SimEffects {
     effects
 }
 
-fn write_capture(
+fn exists_message(path: &Path) -> String {
+    format!(
+        "{} exists: simulate never overwrites a file; choose another --output, or add --force to replace it",
+        path.display()
+    )
+}
+
+/// Writes `path` atomically (a reader sees the old file or the whole new
+/// one); without `force`, never replaces an existing file.
+fn write_file(
     path: &Path,
+    force: bool,
+    body: impl FnOnce(&mut BufWriter<&mut std::fs::File>) -> std::io::Result<()>,
+) -> Result<()> {
+    let written = (|| {
+        let mut file = AtomicFile::create(path)?;
+        {
+            let mut out = BufWriter::with_capacity(1 << 16, file.as_file_mut());
+            body(&mut out)?;
+            out.flush()?;
+        }
+        if force {
+            file.commit()
+        } else {
+            file.commit_new()
+        }
+    })();
+    match written {
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+            bail!("{}", exists_message(path))
+        }
+        written => written.with_context(|| format!("cannot write {}", path.display())),
+    }
+}
+
+fn write_capture<W: Write>(
+    out: &mut W,
     header: &fieldcal::capture::CaptureHeader,
     chunks: &[fieldcal::capture::Chunk],
 ) -> std::io::Result<()> {
-    let mut file = AtomicFile::create(path)?;
-    {
-        let mut writer = CaptureWriter::new(BufWriter::new(file.as_file_mut()), header)?;
-        for chunk in chunks {
-            writer.write_chunk(chunk.time, chunk.stream, &chunk.bytes)?;
-        }
-        writer.into_inner()?.flush()?;
+    let mut writer = CaptureWriter::new(out, header)?;
+    for chunk in chunks {
+        writer.write_chunk(chunk.time, chunk.stream, &chunk.bytes)?;
     }
-    file.commit()
+    writer.into_inner()?.flush()
 }
 
-fn write_raw(path: &Path, chunks: &[fieldcal::capture::Chunk]) -> std::io::Result<()> {
-    let mut file = AtomicFile::create(path)?;
-    {
-        let mut out = BufWriter::new(file.as_file_mut());
-        for chunk in chunks {
-            out.write_all(&chunk.bytes)?;
-        }
-        out.flush()?;
+fn write_raw<W: Write>(out: &mut W, chunks: &[fieldcal::capture::Chunk]) -> std::io::Result<()> {
+    for chunk in chunks {
+        out.write_all(&chunk.bytes)?;
     }
-    file.commit()
+    Ok(())
 }
