@@ -621,8 +621,9 @@ struct Pipeline {
     index: usize,
     source_name: String,
     interval: f64,
-    /// The next STATUS time: the first multiple of the interval after the
-    /// first reading, then every interval.
+    /// The next STATUS is at this multiple of the interval: the first after
+    /// the first reading, then every interval (counted, so times do not
+    /// drift by rounding).
     next_status: Option<f64>,
     realtime: bool,
     lines: Vec<String>,
@@ -669,21 +670,21 @@ impl Pipeline {
             return;
         }
         let interval = self.interval;
-        let next = self
+        let k = self
             .next_status
-            .get_or_insert_with(|| ((time / interval).floor() + 1.0) * interval);
-        if time - *next >= f64::from(MAX_STATUS_CATCH_UP) * interval {
-            *next = (time / interval).floor() * interval;
+            .get_or_insert_with(|| (time / interval).floor() + 1.0);
+        if time - *k * interval >= f64::from(MAX_STATUS_CATCH_UP) * interval {
+            *k = (time / interval).floor();
         }
-        while time >= *next {
+        while time >= *k * interval {
             let statuses = [SourceStatus {
                 source: &self.source_name,
                 connected: true,
                 counters: counters.snapshot(),
             }];
             self.lines
-                .push(self.sensors.status_line(*next, &statuses, None));
-            *next += interval;
+                .push(self.sensors.status_line(*k * interval, &statuses, None));
+            *k += 1.0;
         }
         let lines = &mut self.lines;
         let mut emit = |_: Lane, line: String| lines.push(line);
