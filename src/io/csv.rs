@@ -1148,4 +1148,117 @@ mod tests {
         let d = parse(std::str::from_utf8(&out).unwrap()).unwrap();
         assert_eq!(d.x, xs);
     }
+
+    /// Every row of `text` (after its header) as a row or a skip message.
+    fn stream(
+        text: &[u8],
+        time: Option<&str>,
+        period: Option<f64>,
+        required: &[usize],
+    ) -> (CsvLayout, Vec<Result<CsvRow, String>>, u64) {
+        let mut lines = CsvLines::new(text);
+        let header = read_header(&mut lines, Path::new("s.csv")).unwrap();
+        let layout = CsvLayout::resolve(Path::new("s.csv"), header, time, period).unwrap();
+        let mut rows = CsvRows::new(lines, layout.clone(), required);
+        let mut out = Vec::new();
+        while let Some(next) = rows.next_row().unwrap() {
+            out.push(next.map_err(|(e, _)| e.to_string()));
+        }
+        (layout, out, rows.bytes_read())
+    }
+
+    #[test]
+    fn streamed_rows_keep_every_column_by_index_and_skip_bad_ones() {
+        let text = b"# logged by the robot\r\n\"t\",a,b,label\r\n0.0,1,2,x\r\n\n0.1,3,oops,y\r\n0.2,5\r\n0.05,6,7,z\r\n0.3,inf,8,w\r\n0.4,9,10,v";
+        let (layout, rows, bytes) = stream(text, None, None, &[1]);
+        assert_eq!(layout.names, ["t", "a", "b", "label"]);
+        assert_eq!(layout.time, TimeBase::Column(0));
+        assert_eq!(layout.header_line, 2);
+        assert_eq!(bytes, text.len() as u64);
+        let first = rows[0].as_ref().unwrap();
+        assert_eq!((first.line, first.time), (3, 0.0));
+        assert_eq!(first.values[..3], [0.0, 1.0, 2.0]);
+        // A cell nobody reads that is not a number is NaN; the row stays.
+        assert!(first.values[3].is_nan());
+        let second = rows[1].as_ref().unwrap();
+        assert!(second.values[2].is_nan() && second.line == 5);
+        assert_eq!(
+            rows[2],
+            Err("line 6: this line has 2 fields but the header has 4".into())
+        );
+        assert_eq!(
+            rows[3],
+            Err("line 7: column 't' (field 1): time 0.05 s is not after 0.1 s on line 5".into())
+        );
+        assert_eq!(
+            rows[4],
+            Err("line 8: column 'a' (field 2): 'inf' is not a finite number".into())
+        );
+        assert_eq!(rows[5].as_ref().unwrap().time, 0.4);
+        assert_eq!(rows.len(), 6);
+    }
+
+    #[test]
+    fn a_long_line_is_skipped_in_bounded_memory_and_periods_count_every_row() {
+        let mut text = b"a,b\n1,2\n".to_vec();
+        text.extend(std::iter::repeat_n(b'7', 3 * MAX_LINE_BYTES));
+        text.extend(b",1\n3,4\n");
+        let mut lines = CsvLines::new(&text[..]);
+        let header = read_header(&mut lines, Path::new("s.csv")).unwrap();
+        let layout = CsvLayout::resolve(Path::new("s.csv"), header, None, Some(0.1)).unwrap();
+        let mut rows = CsvRows::new(lines, layout, &[0, 1]);
+        assert_eq!(rows.next_row().unwrap().unwrap().unwrap().time, 0.0);
+        let long = rows.next_row().unwrap().unwrap().unwrap_err().0;
+        assert_eq!(long.line, 3);
+        assert!(
+            long.problem.contains("more than the 65536"),
+            "{}",
+            long.problem
+        );
+        assert!(rows.lines.buf.capacity() <= 2 * MAX_LINE_BYTES);
+        // The skipped row keeps its place in time.
+        let last = rows.next_row().unwrap().unwrap().unwrap();
+        assert_eq!((last.line, last.time), (4, 0.2));
+        assert!(rows.next_row().unwrap().is_none());
+    }
+
+    #[test]
+    fn a_header_is_checked_for_time_and_period() {
+        let resolve = |text: &str, time: Option<&str>, period: Option<f64>| {
+            let mut lines = CsvLines::new(text.as_bytes());
+            read_header(&mut lines, Path::new("s.csv"))
+                .and_then(|h| CsvLayout::resolve(Path::new("s.csv"), h, time, period))
+                .map_err(|e| e.to_string())
+        };
+        assert_eq!(
+            resolve("a,time_s,b\n", None, None).unwrap().time,
+            TimeBase::Column(1)
+        );
+        assert_eq!(
+            resolve("a,when,b\n", Some("when"), None).unwrap().time,
+            TimeBase::Column(1)
+        );
+        let err = resolve("a,t\n", None, Some(0.1)).unwrap_err();
+        assert!(
+            err.starts_with("s.csv:1: the header has time column 't'"),
+            "{err}"
+        );
+        let err = resolve("a,b\n", None, None).unwrap_err();
+        assert!(err.starts_with("s.csv:1: no time column"), "{err}");
+        assert!(err.contains("(columns: a, b)"), "{err}");
+        let err = resolve("a,b\n", Some("t"), None).unwrap_err();
+        assert!(err.contains("no column 't' for time"), "{err}");
+        let err = resolve("\n# c\n", None, None).unwrap_err();
+        assert!(err.contains("the file is empty"), "{err}");
+        let err = resolve("a,,b\n", None, Some(1.0)).unwrap_err();
+        assert!(err.starts_with("s.csv:1: column 2 has no name"), "{err}");
+        let wide = vec!["c"; MAX_COLUMNS + 1]
+            .iter()
+            .enumerate()
+            .map(|(i, c)| format!("{c}{i}"))
+            .collect::<Vec<_>>()
+            .join(",");
+        let err = resolve(&wide, None, Some(1.0)).unwrap_err();
+        assert!(err.contains("1025 columns"), "{err}");
+    }
 }
