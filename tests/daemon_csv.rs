@@ -43,19 +43,14 @@ fn robot_csv(path: &Path, turns: f64, rad: bool, bad: &[usize]) -> Vec<(f64, f64
     let rate = if rad { rate.to_radians() } else { rate };
     let mut text = String::from("t,mag_x_lsb,mag_z_lsb,gyro_y,temp_c\n");
     let mut rows = Vec::new();
-    for i in 0..data.len() {
+    for (i, ((&t, &x), &y)) in t.iter().zip(&data.x).zip(&data.y).enumerate() {
         if bad.contains(&(i + 1)) {
-            text.push_str(&format!("{},oops,{},{rate},21.5\n", t[i], data.y[i]));
+            text.push_str(&format!("{t},oops,{y},{rate},21.5\n"));
             continue;
         }
-        text.push_str(&format!(
-            "{},{},{},{rate},{}\n",
-            t[i],
-            data.x[i],
-            data.y[i],
-            21.0 + 0.001 * i as f64
-        ));
-        rows.push((t[i], data.x[i], data.y[i]));
+        let temp = 21.0 + 0.001 * i as f64;
+        text.push_str(&format!("{t},{x},{y},{rate},{temp}\n"));
+        rows.push((t, x, y));
     }
     std::fs::write(path, text).unwrap();
     rows

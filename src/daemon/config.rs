@@ -842,7 +842,7 @@ impl Checker<'_> {
                 }
             };
             let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
-            let gyro = self.check_gyro(&key, &s, field, axes, stream, src_name, stream_list)?;
+            let gyro = self.check_gyro(&key, &s, axes, stream, src_name, stream_list)?;
             if let Err(problem) = s.rotation.validate() {
                 return Err(self.error(&format!("{key}.rotation"), problem));
             }
@@ -1565,7 +1565,6 @@ impl Checker<'_> {
         &self,
         key: &str,
         s: &RawSensor,
-        field: Field,
         axes: [Axis; 2],
         own: StreamDesc,
         source: &str,
@@ -1642,7 +1641,7 @@ impl Checker<'_> {
                      (\"x\", \"y\" or \"z\"): chips are not always mounted alike",
                 ));
             }
-            None if field == Field::Gyro => {
+            None if s.field == Some(Field::Gyro) => {
                 return Ok(GyroChoice::Off(
                     "no heading check: the sensor is itself the gyro".into(),
                 ));
