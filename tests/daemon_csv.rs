@@ -364,6 +364,19 @@ fn a_csv_without_a_config_is_told_to_name_its_columns() {
     std::fs::copy(&csv, &renamed).unwrap();
     let err = common::run_err(&["replay", renamed.to_str().unwrap()]);
     assert!(err.contains("is a CSV recording"), "{err}");
+    // A replay source playing a CSV is refused before anything starts (it
+    // used to log a warning and exit 0).
+    let config = common::daemon::replay_config(dir.path(), &csv, "\"max\"", "stdout = true");
+    let r = common::run(&["run", "--config", config.to_str().unwrap()]);
+    assert_ne!(r.code, Some(0), "{}", r.stderr);
+    assert!(r.stdout.is_empty(), "{}", r.stdout);
+    assert!(r.stderr.contains("source[0].file"), "{}", r.stderr);
+    assert!(
+        r.stderr
+            .contains("is a CSV recording, not a capture: give this source kind = \"csv\""),
+        "{}",
+        r.stderr
+    );
 }
 
 /// A capture of `span_s` seconds of a simulated compass (Falcon frames).

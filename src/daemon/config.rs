@@ -1379,6 +1379,16 @@ impl Checker<'_> {
                 ),
             ));
         }
+        if crate::io::csv::looks_like_csv(file) {
+            return Err(self.error(
+                key,
+                format!(
+                    "{} is a CSV recording, not a capture: give this source kind = \"csv\", \
+                     and its sensors the file's columns in axes",
+                    file.display()
+                ),
+            ));
+        }
         let prefix = read_capture_prefix(file)
             .map_err(|e| self.error(key, format!("cannot read {}: {e}", file.display())))?;
         if prefix.is_empty() {

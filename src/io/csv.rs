@@ -958,6 +958,30 @@ impl<R: io::BufRead> CsvRows<R> {
     }
 }
 
+/// Whether `path` holds a CSV recording rather than a capture: named
+/// `.csv`, or its first line (within 4 KiB) is printable text with a comma.
+/// Captures start with their magic, raw dumps with binary frames.
+pub fn looks_like_csv(path: &Path) -> bool {
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("csv"))
+    {
+        return true;
+    }
+    let Ok(file) = File::open(path) else {
+        return false;
+    };
+    let mut head = Vec::new();
+    if file.take(4096).read_to_end(&mut head).is_err() {
+        return false;
+    }
+    let first = head.split(|&b| b == b'\n').next().unwrap_or_default();
+    first.contains(&b',')
+        && first
+            .iter()
+            .all(|&b| b == b'\t' || b == b'\r' || (0x20..0x7f).contains(&b))
+}
+
 /// What a pass over a streamed recording found.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct CsvScan {

@@ -9,6 +9,7 @@ use serde::Serialize;
 use fieldcal::capture::read_capture;
 use fieldcal::daemon::config::{Config, SourceKind};
 use fieldcal::daemon::run::DaemonError;
+use fieldcal::io::csv::looks_like_csv;
 use fieldcal::sample::Reading;
 use fieldcal::source::replay::{Speed, replay as run_replay};
 
@@ -137,28 +138,4 @@ fn replay_with_config(args: &ReplayArgs, config: &Config, name: &str) -> Result<
         Err(e) => Err(e.into()),
         Ok(()) => Ok(()),
     }
-}
-
-/// A file named `.csv`, or whose first line is text with a comma: a CSV
-/// recording, not a capture (captures start with their magic, raw dumps
-/// with binary frames).
-fn looks_like_csv(path: &std::path::Path) -> bool {
-    if path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("csv"))
-    {
-        return true;
-    }
-    let Ok(file) = std::fs::File::open(path) else {
-        return false;
-    };
-    let mut head = Vec::new();
-    if std::io::Read::read_to_end(&mut std::io::Read::take(file, 4096), &mut head).is_err() {
-        return false;
-    }
-    let first = head.split(|&b| b == b'\n').next().unwrap_or_default();
-    first.contains(&b',')
-        && first
-            .iter()
-            .all(|&b| b == b'\t' || b == b'\r' || (0x20..0x7f).contains(&b))
 }
