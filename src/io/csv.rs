@@ -959,8 +959,10 @@ impl<R: io::BufRead> CsvRows<R> {
 }
 
 /// Whether `path` holds a CSV recording rather than a capture: named
-/// `.csv`, or its first line (within 4 KiB) is printable text with a comma.
-/// Captures start with their magic, raw dumps with binary frames.
+/// `.csv`, or its first 4 KiB are text whose first two lines (comments and
+/// blank lines aside) are a header and a row with as many fields, some of
+/// them numbers. Captures start with their magic, raw dumps with binary
+/// frames, and prose with commas has no row of numbers.
 pub fn looks_like_csv(path: &Path) -> bool {
     if path
         .extension()
@@ -975,11 +977,25 @@ pub fn looks_like_csv(path: &Path) -> bool {
     if file.take(4096).read_to_end(&mut head).is_err() {
         return false;
     }
-    let first = head.split(|&b| b == b'\n').next().unwrap_or_default();
-    first.contains(&b',')
-        && first
-            .iter()
+    let text = |line: &[u8]| {
+        line.iter()
             .all(|&b| b == b'\t' || b == b'\r' || (0x20..0x7f).contains(&b))
+    };
+    let mut lines = head
+        .split(|&b| b == b'\n')
+        .map(<[u8]>::trim_ascii)
+        .filter(|l| !l.is_empty() && !l.starts_with(b"#"));
+    let (Some(header), Some(row)) = (lines.next(), lines.next()) else {
+        return false;
+    };
+    let fields = |line: &[u8]| line.iter().filter(|&&b| b == b',').count() + 1;
+    text(header)
+        && text(row)
+        && fields(header) >= 2
+        && fields(header) == fields(row)
+        && row
+            .split(|&b| b == b',')
+            .any(|f| parse_number(f.trim_ascii()).is_ok())
 }
 
 /// What a pass over a streamed recording found.
@@ -1284,5 +1300,29 @@ mod tests {
             .join(",");
         let err = resolve(&wide, None, Some(1.0)).unwrap_err();
         assert!(err.contains("1025 columns"), "{err}");
+    }
+
+    #[test]
+    fn a_csv_is_told_from_a_capture_and_from_prose() {
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str, bytes: &[u8]| {
+            let path = dir.path().join(name);
+            std::fs::write(&path, bytes).unwrap();
+            path
+        };
+        assert!(looks_like_csv(&write("a.CSV", b"")));
+        assert!(looks_like_csv(&write(
+            "a.log",
+            b"# robot\nt,x,y\n0.0,1,2\n"
+        )));
+        assert!(!looks_like_csv(&write(
+            "b.txt",
+            b"my notes, not data\nmore notes, here\n"
+        )));
+        assert!(!looks_like_csv(&write(
+            "c.bin",
+            b"\x02\x10,\x00\n\x02,\x01\n"
+        )));
+        assert!(!looks_like_csv(&dir.path().join("missing")));
     }
 }
