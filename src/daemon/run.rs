@@ -33,7 +33,7 @@ use super::state_writer::{SaveFailure, StateWriter};
 use crate::capture::{CaptureFile, read_capture};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::source::bridge::{BridgeConfig, spawn_bridge_source};
-use crate::source::csv::{CsvPlayback, check_csv, play_csv};
+use crate::source::csv::{CsvPlayback, CsvSource, check_csv, play_csv, spawn_csv_source};
 use crate::source::replay::{ReplayError, ReplaySummary, Speed, replay_counted};
 use crate::source::serial::{SerialConfig, run_serial_source, unix_now};
 use crate::source::{SourceCounters, SourceEvent};
@@ -361,49 +361,22 @@ pub async fn run(config: Config, mut shutdown: watch::Receiver<bool>) -> Result<
                     layout.names.len(),
                     layout.available()
                 );
-                let (file, speed, stop) = (file.clone(), *speed, stop_flag.clone());
-                let counters = counters.clone();
-                let thread = std::thread::Builder::new()
-                    .name(format!("csv-{}", source.name))
-                    .spawn(move || {
-                        let name = file.display().to_string();
-                        let _ = tx.blocking_send(SourceEvent::Connected {
-                            device: name.clone(),
-                        });
-                        let start = unix_now();
-                        let mut first: Option<f64> = None;
-                        let result = play_csv(
-                            &file,
-                            &layout,
-                            &required,
-                            speed,
-                            &stop,
-                            &counters,
-                            &mut |row| {
-                                // On the host's clock, from this source's start.
-                                let t0 = *first.get_or_insert(row.time);
-                                let row = CsvRow {
-                                    time: start + (row.time - t0),
-                                    ..row
-                                };
-                                if tx.blocking_send(SourceEvent::Row(row)).is_err() {
-                                    stop.store(true, Ordering::Relaxed);
-                                }
-                            },
-                        );
-                        match result {
-                            Ok(summary) => tracing::info!(
-                                rows = summary.rows,
-                                bad_rows = summary.bad_rows,
-                                "replay of {name} finished"
-                            ),
-                            Err(e) => tracing::warn!("{e}"),
-                        }
-                    })
-                    .map_err(|e| DaemonError::Source {
+                let thread = spawn_csv_source(
+                    CsvSource {
                         name: source.name.clone(),
-                        source: e,
-                    })?;
+                        file: file.clone(),
+                        layout,
+                        required,
+                        speed: *speed,
+                    },
+                    tx,
+                    counters.clone(),
+                    stop_flag.clone(),
+                )
+                .map_err(|e| DaemonError::Source {
+                    name: source.name.clone(),
+                    source: e,
+                })?;
                 SourceTask::Thread(thread)
             }
         };

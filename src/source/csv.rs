@@ -6,13 +6,17 @@
 //! and the counters. Synchronous, like the replay source: a daemon runs it
 //! on its own thread, `fieldcal replay --config` inline.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+
+use tokio::sync::mpsc;
 
 use serde::Serialize;
 
-use super::SourceCounters;
 use super::replay::{Pacer, Speed};
+use super::serial::unix_now;
+use super::{SourceCounters, SourceEvent};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow, CsvScan, open_rows, scan_rows};
 
 /// Bad rows warned about one by one; beyond these only their count is said,
@@ -122,4 +126,66 @@ pub fn play_csv(
         );
     }
     Ok(summary)
+}
+
+/// A csv source of the daemon, checked and bound: the file, its header as
+/// resolved by [`check_csv`], and the columns its sensors read.
+#[derive(Debug, Clone)]
+pub struct CsvSource {
+    /// The source's name, for its thread.
+    pub name: String,
+    pub file: PathBuf,
+    pub layout: Arc<CsvLayout>,
+    pub required: Vec<usize>,
+    pub speed: Speed,
+}
+
+/// Plays the file on its own thread, sending [`SourceEvent::Connected`]
+/// and then one [`SourceEvent::Row`] a row, each re-stamped onto the
+/// host's Unix clock: the time the source started plus the row's offset
+/// from the first row (not divided by the speed: the time between rows
+/// stays what the sensor saw). Ends at the end of the file, when `stop`
+/// turns true, or when the receiver is gone.
+pub fn spawn_csv_source(
+    source: CsvSource,
+    events: mpsc::Sender<SourceEvent>,
+    counters: Arc<SourceCounters>,
+    stop: Arc<AtomicBool>,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name(format!("csv-{}", source.name))
+        .spawn(move || {
+            let name = source.file.display().to_string();
+            let _ = events.blocking_send(SourceEvent::Connected {
+                device: name.clone(),
+            });
+            let start = unix_now();
+            let mut first: Option<f64> = None;
+            let result = play_csv(
+                &source.file,
+                &source.layout,
+                &source.required,
+                source.speed,
+                &stop,
+                &counters,
+                &mut |row| {
+                    let t0 = *first.get_or_insert(row.time);
+                    let row = CsvRow {
+                        time: start + (row.time - t0),
+                        ..row
+                    };
+                    if events.blocking_send(SourceEvent::Row(row)).is_err() {
+                        stop.store(true, Ordering::Relaxed);
+                    }
+                },
+            );
+            match result {
+                Ok(summary) => tracing::info!(
+                    rows = summary.rows,
+                    bad_rows = summary.bad_rows,
+                    "replay of {name} finished"
+                ),
+                Err(e) => tracing::warn!("{e}"),
+            }
+        })
 }
