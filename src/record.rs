@@ -101,7 +101,7 @@ pub async fn record<W: Write>(
                     last_flush = Instant::now();
                 }
             }
-            SourceEvent::Reading(_) => summary.readings += 1,
+            SourceEvent::Reading(_) | SourceEvent::Row(_) => summary.readings += 1,
             SourceEvent::Disconnected { .. } => summary.disconnects += 1,
             SourceEvent::Connected { .. } => summary.connects += 1,
         }

@@ -130,7 +130,8 @@ impl Dataset {
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 pub struct Reading {
     /// Host receive time in seconds: since the Unix epoch for a live source,
-    /// since the start of the capture for a replay.
+    /// since the start of the capture for a replay (which `run` re-stamps
+    /// onto the Unix clock: see [`crate::daemon::messages`]).
     pub time: f64,
     /// Which byte stream of its source the reading came from: 0 for a
     /// Falcon-GX, the chip's place in the poll list for an I2C bridge.

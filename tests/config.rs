@@ -7,7 +7,10 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use fieldcal::capture::{CaptureHeader, CaptureWriter, StreamInfo, StreamKind};
-use fieldcal::daemon::config::{Axis, ConfigError, Field, LogFormat, SourceKind, load, parse};
+use fieldcal::daemon::config::{
+    Axis, ConfigError, Field, GyroChoice, LogFormat, SourceKind, load, parse,
+};
+use fieldcal::model::gyro::GyroUnits;
 use fieldcal::protocol::chips::Chip;
 use fieldcal::source::replay::Speed;
 
@@ -842,5 +845,232 @@ fn heading_gyro_mistakes_are_named_at_their_line() {
         "sensor[0].gyro_chip",
         Some(line_of(&text, "gyro_chip")),
         &["gyro = \"none\""],
+    );
+}
+
+/// A CSV recording in a temporary directory, and a configuration text with
+/// a csv source `log` playing it (with `source_extra`) and a sensor on it
+/// (with `sensor` lines).
+fn csv_source(header: &str, source_extra: &str, sensor: &str) -> (tempfile::TempDir, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("robot.csv");
+    std::fs::write(&csv, format!("{header}\n0,1,2,3,4\n")).unwrap();
+    let text = format!(
+        "[[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"{}\"\n{source_extra}\n\n\
+         [[sensor]]\nname = \"robot\"\nsource = \"log\"\n{sensor}\n",
+        csv.display()
+    );
+    (dir, text)
+}
+
+const ROBOT: &str = "t_s,mag_x_lsb,mag_z_lsb,gyro_y,temp_c";
+
+#[test]
+fn a_csv_source_names_its_columns() {
+    let (dir, text) = csv_source(
+        ROBOT,
+        "speed = \"max\"",
+        "axes = [\"mag_x_lsb\", \"mag_z_lsb\"]\ngyro = \"gyro_y\"\ngyro_units = \"rad/s\"",
+    );
+    let config = parse(&text, &config_path()).unwrap();
+    assert_eq!(
+        config.sources[0].kind,
+        SourceKind::Csv {
+            file: dir.path().join("robot.csv"),
+            speed: Speed::Max,
+            time_column: None,
+            period_s: None,
+        }
+    );
+    assert_eq!(config.sources[0].kind.speed(), Some(Speed::Max));
+    let s = &config.sensors[0];
+    assert_eq!(
+        s.columns,
+        Some(["mag_x_lsb".to_string(), "mag_z_lsb".to_string()])
+    );
+    assert_eq!(
+        s.gyro,
+        GyroChoice::Column {
+            name: "gyro_y".into(),
+            units: GyroUnits::RadPerSecond
+        }
+    );
+    // Without a gyro column, no heading check, and the CALIBRATION says
+    // how to get one.
+    let (_dir, text) = csv_source(ROBOT, "", "axes = [\"mag_x_lsb\", \"mag_z_lsb\"]");
+    let config = parse(&text, &config_path()).unwrap();
+    assert_eq!(config.sources[0].kind.speed(), Some(Speed::Times(1.0)));
+    match &config.sensors[0].gyro {
+        GyroChoice::Off(why) => assert!(why.contains("gyro = \"COLUMN\""), "{why}"),
+        other => panic!("{other:?}"),
+    }
+    // A named time column and a period (for a file without one).
+    let (_dir, text) = csv_source("a,b,c,d,e", "time_column = \"c\"", "axes = [\"a\", \"b\"]");
+    let config = parse(&text, &config_path()).unwrap();
+    assert!(matches!(
+        &config.sources[0].kind,
+        SourceKind::Csv { time_column: Some(c), period_s: None, .. } if c == "c"
+    ));
+    let (_dir, text) = csv_source("a,b,c,d,e", "period_s = 0.1", "axes = [\"a\", \"b\"]");
+    let config = parse(&text, &config_path()).unwrap();
+    assert!(matches!(
+        &config.sources[0].kind,
+        SourceKind::Csv { period_s: Some(p), .. } if *p == 0.1
+    ));
+}
+
+#[test]
+fn a_csv_sensor_is_told_the_form_its_source_wants() {
+    let axes = "axes = [\"mag_x_lsb\", \"mag_z_lsb\"]";
+    // Device axes on a csv source: the columns it has are listed.
+    let (_dir, text) = csv_source(ROBOT, "", "axes = [\"x\", \"y\"]");
+    assert_refused(
+        &text,
+        "sensor[0].axes[0]",
+        Some(line_of(&text, "axes")),
+        &[
+            "robot.csv:1: no column 'x' in the header",
+            "columns: t_s, mag_x_lsb, mag_z_lsb, gyro_y, temp_c",
+            "not the x, y, z",
+        ],
+    );
+    // Column names on a device's source.
+    let text = format!(
+        "{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"mag_z\"]\n"
+    );
+    assert_refused(
+        &text,
+        "sensor[0].axes[1]",
+        Some(line_of(&text, "axes")),
+        &["\"mag_z\" is not an axis", "falcon", "kind = \"csv\""],
+    );
+    // The keys of a device's sensor on a csv source.
+    for (key, line) in [
+        ("field", "field = \"mag\""),
+        ("chip", "chip = \"mpu6050\""),
+        ("gyro_lsb_per_deg_s", "gyro_lsb_per_deg_s = 131.0"),
+    ] {
+        let (_dir, text) = csv_source(ROBOT, "", &format!("{axes}\n{line}"));
+        assert_refused(
+            &text,
+            &format!("sensor[0].{key}"),
+            Some(line_of(&text, line)),
+            &["csv source 'log' has no", "names two columns"],
+        );
+    }
+    // A device's sensor needs its field.
+    let text =
+        format!("{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\naxes = [\"x\", \"y\"]\n");
+    assert_refused(&text, "sensor[0].field", None, &["missing", "\"mag\""]);
+    // The time column is not an axis; the gyro is not one of the axes.
+    let (_dir, text) = csv_source(ROBOT, "", "axes = [\"t_s\", \"mag_z_lsb\"]");
+    assert_refused(&text, "sensor[0].axes[0]", None, &["the time column"]);
+    let (_dir, text) = csv_source(ROBOT, "", &format!("{axes}\ngyro = \"mag_z_lsb\""));
+    assert_refused(
+        &text,
+        "sensor[0].gyro",
+        Some(line_of(&text, "gyro =")),
+        &["one of the two axes"],
+    );
+    let (_dir, text) = csv_source(ROBOT, "", &format!("{axes}\ngyro = \"gyro_q\""));
+    assert_refused(
+        &text,
+        "sensor[0].gyro",
+        None,
+        &["no column 'gyro_q'", "gyro_y"],
+    );
+    // Units: known ones, and only with a gyro column.
+    let (_dir, text) = csv_source(
+        ROBOT,
+        "",
+        &format!("{axes}\ngyro = \"gyro_y\"\ngyro_units = \"rpm\""),
+    );
+    assert_refused(&text, "sensor[0].gyro_units", None, &["\"rpm\"", "rad/s"]);
+    let (_dir, text) = csv_source(ROBOT, "", &format!("{axes}\ngyro_units = \"rad/s\""));
+    assert_refused(
+        &text,
+        "sensor[0].gyro_units",
+        None,
+        &["without a gyro column"],
+    );
+    let text = sensor(
+        "chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\"]\ngyro_units = \"rad/s\"",
+    );
+    assert_refused(&text, "sensor[0].gyro_units", None, &["gyro_lsb_per_deg_s"]);
+    // Two axes, different.
+    let (_dir, text) = csv_source(ROBOT, "", "axes = [\"mag_x_lsb\", \"mag_x_lsb\"]");
+    assert_refused(
+        &text,
+        "sensor[0].axes",
+        None,
+        &["both axes are \"mag_x_lsb\""],
+    );
+}
+
+#[test]
+fn a_csv_file_is_checked_before_anything_starts() {
+    let axes = "axes = [\"mag_x_lsb\", \"mag_z_lsb\"]";
+    let (dir, text) = csv_source(ROBOT, "", axes);
+    let csv = dir.path().join("robot.csv").display().to_string();
+    // Missing, and not a regular file.
+    let missing = text.replace(&csv, &format!("{csv}.gone"));
+    assert_refused(
+        &missing,
+        "source[0].file",
+        Some(line_of(&missing, "file =")),
+        &["robot.csv.gone", "relative paths are relative to"],
+    );
+    let folder = text.replace(&csv, &dir.path().display().to_string());
+    assert_refused(&folder, "source[0].file", None, &["is not a regular file"]);
+    // No header, a duplicate column.
+    std::fs::write(dir.path().join("robot.csv"), "").unwrap();
+    assert_refused(
+        &text,
+        "source[0].file",
+        None,
+        &["robot.csv: the file is empty", "header"],
+    );
+    std::fs::write(dir.path().join("robot.csv"), "# only a comment\n\nt,a,a\n").unwrap();
+    assert_refused(
+        &text,
+        "source[0].file",
+        None,
+        &["robot.csv:3: column 'a' appears twice", "rename one"],
+    );
+    // Time column against period_s.
+    std::fs::write(dir.path().join("robot.csv"), format!("{ROBOT}\n")).unwrap();
+    let both = text.replace("kind = \"csv\"", "kind = \"csv\"\nperiod_s = 0.1");
+    assert_refused(
+        &both,
+        "source[0].period_s",
+        Some(line_of(&both, "period_s")),
+        &[
+            "robot.csv:1: the header has time column 't_s'",
+            "remove period_s",
+        ],
+    );
+    let bad_period = text.replace("kind = \"csv\"", "kind = \"csv\"\nperiod_s = -1");
+    assert_refused(&bad_period, "source[0].period_s", None, &["above 0"]);
+    let named = text.replace("kind = \"csv\"", "kind = \"csv\"\ntime_column = \"when\"");
+    assert_refused(
+        &named,
+        "source[0].time_column",
+        Some(line_of(&named, "time_column")),
+        &["no column 'when' for time", "t_s, mag_x_lsb"],
+    );
+    std::fs::write(dir.path().join("robot.csv"), "mag_x_lsb,mag_z_lsb\n").unwrap();
+    assert_refused(
+        &text,
+        "source[0].period_s",
+        None,
+        &["robot.csv:1: no time column", "give period_s"],
+    );
+    // Keys of other kinds are refused, naming the csv source's.
+    let text = text.replace("kind = \"csv\"", "kind = \"csv\"\nport = \"/dev/ttyUSB0\"");
+    assert_refused(
+        &text,
+        "source[0].port",
+        None,
+        &["file, speed, time_column, period_s"],
     );
 }

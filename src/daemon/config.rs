@@ -57,6 +57,21 @@
 //! file = "captures/turn.fcap"  # relative to this file's directory
 //! speed = 1.0               # a positive factor, or "max"; default 1
 //!
+//! [[source]]
+//! name = "log"
+//! kind = "csv"              # a CSV recording, played row by row
+//! file = "robot.csv"        # relative to this file's directory
+//! time_column = "t_s"       # default: the first of t, t_s, time, time_s
+//! period_s = 0.1            # only when the file has no time column
+//! speed = "max"             # as for kind = "replay"; default 1
+//!
+//! [[sensor]]                # a sensor of a csv source names two columns
+//! name = "robot-compass"
+//! source = "log"
+//! axes = ["mag_x", "mag_z"] # no `field`, no `chip`: columns of the file
+//! gyro = "gyro_y"           # a column, for the heading check; or "none"
+//! gyro_units = "deg/s"      # or "rad/s"; default deg/s
+//!
 //! [[sensor]]
 //! name = "compass"          # letters, digits, '-', '_'; names the state file
 //! source = "bridge"
@@ -95,7 +110,9 @@ use toml::Spanned;
 use toml::de::{DeTable, DeValue};
 
 use crate::capture::{self, CaptureFile, StreamKind};
+use crate::io::csv::{CsvLayout, open_rows};
 use crate::model::effects::{self, Effect};
+use crate::model::gyro::GyroUnits;
 use crate::protocol::chips::Chip;
 use crate::protocol::falcon;
 use crate::source::bridge::{BridgeConfig, I2cSpeed};
@@ -192,6 +209,25 @@ pub enum SourceKind {
     },
     /// A capture (or raw Falcon dump) played back.
     Replay { file: PathBuf, speed: Speed },
+    /// A CSV recording played row by row (one stream, 0): the rows' times
+    /// come from `time_column` (else the first of t, t_s, time, time_s) or,
+    /// when the file has none, row k is at k * `period_s`.
+    Csv {
+        file: PathBuf,
+        speed: Speed,
+        time_column: Option<String>,
+        period_s: Option<f64>,
+    },
+}
+
+impl SourceKind {
+    /// How fast a replayed file plays (`replay` and `csv` sources).
+    pub fn speed(&self) -> Option<Speed> {
+        match self {
+            SourceKind::Replay { speed, .. } | SourceKind::Csv { speed, .. } => Some(*speed),
+            _ => None,
+        }
+    }
 }
 
 impl SourceConfig {
@@ -283,6 +319,10 @@ pub struct SensorConfig {
     pub limits: LimitSettings,
     /// Where the heading check of each rotation takes its gyro from.
     pub gyro: GyroChoice,
+    /// A sensor of a csv source: the two columns that turn (the raw x and
+    /// y, in that order); then `stream`, `field` and `axes` are unused
+    /// (0, mag, x and y).
+    pub columns: Option<[String; 2]>,
 }
 
 /// The gyro a sensor's heading is checked against (`gyro`, `gyro_chip`,
@@ -296,6 +336,9 @@ pub enum GyroChoice {
         axis: Axis,
         lsb_per_deg_s: f64,
     },
+    /// The angular rate about the turn's axis in a column of the sensor's
+    /// CSV recording, in `units`.
+    Column { name: String, units: GyroUnits },
     /// No heading check, and why (said in each CALIBRATION).
     Off(String),
 }
@@ -451,6 +494,7 @@ enum RawKind {
     Falcon,
     UsbIss,
     Replay,
+    Csv,
 }
 
 impl RawKind {
@@ -459,6 +503,7 @@ impl RawKind {
             RawKind::Falcon => "falcon",
             RawKind::UsbIss => "usb-iss",
             RawKind::Replay => "replay",
+            RawKind::Csv => "csv",
         }
     }
 
@@ -468,6 +513,7 @@ impl RawKind {
             RawKind::Falcon => &["port", "baud"],
             RawKind::UsbIss => &["port", "chips", "poll_ms", "i2c_khz"],
             RawKind::Replay => &["file", "speed"],
+            RawKind::Csv => &["file", "speed", "time_column", "period_s"],
         }
     }
 }
@@ -484,6 +530,8 @@ struct RawSource {
     i2c_khz: Option<u32>,
     file: Option<PathBuf>,
     speed: Option<toml::Value>,
+    time_column: Option<String>,
+    period_s: Option<f64>,
     retry_s: Option<f64>,
 }
 
@@ -493,12 +541,14 @@ struct RawSensor {
     name: String,
     source: String,
     chip: Option<String>,
-    field: Field,
-    axes: Vec<Axis>,
+    field: Option<Field>,
+    /// Axes ("x", "y", "z") of a device's sensor, columns of a csv source's.
+    axes: Vec<String>,
     model: Option<toml::Value>,
     gyro: Option<String>,
     gyro_chip: Option<String>,
     gyro_lsb_per_deg_s: Option<f64>,
+    gyro_units: Option<String>,
     #[serde(default)]
     rotation: RotationSettings,
     #[serde(default)]
@@ -645,6 +695,8 @@ impl Checker<'_> {
 
         let mut sources = Vec::with_capacity(raw.source.len());
         let mut streams: Vec<Vec<StreamDesc>> = Vec::with_capacity(raw.source.len());
+        // The header of each csv source's file, resolved.
+        let mut layouts: Vec<Option<CsvLayout>> = Vec::with_capacity(raw.source.len());
         let mut source_index: HashMap<String, usize> = HashMap::new();
         for (i, s) in raw.source.into_iter().enumerate() {
             let key = format!("source[{i}]");
@@ -659,9 +711,10 @@ impl Checker<'_> {
                 ));
             }
             source_index.insert(s.name.clone(), i);
-            let (source, desc) = self.check_source(&key, s)?;
+            let (source, desc, layout) = self.check_source(&key, s)?;
             sources.push(source);
             streams.push(desc);
+            layouts.push(layout);
         }
 
         if raw.sensor.is_empty() {
@@ -709,23 +762,63 @@ impl Checker<'_> {
                 Some(source) => (source.name.as_str(), kind_name(&source.kind)),
                 None => ("", ""),
             };
+            if let (Some(Some(layout)), Some(source)) = (layouts.get(src), sources.get(src)) {
+                sensors.push(self.check_csv_sensor(&key, s, source, layout)?);
+                continue;
+            }
+            let Some(field) = s.field else {
+                return Err(self.error(
+                    &format!("{key}.field"),
+                    format!(
+                        "missing: give the quantity the sensor calibrates on source '{src_name}': \
+                         \"mag\", \"accel\" or \"gyro\""
+                    ),
+                ));
+            };
+            if s.gyro_units.is_some() {
+                return Err(self.error(
+                    &format!("{key}.gyro_units"),
+                    format!(
+                        "a sensor of a {src_kind} source has no `gyro_units`: its gyro's scale \
+                         is gyro_lsb_per_deg_s (gyro_units is for a csv source's gyro column)"
+                    ),
+                ));
+            }
             let stream_list = streams.get(src).map(Vec::as_slice).unwrap_or(&[]);
             let stream =
                 self.resolve_stream(&key, s.chip.as_deref(), src_name, src_kind, stream_list)?;
             let fields = stream.fields();
-            if !fields.contains(&s.field) {
+            if !fields.contains(&field) {
                 let names: Vec<&str> = fields.iter().map(|f| f.name()).collect();
                 return Err(self.error(
                     &format!("{key}.field"),
                     format!(
                         "'{}' is not measured by {} of source '{src_name}': it gives {}",
-                        s.field.name(),
+                        field.name(),
                         stream.describe(),
                         names.join(", ")
                     ),
                 ));
             }
-            let axes = match s.axes.as_slice() {
+            let mut parsed = Vec::with_capacity(s.axes.len());
+            for (k, name) in s.axes.iter().enumerate() {
+                parsed.push(match name.trim() {
+                    "x" => Axis::X,
+                    "y" => Axis::Y,
+                    "z" => Axis::Z,
+                    other => {
+                        return Err(self.error(
+                            &format!("{key}.axes[{k}]"),
+                            format!(
+                                "\"{other}\" is not an axis: a sensor of a {src_kind} source \
+                                 gives two different of \"x\", \"y\", \"z\" of its field \
+                                 (column names are for sensors of a kind = \"csv\" source)"
+                            ),
+                        ));
+                    }
+                });
+            }
+            let axes = match parsed.as_slice() {
                 [a, b] if a == b => {
                     return Err(self.error(
                         &format!("{key}.axes"),
@@ -760,12 +853,13 @@ impl Checker<'_> {
                 name: s.name,
                 source: s.source,
                 stream: stream.id,
-                field: s.field,
+                field,
                 axes,
                 effects,
                 rotation: s.rotation,
                 limits: s.limits,
                 gyro,
+                columns: None,
             });
         }
 
@@ -854,11 +948,12 @@ impl Checker<'_> {
         })
     }
 
+    #[allow(clippy::type_complexity)]
     fn check_source(
         &self,
         key: &str,
         s: RawSource,
-    ) -> Result<(SourceConfig, Vec<StreamDesc>), ConfigError> {
+    ) -> Result<(SourceConfig, Vec<StreamDesc>, Option<CsvLayout>), ConfigError> {
         let kind = s.kind;
         let present = [
             ("port", s.port.is_some()),
@@ -868,6 +963,8 @@ impl Checker<'_> {
             ("i2c_khz", s.i2c_khz.is_some()),
             ("file", s.file.is_some()),
             ("speed", s.speed.is_some()),
+            ("time_column", s.time_column.is_some()),
+            ("period_s", s.period_s.is_some()),
         ];
         if let Some((name, _)) = present
             .iter()
@@ -901,6 +998,7 @@ impl Checker<'_> {
                 ),
             )),
         };
+        let mut layout = None;
         let (source_kind, streams) = match kind {
             RawKind::Falcon => {
                 let port = require_port(s.port)?;
@@ -967,6 +1065,35 @@ impl Checker<'_> {
                 let speed = self.check_speed(&format!("{key}.speed"), s.speed.as_ref())?;
                 (SourceKind::Replay { file, speed }, streams)
             }
+            RawKind::Csv => {
+                let Some(file) = s.file.filter(|f| !f.as_os_str().is_empty()) else {
+                    return Err(self.error(
+                        &format!("{key}.file"),
+                        "a csv source needs `file`, a CSV recording with a header line \
+                         (relative to the configuration's directory)",
+                    ));
+                };
+                let file = self.resolve(&file);
+                let speed = self.check_speed(&format!("{key}.speed"), s.speed.as_ref())?;
+                let period_s = match s.period_s {
+                    None => None,
+                    Some(p) => {
+                        self.seconds(&format!("{key}.period_s"), p, 86_400.0)?;
+                        Some(p)
+                    }
+                };
+                let time_column = s.time_column.map(|t| t.trim().to_string());
+                layout = Some(self.csv_layout(key, &file, time_column.as_deref(), period_s)?);
+                (
+                    SourceKind::Csv {
+                        file,
+                        speed,
+                        time_column,
+                        period_s,
+                    },
+                    vec![StreamDesc { id: 0, chip: None }],
+                )
+            }
         };
         Ok((
             SourceConfig {
@@ -975,7 +1102,189 @@ impl Checker<'_> {
                 retry,
             },
             streams,
+            layout,
         ))
+    }
+
+    /// The header of a csv source's file, resolved: the error, if any, is
+    /// put on the key it is about (`file`, `time_column` or `period_s`).
+    fn csv_layout(
+        &self,
+        key: &str,
+        file: &Path,
+        time_column: Option<&str>,
+        period_s: Option<f64>,
+    ) -> Result<CsvLayout, ConfigError> {
+        use crate::io::csv::CsvError;
+        match open_rows(file, time_column, period_s, &[]) {
+            Ok(rows) => Ok(rows.layout().clone()),
+            Err(e) => {
+                let on = match &e {
+                    CsvError::TimeAndPeriod { .. } => "period_s",
+                    CsvError::NoTime { .. } if time_column.is_none() => "period_s",
+                    CsvError::MissingColumn { .. } => "time_column",
+                    _ => "file",
+                };
+                let hint = match &e {
+                    CsvError::Io { .. } => {
+                        format!(" (relative paths are relative to {})", self.base.display())
+                    }
+                    _ => String::new(),
+                };
+                Err(self.error(&format!("{key}.{on}"), format!("{e}{hint}")))
+            }
+        }
+    }
+
+    /// A sensor of a csv source: two columns of its file, and optionally a
+    /// gyro column; the keys of a device's sensor are refused by name.
+    fn check_csv_sensor(
+        &self,
+        key: &str,
+        s: RawSensor,
+        source: &SourceConfig,
+        layout: &CsvLayout,
+    ) -> Result<SensorConfig, ConfigError> {
+        let file = match &source.kind {
+            SourceKind::Csv { file, .. } => file.display().to_string(),
+            _ => String::new(),
+        };
+        let src = &source.name;
+        for (name, given) in [
+            ("field", s.field.is_some()),
+            ("chip", s.chip.is_some()),
+            ("gyro_chip", s.gyro_chip.is_some()),
+            ("gyro_lsb_per_deg_s", s.gyro_lsb_per_deg_s.is_some()),
+        ] {
+            if given {
+                return Err(self.error(
+                    &format!("{key}.{name}"),
+                    format!(
+                        "a sensor of csv source '{src}' has no `{name}`: it names two columns \
+                         of {file} in axes (and a gyro column in gyro, with gyro_units)"
+                    ),
+                ));
+            }
+        }
+        let time = layout.time_index();
+        let column = |k: String, name: &str, what: &str| -> Result<String, ConfigError> {
+            let name = name.trim();
+            match layout.index(name) {
+                Some(i) if Some(i) == time => Err(self.error(
+                    &k,
+                    format!("'{name}' is the time column of {file}: give a column of {what}"),
+                )),
+                Some(_) => Ok(name.to_string()),
+                None => {
+                    let device = matches!(name, "x" | "y" | "z")
+                        .then_some(
+                            " (a csv source's sensors name columns of the file, not the x, y, z \
+                             of a device)",
+                        )
+                        .unwrap_or_default();
+                    Err(self.error(
+                        &k,
+                        format!(
+                            "{file}:{}: no column '{name}' in the header (columns: {}): give a \
+                             column of {what}{device}",
+                            layout.header_line,
+                            layout.available()
+                        ),
+                    ))
+                }
+            }
+        };
+        let columns = match s.axes.as_slice() {
+            [a, b] if a.trim() == b.trim() => {
+                return Err(self.error(
+                    &format!("{key}.axes"),
+                    format!(
+                        "both axes are \"{}\": give the two columns that turn, two different \
+                         columns of {file}",
+                        a.trim()
+                    ),
+                ));
+            }
+            [a, b] => [
+                column(format!("{key}.axes[0]"), a, "the axes that turn")?,
+                column(format!("{key}.axes[1]"), b, "the axes that turn")?,
+            ],
+            other => {
+                return Err(self.error(
+                    &format!("{key}.axes"),
+                    format!(
+                        "{} columns given: give exactly two different columns of {file} (the \
+                         two axes that turn)",
+                        other.len()
+                    ),
+                ));
+            }
+        };
+        let units_key = format!("{key}.gyro_units");
+        let units = match s.gyro_units.as_deref().map(str::trim) {
+            None | Some("deg/s") => GyroUnits::DegPerSecond,
+            Some("rad/s") => GyroUnits::RadPerSecond,
+            Some(other) => {
+                return Err(self.error(
+                    &units_key,
+                    format!(
+                        "\"{other}\" is not a unit of angular rate: give \"deg/s\" or \"rad/s\""
+                    ),
+                ));
+            }
+        };
+        let gyro = match s.gyro.as_deref().map(str::trim) {
+            None | Some("none") if s.gyro_units.is_some() => {
+                return Err(self.error(
+                    &units_key,
+                    "given without a gyro column: name it with gyro = \"COLUMN\", or leave \
+                     gyro_units out",
+                ));
+            }
+            None => GyroChoice::Off(format!(
+                "no heading check: name a gyro column of {file} with gyro = \"COLUMN\""
+            )),
+            Some("none") => {
+                GyroChoice::Off("no heading check: gyro = \"none\" in the configuration".into())
+            }
+            Some(name) => {
+                let gyro_key = format!("{key}.gyro");
+                let name = column(
+                    gyro_key.clone(),
+                    name,
+                    "the angular rate about the turn's axis",
+                )?;
+                if columns.contains(&name) {
+                    return Err(self.error(
+                        &gyro_key,
+                        format!(
+                            "'{name}' is one of the two axes that turn: give the gyro column of \
+                             the turn's axis, or \"none\""
+                        ),
+                    ));
+                }
+                GyroChoice::Column { name, units }
+            }
+        };
+        let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
+        if let Err(problem) = s.rotation.validate() {
+            return Err(self.error(&format!("{key}.rotation"), problem));
+        }
+        if let Err(problem) = s.limits.validate() {
+            return Err(self.error(&format!("{key}.limits"), problem));
+        }
+        Ok(SensorConfig {
+            name: s.name,
+            source: s.source,
+            stream: 0,
+            field: Field::Mag,
+            axes: [Axis::X, Axis::Y],
+            effects,
+            rotation: s.rotation,
+            limits: s.limits,
+            gyro,
+            columns: Some(columns),
+        })
     }
 
     fn check_chips(&self, key: &str, chips: Vec<String>) -> Result<Vec<(Chip, u8)>, ConfigError> {
@@ -1066,6 +1375,16 @@ impl Checker<'_> {
                 key,
                 format!(
                     "{} is not a file: give a capture or raw dump",
+                    file.display()
+                ),
+            ));
+        }
+        if crate::io::csv::looks_like_csv(file) {
+            return Err(self.error(
+                key,
+                format!(
+                    "{} is a CSV recording, not a capture: give this source kind = \"csv\", \
+                     and its sensors the file's columns in axes",
                     file.display()
                 ),
             ));
@@ -1332,7 +1651,7 @@ impl Checker<'_> {
                      (\"x\", \"y\" or \"z\"): chips are not always mounted alike",
                 ));
             }
-            None if s.field == Field::Gyro => {
+            None if s.field == Some(Field::Gyro) => {
                 return Ok(GyroChoice::Off(
                     "no heading check: the sensor is itself the gyro".into(),
                 ));
@@ -1471,6 +1790,7 @@ fn kind_name(kind: &SourceKind) -> &'static str {
         SourceKind::Falcon { .. } => "falcon",
         SourceKind::UsbIss { .. } => "usb-iss",
         SourceKind::Replay { .. } => "replay",
+        SourceKind::Csv { .. } => "csv",
     }
 }
 

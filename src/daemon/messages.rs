@@ -1,5 +1,17 @@
 //! What the daemon publishes: one JSON object per line, each with a
 //! `class`, in the manner of gpsd. Absent values are omitted, never null.
+//!
+//! One clock for every message of a run (`time`, in seconds):
+//! - under `fieldcal run`, the host's Unix clock (seconds since the epoch).
+//!   A live source stamps a reading when it arrives; a replay or csv source
+//!   stamps it with the Unix time the source started plus the reading's
+//!   offset in the recording (not divided by the speed, so the time between
+//!   readings, which the rotation's timeouts and the gyro's integration
+//!   use, is what the sensor saw). STATUS is stamped when it is made.
+//! - under `fieldcal replay --config`, the recording's clock (a capture's
+//!   seconds from its start, a CSV's time column or row * period_s), for
+//!   READING, CALIBRATION and STATUS alike, so the output is the same on
+//!   every run.
 
 use serde::Serialize;
 
@@ -14,8 +26,8 @@ use crate::source::CountersSnapshot;
 pub struct ReadingMessage<'a> {
     pub class: &'static str,
     pub sensor: &'a str,
-    /// Host receive time (seconds since the Unix epoch; since the start of
-    /// the capture in a replay).
+    /// When the sample was taken: on the host's Unix clock under `run`, on
+    /// the recording's clock under `replay --config` (see the module).
     pub time: f64,
     /// The two turning axes, in counts.
     pub raw: [f64; 2],
@@ -30,6 +42,50 @@ pub struct ReadingMessage<'a> {
     pub calibration: Option<u64>,
     /// False until the sensor has a calibration: the reading is raw only.
     pub calibrated: bool,
+    /// A csv source's other columns (all but the time and the two axes),
+    /// by header name, where the row holds a number: `{"temp_c": 21.3}`.
+    /// Omitted when there are none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub columns: Option<ColumnValues<'a>>,
+}
+
+/// Some columns of a CSV row, serialised as a map from the header's names
+/// to the row's values; cells that are not numbers are left out. Borrows
+/// the header (resolved once) and the row: nothing is copied per reading.
+#[derive(Debug, Clone, Copy)]
+pub struct ColumnValues<'a> {
+    /// The header, in file order.
+    pub names: &'a [String],
+    /// Which columns, as indices into `names` and `values`.
+    pub indices: &'a [usize],
+    /// The row, in file order.
+    pub values: &'a [f64],
+}
+
+impl ColumnValues<'_> {
+    fn entries(&self) -> impl Iterator<Item = (&str, f64)> {
+        self.indices.iter().filter_map(|&i| {
+            let value = *self.values.get(i)?;
+            let name = self.names.get(i)?;
+            value.is_finite().then_some((name.as_str(), value))
+        })
+    }
+
+    /// No column holds a number.
+    pub fn is_empty(&self) -> bool {
+        self.entries().next().is_none()
+    }
+}
+
+impl Serialize for ColumnValues<'_> {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = serializer.serialize_map(None)?;
+        for (name, value) in self.entries() {
+            map.serialize_entry(name, &value)?;
+        }
+        map.end()
+    }
 }
 
 /// A fit, accepted or rejected.
@@ -53,7 +109,8 @@ pub struct CalibrationMessage<'a> {
     pub n: usize,
     /// Milliseconds the fit took.
     pub fit_ms: f64,
-    /// The time of the rotation's last sample.
+    /// The time of the rotation's last sample (the clock of the readings;
+    /// see the module), or when a loaded calibration was accepted.
     pub time: f64,
     /// Where the calibration came from: `rotation` (fitted now) or `state`
     /// (loaded from the state directory at start).
@@ -183,6 +240,8 @@ pub struct SourceStatus<'a> {
 #[derive(Debug, Clone, Serialize)]
 pub struct StatusMessage<'a> {
     pub class: &'static str,
+    /// When it was made: the host's Unix clock under `run`, the recording's
+    /// clock under `replay --config` (see the module).
     pub time: f64,
     pub sensors: Vec<SensorStatus<'a>>,
     pub sources: Vec<SourceStatus<'a>>,

@@ -2,9 +2,17 @@
 //! connected by channels. Each source task owns its port; this loop owns
 //! the sensors; the hub owns the subscribers.
 //!
-//! [`replay_through_pipeline`] runs the very same sensors on a capture,
-//! synchronously and losslessly, so its output is what `run` would have
-//! published.
+//! [`replay_through_pipeline`] (and [`replay_csv_through_pipeline`]) run
+//! the very same sensors on a capture (a CSV recording), synchronously and
+//! losslessly, so its output is what `run` would have published.
+//!
+//! Clocks: under `run` every message is on the host's Unix clock; a replay
+//! or csv source re-stamps each reading to the Unix time the source started
+//! plus the reading's offset in the recording (not divided by the speed, so
+//! the time between readings stays what the sensor saw: the rotation's
+//! timeouts and the gyro's integration mean the same at any speed). Under
+//! `fieldcal replay --config` every message is on the recording's clock, so
+//! its output is the same on every run.
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -24,8 +32,10 @@ use super::sensor::Sensor;
 use super::state::StateStore;
 use super::state_writer::{SaveFailure, StateWriter};
 use crate::capture::{CaptureFile, read_capture};
+use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::source::bridge::{BridgeConfig, spawn_bridge_source};
-use crate::source::replay::{ReplayError, ReplaySummary, Speed, replay};
+use crate::source::csv::{CsvPlayback, CsvSource, check_csv, play_csv, spawn_csv_source};
+use crate::source::replay::{ReplayError, ReplaySummary, Speed, replay_counted};
 use crate::source::serial::{SerialConfig, run_serial_source, unix_now};
 use crate::source::{SourceCounters, SourceEvent};
 
@@ -62,6 +72,14 @@ pub enum DaemonError {
     Capture(#[from] crate::capture::CaptureError),
     #[error(transparent)]
     Replay(#[from] ReplayError),
+    #[error(transparent)]
+    Csv(#[from] CsvError),
+    #[error(
+        "source '{0}' is not of kind \"csv\": a CSV recording stands in for a csv source, whose \
+         configuration names its columns; give --source NAME of one, or add a [[source]] with \
+         kind = \"csv\""
+    )]
+    NotCsv(String),
     #[error("no source named '{0}' in the configuration")]
     NoSuchSource(String),
     #[error("cannot write the output: {0}")]
@@ -122,6 +140,42 @@ impl Sensors {
                 store(&accepted);
             }
         }
+    }
+
+    /// Feeds a row of a csv source to the sensors of that source.
+    fn on_row(
+        &mut self,
+        source: usize,
+        row: &CsvRow,
+        emit: &mut dyn FnMut(Lane, String),
+        store: &mut dyn FnMut(&Calibration),
+    ) {
+        for (src, sensor) in &mut self.sensors {
+            if *src == source {
+                if let Some(accepted) = sensor.on_row(row, emit) {
+                    store(&accepted);
+                }
+            }
+        }
+    }
+
+    /// Binds the sensors of csv source `source` to the header of the file
+    /// it plays (`path`); returns the columns they read, sorted, once each.
+    fn bind_csv(
+        &mut self,
+        source: usize,
+        layout: &Arc<CsvLayout>,
+        path: &std::path::Path,
+    ) -> Result<Vec<usize>, CsvError> {
+        let mut required = Vec::new();
+        for (src, sensor) in &mut self.sensors {
+            if *src == source {
+                required.extend(sensor.bind_csv(layout, path)?);
+            }
+        }
+        required.sort_unstable();
+        required.dedup();
+        Ok(required)
     }
 
     fn recalibrate(&mut self, name: Option<&str>) -> usize {
@@ -284,12 +338,19 @@ pub async fn run_with_progress(
                     let _ = tx.blocking_send(SourceEvent::Connected {
                         device: name.clone(),
                     });
-                    let result = replay(&capture, &name, speed, &stop, &mut |reading| {
-                        SourceCounters::add(&counters.frames_good, 1);
-                        if tx.blocking_send(SourceEvent::Reading(reading)).is_err() {
-                            stop.store(true, Ordering::Relaxed);
-                        }
-                    });
+                    // Capture times count from the capture's start: on the
+                    // host's clock, from this source's start.
+                    let start = unix_now();
+                    let result =
+                        replay_counted(&capture, &name, speed, &stop, &counters, &mut |reading| {
+                            let reading = crate::sample::Reading {
+                                time: start + reading.time,
+                                ..reading
+                            };
+                            if tx.blocking_send(SourceEvent::Reading(reading)).is_err() {
+                                stop.store(true, Ordering::Relaxed);
+                            }
+                        });
                     match result {
                         Ok(summary) => {
                             tracing::info!(readings = summary.readings, "replay of {name} finished")
@@ -297,6 +358,42 @@ pub async fn run_with_progress(
                         Err(e) => tracing::warn!("{e}"),
                     }
                 }))
+            }
+            SourceKind::Csv {
+                file,
+                speed,
+                time_column,
+                period_s,
+            } => {
+                // Checked whole before READY: the header, and times that increase.
+                let (layout, scan) = check_csv(file, time_column.as_deref(), *period_s)?;
+                let layout = Arc::new(layout);
+                let required = sensors.bind_csv(index, &layout, file)?;
+                tracing::info!(
+                    rows = scan.rows,
+                    bad_rows = scan.bad,
+                    "{}: {} columns ({})",
+                    file.display(),
+                    layout.names.len(),
+                    layout.available()
+                );
+                let thread = spawn_csv_source(
+                    CsvSource {
+                        name: source.name.clone(),
+                        file: file.clone(),
+                        layout,
+                        required,
+                        speed: *speed,
+                    },
+                    tx,
+                    counters.clone(),
+                    stop_flag.clone(),
+                )
+                .map_err(|e| DaemonError::Source {
+                    name: source.name.clone(),
+                    source: e,
+                })?;
+                SourceTask::Thread(thread)
             }
         };
         // One channel for the loop, each event tagged with its source.
@@ -466,6 +563,7 @@ fn handle_event(
 ) {
     match event {
         SourceEvent::Reading(reading) => sensors.on_reading(index, &reading, emit, store),
+        SourceEvent::Row(row) => sensors.on_row(index, &row, emit, store),
         SourceEvent::Connected { .. } => {
             if let Some(s) = sources.get_mut(index) {
                 s.connected = true;
@@ -520,11 +618,122 @@ fn remove_stale_socket(path: &std::path::Path) {
     }
 }
 
+/// STATUS lines due at once after a gap in a recording, at most: a longer
+/// gap gets one STATUS (at the last interval before the reading), so a
+/// time column that jumps cannot make the output unbounded.
+pub const MAX_STATUS_CATCH_UP: u32 = 10;
+
+/// The daemon's sensors run on a recording for `fieldcal replay --config`:
+/// every line `run` would publish, in order, on the recording's clock.
+struct Pipeline {
+    sensors: Sensors,
+    index: usize,
+    source_name: String,
+    interval: f64,
+    /// The next STATUS is at this multiple of the interval: the first after
+    /// the first reading, then every interval (counted, so times do not
+    /// drift by rounding).
+    next_status: Option<f64>,
+    realtime: bool,
+    lines: Vec<String>,
+    failed: Option<std::io::Error>,
+}
+
+impl Pipeline {
+    fn new(config: &Config, source: Option<&str>, speed: Speed) -> Result<Self, DaemonError> {
+        let index = match source {
+            Some(wanted) => config
+                .sources
+                .iter()
+                .position(|s| s.name == wanted)
+                .ok_or_else(|| DaemonError::NoSuchSource(wanted.to_string()))?,
+            None => 0,
+        };
+        Ok(Pipeline {
+            sensors: Sensors::build(config, None),
+            index,
+            source_name: config
+                .sources
+                .get(index)
+                .map_or("replay", |s| s.name.as_str())
+                .to_string(),
+            interval: config.daemon.status_interval.as_secs_f64(),
+            next_status: None,
+            realtime: !matches!(speed, Speed::Max),
+            lines: Vec::new(),
+            failed: None,
+        })
+    }
+
+    /// Publishes the STATUS lines due before `time`, then the event's lines;
+    /// on a write error, keeps it and asks the source to stop.
+    fn handle(
+        &mut self,
+        time: f64,
+        event: SourceEvent,
+        counters: &SourceCounters,
+        out: &mut dyn Write,
+        stop: &AtomicBool,
+    ) {
+        if self.failed.is_some() {
+            return;
+        }
+        let interval = self.interval;
+        let k = self
+            .next_status
+            .get_or_insert_with(|| (time / interval).floor() + 1.0);
+        if time - *k * interval >= f64::from(MAX_STATUS_CATCH_UP) * interval {
+            *k = (time / interval).floor();
+        }
+        while time >= *k * interval {
+            let statuses = [SourceStatus {
+                source: &self.source_name,
+                connected: true,
+                counters: counters.snapshot(),
+            }];
+            self.lines
+                .push(self.sensors.status_line(*k * interval, &statuses, None));
+            *k += 1.0;
+        }
+        let lines = &mut self.lines;
+        let mut emit = |_: Lane, line: String| lines.push(line);
+        match event {
+            SourceEvent::Reading(reading) => {
+                self.sensors
+                    .on_reading(self.index, &reading, &mut emit, &mut |_| {})
+            }
+            SourceEvent::Row(row) => self
+                .sensors
+                .on_row(self.index, &row, &mut emit, &mut |_| {}),
+            _ => {}
+        }
+        for line in self.lines.drain(..) {
+            let written = out
+                .write_all(line.as_bytes())
+                .and_then(|()| out.write_all(b"\n"))
+                .and_then(|()| if self.realtime { out.flush() } else { Ok(()) });
+            if let Err(e) = written {
+                self.failed = Some(e);
+                stop.store(true, Ordering::Relaxed);
+                return;
+            }
+        }
+    }
+
+    fn finish(self, out: &mut dyn Write) -> Result<(), DaemonError> {
+        if let Some(e) = self.failed {
+            return Err(DaemonError::Output(e));
+        }
+        out.flush().map_err(DaemonError::Output)
+    }
+}
+
 /// Runs the configured sensors on a capture that stands in for the source
 /// `source` (or the only source), writing every line `run` would have
 /// published to `out`, losslessly. STATUS lines come every
 /// `status_interval_s` of capture time, so the output is the same on every
-/// run. No state is read or written.
+/// run; their counters are the replay's, as a live source keeps them. No
+/// state is read or written.
 pub fn replay_through_pipeline(
     config: &Config,
     capture: &CaptureFile,
@@ -533,62 +742,60 @@ pub fn replay_through_pipeline(
     speed: Speed,
     out: &mut dyn Write,
 ) -> Result<ReplaySummary, DaemonError> {
-    let index = match source {
-        Some(wanted) => config
-            .sources
-            .iter()
-            .position(|s| s.name == wanted)
-            .ok_or_else(|| DaemonError::NoSuchSource(wanted.to_string()))?,
-        None => 0,
-    };
-    let mut sensors = Sensors::build(config, None);
+    let mut pipeline = Pipeline::new(config, source, speed)?;
     let stop = AtomicBool::new(false);
-    let interval = config.daemon.status_interval.as_secs_f64();
-    let mut next_status = interval;
     let counters = SourceCounters::default();
-    let source_name = config
-        .sources
-        .get(index)
-        .map_or("replay", |s| s.name.as_str());
-    let realtime = !matches!(speed, Speed::Max);
-    let mut failed: Option<std::io::Error> = None;
-    let write_line = |line: &str, out: &mut dyn Write| -> std::io::Result<()> {
-        out.write_all(line.as_bytes())?;
-        out.write_all(b"\n")?;
-        if realtime { out.flush() } else { Ok(()) }
-    };
-    let summary = replay(capture, name, speed, &stop, &mut |reading| {
-        if failed.is_some() {
-            return;
-        }
-        SourceCounters::add(&counters.frames_good, 1);
-        let mut lines: Vec<String> = Vec::new();
-        while reading.time >= next_status {
-            let statuses = [SourceStatus {
-                source: source_name,
-                connected: true,
-                counters: counters.snapshot(),
-            }];
-            lines.push(sensors.status_line(next_status, &statuses, None));
-            next_status += interval;
-        }
-        sensors.on_reading(
-            index,
-            &reading,
-            &mut |_, line| lines.push(line),
-            &mut |_| {},
+    let summary = replay_counted(capture, name, speed, &stop, &counters, &mut |reading| {
+        pipeline.handle(
+            reading.time,
+            SourceEvent::Reading(reading),
+            &counters,
+            out,
+            &stop,
         );
-        for line in lines {
-            if let Err(e) = write_line(&line, out) {
-                failed = Some(e);
-                stop.store(true, Ordering::Relaxed);
-                return;
-            }
-        }
     })?;
-    if let Some(e) = failed {
-        return Err(DaemonError::Output(e));
-    }
-    out.flush().map_err(DaemonError::Output)?;
+    pipeline.finish(out)?;
+    Ok(summary)
+}
+
+/// [`replay_through_pipeline`] for a CSV recording (`path`) standing in for
+/// the csv source `source` (or the first source, which must be a csv
+/// source): its time column (or period), and its sensors' columns, come
+/// from that source's configuration, resolved against this file's header.
+/// The file is checked whole first (header, times that increase), as `run`
+/// does before it is ready.
+pub fn replay_csv_through_pipeline(
+    config: &Config,
+    path: &std::path::Path,
+    source: Option<&str>,
+    speed: Speed,
+    out: &mut dyn Write,
+) -> Result<CsvPlayback, DaemonError> {
+    let mut pipeline = Pipeline::new(config, source, speed)?;
+    let Some(SourceKind::Csv {
+        time_column,
+        period_s,
+        ..
+    }) = config.sources.get(pipeline.index).map(|s| &s.kind)
+    else {
+        return Err(DaemonError::NotCsv(pipeline.source_name.clone()));
+    };
+    let (layout, _) = check_csv(path, time_column.as_deref(), *period_s)?;
+    let layout = Arc::new(layout);
+    let required = pipeline.sensors.bind_csv(pipeline.index, &layout, path)?;
+    let stop = AtomicBool::new(false);
+    let counters = SourceCounters::default();
+    let summary = play_csv(
+        path,
+        &layout,
+        &required,
+        speed,
+        &stop,
+        &counters,
+        &mut |row| {
+            pipeline.handle(row.time, SourceEvent::Row(row), &counters, out, &stop);
+        },
+    )?;
+    pipeline.finish(out)?;
     Ok(summary)
 }

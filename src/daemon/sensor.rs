@@ -3,16 +3,19 @@
 //! reading is the time the source stamped on it, so a replay publishes
 //! exactly what the live daemon would have.
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use super::acceptance::{self, Limits};
 use super::config::{Axis, Field, GyroChoice, SensorConfig};
 use super::messages::{
-    CalibrationMessage, HeadingVsGyro, ReadingMessage, SensorState, SensorStatus, to_line,
+    CalibrationMessage, ColumnValues, HeadingVsGyro, ReadingMessage, SensorState, SensorStatus,
+    to_line,
 };
 use super::publish::Lane;
 use super::rotation::{RotationBuffer, RotationEvent};
 use super::{Calibration, Terms};
+use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::model::diagnose::diagnose;
 use crate::model::effects::{Effect, parse_list};
 use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper};
@@ -41,6 +44,20 @@ pub struct Sensor {
     last_rejection: Option<String>,
     /// The gyro rate kept beside the rotation, for its heading check.
     gyro: Option<GyroTrack>,
+    /// A sensor of a csv source: its columns, resolved once against the
+    /// file's header by [`Sensor::bind_csv`].
+    csv: Option<CsvBinding>,
+}
+
+/// Where a csv sensor's values are in each row: indices into
+/// [`CsvRow::values`], resolved once, never looked up by name per row.
+#[derive(Debug, Clone)]
+struct CsvBinding {
+    layout: Arc<CsvLayout>,
+    axes: [usize; 2],
+    gyro: Option<usize>,
+    /// The other columns, published with each reading.
+    others: Vec<usize>,
 }
 
 /// The angular rate about the turn's axis, in degrees/second, with its
@@ -63,19 +80,35 @@ struct GyroTrack {
 
 impl GyroTrack {
     fn new(choice: &GyroChoice, max_samples: usize) -> Option<Self> {
-        let GyroChoice::Rate {
-            stream,
-            axis,
-            lsb_per_deg_s,
-        } = *choice
-        else {
-            return None;
+        let (stream, axis, lsb_per_deg_s, column) = match choice {
+            GyroChoice::Rate {
+                stream,
+                axis,
+                lsb_per_deg_s,
+            } => (
+                *stream,
+                axis.index(),
+                *lsb_per_deg_s,
+                format!("gyro_{}", axis.name()),
+            ),
+            // A column's value in its units: one deg/s is 1 deg/s, or
+            // pi/180 rad/s.
+            GyroChoice::Column { name, units } => (
+                0,
+                0,
+                match units {
+                    GyroUnits::DegPerSecond => 1.0,
+                    GyroUnits::RadPerSecond => std::f64::consts::PI / 180.0,
+                },
+                name.clone(),
+            ),
+            GyroChoice::Off(_) => return None,
         };
         Some(GyroTrack {
             stream,
-            axis: axis.index(),
+            axis,
             lsb_per_deg_s,
-            column: format!("gyro_{}", axis.name()),
+            column,
             t: Vec::new(),
             rate: Vec::new(),
             // A rotation holds at most max_samples readings of the sensor;
@@ -89,7 +122,15 @@ impl GyroTrack {
         let Some(triad) = reading.gyro.filter(|_| reading.stream == self.stream) else {
             return;
         };
-        let time = reading.time;
+        self.keep_value(reading.time, f64::from(triad[self.axis]));
+    }
+
+    /// Keeps a rate at `time` in the gyro's units (counts, or a column's
+    /// deg/s or rad/s). O(1) amortised.
+    fn keep_value(&mut self, time: f64, value: f64) {
+        if !value.is_finite() {
+            return;
+        }
         // The integration needs increasing times; a repeated or earlier
         // time (as the rotation buffer also ignores) is left out.
         if !time.is_finite() || self.t.last().is_some_and(|&last| time <= last) {
@@ -101,8 +142,7 @@ impl GyroTrack {
             self.rate.drain(..half);
         }
         self.t.push(time);
-        self.rate
-            .push(f64::from(triad[self.axis]) / self.lsb_per_deg_s);
+        self.rate.push(value / self.lsb_per_deg_s);
     }
 
     fn clear(&mut self) {
@@ -172,7 +212,81 @@ impl Sensor {
             fits_rejected: 0,
             last_rejection: None,
             gyro,
+            csv: None,
         }
+    }
+
+    /// Resolves a csv sensor's columns against the header of the file its
+    /// source plays (`path`, for messages), once before the first row.
+    /// Returns the columns it needs a number in, for the source to skip
+    /// rows without. A sensor of another source needs none.
+    pub fn bind_csv(
+        &mut self,
+        layout: &Arc<CsvLayout>,
+        path: &std::path::Path,
+    ) -> Result<Vec<usize>, CsvError> {
+        let Some(columns) = &self.config.columns else {
+            return Ok(Vec::new());
+        };
+        let find = |name: &str, role: &'static str| {
+            layout.index(name).ok_or_else(|| CsvError::MissingColumn {
+                path: path.to_path_buf(),
+                name: name.to_string(),
+                role,
+                flag: "the sensor's keys in the configuration",
+                available: layout.available(),
+            })
+        };
+        let axes = [
+            find(&columns[0], "the sensor's x axis")?,
+            find(&columns[1], "the sensor's y axis")?,
+        ];
+        let gyro = match &self.config.gyro {
+            GyroChoice::Column { name, .. } => Some(find(name, "the sensor's gyro")?),
+            _ => None,
+        };
+        let others = (0..layout.names.len())
+            .filter(|i| !axes.contains(i) && Some(*i) != layout.time_index())
+            .collect();
+        let mut required = axes.to_vec();
+        required.extend(gyro);
+        self.csv = Some(CsvBinding {
+            layout: layout.clone(),
+            axes,
+            gyro,
+            others,
+        });
+        Ok(required)
+    }
+
+    /// Handles one row of the sensor's csv source, as
+    /// [`Sensor::on_reading`] a reading: the row's other columns travel
+    /// with the published reading. A sensor not bound to a csv source, or
+    /// a row without numbers in its axes, is ignored.
+    pub fn on_row(&mut self, row: &CsvRow, emit: &mut Emit<'_>) -> Option<Calibration> {
+        let binding = self.csv.as_ref()?;
+        let (x, y) = (
+            *row.values.get(binding.axes[0])?,
+            *row.values.get(binding.axes[1])?,
+        );
+        if !(x.is_finite() && y.is_finite()) {
+            return None;
+        }
+        if self.state != SensorState::Calibrated
+            && let (Some(gyro), Some(i)) = (&mut self.gyro, binding.gyro)
+            && let Some(&rate) = row.values.get(i)
+        {
+            gyro.keep_value(row.time, rate);
+        }
+        self.readings += 1;
+        let columns = ColumnValues {
+            names: &binding.layout.names,
+            indices: &binding.others,
+            values: &row.values,
+        };
+        let line = self.reading_line(row.time, x, y, Some(columns));
+        emit(Lane::Reading, line);
+        self.collect(row.time, x, y, emit)
     }
 
     pub fn name(&self) -> &str {
@@ -239,25 +353,31 @@ impl Sensor {
         }
         let (x, y) = self.axes_of(reading)?;
         self.readings += 1;
-        emit(Lane::Reading, self.reading_line(reading.time, x, y));
+        emit(Lane::Reading, self.reading_line(reading.time, x, y, None));
+        self.collect(reading.time, x, y, emit)
+    }
+
+    /// Feeds a published sample to the rotation buffer while collecting,
+    /// and fits when the rotation is complete.
+    fn collect(&mut self, time: f64, x: f64, y: f64, emit: &mut Emit<'_>) -> Option<Calibration> {
         if self.state == SensorState::Calibrated {
             return None;
         }
-        match self.buffer.push(reading.time, x, y) {
+        match self.buffer.push(time, x, y) {
             RotationEvent::Collecting => None,
             RotationEvent::Rejected { reason } => {
                 if let Some(gyro) = &mut self.gyro {
-                    gyro.forget_before(reading.time);
+                    gyro.forget_before(time);
                 }
                 tracing::warn!(sensor = %self.config.name, "{reason}");
-                self.reject(reading.time, reason, 0, 0.0, 0.0, emit);
+                self.reject(time, reason, 0, 0.0, 0.0, emit);
                 None
             }
-            RotationEvent::Complete => self.fit(reading.time, emit),
+            RotationEvent::Complete => self.fit(time, emit),
         }
     }
 
-    fn reading_line(&self, time: f64, x: f64, y: f64) -> String {
+    fn reading_line(&self, time: f64, x: f64, y: f64, columns: Option<ColumnValues<'_>>) -> String {
         let corrected = self.current.as_ref().map(|c| {
             let (sx, sy) = c.apply(x, y);
             (c.id, [sx, sy], sy.atan2(sx).to_degrees().rem_euclid(360.0))
@@ -271,6 +391,7 @@ impl Sensor {
             heading_deg: corrected.map(|c| c.2),
             calibration: corrected.map(|c| c.0),
             calibrated: corrected.is_some(),
+            columns: columns.filter(|c| !c.is_empty()),
         })
     }
 
@@ -381,7 +502,9 @@ impl Sensor {
         let Some(gyro) = &mut self.gyro else {
             return Err(match &self.config.gyro {
                 GyroChoice::Off(why) => why.clone(),
-                GyroChoice::Rate { .. } => "no heading check: no gyro".into(),
+                GyroChoice::Rate { .. } | GyroChoice::Column { .. } => {
+                    "no heading check: no gyro".into()
+                }
             });
         };
         let t = rotation.t.as_deref().unwrap_or(&[]);

@@ -3,6 +3,7 @@
 //! [`crate::protocol`], the file format in [`crate::capture`].
 
 pub mod bridge;
+pub mod csv;
 pub mod replay;
 pub mod serial;
 
@@ -10,6 +11,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use serde::Serialize;
 
+use crate::io::csv::CsvRow;
 use crate::sample::Reading;
 
 /// What a source hands on.
@@ -17,6 +19,9 @@ use crate::sample::Reading;
 pub enum SourceEvent {
     /// A decoded reading.
     Reading(Reading),
+    /// A row of a CSV recording: every column's value, in the order of the
+    /// header the source resolved once at start (see [`csv`]).
+    Row(CsvRow),
     /// Bytes exactly as they came off the wire, for `record`. `stream`
     /// numbers the byte streams of one source (see [`crate::capture`]).
     Raw {

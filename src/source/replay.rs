@@ -16,6 +16,8 @@ use crate::capture::{CaptureFile, StreamKind};
 use crate::protocol::chips::Chip;
 use crate::protocol::falcon::{DecoderCounters, FalconDecoder, NOMINAL_PERIOD};
 use crate::sample::Reading;
+use crate::source::SourceCounters;
+use crate::source::serial::publish_counters;
 
 /// How fast a replay runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -72,20 +74,20 @@ pub struct ReplaySummary {
 }
 
 /// Waits until each recorded time comes round, scaled by the speed.
-struct Pacer {
+pub(crate) struct Pacer {
     started: Instant,
     speed: Speed,
 }
 
 impl Pacer {
-    fn new(speed: Speed) -> Self {
+    pub(crate) fn new(speed: Speed) -> Self {
         Pacer {
             started: Instant::now(),
             speed,
         }
     }
 
-    fn wait_for(&self, time: f64, stop: &AtomicBool) {
+    pub(crate) fn wait_for(&self, time: f64, stop: &AtomicBool) {
         let Speed::Times(factor) = self.speed else {
             return;
         };
@@ -115,14 +117,29 @@ pub fn replay(
     stop: &AtomicBool,
     emit: &mut dyn FnMut(Reading),
 ) -> Result<ReplaySummary, ReplayError> {
+    replay_counted(file, name, speed, stop, &SourceCounters::default(), emit)
+}
+
+/// [`replay`], keeping `counters` as a live source does while it plays:
+/// `bytes_read` per record, the Falcon decoder's `bytes_skipped`,
+/// `frames_good`, `frames_bad`, `frames_lost` and `timer_resets`, and a
+/// chip poll's reading (good) or decoding error (bad).
+pub fn replay_counted(
+    file: &CaptureFile,
+    name: &str,
+    speed: Speed,
+    stop: &AtomicBool,
+    counters: &SourceCounters,
+    emit: &mut dyn FnMut(Reading),
+) -> Result<ReplaySummary, ReplayError> {
     match file {
-        CaptureFile::Raw { bytes } => replay_raw(bytes, name, speed, stop, emit),
+        CaptureFile::Raw { bytes } => replay_raw(bytes, name, speed, stop, counters, emit),
         CaptureFile::Capture {
             header,
             chunks,
             truncated,
         } => {
-            let mut decoders: Vec<(u8, StreamDecoder)> = header
+            let mut decoders: Vec<(u8, StreamDecoder, DecoderCounters)> = header
                 .streams
                 .iter()
                 .map(|s| {
@@ -130,7 +147,7 @@ pub fn replay(
                         StreamKind::Falcon => StreamDecoder::Falcon(Box::default()),
                         StreamKind::Chip { chip, .. } => StreamDecoder::Chip(chip),
                     };
-                    (s.id, decoder)
+                    (s.id, decoder, DecoderCounters::default())
                 })
                 .collect();
             let mut summary = ReplaySummary {
@@ -138,6 +155,7 @@ pub fn replay(
                 ..Default::default()
             };
             let pacer = Pacer::new(speed);
+            let mut frames = Vec::new();
             for chunk in chunks {
                 if stop.load(Ordering::Relaxed) {
                     summary.stopped = true;
@@ -146,21 +164,30 @@ pub fn replay(
                 pacer.wait_for(chunk.time, stop);
                 summary.chunks += 1;
                 summary.span_s = chunk.time;
+                SourceCounters::add(&counters.bytes_read, chunk.bytes.len() as u64);
                 let decoder = decoders
                     .iter_mut()
-                    .find(|(id, _)| *id == chunk.stream)
-                    .map(|(_, d)| d);
+                    .find(|(id, _, _)| *id == chunk.stream)
+                    .map(|(_, d, reported)| (d, reported));
                 match decoder {
-                    Some(StreamDecoder::Falcon(decoder)) => decoder.decode(&chunk.bytes, |frame| {
-                        summary.readings += 1;
-                        emit(Reading {
-                            stream: chunk.stream,
-                            ..frame.to_reading(chunk.time)
-                        });
-                    }),
-                    Some(StreamDecoder::Chip(chip)) => {
+                    Some((StreamDecoder::Falcon(decoder), reported)) => {
+                        // Counted before the readings are handed on, so a
+                        // STATUS made on a reading includes its frame.
+                        frames.clear();
+                        decoder.decode(&chunk.bytes, |frame| frames.push(frame));
+                        publish_counters(decoder, reported, counters);
+                        for frame in frames.drain(..) {
+                            summary.readings += 1;
+                            emit(Reading {
+                                stream: chunk.stream,
+                                ..frame.to_reading(chunk.time)
+                            });
+                        }
+                    }
+                    Some((StreamDecoder::Chip(chip), _)) => {
                         match chip.decode(&chunk.bytes, chunk.time) {
                             Ok(reading) => {
+                                SourceCounters::add(&counters.frames_good, 1);
                                 summary.readings += 1;
                                 // As the live bridge stamps it: the chip's stream.
                                 emit(Reading {
@@ -169,6 +196,7 @@ pub fn replay(
                                 });
                             }
                             Err(e) => {
+                                SourceCounters::add(&counters.frames_bad, 1);
                                 summary.chip_errors += 1;
                                 tracing::warn!("{name}: record at {:.3} s: {e}", chunk.time);
                             }
@@ -178,7 +206,7 @@ pub fn replay(
                     None => {}
                 }
             }
-            for (_, decoder) in &decoders {
+            for (_, decoder, _) in &decoders {
                 if let StreamDecoder::Falcon(d) = decoder {
                     add_counters(&mut summary.falcon, d.counters());
                 }
@@ -194,6 +222,7 @@ fn replay_raw(
     name: &str,
     speed: Speed,
     stop: &AtomicBool,
+    counters: &SourceCounters,
     emit: &mut dyn FnMut(Reading),
 ) -> Result<ReplaySummary, ReplayError> {
     let mut decoder = FalconDecoder::new();
@@ -205,6 +234,18 @@ fn replay_raw(
             bytes: bytes.len(),
         });
     }
+    // The dump is decoded at once: its bytes and bad frames count from the
+    // start, its good frames as they are handed on.
+    SourceCounters::add(&counters.bytes_read, bytes.len() as u64);
+    let decoded = decoder.counters();
+    publish_counters(
+        &decoder,
+        &mut DecoderCounters {
+            frames_good: decoded.frames_good,
+            ..DecoderCounters::default()
+        },
+        counters,
+    );
     let period = NOMINAL_PERIOD.as_secs_f64();
     let pacer = Pacer::new(speed);
     let mut summary = ReplaySummary {
@@ -222,6 +263,7 @@ fn replay_raw(
         pacer.wait_for(time, stop);
         summary.readings += 1;
         summary.span_s = time;
+        SourceCounters::add(&counters.frames_good, 1);
         emit(frame.to_reading(time));
     }
     if decoder.pending() > 0 {

@@ -220,7 +220,7 @@ async fn stream(
 }
 
 /// Adds what the decoder counted since the last call to the shared counters.
-fn publish_counters(
+pub(crate) fn publish_counters(
     decoder: &FalconDecoder,
     reported: &mut DecoderCounters,
     counters: &SourceCounters,

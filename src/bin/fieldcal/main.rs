@@ -104,11 +104,11 @@ struct RunArgs {
 
 #[derive(Debug, Args)]
 struct ReplayArgs {
-    /// A capture written by `fieldcal record` or `fieldcal simulate --format falcon`, or a raw byte dump of Falcon-GX frames.
+    /// A capture written by `fieldcal record` or `fieldcal simulate --format falcon`, a raw byte dump of Falcon-GX frames, or (with --config naming a csv source) a CSV recording.
     file: PathBuf,
-    /// N times real time (1 = as recorded), or max.
-    #[arg(long, default_value = "1", value_parser = parse_speed)]
-    speed: Speed,
+    /// N times real time (1 = as recorded), or max [default: with --config, the source's configured speed; else 1].
+    #[arg(long, value_parser = parse_speed)]
+    speed: Option<Speed>,
     /// Print a JSON summary line (class SUMMARY) after the samples.
     #[arg(long)]
     json: bool,

@@ -7,8 +7,11 @@ use anyhow::{Context, Result};
 use serde::Serialize;
 
 use fieldcal::capture::read_capture;
+use fieldcal::daemon::config::{Config, SourceKind};
+use fieldcal::daemon::run::DaemonError;
+use fieldcal::io::csv::looks_like_csv;
 use fieldcal::sample::Reading;
-use fieldcal::source::replay::replay as run_replay;
+use fieldcal::source::replay::{Speed, replay as run_replay};
 
 use crate::ReplayArgs;
 
@@ -22,40 +25,25 @@ struct SampleLine<'a> {
 
 pub fn replay(args: ReplayArgs) -> Result<()> {
     let name = args.file.display().to_string();
-    let file = read_capture(&args.file)?;
     if let Some(config) = &args.config {
         let config = fieldcal::daemon::config::load(config)?;
-        let stdout = std::io::stdout();
-        let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
-        let result = fieldcal::daemon::run::replay_through_pipeline(
-            &config,
-            &file,
-            &name,
-            args.source.as_deref(),
-            args.speed,
-            &mut out,
-        );
-        return match result {
-            Err(fieldcal::daemon::run::DaemonError::Output(e))
-                if e.kind() == std::io::ErrorKind::BrokenPipe =>
-            {
-                Ok(())
-            }
-            Err(e) => Err(e.into()),
-            Ok(summary) => {
-                if let Some(truncated) = &summary.truncated {
-                    tracing::warn!("{truncated}");
-                }
-                Ok(())
-            }
-        };
+        return replay_with_config(&args, &config, &name);
     }
+    if looks_like_csv(&args.file) {
+        anyhow::bail!(
+            "{name} is a CSV recording: replaying one needs --config FILE, a configuration with a \
+             [[source]] of kind = \"csv\" whose [[sensor]] names its columns (axes = [\"COL_X\", \
+             \"COL_Y\"]); `fieldcal fit {name} --x COL_X --y COL_Y` fits it without one"
+        );
+    }
+    let file = read_capture(&args.file)?;
+    let speed = args.speed.unwrap_or(Speed::Times(1.0));
     let stop = AtomicBool::new(false);
     let stdout = std::io::stdout();
     let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
     let mut write_error: Option<std::io::Error> = None;
-    let realtime = !matches!(args.speed, fieldcal::source::replay::Speed::Max);
-    let summary = run_replay(&file, &name, args.speed, &stop, &mut |reading| {
+    let realtime = !matches!(speed, Speed::Max);
+    let summary = run_replay(&file, &name, speed, &stop, &mut |reading| {
         if write_error.is_some() {
             return;
         }
@@ -93,4 +81,61 @@ pub fn replay(args: ReplayArgs) -> Result<()> {
         crate::output::write_stdout(format!("{line}\n").as_bytes())?;
     }
     Ok(())
+}
+
+/// `replay --config`: the file stands in for the configured source (the
+/// one named by --source, else the first) and goes through the daemon's
+/// pipeline, at --speed, else at the source's configured speed.
+fn replay_with_config(args: &ReplayArgs, config: &Config, name: &str) -> Result<()> {
+    let source = match &args.source {
+        Some(wanted) => config.source(wanted),
+        None => config.sources.first(),
+    };
+    let speed = args
+        .speed
+        .or_else(|| source.and_then(|s| s.kind.speed()))
+        .unwrap_or(Speed::Times(1.0));
+    let is_csv_source = source.is_some_and(|s| matches!(s.kind, SourceKind::Csv { .. }));
+    let stdout = std::io::stdout();
+    let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
+    let result = if is_csv_source {
+        fieldcal::daemon::run::replay_csv_through_pipeline(
+            config,
+            &args.file,
+            args.source.as_deref(),
+            speed,
+            &mut out,
+        )
+        .map(|summary| {
+            tracing::info!(
+                rows = summary.rows,
+                bad_rows = summary.bad_rows,
+                bytes = summary.bytes_read,
+                "replayed {name}"
+            );
+        })
+    } else {
+        if let Some(source) = source.filter(|_| looks_like_csv(&args.file)) {
+            return Err(DaemonError::NotCsv(source.name.clone()).into());
+        }
+        let file = read_capture(&args.file)?;
+        fieldcal::daemon::run::replay_through_pipeline(
+            config,
+            &file,
+            name,
+            args.source.as_deref(),
+            speed,
+            &mut out,
+        )
+        .map(|summary| {
+            if let Some(truncated) = &summary.truncated {
+                tracing::warn!("{truncated}");
+            }
+        })
+    };
+    match result {
+        Err(DaemonError::Output(e)) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        Err(e) => Err(e.into()),
+        Ok(()) => Ok(()),
+    }
 }
