@@ -431,7 +431,10 @@ fn complete_run(
         pick(table.col(a)),
         pick(table.col(b)),
     );
-    let mut buffer = RotationBuffer::new(RotationConfig::default());
+    let mut buffer = RotationBuffer::new(RotationConfig {
+        use_gyro: with_gyro,
+        ..Default::default()
+    });
     for i in 0..t.len() {
         let angle = with_gyro.then(|| gyro.at(t[i]));
         match buffer.push_turned(t[i], x[i], y[i], angle) {

@@ -30,13 +30,18 @@
 //!   samples on the circle;
 //! - **the readings moved**: their spread exceeds `still_ratio` times their
 //!   noise (a still sensor's noise cloud has "headings" too);
-//! - **the gyro agrees**, when the sensor passes one (see
-//!   [`RotationBuffer::push_turned`]) and `use_gyro` is on: its integrated
-//!   angle since the first sample has also reached the net turn needed. The
-//!   gyro alone never completes a rotation (an uncalibrated MEMS gyro drifts
-//!   by up to ±20°/s, MPU-6050 datasheet, so a swing plus drift could
-//!   integrate to a turn): it can only hold one back, e.g. when a magnet is
-//!   carried round a still sensor.
+//! - **the gyro agrees**, only when `use_gyro` is on (it is off by default)
+//!   and the sensor passes a gyro angle (see
+//!   [`RotationBuffer::push_turned`]): its integrated angle since the first
+//!   sample has also reached the net turn needed. The gyro alone never
+//!   completes a rotation (an uncalibrated MEMS gyro drifts by up to ±20°/s,
+//!   MPU-6050 datasheet, so a swing plus drift could integrate to a turn):
+//!   it can only hold one back, e.g. when a magnet is carried round a still
+//!   sensor. Off by default because a gyro whose axis or scale is
+//!   configured wrong would then hold back every rotation, while the heading
+//!   check of each CALIBRATION (information only) already tells the user;
+//!   the readings' own net turn completes the recorded turns at one turn
+//!   with or without it.
 //!
 //! None of this counts samples per sector, so it does not depend on the
 //! sample rate: a 10 Hz robot turn with a few samples per 10° completes as
@@ -149,8 +154,7 @@ impl Default for RotationConfig {
     /// - 20 noise deviations: n white-noise readings spread over about
     ///   2*sqrt(2 ln n) deviations, ~9 for 20000; and a field below 10
     ///   deviations (radius) could not meet the acceptance's 5 % rms anyway.
-    /// - use_gyro: on, since it can only hold back a rotation the readings
-    ///   alone would accept, and then says why.
+    /// - use_gyro: off; see the module documentation.
     fn default() -> Self {
         RotationConfig {
             max_gap_deg: DEFAULT_MAX_GAP_DEG,
@@ -158,7 +162,7 @@ impl Default for RotationConfig {
             timeout_s: 60.0,
             still_timeout_s: 10.0,
             still_ratio: 20.0,
-            use_gyro: true,
+            use_gyro: false,
         }
     }
 }
@@ -1466,6 +1470,10 @@ mod tests {
         // that is not used: the same sample completes.
         let mut plain = RotationBuffer::new(RotationConfig::default());
         let (i, _) = run(&mut plain, &samples).unwrap();
+        let with_gyro = RotationConfig {
+            use_gyro: true,
+            ..Default::default()
+        };
         for (sign, use_gyro) in [(1.0, true), (-1.0, true), (0.0, false)] {
             let config = RotationConfig {
                 use_gyro,
@@ -1479,8 +1487,8 @@ mod tests {
             assert_eq!(done, Some(i), "sign {sign}");
         }
         // A gyro that saw no turn (a magnet carried round a still sensor)
-        // holds it back, and the rejection says so.
-        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        // holds it back when used, and the rejection says so.
+        let mut buffer = RotationBuffer::new(with_gyro);
         let samples = track(61.0, 0.05, (400.0, -900.0), 2.0, heading);
         for &(t, x, y) in &samples {
             match buffer.push_turned(t, x, y, Some(5.0 + 0.01 * t)) {
@@ -1580,11 +1588,8 @@ mod tests {
             assert!(buffer.config().validate().is_ok(), "{:?}", buffer.config());
         }
         let c: RotationConfig =
-            toml::from_str("max_gap_deg = 20.0\ntimeout_s = 30.0\nuse_gyro = false").unwrap();
-        assert_eq!(
-            (c.max_gap_deg, c.timeout_s, c.use_gyro),
-            (20.0, 30.0, false)
-        );
+            toml::from_str("max_gap_deg = 20.0\ntimeout_s = 30.0\nuse_gyro = true").unwrap();
+        assert_eq!((c.max_gap_deg, c.timeout_s, c.use_gyro), (20.0, 30.0, true));
         assert_eq!(c.turn_needed_deg(), 340.0);
         assert_eq!(c.max_samples, 20_000);
         // The per-sector keys are gone: named, not ignored.

@@ -629,20 +629,21 @@ mod tests {
 
     #[test]
     fn the_gyro_angle_reaches_the_rotation_buffer() {
+        let used = "[sensor.rotation]\nuse_gyro = true\n";
         // A gyro that agrees (36 deg/s): the turn completes and is fitted.
-        let mut sensor = falcon_sensor("");
+        let mut sensor = falcon_sensor(used);
         let lines = turn_with_gyro(&mut sensor, 360);
         assert_eq!(lines.len(), 1, "{lines:?}");
         assert!(lines[0].contains("\"accepted\":true"), "{lines:?}");
         // A gyro that saw no turn (a magnet carried round a still sensor):
         // the readings alone would complete, the gyro holds it back.
-        let mut sensor = falcon_sensor("");
+        let mut sensor = falcon_sensor(used);
         assert!(turn_with_gyro(&mut sensor, 0).is_empty());
         let progress = sensor.status().rotation.unwrap();
         assert!(progress.turned_deg > 350.0, "{progress:?}");
         assert_eq!(progress.gyro_turned_deg, Some(0.0));
-        // Unless the configuration says not to use it.
-        let mut sensor = falcon_sensor("[sensor.rotation]\nuse_gyro = false\n");
+        // Unless the configuration leaves it out, as by default.
+        let mut sensor = falcon_sensor("");
         assert_eq!(turn_with_gyro(&mut sensor, 0).len(), 1);
     }
 
