@@ -12,6 +12,7 @@ use std::f64::consts::TAU;
 use fieldcal::daemon::acceptance::{self, Limits};
 use fieldcal::daemon::rotation::{RotationBuffer, RotationConfig, RotationEvent};
 use fieldcal::model::fit::{FitOptions, fit_paper};
+use fieldcal::model::turn::check_turn;
 use fieldcal::protocol::chips::Chip;
 use fieldcal::sample::Reading;
 use rand::SeedableRng;
@@ -690,4 +691,38 @@ fn a_10_hz_lsm303_turn_with_stops_calibrates_through_the_daemon() {
         (a - 1.0 / 1.06).abs() < 0.02 || (a - 1.06).abs() < 0.02,
         "{c}"
     );
+}
+
+#[test]
+fn the_real_tumble_never_gives_a_rotation_that_passes_the_gate() {
+    // The sunsided tilt-sphere run: the board tumbled in the hand, so two
+    // axes fill a disc rather than turn once round one circle.
+    let run = "tilt-sphere";
+    let mag = Table::read(run, "hmc5883l_mag.csv");
+    let imu = Table::read(run, "mpu6050.csv");
+    for (table, a, b) in [
+        (&mag, "mag_x", "mag_y"),
+        (&mag, "mag_x", "mag_z"),
+        (&mag, "mag_y", "mag_z"),
+        (&imu, "acc_x", "acc_y"),
+        (&imu, "acc_x", "acc_z"),
+        (&imu, "acc_y", "acc_z"),
+    ] {
+        let (t, x, y) = (table.col("t_s"), table.col(a), table.col(b));
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        for i in 0..t.len() {
+            if buffer.push(t[i], x[i], y[i]) == RotationEvent::Complete {
+                // Where the tumble happened to roll once round these two
+                // axes, the turn gate (which every fit passes) refuses what
+                // the buffer held.
+                let (_, hx, hy) = buffer.take();
+                let gate = check_turn(&hx, &hy, 300.0);
+                eprintln!(
+                    "{run} {a}/{b}: complete at {:.2} s; the gate: {gate:?}",
+                    t[i]
+                );
+                assert!(gate.is_err(), "{run} {a}/{b} at {:.2} s: {gate:?}", t[i]);
+            }
+        }
+    }
 }
