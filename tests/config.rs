@@ -74,7 +74,7 @@ field = "mag"
 axes = ["x", "y"]
 model = "paper"
 [sensor.rotation]
-sectors = 24
+max_gap_deg = 20.0
 [sensor.limits]
 min_coverage_deg = 350.0
 
@@ -199,7 +199,7 @@ fn a_full_config_parses_to_the_right_structures() {
     assert_eq!(s[0].field, Field::Mag);
     assert_eq!(s[0].axes, [Axis::X, Axis::Y]);
     assert_eq!(s[0].effects, ["offset", "scale"]);
-    assert_eq!(s[0].rotation.sectors, 24);
+    assert_eq!(s[0].rotation.max_gap_deg, 20.0);
     assert_eq!(s[0].limits.min_coverage_deg, 350.0);
     assert_eq!(
         s[1].rotation,

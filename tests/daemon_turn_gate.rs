@@ -1,7 +1,7 @@
 //! The daemon shares the turn gate of `fit` and `diagnose`: a rotation
-//! buffer that completes on readings that never traced a ring (the
-//! sunsided tilt-sphere tumble, whose two axes fill a disc) gets a
-//! CALIBRATION refused with the gate's reason, and no calibration.
+//! buffer that completed on readings that never traced a ring (the
+//! sunsided tilt-sphere tumble, whose two axes fill a disc) would get a
+//! CALIBRATION refused with the gate's reason; either way, no calibration.
 
 mod common;
 
@@ -44,7 +44,9 @@ fn a_tumble_through_the_daemon_is_refused_as_a_disc() {
         .iter()
         .filter(|v| v["class"] == "CALIBRATION")
         .collect();
-    assert!(!calibrations.is_empty(), "no rotation completed: {log}");
+    // The rotation buffer itself no longer completes on the tumble (its
+    // readings never sweep 330° in one direction round one circle), so no
+    // fit is tried; should one complete, the gate must refuse it.
     for c in &calibrations {
         assert_eq!(c["accepted"], false, "{c}");
         let reason = c["reason"].as_str().unwrap_or_default();
@@ -56,6 +58,6 @@ fn a_tumble_through_the_daemon_is_refused_as_a_disc() {
     // Nothing was ever corrected.
     assert!(
         !lines.iter().any(|v| v["calibrated"] == true),
-        "a tumble corrected readings"
+        "a tumble corrected readings: {log}"
     );
 }

@@ -76,6 +76,10 @@ struct GyroTrack {
     /// Most entries held: the older half is dropped when full, so memory
     /// stays bounded however long the sensor collects.
     cap: usize,
+    /// The rate integrated (trapezoids) over every reading kept, in
+    /// degrees from an arbitrary origin: the rotation buffer takes its
+    /// change since a rotation's first sample.
+    angle_deg: f64,
 }
 
 impl GyroTrack {
@@ -114,6 +118,7 @@ impl GyroTrack {
             // A rotation holds at most max_samples readings of the sensor;
             // a gyro polled beside it adds as many.
             cap: 2 * max_samples.max(1),
+            angle_deg: 0.0,
         })
     }
 
@@ -141,8 +146,17 @@ impl GyroTrack {
             self.t.drain(..half);
             self.rate.drain(..half);
         }
+        let rate = value / self.lsb_per_deg_s;
+        if let (Some(&t0), Some(&r0)) = (self.t.last(), self.rate.last()) {
+            self.angle_deg += (time - t0) * (rate + r0) / 2.0;
+        }
         self.t.push(time);
-        self.rate.push(value / self.lsb_per_deg_s);
+        self.rate.push(rate);
+    }
+
+    /// The integrated angle, once a rate has been kept.
+    fn angle(&self) -> Option<f64> {
+        (!self.t.is_empty()).then_some(self.angle_deg)
     }
 
     fn clear(&mut self) {
@@ -363,7 +377,9 @@ impl Sensor {
         if self.state == SensorState::Calibrated {
             return None;
         }
-        match self.buffer.push(time, x, y) {
+        // The gyro's integrated angle lets the buffer check the turn.
+        let turned = self.gyro.as_ref().and_then(GyroTrack::angle);
+        match self.buffer.push_turned(time, x, y, turned) {
             RotationEvent::Collecting => None,
             RotationEvent::Rejected { reason } => {
                 if let Some(gyro) = &mut self.gyro {
@@ -713,6 +729,46 @@ mod tests {
         // Recalibrating starts afresh.
         sensor.recalibrate();
         assert!(sensor.gyro.as_ref().unwrap().t.is_empty());
+    }
+
+    /// One turn of the magnetometer in 10 s at 20 Hz, with the frame's gyro
+    /// reading `rate_z` counts (10 per deg/s); whether a CALIBRATION came.
+    fn turn_with_gyro(sensor: &mut Sensor, rate_z: i16) -> Vec<String> {
+        let mut lines = Vec::new();
+        for i in 0..=200 {
+            let t = f64::from(i) * 0.05;
+            let h = (36.0 * t).to_radians();
+            let mag = [
+                (300.0 + 1000.0 * h.cos()).round() as i16,
+                (-200.0 + 1000.0 * h.sin()).round() as i16,
+            ];
+            sensor.on_reading(&reading(t, mag, rate_z), &mut |_, line| {
+                if line.contains("\"CALIBRATION\"") {
+                    lines.push(line);
+                }
+            });
+        }
+        lines
+    }
+
+    #[test]
+    fn the_gyro_angle_reaches_the_rotation_buffer() {
+        let used = "[sensor.rotation]\nuse_gyro = true\n";
+        // A gyro that agrees (36 deg/s): the turn completes and is fitted.
+        let mut sensor = falcon_sensor(used);
+        let lines = turn_with_gyro(&mut sensor, 360);
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        assert!(lines[0].contains("\"accepted\":true"), "{lines:?}");
+        // A gyro that saw no turn (a magnet carried round a still sensor):
+        // the readings alone would complete, the gyro holds it back.
+        let mut sensor = falcon_sensor(used);
+        assert!(turn_with_gyro(&mut sensor, 0).is_empty());
+        let progress = sensor.status().rotation.unwrap();
+        assert!(progress.turned_deg > 350.0, "{progress:?}");
+        assert_eq!(progress.gyro_turned_deg, Some(0.0));
+        // Unless the configuration leaves it out, as by default.
+        let mut sensor = falcon_sensor("");
+        assert_eq!(turn_with_gyro(&mut sensor, 0).len(), 1);
     }
 
     #[test]
