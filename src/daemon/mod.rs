@@ -8,6 +8,7 @@
 
 pub mod acceptance;
 pub mod config;
+pub mod http;
 pub mod messages;
 pub mod notify;
 pub mod publish;
