@@ -55,50 +55,71 @@ pub fn request(
         body.len()
     )
     .unwrap();
-    let mut raw = Vec::new();
-    stream
-        .read_to_end(&mut raw)
-        .unwrap_or_else(|e| panic!("{method} {path}: {e}"));
-    let split = raw
-        .windows(4)
-        .position(|w| w == b"\r\n\r\n")
-        .unwrap_or_else(|| panic!("no end of headers in {:?}", String::from_utf8_lossy(&raw)));
-    let head = String::from_utf8_lossy(&raw[..split]).into_owned();
-    let mut body = raw[split + 4..].to_vec();
+    // Read by Content-Length or chunks: some servers (chromedriver) keep the
+    // connection open whatever the request said.
+    let mut reader = BufReader::new(stream);
+    let mut head = String::new();
+    loop {
+        let mut line = String::new();
+        let n = reader
+            .read_line(&mut line)
+            .unwrap_or_else(|e| panic!("{method} {path}: {e}"));
+        if n == 0 || line == "\r\n" || line == "\n" {
+            break;
+        }
+        head.push_str(&line);
+    }
     let status: u16 = head
         .split_whitespace()
         .nth(1)
         .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("bad status line: {head}"));
+        .unwrap_or_else(|| panic!("bad status line: {head:?}"));
     let response = Response {
         status,
         headers: head,
         body: Vec::new(),
     };
-    if response
+    let mut body = Vec::new();
+    if let Some(len) = response
+        .header("content-length")
+        .and_then(|v| v.parse::<usize>().ok())
+    {
+        body.resize(len, 0);
+        reader
+            .read_exact(&mut body)
+            .unwrap_or_else(|e| panic!("{method} {path}: {e}"));
+    } else if response
         .header("transfer-encoding")
         .is_some_and(|v| v.eq_ignore_ascii_case("chunked"))
     {
-        body = dechunk(&body);
+        body = read_chunks(&mut reader);
+    } else {
+        reader
+            .read_to_end(&mut body)
+            .unwrap_or_else(|e| panic!("{method} {path}: {e}"));
     }
     Response { body, ..response }
 }
 
-fn dechunk(mut data: &[u8]) -> Vec<u8> {
+fn read_chunks(reader: &mut impl BufRead) -> Vec<u8> {
     let mut out = Vec::new();
     loop {
-        let Some(end) = data.windows(2).position(|w| w == b"\r\n") else {
-            return out;
-        };
-        let size_text = String::from_utf8_lossy(&data[..end]);
-        let size = usize::from_str_radix(size_text.split(';').next().unwrap_or("").trim(), 16)
-            .unwrap_or_else(|_| panic!("bad chunk size {size_text:?}"));
-        data = &data[end + 2..];
-        if size == 0 || data.len() < size {
+        let mut size_line = String::new();
+        if reader.read_line(&mut size_line).unwrap_or(0) == 0 {
             return out;
         }
-        out.extend_from_slice(&data[..size]);
-        data = &data[(size + 2).min(data.len())..];
+        let size = usize::from_str_radix(size_line.split(';').next().unwrap_or("").trim(), 16)
+            .unwrap_or_else(|_| panic!("bad chunk size {size_line:?}"));
+        if size == 0 {
+            let mut trailer = String::new();
+            let _ = reader.read_line(&mut trailer);
+            return out;
+        }
+        let start = out.len();
+        out.resize(start + size, 0);
+        reader.read_exact(&mut out[start..]).unwrap();
+        let mut crlf = [0u8; 2];
+        reader.read_exact(&mut crlf).unwrap();
     }
 }
 
