@@ -406,3 +406,27 @@ fn the_daemon_serves_the_page_its_state_and_the_recalibrate_button() {
     });
     drop(daemon);
 }
+
+/// A port already held stops the start with a message that names the key.
+#[test]
+fn a_live_page_address_in_use_stops_the_start_and_says_what_to_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let held = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = held.local_addr().unwrap();
+    let capture = common::repo_path("tests/data/falcon_turn.fcap");
+    let config = replay_config(
+        dir.path(),
+        &capture,
+        "\"max\"",
+        &format!("stdout = false\nhttp = \"{addr}\""),
+    );
+    let r = common::run(&["run", "--config", config.to_str().unwrap()]);
+    assert_ne!(r.code, Some(0), "{}", r.stderr);
+    assert!(
+        r.stderr
+            .contains(&format!("cannot listen for the live page on {addr}"))
+            && r.stderr.contains("[outputs] http"),
+        "{}",
+        r.stderr
+    );
+}
