@@ -623,6 +623,38 @@ fn a_public_tcp_address_needs_tcp_public() {
 }
 
 #[test]
+fn a_public_http_address_needs_http_public() {
+    let base = format!(
+        "{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"
+    );
+    let config = parse(&base, &config_path()).unwrap();
+    assert_eq!(config.outputs.http, None);
+    let text = format!("[outputs]\nhttp = \"127.0.0.1:8080\"\n{base}");
+    let config = parse(&text, &config_path()).unwrap();
+    assert_eq!(config.outputs.http, Some("127.0.0.1:8080".parse().unwrap()));
+    let text = format!("[outputs]\nhttp = \"0.0.0.0:8080\"\n{base}");
+    assert_refused(
+        &text,
+        "outputs.http",
+        Some(2),
+        &["0.0.0.0:8080", "not a loopback", "http_public = true"],
+    );
+    // tcp_public does not open the page to the network.
+    let text = format!("[outputs]\nhttp = \"0.0.0.0:8080\"\ntcp_public = true\n{base}");
+    assert_refused(&text, "outputs.http", Some(2), &["http_public = true"]);
+    let text = format!("[outputs]\nhttp = \"0.0.0.0:8080\"\nhttp_public = true\n{base}");
+    let config = parse(&text, &config_path()).unwrap();
+    assert_eq!(config.outputs.http, Some("0.0.0.0:8080".parse().unwrap()));
+    let text = format!("[outputs]\nhttp = \"localhost:8080\"\n{base}");
+    assert_refused(
+        &text,
+        "outputs.http",
+        Some(2),
+        &["not a socket address", "127.0.0.1:8080"],
+    );
+}
+
+#[test]
 fn bad_numbers_are_refused_with_the_allowed_range() {
     let base = format!(
         "{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"

@@ -30,6 +30,12 @@
 //! tcp_public = false
 //! # A Unix-socket listener. Optional.
 //! unix = "/run/fieldcal/fieldcal.sock"
+//! # The live page in a browser (and its JSON/server-sent-events API), as
+//! # IP:PORT; port 0 picks a free one (the log says which). Optional. Only
+//! # loopback addresses unless http_public = true (no authentication, and
+//! # the page can start a recalibration).
+//! http = "127.0.0.1:8080"
+//! http_public = false
 //! # Lines queued per subscriber before a slow one is dropped. Default 4096.
 //! queue = 4096
 //!
@@ -181,6 +187,9 @@ pub struct OutputsConfig {
     /// Loopback unless the file said `tcp_public = true`.
     pub tcp: Option<SocketAddr>,
     pub unix: Option<PathBuf>,
+    /// The live page's HTTP listener; loopback unless the file said
+    /// `http_public = true`.
+    pub http: Option<SocketAddr>,
     /// Lines queued per subscriber.
     pub queue: usize,
 }
@@ -485,6 +494,8 @@ struct RawOutputs {
     tcp: Option<String>,
     tcp_public: bool,
     unix: Option<PathBuf>,
+    http: Option<String>,
+    http_public: bool,
     queue: Option<u64>,
 }
 
@@ -895,31 +906,8 @@ impl Checker<'_> {
     }
 
     fn check_outputs(&self, raw: RawOutputs) -> Result<OutputsConfig, ConfigError> {
-        let tcp = match raw.tcp {
-            None => None,
-            Some(text) => {
-                let addr: SocketAddr = text.trim().parse().map_err(|_| {
-                    self.error(
-                        "outputs.tcp",
-                        format!(
-                            "'{text}' is not a socket address: give IP:PORT, such as \
-                             \"127.0.0.1:2948\" or \"[::1]:2948\" (host names are not resolved)"
-                        ),
-                    )
-                })?;
-                if !addr.ip().is_loopback() && !raw.tcp_public {
-                    return Err(self.error(
-                        "outputs.tcp",
-                        format!(
-                            "{addr} is not a loopback address, so other machines could read \
-                             the readings (there is no authentication): use 127.0.0.1 or ::1, \
-                             or set outputs.tcp_public = true to allow it"
-                        ),
-                    ));
-                }
-                Some(addr)
-            }
-        };
+        let tcp = self.listen_address("tcp", raw.tcp, raw.tcp_public, 2948)?;
+        let http = self.listen_address("http", raw.http, raw.http_public, 8080)?;
         let unix = match raw.unix {
             Some(p) if p.as_os_str().is_empty() => {
                 return Err(self.error(
@@ -944,8 +932,47 @@ impl Checker<'_> {
             stdout: raw.stdout.unwrap_or(true),
             tcp,
             unix,
+            http,
             queue,
         })
+    }
+
+    /// `outputs.KEY` as a socket address, refused when it is not loopback
+    /// unless `outputs.KEY_public = true` (neither listener authenticates).
+    fn listen_address(
+        &self,
+        key: &str,
+        text: Option<String>,
+        public: bool,
+        example_port: u16,
+    ) -> Result<Option<SocketAddr>, ConfigError> {
+        let Some(text) = text else {
+            return Ok(None);
+        };
+        let addr: SocketAddr = text.trim().parse().map_err(|_| {
+            self.error(
+                &format!("outputs.{key}"),
+                format!(
+                    "'{text}' is not a socket address: give IP:PORT, such as \
+                     \"127.0.0.1:{example_port}\" or \"[::1]:{example_port}\" (host names are not resolved)"
+                ),
+            )
+        })?;
+        if !addr.ip().is_loopback() && !public {
+            let what = if key == "http" {
+                "other machines could open the live page and start a recalibration"
+            } else {
+                "other machines could read the readings"
+            };
+            return Err(self.error(
+                &format!("outputs.{key}"),
+                format!(
+                    "{addr} is not a loopback address, so {what} (there is no authentication): \
+                     use 127.0.0.1 or ::1, or set outputs.{key}_public = true to allow it"
+                ),
+            ));
+        }
+        Ok(Some(addr))
     }
 
     #[allow(clippy::type_complexity)]

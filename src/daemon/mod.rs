@@ -3,11 +3,13 @@
 //!
 //! A sample passes, in order: a source ([`crate::source`]) -> the sensor's
 //! [`rotation`] buffer -> the fit and its [`acceptance`] check -> the
-//! corrector -> [`publish`] (stdout, TCP, Unix socket) and [`state`]
-//! (written by the [`state_writer`] thread, off the readings' path).
+//! corrector -> [`publish`] (stdout, TCP, Unix socket, the [`http`] live
+//! page) and [`state`] (written by the [`state_writer`] thread, off the
+//! readings' path).
 
 pub mod acceptance;
 pub mod config;
+pub mod http;
 pub mod messages;
 pub mod notify;
 pub mod progress;

@@ -248,6 +248,9 @@ struct Inner {
     closed: AtomicBool,
     /// Woken whenever a subscriber is removed, for [`Hub::close`].
     removed: Notify,
+    /// What a late subscriber is given at once, once [`Hub::keep_for_replay`]
+    /// was called.
+    retained: std::sync::OnceLock<Mutex<Retained>>,
 }
 
 #[derive(Default)]
@@ -281,6 +284,7 @@ impl Hub {
                 next_id: AtomicU64::new(1),
                 closed: AtomicBool::new(false),
                 removed: Notify::new(),
+                retained: std::sync::OnceLock::new(),
             }),
         }
     }
@@ -292,7 +296,13 @@ impl Hub {
             .counters
             .published
             .fetch_add(1, Ordering::Relaxed);
-        for sub in self.inner.read_subs().iter() {
+        let subs = self.inner.read_subs();
+        // Kept under the subscribers' lock, so a subscriber that registers
+        // with the replay gets each line either replayed or queued, once.
+        if let Some(retained) = self.inner.retained.get() {
+            lock(retained).keep(lane, &line);
+        }
+        for sub in subs.iter() {
             sub.push(lane, Arc::clone(&line));
         }
     }
@@ -500,6 +510,241 @@ impl Hub {
             hub: self.clone(),
             sub,
         })
+    }
+}
+
+/// The state a late subscriber needs: the last STATUS, each sensor's last
+/// CALIBRATION and last accepted one, and the latest readings; each with
+/// its place in publish order, in which they are replayed.
+#[derive(Debug, Default)]
+struct Retained {
+    readings_cap: usize,
+    next: u64,
+    readings: VecDeque<(u64, Arc<str>)>,
+    status: Option<(u64, Arc<str>)>,
+    /// In order of first appearance, at most [`MAX_RETAINED_SENSORS`].
+    calibrations: Vec<RetainedSensor>,
+}
+
+#[derive(Debug)]
+struct RetainedSensor {
+    sensor: String,
+    last: (u64, Arc<str>),
+    last_accepted: Option<(u64, Arc<str>)>,
+}
+
+/// Sensors whose calibrations are retained: sensors come from the
+/// configuration, so this only bounds memory against a bug.
+const MAX_RETAINED_SENSORS: usize = 1024;
+
+/// The head of a control line, all that retention looks at.
+#[derive(serde::Deserialize)]
+struct LineHead {
+    class: String,
+    #[serde(default)]
+    sensor: Option<String>,
+    #[serde(default)]
+    accepted: Option<bool>,
+}
+
+impl Retained {
+    fn keep(&mut self, lane: Lane, line: &Arc<str>) {
+        let seq = self.next;
+        self.next += 1;
+        let entry = (seq, Arc::clone(line));
+        if lane == Lane::Reading {
+            if self.readings_cap == 0 {
+                return;
+            }
+            if self.readings.len() >= self.readings_cap {
+                self.readings.pop_front();
+            }
+            self.readings.push_back(entry);
+            return;
+        }
+        // Control lines are rare: parsing their head costs nothing that matters.
+        let Ok(head) = serde_json::from_str::<LineHead>(line) else {
+            return;
+        };
+        match (head.class.as_str(), head.sensor) {
+            ("STATUS", _) => self.status = Some(entry),
+            ("CALIBRATION", Some(sensor)) => {
+                let accepted = head.accepted == Some(true);
+                let full = self.calibrations.len() >= MAX_RETAINED_SENSORS;
+                match self.calibrations.iter_mut().find(|s| s.sensor == sensor) {
+                    Some(s) => {
+                        if accepted {
+                            s.last_accepted = Some(entry.clone());
+                        }
+                        s.last = entry;
+                    }
+                    None if !full => {
+                        self.calibrations.push(RetainedSensor {
+                            sensor,
+                            last_accepted: accepted.then(|| entry.clone()),
+                            last: entry,
+                        });
+                    }
+                    None => {}
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// Queues the retained lines for a new subscriber in the order they
+    /// were published: each sensor's last accepted calibration and its last
+    /// (when another), the readings that fit its queue, the last STATUS.
+    fn replay_into(&self, queue: &mut Queue) {
+        let mut lines: Vec<(u64, Lane, &Arc<str>)> = Vec::new();
+        for s in &self.calibrations {
+            if let Some((seq, line)) = &s.last_accepted {
+                lines.push((*seq, Lane::Control, line));
+            }
+            if s.last_accepted.as_ref().is_none_or(|a| a.0 != s.last.0) {
+                lines.push((s.last.0, Lane::Control, &s.last.1));
+            }
+        }
+        let skip = self.readings.len().saturating_sub(queue.reading_cap);
+        for (seq, line) in self.readings.iter().skip(skip) {
+            lines.push((*seq, Lane::Reading, line));
+        }
+        if let Some((seq, line)) = &self.status {
+            lines.push((*seq, Lane::Control, line));
+        }
+        lines.sort_unstable_by_key(|(seq, _, _)| *seq);
+        for (_, lane, line) in lines {
+            queue.push(lane, Arc::clone(line));
+        }
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// A subscriber served in this process rather than over a socket (the live
+/// page's server-sent events): the same bounded queue, lanes and drop
+/// accounting as a socket subscriber; its owner takes the lines with
+/// [`Subscription::recv`]. Dropping it unsubscribes.
+pub struct Subscription {
+    sub: Arc<Subscriber>,
+    /// None for a [`Hub::mailbox`], which is not in the hub's list.
+    _registration: Option<Registration>,
+}
+
+impl fmt::Debug for Subscription {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Subscription")
+            .field("id", &self.sub.id)
+            .field("peer", &self.sub.peer)
+            .finish()
+    }
+}
+
+impl Subscription {
+    /// Waits for lines and moves up to `max` (at least 1) of them, in
+    /// publish order, into `out`. False once the subscription is over: the
+    /// hub closed (after what was queued is taken) or it was evicted.
+    pub async fn recv(&mut self, out: &mut Vec<Arc<str>>, max: usize) -> bool {
+        let max = max.max(1);
+        loop {
+            let state = {
+                let mut q = self.sub.queue();
+                let mut taken = 0;
+                while taken < max {
+                    let Some(line) = q.pop() else { break };
+                    out.push(line);
+                    taken += 1;
+                }
+                if taken > 0 && q.state != QueueState::Evicted {
+                    return true;
+                }
+                q.state
+            };
+            if state != QueueState::Open {
+                return false;
+            }
+            self.sub.wake.notified().await;
+        }
+    }
+
+    /// Reading lines dropped because this subscriber was slow.
+    pub fn dropped(&self) -> u64 {
+        self.sub.queue().dropped
+    }
+
+    /// Its id in the hub (in [`Hub::subscribers`]).
+    pub fn id(&self) -> u64 {
+        self.sub.id
+    }
+
+    /// Where answers to a command go for them to reach this subscription.
+    pub fn reply_to(&self) -> ReplyTo {
+        ReplyTo {
+            sub: Arc::downgrade(&self.sub),
+        }
+    }
+}
+
+impl Hub {
+    /// From now on the hub keeps what a subscriber registered with
+    /// [`Hub::subscribe`]`(_, true)` gets at once: the last STATUS, each
+    /// sensor's last CALIBRATION and last accepted one, and the latest
+    /// `readings` READING lines (fewer if its reading queue is shorter).
+    /// Call it before publishing; later calls change nothing.
+    pub fn keep_for_replay(&self, readings: usize) {
+        let _ = self.inner.retained.set(Mutex::new(Retained {
+            readings_cap: readings,
+            ..Retained::default()
+        }));
+    }
+
+    /// Registers an in-process subscriber. With `replay`, what
+    /// [`Hub::keep_for_replay`] kept is queued first, atomically with the
+    /// registration: no line is missed or given twice. None once the hub is
+    /// closed.
+    pub fn subscribe(&self, peer: String, replay: bool) -> Option<Subscription> {
+        let mut subs = self.inner.write_subs();
+        if self.inner.closed.load(Ordering::SeqCst) {
+            return None;
+        }
+        let sub = Arc::new(self.new_subscriber(peer));
+        if replay && let Some(retained) = self.inner.retained.get() {
+            lock(retained).replay_into(&mut sub.queue());
+        }
+        subs.push(Arc::clone(&sub));
+        drop(subs);
+        Some(Subscription {
+            sub: Arc::clone(&sub),
+            _registration: Some(Registration {
+                hub: self.clone(),
+                sub,
+            }),
+        })
+    }
+
+    /// A subscription that receives only the replies sent to its
+    /// [`Subscription::reply_to`], nothing published: for one request's
+    /// answer (the live page's recalibrate button). Not counted as a
+    /// subscriber.
+    pub fn mailbox(&self, peer: String) -> Subscription {
+        Subscription {
+            sub: Arc::new(self.new_subscriber(peer)),
+            _registration: None,
+        }
+    }
+
+    fn new_subscriber(&self, peer: String) -> Subscriber {
+        let (deadline, _) = watch::channel(None);
+        Subscriber {
+            id: self.inner.next_id.fetch_add(1, Ordering::Relaxed),
+            peer,
+            queue: Mutex::new(Queue::new(self.inner.reading_cap, self.inner.control_cap)),
+            wake: Notify::new(),
+            deadline,
+            counters: Arc::clone(&self.inner.counters),
+        }
     }
 }
 

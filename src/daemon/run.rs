@@ -60,6 +60,14 @@ pub enum DaemonError {
         #[source]
         source: std::io::Error,
     },
+    #[error(
+        "cannot listen for the live page on {address}: {source}; choose another address in [outputs] http (port 0 picks a free one), or stop what holds it"
+    )]
+    Http {
+        address: String,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("cannot start source '{name}': {source}")]
     Source {
         name: String,
@@ -261,6 +269,9 @@ pub async fn run_with_progress(
             let (commands, stop) = (commands_tx.clone(), outputs_stop_rx.clone());
             async move { hub.serve_unix(listener, commands, stop).await }
         });
+    }
+    if let Some(address) = &config.outputs.http {
+        spawn_live_page(*address, &hub, &commands_tx, &outputs_stop_rx, &config).await?;
     }
     let stdout_task = config.outputs.stdout.then(|| {
         let hub = hub.clone();
@@ -538,6 +549,29 @@ pub async fn run_with_progress(
     if let Some(path) = unix_path {
         let _ = std::fs::remove_file(path);
     }
+    Ok(())
+}
+
+/// Binds the live page's listener and serves it; the log names the bound
+/// address (the port chosen when the configuration said port 0).
+async fn spawn_live_page(
+    address: std::net::SocketAddr,
+    hub: &Hub,
+    commands: &mpsc::Sender<(ClientCommand, ReplyTo)>,
+    stop: &watch::Receiver<bool>,
+    config: &Config,
+) -> Result<(), DaemonError> {
+    let listener = tokio::net::TcpListener::bind(address)
+        .await
+        .map_err(|source| DaemonError::Http {
+            address: address.to_string(),
+            source,
+        })?;
+    let bound = listener.local_addr().unwrap_or(address);
+    hub.keep_for_replay(super::http::REPLAY_READINGS);
+    let router = super::http::router(hub.clone(), commands.clone(), config);
+    tracing::info!(address = %bound, "live page at http://{bound}/");
+    tokio::spawn(super::http::serve(listener, router, stop.clone()));
     Ok(())
 }
 

@@ -3,6 +3,7 @@
 
 pub mod daemon;
 pub mod faults;
+pub mod http;
 pub mod pty;
 
 use std::path::{Path, PathBuf};

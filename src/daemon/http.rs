@@ -1,0 +1,335 @@
+//! The live page (`[outputs] http`): one HTML page, embedded in the binary
+//! and needing nothing from the network, that shows each sensor's points as
+//! they arrive around the fitted circle, the rotation's coverage with the
+//! missing headings, the acceptance numbers against their limits, the last
+//! CALIBRATION, and a button that recalibrates.
+//!
+//! # API
+//! - `GET /`: the page.
+//! - `GET /api/config`: the sensors with their model, acceptance limits
+//!   and rotation settings, and how many points the page keeps.
+//! - `GET /api/events`: server-sent events. Each event's data is one or more
+//!   of the daemon's JSON lines (READING, STATUS, CALIBRATION, ERROR), one a
+//!   line. The connection is a subscriber of the same [`Hub`] as the TCP
+//!   and Unix-socket clients, with the same bounded queue: a slow browser
+//!   loses its oldest readings (counted in STATUS `dropped`, and told to the
+//!   page in a `{"class":"SUBSCRIBER","id":..,"dropped":..}` line), never
+//!   slows the daemon. It starts with the current state: each sensor's last
+//!   accepted and last CALIBRATION, the latest readings, the last STATUS.
+//! - `POST /api/recalibrate`: body empty (every sensor) or
+//!   `{"sensor":"NAME"}`. The same command a TCP client sends; answers 200
+//!   with the daemon's STATUS reply, 400 for a bad body, 404 for an unknown
+//!   sensor, 503 when the daemon takes no commands, 504 when it did not
+//!   answer in time.
+
+use std::convert::Infallible;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::Router;
+use axum::body::Bytes;
+use axum::extract::{ConnectInfo, State};
+use axum::http::{StatusCode, header};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use serde_json::{Value, json};
+use tokio::sync::{mpsc, watch};
+
+use super::config::Config;
+use super::publish::{ClientCommand, Hub, MAX_COMMAND_LEN, ReplyTo};
+use crate::model::effects::{model_name, parse_list};
+
+/// The page: HTML, CSS and script in one file, drawn by hand on a canvas.
+pub const PAGE: &str = include_str!("live.html");
+
+/// Readings the hub keeps for a page that connects late, so it draws the
+/// rotation so far at once: a default 36-sector rotation at 3 to 10 samples
+/// a sector is 100 to 360 readings; 2000 also covers several sensors.
+pub const REPLAY_READINGS: usize = 2000;
+/// Points the page keeps per sensor; older ones are forgotten, so a page
+/// left open for days stays small.
+pub const PAGE_POINTS: usize = 3000;
+/// Lines sent in one server-sent event at most.
+const EVENT_LINES: usize = 256;
+/// How long the recalibrate request waits for the daemon's answer; the
+/// daemon's loop answers within one reading's handling.
+const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);
+/// Lines of the daemon's answer read at most before giving up on finding
+/// its STATUS.
+const ANSWER_LINES: usize = 64;
+
+#[derive(Clone)]
+struct App {
+    hub: Hub,
+    commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
+    config_json: Arc<str>,
+}
+
+/// What `/api/config` serves: the sensors with the limits their fits are
+/// judged by, for the page to show each number against its limit.
+pub fn page_config(config: &Config) -> Value {
+    let sensors: Vec<Value> = config
+        .sensors
+        .iter()
+        .map(|s| {
+            let model = parse_list(&s.effects.join(","))
+                .map(|e| model_name(&e))
+                .unwrap_or_else(|_| s.effects.join("+"));
+            json!({
+                "name": s.name,
+                "source": s.source,
+                "model": model,
+                "limits": s.limits,
+                "rotation": s.rotation,
+            })
+        })
+        .collect();
+    json!({ "sensors": sensors, "max_points": PAGE_POINTS })
+}
+
+/// The page's routes, served by [`serve`]. `commands` is the daemon's
+/// command channel, as the TCP clients use it.
+pub fn router(
+    hub: Hub,
+    commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
+    config: &Config,
+) -> Router {
+    let app = App {
+        hub,
+        commands,
+        config_json: Arc::from(page_config(config).to_string()),
+    };
+    Router::new()
+        .route("/", get(page))
+        .route("/api/config", get(api_config))
+        .route("/api/events", get(events))
+        .route("/api/recalibrate", post(recalibrate))
+        .fallback(not_found)
+        .with_state(app)
+}
+
+/// Serves `router` on `listener` until `shutdown` turns true. Event streams
+/// end when the hub closes.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    router: Router,
+    mut shutdown: watch::Receiver<bool>,
+) {
+    let service = router.into_make_service_with_connect_info::<SocketAddr>();
+    let stop = async move {
+        while !*shutdown.borrow_and_update() {
+            if shutdown.changed().await.is_err() {
+                std::future::pending::<()>().await;
+            }
+        }
+    };
+    if let Err(e) = axum::serve(listener, service)
+        .with_graceful_shutdown(stop)
+        .await
+    {
+        tracing::warn!(error = %e, "the live page's server stopped");
+    }
+}
+
+async fn page() -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, "text/html; charset=utf-8"),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        PAGE,
+    )
+        .into_response()
+}
+
+async fn api_config(State(app): State<App>) -> Response {
+    json_text(StatusCode::OK, app.config_json.to_string())
+}
+
+async fn not_found() -> Response {
+    error(
+        StatusCode::NOT_FOUND,
+        "no such page: the live page is at /, its API at /api/config, /api/events (GET) and /api/recalibrate (POST)",
+    )
+}
+
+async fn events(State(app): State<App>, ConnectInfo(peer): ConnectInfo<SocketAddr>) -> Response {
+    let Some(sub) = app.hub.subscribe(format!("http {peer}"), true) else {
+        return error(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "the daemon is shutting down",
+        );
+    };
+    tracing::debug!(id = sub.id(), %peer, "live page connected");
+    let stream = futures_util::stream::unfold((sub, 0u64), |(mut sub, told)| async move {
+        let mut lines = Vec::new();
+        if !sub.recv(&mut lines, EVENT_LINES).await {
+            return None;
+        }
+        // The page learns of its own drops before the lines that follow them.
+        let dropped = sub.dropped();
+        let mut data = String::new();
+        if dropped != told {
+            data.push_str(
+                &json!({"class": "SUBSCRIBER", "id": sub.id(), "dropped": dropped}).to_string(),
+            );
+            data.push('\n');
+        }
+        for line in &lines {
+            data.push_str(line);
+            data.push('\n');
+        }
+        data.pop();
+        Some((
+            Ok::<_, Infallible>(Event::default().data(data)),
+            (sub, dropped),
+        ))
+    });
+    Sse::new(stream)
+        .keep_alive(KeepAlive::default())
+        .into_response()
+}
+
+/// Why a recalibrate body was refused.
+fn parse_recalibrate(body: &[u8]) -> Result<Option<String>, String> {
+    const ALLOWED: &str = r#"send no body to recalibrate every sensor, or {"sensor":"NAME"}"#;
+    if body.len() > MAX_COMMAND_LEN {
+        return Err(format!(
+            "the body is longer than {MAX_COMMAND_LEN} bytes; {ALLOWED}"
+        ));
+    }
+    if body.iter().all(u8::is_ascii_whitespace) {
+        return Ok(None);
+    }
+    let value: Value = serde_json::from_slice(body)
+        .map_err(|e| format!("the body is not JSON ({e}); {ALLOWED}"))?;
+    let Value::Object(map) = value else {
+        return Err(format!("the body is not a JSON object; {ALLOWED}"));
+    };
+    if let Some(key) = map.keys().find(|k| k.as_str() != "sensor") {
+        return Err(format!("unknown field {key:?}; {ALLOWED}"));
+    }
+    match map.get("sensor") {
+        None => Ok(None),
+        Some(Value::String(s)) if !s.is_empty() => Ok(Some(s.clone())),
+        Some(_) => Err(format!(
+            "\"sensor\" must be a non-empty string naming a configured sensor; {ALLOWED}"
+        )),
+    }
+}
+
+async fn recalibrate(State(app): State<App>, body: Bytes) -> Response {
+    let sensor = match parse_recalibrate(&body) {
+        Ok(sensor) => sensor,
+        Err(message) => return error(StatusCode::BAD_REQUEST, &message),
+    };
+    let mut mailbox = app.hub.mailbox("http recalibrate".to_owned());
+    let command = ClientCommand::Recalibrate {
+        sensor: sensor.clone(),
+    };
+    match tokio::time::timeout(
+        ANSWER_TIMEOUT,
+        app.commands.send((command, mailbox.reply_to())),
+    )
+    .await
+    {
+        Ok(Ok(())) => {}
+        Ok(Err(_)) => {
+            return error(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the daemon takes no commands now (it is shutting down)",
+            );
+        }
+        Err(_) => {
+            return error(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the daemon's command queue stayed full; try again",
+            );
+        }
+    }
+    // The loop answers with an ERROR for an unknown sensor, then a STATUS.
+    let answer = tokio::time::timeout(ANSWER_TIMEOUT, async {
+        let mut lines = Vec::new();
+        let mut error_message = None;
+        while lines.len() < ANSWER_LINES && mailbox.recv(&mut lines, ANSWER_LINES).await {
+            for line in lines.drain(..) {
+                let Ok(value) = serde_json::from_str::<Value>(&line) else {
+                    continue;
+                };
+                match value["class"].as_str() {
+                    Some("ERROR") => {
+                        error_message = value["message"].as_str().map(str::to_owned);
+                    }
+                    Some("STATUS") => return Some((error_message, value)),
+                    _ => {}
+                }
+            }
+        }
+        None
+    })
+    .await;
+    match answer {
+        Ok(Some((None, status))) => json_text(
+            StatusCode::OK,
+            json!({ "recalibrating": sensor, "status": status }).to_string(),
+        ),
+        Ok(Some((Some(message), _))) => error(StatusCode::NOT_FOUND, &message),
+        Ok(None) | Err(_) => error(
+            StatusCode::GATEWAY_TIMEOUT,
+            "the daemon did not answer the recalibration in time; see its log",
+        ),
+    }
+}
+
+fn json_text(status: StatusCode, body: String) -> Response {
+    (
+        status,
+        [
+            (header::CONTENT_TYPE, "application/json"),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        body,
+    )
+        .into_response()
+}
+
+fn error(status: StatusCode, message: &str) -> Response {
+    json_text(status, json!({ "error": message }).to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recalibrate_bodies() {
+        assert_eq!(parse_recalibrate(b""), Ok(None));
+        assert_eq!(parse_recalibrate(b" \n"), Ok(None));
+        assert_eq!(parse_recalibrate(b"{}"), Ok(None));
+        assert_eq!(
+            parse_recalibrate(br#"{"sensor":"compass"}"#),
+            Ok(Some("compass".into()))
+        );
+        for (body, words) in [
+            (&b"compass"[..], "not JSON"),
+            (b"[1]", "not a JSON object"),
+            (br#"{"sensor":""}"#, "non-empty string"),
+            (br#"{"sensor":1}"#, "non-empty string"),
+            (br#"{"sensr":"x"}"#, "unknown field \"sensr\""),
+        ] {
+            let err = parse_recalibrate(body).unwrap_err();
+            assert!(
+                err.contains(words) && err.contains(r#"{"sensor":"NAME"}"#),
+                "{err}"
+            );
+        }
+        let long = vec![b' '; MAX_COMMAND_LEN + 1];
+        assert!(
+            parse_recalibrate(&long)
+                .unwrap_err()
+                .contains("longer than")
+        );
+    }
+}

@@ -1,0 +1,332 @@
+//! The live page as a person sees it: headless Chromium, driven through
+//! chromedriver's WebDriver API (spoken over a plain TcpStream), opens the
+//! page of a `fieldcal run` replaying a capture and reads from the page
+//! itself that the coverage fills to 100 % and the calibration appears.
+//!
+//! CI installs the Debian packages `chromium` and `chromium-driver`.
+//! Without them this test says so and passes, so a developer's
+//! `cargo test` does not need a browser; under CI as root it fails instead.
+//! `FIELDCAL_LIVE_SCREENSHOT=docs` keeps the screenshots there:
+//! `live-page-turning.png` mid-turn, `live-page.png` calibrated.
+
+mod common;
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::daemon::{Daemon, replay_config};
+use common::faults::free_port;
+use common::http::{live_address, request};
+use serde_json::{Value, json};
+
+const CHROMIUM: &str = "/usr/bin/chromium";
+const CHROMEDRIVER: &str = "/usr/bin/chromedriver";
+const T: Duration = Duration::from_secs(30);
+
+/// What the page shows, read from its DOM.
+const READ_PAGE: &str = r#"
+const card = document.querySelector('.sensor[data-sensor="compass"]');
+if (!card) return null;
+const cov = card.querySelector('.coverage');
+const cal = card.querySelector('.cal');
+const rms = [...card.querySelectorAll('table.accept tr')].find(r => r.textContent.startsWith('rms'));
+return {
+  connected: document.getElementById('conn').dataset.connected,
+  coverage: cov.dataset.coveragePct,
+  coverageText: cov.textContent,
+  calibrationId: cal.dataset.calibrationId,
+  accepted: cal.dataset.accepted,
+  calibrationText: cal.textContent,
+  rmsRow: rms ? rms.innerHTML : '',
+  points: Number(card.dataset.points || 0),
+  state: card.querySelector('.state').textContent,
+  answer: card.querySelector('.answer').textContent,
+};
+"#;
+
+struct Driver {
+    child: Child,
+    addr: String,
+    session: Option<String>,
+}
+
+impl Driver {
+    fn start() -> Driver {
+        let port = free_port();
+        let child = Command::new(CHROMEDRIVER)
+            .arg(format!("--port={port}"))
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start chromedriver");
+        let driver = Driver {
+            child,
+            addr: format!("127.0.0.1:{port}"),
+            session: None,
+        };
+        let deadline = Instant::now() + T;
+        while std::net::TcpStream::connect(&driver.addr).is_err() {
+            assert!(Instant::now() < deadline, "chromedriver did not listen");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let status = driver.call("GET", "/status", None);
+        assert_eq!(status["ready"], true, "{status}");
+        driver
+    }
+
+    /// One WebDriver command; its `value`.
+    fn call(&self, method: &str, path: &str, body: Option<Value>) -> Value {
+        let body = body.map(|b| b.to_string());
+        let r = request(
+            &self.addr,
+            method,
+            path,
+            body.as_deref(),
+            Duration::from_secs(60),
+        );
+        let v = r.json();
+        assert_eq!(r.status, 200, "{method} {path}: {v}");
+        v["value"].clone()
+    }
+
+    fn open_session(&mut self, profile: &Path) {
+        let args = [
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--hide-scrollbars",
+            "--window-size=1000,820",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .chain([format!("--user-data-dir={}", profile.display())])
+        .collect::<Vec<_>>();
+        let v = self.call(
+            "POST",
+            "/session",
+            Some(json!({"capabilities": {"alwaysMatch": {
+                "goog:chromeOptions": {"binary": CHROMIUM, "args": args}
+            }}})),
+        );
+        self.session = Some(v["sessionId"].as_str().expect("a session id").to_owned());
+    }
+
+    fn session_call(&self, method: &str, what: &str, body: Option<Value>) -> Value {
+        let id = self.session.as_deref().expect("a session");
+        self.call(method, &format!("/session/{id}/{what}"), body)
+    }
+
+    fn script(&self, script: &str) -> Value {
+        self.session_call(
+            "POST",
+            "execute/sync",
+            Some(json!({"script": script, "args": []})),
+        )
+    }
+}
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        if let Some(id) = self.session.take() {
+            let _ = std::panic::catch_unwind(|| {
+                request(
+                    &self.addr,
+                    "DELETE",
+                    &format!("/session/{id}"),
+                    None,
+                    Duration::from_secs(10),
+                )
+            });
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn base64_decode(text: &str) -> Vec<u8> {
+    let value = |c: u8| -> u32 {
+        match c {
+            b'A'..=b'Z' => u32::from(c - b'A'),
+            b'a'..=b'z' => u32::from(c - b'a') + 26,
+            b'0'..=b'9' => u32::from(c - b'0') + 52,
+            b'+' => 62,
+            b'/' => 63,
+            _ => panic!("not base64: {c}"),
+        }
+    };
+    let clean: Vec<u8> = text.bytes().filter(|c| !c.is_ascii_whitespace()).collect();
+    let mut out = Vec::with_capacity(clean.len() * 3 / 4);
+    for chunk in clean.chunks(4) {
+        let data: Vec<u8> = chunk.iter().copied().filter(|&c| c != b'=').collect();
+        let mut n = 0u32;
+        for (i, &c) in data.iter().enumerate() {
+            n |= value(c) << (18 - 6 * i);
+        }
+        let bytes = n.to_be_bytes();
+        out.extend_from_slice(&bytes[1..data.len().max(1)]);
+    }
+    out
+}
+
+fn screenshot(driver: &Driver) -> Vec<u8> {
+    base64_decode(
+        driver
+            .session_call("GET", "screenshot", None)
+            .as_str()
+            .expect("a base64 screenshot"),
+    )
+}
+
+#[test]
+fn base64_decodes() {
+    assert_eq!(base64_decode("aGVsbG8="), b"hello");
+    assert_eq!(base64_decode("aGVsbG8h"), b"hello!");
+    assert_eq!(base64_decode("aGk="), b"hi");
+}
+
+#[test]
+fn the_live_page_fills_the_coverage_and_shows_the_calibration_in_chromium() {
+    let missing: Vec<&str> = [CHROMIUM, CHROMEDRIVER]
+        .into_iter()
+        .filter(|p| !Path::new(p).exists())
+        .collect();
+    if !missing.is_empty() {
+        // SAFETY: geteuid only reads the process's user id.
+        let root = unsafe { libc::geteuid() } == 0;
+        assert!(
+            !(root && std::env::var_os("CI").is_some()),
+            "{missing:?} missing under CI as root: .ci/run installs chromium and chromium-driver"
+        );
+        eprintln!(
+            "skipping the live page browser test: {missing:?} not found \
+             (install the Debian packages chromium and chromium-driver to run it)"
+        );
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // The browser first: the page must be open before the turn ends.
+    let mut driver = Driver::start();
+    driver.open_session(&dir.path().join("profile"));
+
+    // Two turns of 10 s played at 2x: the first completes after about 5 s
+    // and is calibrated; 5 s of corrected readings follow.
+    let capture = common::repo_path("tests/data/falcon_garbage.fcap");
+    let config = replay_config(
+        dir.path(),
+        &capture,
+        "2.0",
+        "stdout = false\nhttp = \"127.0.0.1:0\"",
+    );
+    let daemon = Daemon::start(&config, &[]);
+    let addr = live_address(&daemon.wait_for_log(T, "live page at http://"));
+    driver.session_call(
+        "POST",
+        "url",
+        Some(json!({"url": format!("http://{addr}/")})),
+    );
+
+    let deadline = Instant::now() + T;
+    let mut coverages: Vec<f64> = Vec::new();
+    let keep = std::env::var_os("FIELDCAL_LIVE_SCREENSHOT").map(std::path::PathBuf::from);
+    let mut turning_kept = false;
+    let page = loop {
+        let page = driver.script(READ_PAGE);
+        if let Some(c) = page["coverage"]
+            .as_str()
+            .and_then(|c| c.parse::<f64>().ok())
+            && coverages.last() != Some(&c)
+        {
+            coverages.push(c);
+            if let Some(dir) = &keep
+                && !turning_kept
+                && (40.0..80.0).contains(&c)
+            {
+                let png = screenshot(&driver);
+                std::fs::write(dir.join("live-page-turning.png"), png).unwrap();
+                turning_kept = true;
+            }
+        }
+        if page["coverage"] == "100" && page["calibrationId"] != "" {
+            break page;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the page did not reach 100 % and a calibration within {T:?}; it shows {page}; \
+             coverages seen {coverages:?}; daemon log:\n{}",
+            daemon.stderr()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    // The ring filled as the sensor turned, not in one jump.
+    assert!(
+        coverages.iter().filter(|&&c| c > 0.0 && c < 100.0).count() >= 3,
+        "coverages seen: {coverages:?}"
+    );
+    assert!(coverages.windows(2).all(|w| w[0] <= w[1]), "{coverages:?}");
+    assert_eq!(page["connected"], "true", "{page}");
+    assert_eq!(page["calibrationId"], "1", "{page}");
+    assert_eq!(page["accepted"], "true", "{page}");
+    assert!(
+        page["coverageText"]
+            .as_str()
+            .unwrap()
+            .contains("every heading covered"),
+        "{page}"
+    );
+    let text = page["calibrationText"].as_str().unwrap();
+    assert!(text.contains("calibration #1 accepted"), "{text}");
+    assert!(text.contains("heading check against gyro_z"), "{text}");
+    assert!(text.contains("suggested effect"), "{text}");
+    let rms_row = page["rmsRow"].as_str().unwrap();
+    assert!(
+        rms_row.contains("class=\"pass\"") && rms_row.contains("≤ 5.0 %"),
+        "{rms_row}"
+    );
+    let points = page["points"].as_f64().unwrap();
+    assert!((150.0..=3000.0).contains(&points), "{page}");
+    assert!(
+        page["state"].as_str().unwrap().starts_with("calibrated #1"),
+        "{page}"
+    );
+
+    // What a person sees, for the README.
+    let png = screenshot(&driver);
+    assert!(png.starts_with(b"\x89PNG"), "not a PNG");
+    assert!(png.len() > 20_000, "screenshot only {} bytes", png.len());
+    if let Some(dir) = &keep {
+        std::fs::write(dir.join("live-page.png"), &png).unwrap();
+    }
+
+    // The button: the sensor collects a new rotation.
+    driver.script(
+        "document.querySelector('.sensor[data-sensor=\"compass\"] .recal').click(); return null;",
+    );
+    let deadline = Instant::now() + T;
+    loop {
+        let page = driver.script(READ_PAGE);
+        if page["answer"]
+            .as_str()
+            .unwrap_or("")
+            .starts_with("recalibrating")
+            && page["state"]
+                .as_str()
+                .unwrap_or("")
+                .starts_with("recalibrating")
+        {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the button did not recalibrate: {page}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    drop(daemon);
+}
