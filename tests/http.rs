@@ -353,7 +353,7 @@ fn the_daemon_serves_the_page_its_state_and_the_recalibrate_button() {
     let cfg = request(&addr, "GET", "/api/config", None, T).json();
     assert_eq!(cfg["sensors"][0]["name"], "compass");
     assert_eq!(cfg["sensors"][0]["limits"]["max_rms"], 0.05);
-    assert_eq!(cfg["sensors"][0]["rotation"]["sectors"], 36);
+    assert_eq!(cfg["sensors"][0]["rotation"]["max_gap_deg"], 30.0);
     let missing = request(&addr, "GET", "/nothing", None, T);
     assert_eq!(missing.status, 404);
     assert!(missing.text().contains("/api/events"));

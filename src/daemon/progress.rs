@@ -87,8 +87,16 @@ pub struct RotationView {
 
 impl From<&Progress> for RotationView {
     fn from(p: &Progress) -> Self {
+        // A rotation completes when no gap between covered headings is too
+        // wide and the readings turned far enough one way: the bar shows
+        // the lesser of the two, so it reaches 100 % when the turn does.
+        let turned_pct = if p.turn_needed_deg > 0.0 {
+            100.0 * p.turned_deg.abs() / p.turn_needed_deg
+        } else {
+            100.0
+        };
         RotationView {
-            coverage_pct: p.coverage_pct,
+            coverage_pct: p.coverage_pct.min(turned_pct).clamp(0.0, 100.0),
             missing: p.missing_sectors.clone(),
             samples: p.samples,
         }

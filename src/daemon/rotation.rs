@@ -92,6 +92,17 @@ pub const EXACT_MOVE: f64 = 0.01;
 /// A heading that retreats this far from its furthest point is a reversal;
 /// large enough that noise on the circle never makes one.
 pub const REVERSAL_DEG: f64 = 30.0;
+/// Headings are counted only once the arc held bends beyond its noise: its
+/// sagitta (the largest distance of a sample from the chord through the
+/// first and the latest sample) must be at least this many noise
+/// deviations. On a shorter, flatter arc the circle's centre is set by the
+/// noise rather than by the curvature (Kåsa's centre of a 10° arc with
+/// noise of a few counts lands anywhere along its axis), and headings
+/// counted around it would show more of the turn done than is, then fall
+/// back once the centre settles. Ten deviations put the centre's error on
+/// the arc's axis at a few percent of the radius for the dozen samples such
+/// an arc holds, within [`RECOUNT_MOVE`].
+pub const ARC_SAGITTA_NOISE: f64 = 10.0;
 /// Default largest gap between covered headings, in degrees. The fit needs
 /// its samples all round: its coverage check (and the acceptance's
 /// `min_coverage_deg`) asks for 300° of the fitted headings, a largest gap
@@ -423,6 +434,9 @@ pub struct RotationBuffer {
     extreme: f64,
     reference: Option<Frame>,
     since_recount: usize,
+    /// The sample count at which [`RotationBuffer::arc_determined`] looks
+    /// again (every n/16 samples: O(1) amortised).
+    next_arc_check: usize,
     /// The gyro's integrated angle at the first and the last sample that
     /// carried one.
     gyro: Option<(f64, f64)>,
@@ -471,6 +485,7 @@ impl RotationBuffer {
             extreme: 0.0,
             reference: None,
             since_recount: 0,
+            next_arc_check: 0,
             gyro: None,
             complete: false,
             ignored: 0,
@@ -634,6 +649,7 @@ impl RotationBuffer {
         self.extreme = 0.0;
         self.reference = None;
         self.since_recount = 0;
+        self.next_arc_check = 0;
         self.gyro = None;
         self.complete = false;
     }
@@ -685,6 +701,9 @@ impl RotationBuffer {
         let Some(frame) = self.frame() else {
             return;
         };
+        if self.reference.is_none() && !self.arc_determined() {
+            return;
+        }
         match self.reference {
             Some(reference)
                 if reference.distance(&frame) <= RECOUNT_MOVE
@@ -694,6 +713,42 @@ impl RotationBuffer {
             }
             _ => self.recount(frame),
         }
+    }
+
+    /// Whether the arc held bends enough beyond its noise for its centre
+    /// to mean something (see [`ARC_SAGITTA_NOISE`]). Looked at every n/16
+    /// samples, so O(1) amortised; false until then.
+    fn arc_determined(&mut self) -> bool {
+        let n = self.t.len();
+        if n < self.next_arc_check || self.d2_n == 0 {
+            return false;
+        }
+        self.next_arc_check = n + (n / 16).max(1);
+        let (Some(&x0), Some(&y0), Some(&x1), Some(&y1)) =
+            (self.x.first(), self.y.first(), self.x.last(), self.y.last())
+        else {
+            return false;
+        };
+        let [sx, sy] = self.noise();
+        let sigma = sx.max(sy);
+        let (dx, dy) = (x1 - x0, y1 - y0);
+        let chord = dx.hypot(dy);
+        // Distance from the chord's line; from the first sample when the
+        // latest has come back to it (a closed turn).
+        let sagitta = self
+            .x
+            .iter()
+            .zip(&self.y)
+            .map(|(&x, &y)| {
+                let (u, v) = (x - x0, y - y0);
+                if chord > sigma {
+                    (u * dy - v * dx).abs() / chord
+                } else {
+                    u.hypot(v)
+                }
+            })
+            .fold(0.0, f64::max);
+        sagitta.is_finite() && sagitta > ARC_SAGITTA_NOISE * sigma
     }
 
     /// The running centre, in absolute coordinates.
@@ -1061,6 +1116,43 @@ mod tests {
         let (i, event) = run(&mut buffer, &samples).expect("no event");
         assert_eq!(event, RotationEvent::Complete, "{sim:?}");
         i as f64 * sim.period / sim.turn_seconds
+    }
+
+    /// What a person watches must not run ahead of the turn and fall back:
+    /// on the first short, noisy arc the centre is not yet known, so no
+    /// heading counts until the arc bends beyond its noise.
+    #[test]
+    fn coverage_never_runs_ahead_of_the_turn_nor_falls_back() {
+        for (i, start) in [0.0, 33.0, 90.0, 200.0, 311.0].into_iter().enumerate() {
+            for noise in [1.0, 3.0, 8.0] {
+                let rate = 36.0 + 4.0 * i as f64;
+                let samples = track(12.0, 0.05, (-400.0, 250.0), noise, |t| start + rate * t);
+                let mut buffer = RotationBuffer::new(RotationConfig::default());
+                let mut best: f64 = 0.0;
+                for &(t, x, y) in &samples {
+                    if buffer.push(t, x, y) != RotationEvent::Collecting {
+                        break;
+                    }
+                    let shown = buffer.progress().coverage_pct;
+                    let turned = rate * t / 360.0 * 100.0;
+                    // A gap up to max_gap_deg counts as covered.
+                    let slack = DEFAULT_MAX_GAP_DEG / 360.0 * 100.0 + 1.0;
+                    assert!(
+                        shown <= turned + slack,
+                        "start {start}, noise {noise}: {shown:.1} % shown at {turned:.1} % turned"
+                    );
+                    assert!(
+                        shown >= best - 5.0,
+                        "start {start}, noise {noise}: fell from {best:.1} % to {shown:.1} % at t = {t}"
+                    );
+                    best = best.max(shown);
+                }
+                assert!(
+                    best > 80.0,
+                    "start {start}, noise {noise}: reached {best:.1} %"
+                );
+            }
+        }
     }
 
     #[test]
