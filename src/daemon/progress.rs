@@ -211,7 +211,7 @@ const ADVICE: &[(&str, &str)] = &[
     ),
     (
         "(limits.max_rms)",
-        "turn it steadily in place, away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects",
+        "turn it steadily in place and level (a plane that wobbles adds an error no 2-D model removes), away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects",
     ),
     (
         "(limits.min_radius)",
@@ -1012,7 +1012,7 @@ mod tests {
         assert_eq!(
             line,
             format!(
-                "compass  [----------]   0 %  missing 0-360°  rejected: {reason}; turn it steadily in place, away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects"
+                "compass  [----------]   0 %  missing 0-360°  rejected: {reason}; turn it steadily in place and level (a plane that wobbles adds an error no 2-D model removes), away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects"
             )
         );
         // A quarter turned again: back to the turn.
@@ -1191,7 +1191,7 @@ mod tests {
         let mut board = Board::new();
         board.update(&snapshot(90.0, vec![[330.0, 360.0]], 180));
         let line = r#"{"class":"CALIBRATION","sensor":"compass","accepted":false,"reason":"rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms)","model":"offset+scale","params":{"a":1.0,"b":0.0,"d":0.0,"r":1.0},"rms":0.073,"coverage_deg":358.0,"n":200,"fit_ms":0.3,"time":10.0,"origin":"rotation","suggested":"cubic"}"#;
-        let words = "rejected: rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms); turn it steadily in place, away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects; the turn suggests adding the effect cubic to the sensor's effects";
+        let words = "rejected: rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms); turn it steadily in place and level (a plane that wobbles adds an error no 2-D model removes), away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects; the turn suggests adding the effect cubic to the sensor's effects";
         assert_eq!(
             board.on_line(line),
             [
