@@ -7,6 +7,8 @@
 
 mod common;
 
+use common::table::Table;
+
 use std::f64::consts::TAU;
 
 use fieldcal::daemon::acceptance::{self, Limits};
@@ -351,34 +353,6 @@ fn swings_narrower_than_a_turn_never_complete_across_timeouts() {
 
 // ---- The real recordings -------------------------------------------------
 
-const SET: &str = "data/real/sunsided-set-1";
-
-/// A CSV of numbers with a header, by column name.
-struct Table {
-    names: Vec<String>,
-    rows: Vec<Vec<f64>>,
-}
-
-impl Table {
-    fn read(run: &str, file: &str) -> Table {
-        let path = common::shared_path(&format!("{SET}/{run}/{file}"));
-        let text =
-            std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        let mut lines = text.lines();
-        let names = lines.next().unwrap().split(',').map(String::from).collect();
-        let rows = lines
-            .filter(|l| !l.is_empty())
-            .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
-            .collect();
-        Table { names, rows }
-    }
-
-    fn col(&self, name: &str) -> Vec<f64> {
-        let j = self.names.iter().position(|n| n == name).unwrap();
-        self.rows.iter().map(|r| r[j]).collect()
-    }
-}
-
 /// The gyro's rate `axis` integrated (trapezoids) on its own times.
 struct Gyro {
     t: Vec<f64>,
@@ -387,7 +361,7 @@ struct Gyro {
 
 impl Gyro {
     fn of(run: &str, axis: &str) -> Gyro {
-        let imu = Table::read(run, "mpu6050.csv");
+        let imu = Table::sunsided(run, "mpu6050.csv");
         let (t, rate) = (imu.col("t_s"), imu.col(axis));
         let mut angle = vec![0.0];
         for i in 1..t.len() {
@@ -425,7 +399,7 @@ fn complete_run(
     gyro: &Gyro,
     with_gyro: bool,
 ) -> Completion {
-    let table = Table::read(run, file);
+    let table = Table::sunsided(run, file);
     let pick = |c: Vec<f64>| -> Vec<f64> { c.into_iter().step_by(every).collect() };
     let (t, x, y) = (
         pick(table.col("t_s")),
@@ -518,7 +492,7 @@ fn the_z_run_completes_with_its_gyro_as_without_and_its_turn_fits() {
     assert_eq!(with.samples, without.samples, "{with:?} {without:?}");
     // The first turn runs from about 3.7 s to 11.5 s (the gyro).
     assert!((10.0..=11.8).contains(&with.time), "{with:?}");
-    let table = Table::read(run, "hmc5883l_mag.csv");
+    let table = Table::sunsided(run, "hmc5883l_mag.csv");
     let n = with.samples;
     let (x, y) = (&table.col("mag_x")[..n], &table.col("mag_z")[..n]);
     // The samples held pass the fit's own checks (the turn gate, 300° of
@@ -540,7 +514,7 @@ fn the_z_run_completes_with_its_gyro_as_without_and_its_turn_fits() {
 fn still_stretches(run: &str) -> Vec<(f64, f64)> {
     const WINDOW_S: f64 = 0.5;
     const PATH_DEG: f64 = 6.0;
-    let imu = Table::read(run, "mpu6050.csv");
+    let imu = Table::sunsided(run, "mpu6050.csv");
     let t = imu.col("t_s");
     let (gx, gy, gz) = (imu.col("gyro_x"), imu.col("gyro_y"), imu.col("gyro_z"));
     let step: Vec<f64> = (0..t.len())
@@ -581,8 +555,8 @@ fn still_stretches_of_the_real_recordings_never_complete() {
     ];
     let mut fed = 0;
     for run in runs {
-        let mag = Table::read(run, "hmc5883l_mag.csv");
-        let imu = Table::read(run, "mpu6050.csv");
+        let mag = Table::sunsided(run, "hmc5883l_mag.csv");
+        let imu = Table::sunsided(run, "mpu6050.csv");
         for (from, to) in still_stretches(run) {
             for (table, a, b) in [
                 (&mag, "mag_x", "mag_y"),
@@ -698,8 +672,8 @@ fn the_real_tumble_never_gives_a_rotation_that_passes_the_gate() {
     // The sunsided tilt-sphere run: the board tumbled in the hand, so two
     // axes fill a disc rather than turn once round one circle.
     let run = "tilt-sphere";
-    let mag = Table::read(run, "hmc5883l_mag.csv");
-    let imu = Table::read(run, "mpu6050.csv");
+    let mag = Table::sunsided(run, "hmc5883l_mag.csv");
+    let imu = Table::sunsided(run, "mpu6050.csv");
     for (table, a, b) in [
         (&mag, "mag_x", "mag_y"),
         (&mag, "mag_x", "mag_z"),

@@ -5,9 +5,9 @@
 mod common;
 
 use std::fs;
-use std::path::Path;
 
-use common::{run, shared_path};
+use common::run;
+use common::table::Table;
 use fieldcal::model::FitError;
 use fieldcal::model::turn::{MAX_HOLE_FRACTION, RADIUS_OVER_NOISE, TurnCheck, check_turn};
 use fieldcal::sim::SimSensor;
@@ -15,7 +15,6 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal, Uniform};
 
-const SET: &str = "data/real/sunsided-set-1";
 const RUNS: [&str; 4] = [
     "rotate-360ccw-around-x-pointing-forward",
     "rotate-360ccw-around-y-pointing-left",
@@ -23,42 +22,8 @@ const RUNS: [&str; 4] = [
     "tilt-sphere",
 ];
 
-/// A CSV of numbers with a header, by column name.
-struct Table {
-    names: Vec<String>,
-    rows: Vec<Vec<f64>>,
-}
-
-impl Table {
-    fn read(path: &Path) -> Table {
-        let text = fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        let mut lines = text.lines();
-        let names = lines.next().unwrap().split(',').map(String::from).collect();
-        let rows = lines
-            .filter(|l| !l.is_empty())
-            .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
-            .collect();
-        Table { names, rows }
-    }
-
-    fn col(&self, name: &str) -> Vec<f64> {
-        let j = self.names.iter().position(|n| n == name).unwrap();
-        self.rows.iter().map(|r| r[j]).collect()
-    }
-
-    /// Columns `a` and `b` of the rows whose t_s lies in [from, to).
-    fn pair(&self, a: &str, b: &str, from: f64, to: f64) -> (Vec<f64>, Vec<f64>) {
-        let t = self.col("t_s");
-        let (xa, xb) = (self.col(a), self.col(b));
-        (0..t.len())
-            .filter(|&i| t[i] >= from && t[i] < to)
-            .map(|i| (xa[i], xb[i]))
-            .unzip()
-    }
-}
-
 fn table(run: &str, file: &str) -> Table {
-    Table::read(&shared_path(&format!("{SET}/{run}/{file}")))
+    Table::sunsided(run, file)
 }
 
 fn is_no_turn(e: &FitError) -> bool {

@@ -5,6 +5,7 @@ pub mod daemon;
 pub mod faults;
 pub mod http;
 pub mod pty;
+pub mod table;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
