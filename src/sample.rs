@@ -45,6 +45,52 @@ pub enum DatasetError {
         row: usize,
         value: f64,
     },
+    #[error(
+        "column '{name}' holds {value:e} at row {row}: too large to square in f64 (the fit squares readings; give values of magnitude at most {max:e}, such as the sensor's counts or physical units)",
+        max = MAX_MAGNITUDE
+    )]
+    TooLarge {
+        name: String,
+        row: usize,
+        value: f64,
+    },
+}
+
+/// Largest magnitude of a reading (or covariate, or time) that enters a fit.
+///
+/// The fits square readings and sum products of them over every sample
+/// (the paper's features x², xy, y², Kåsa's u² + v², normal equations).
+/// sqrt(f64::MAX) is about 1.34e154: a value above it overflows when
+/// squared. 1e150 squared is 1e300, which leaves a factor of over 1e8
+/// below f64::MAX ≈ 1.8e308 for sums over up to 10^8 samples. No sensor
+/// reads anything near it (an i32 count is below 2.2e9), so a value this
+/// large is not a reading: it is refused with that reason rather than
+/// reported later as a degenerate turn, or left to hang a solver.
+pub const MAX_MAGNITUDE: f64 = 1e150;
+
+/// `1 sample` or `2 samples`: a count and its noun, for messages.
+pub fn count(n: impl Into<u64>, noun: &str) -> String {
+    let n = n.into();
+    if n == 1 {
+        format!("1 {noun}")
+    } else {
+        format!("{n} {noun}s")
+    }
+}
+
+/// `1 sample is` or `2 samples are`: a count as the subject of a message.
+pub fn count_is(n: impl Into<u64>, noun: &str) -> String {
+    let n = n.into();
+    if n == 1 {
+        format!("1 {noun} is")
+    } else {
+        format!("{n} {noun}s are")
+    }
+}
+
+/// Refuses a value whose square (or a sum of squares) would overflow f64.
+pub fn too_large(value: f64) -> bool {
+    value.abs() > MAX_MAGNITUDE
 }
 
 impl Dataset {
@@ -115,6 +161,13 @@ impl Dataset {
             }
             if let Some((row, &value)) = values.iter().enumerate().find(|(_, v)| !v.is_finite()) {
                 return Err(DatasetError::NonFinite {
+                    name: name.to_string(),
+                    row,
+                    value,
+                });
+            }
+            if let Some((row, &value)) = values.iter().enumerate().find(|(_, v)| too_large(**v)) {
+                return Err(DatasetError::TooLarge {
                     name: name.to_string(),
                     row,
                     value,

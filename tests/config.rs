@@ -681,10 +681,92 @@ fn bad_numbers_are_refused_with_the_allowed_range() {
         &text,
         "source[0].retry_s",
         Some(line_of(&text, "nan")),
-        &["above 0"],
+        &["from 0.05 to 3600"],
     );
     let text = format!("[daemon]\nstatus_interval_s = 0\n{base}");
-    assert_refused(&text, "daemon.status_interval_s", Some(2), &["above 0"]);
+    assert_refused(
+        &text,
+        "daemon.status_interval_s",
+        Some(2),
+        &["from 0.05 to 86400"],
+    );
+}
+
+/// Issue 12: an interval that makes the loop drown, or a retry that spins,
+/// is refused naming the key; the floors themselves are taken.
+#[test]
+fn intervals_below_their_floor_are_refused_naming_the_key() {
+    let base = format!(
+        "{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"
+    );
+    for value in ["0.000001", "0.049", "1e-300", "86401"] {
+        let text = format!("[daemon]\nstatus_interval_s = {value}\n{base}");
+        assert_refused(
+            &text,
+            "daemon.status_interval_s",
+            Some(2),
+            &["from 0.05 to 86400"],
+        );
+    }
+    let text = format!("[daemon]\nstatus_interval_s = 0.05\n{base}");
+    let config = parse(&text, &config_path()).unwrap();
+    assert_eq!(
+        config.daemon.status_interval,
+        std::time::Duration::from_millis(50)
+    );
+    let text = base.replace(
+        "port = \"/dev/ttyUSB0\"",
+        "port = \"/dev/ttyUSB0\"\nretry_s = 0.000001",
+    );
+    assert_refused(
+        &text,
+        "source[0].retry_s",
+        Some(line_of(&text, "0.000001")),
+        &["from 0.05 to 3600"],
+    );
+}
+
+/// Issue 12: `speed = 1e-300` passed the check and the replay thread
+/// panicked converting it to a Duration; every speed now has a range.
+#[test]
+fn replay_speeds_out_of_range_are_refused_naming_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let header = CaptureHeader {
+        version: 1,
+        streams: vec![StreamInfo {
+            id: 0,
+            kind: StreamKind::Chip {
+                chip: Chip::Lsm303dlhcMag,
+                address: 0x1E,
+            },
+        }],
+        port: None,
+        baud: None,
+        started_unix: 0.0,
+        nominal_period_s: 0.03,
+        note: None,
+    };
+    let file = std::fs::File::create(dir.path().join("r.fcap")).unwrap();
+    CaptureWriter::new(file, &header).unwrap();
+    let path = dir.path().join("fieldcal.toml");
+    let text = "[[source]]\nname = \"r\"\nkind = \"replay\"\nfile = \"r.fcap\"\nspeed = SPEED\n\n\
+                [[sensor]]\nname = \"c\"\nsource = \"r\"\nchip = \"lsm303dlhc-mag\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n";
+    for speed in ["1e-300", "1e-9", "0", "-1", "nan", "1e7", "1000001"] {
+        std::fs::write(&path, text.replace("SPEED", speed)).unwrap();
+        let err = load(&path).unwrap_err();
+        let message = err.to_string();
+        assert_eq!(err.key(), Some("source[0].speed"), "{message}");
+        assert!(message.contains("source[0].speed"), "{message}");
+        assert!(message.contains("from 0.001 to 1e6"), "{message}");
+    }
+    for (speed, factor) in [("0.001", 1e-3), ("1e6", 1e6), ("4", 4.0)] {
+        std::fs::write(&path, text.replace("SPEED", speed)).unwrap();
+        let config = load(&path).unwrap();
+        match &config.sources[0].kind {
+            SourceKind::Replay { speed, .. } => assert_eq!(*speed, Speed::Times(factor)),
+            other => panic!("{other:?}"),
+        }
+    }
 }
 
 #[test]

@@ -132,6 +132,16 @@ pub type LimitSettings = crate::daemon::acceptance::Limits;
 /// Polls per second are bounded by what a USB-ISS can do; a minute between
 /// polls is already useless for a turning sensor.
 const POLL_MS_MAX: u64 = 60_000;
+/// Shortest `daemon.status_interval_s`: 50 ms, the Falcon-GX's frame period
+/// (the I2C bridge polls every 30 ms by default). A STATUS line more often
+/// than readings arrive says nothing new, and a microsecond interval filled
+/// a slow subscriber's queue in milliseconds and left the loop handling
+/// one reading in a hundred (issue 12).
+const MIN_STATUS_INTERVAL_S: f64 = 0.05;
+/// Shortest `retry_s` of a source: a USB serial adapter takes hundreds of
+/// milliseconds to enumerate again after a replug, so trying to reopen it
+/// more than 20 times a second only burns CPU and fills the log.
+const MIN_RETRY_S: f64 = 0.05;
 /// Names become file names and JSON values: keep them short.
 const NAME_MAX: usize = 64;
 /// The effects the daemon can fit and apply to live readings: those that
@@ -896,7 +906,12 @@ impl Checker<'_> {
         };
         let status_interval = match raw.status_interval_s {
             None => Duration::from_secs(1),
-            Some(s) => self.seconds("daemon.status_interval_s", s, 86_400.0)?,
+            Some(s) => self.seconds_in(
+                "daemon.status_interval_s",
+                s,
+                MIN_STATUS_INTERVAL_S,
+                86_400.0,
+            )?,
         };
         Ok(DaemonConfig {
             state_dir,
@@ -1008,7 +1023,7 @@ impl Checker<'_> {
         }
         let retry = match s.retry_s {
             None => Duration::from_secs(2),
-            Some(v) => self.seconds(&format!("{key}.retry_s"), v, 3600.0)?,
+            Some(v) => self.seconds_in(&format!("{key}.retry_s"), v, MIN_RETRY_S, 3600.0)?,
         };
         let require_port = |port: Option<PathBuf>| match port {
             Some(p) if !p.as_os_str().is_empty() => Ok(p),
@@ -1372,16 +1387,7 @@ impl Checker<'_> {
                 ));
             }
         };
-        if factor > 0.0 && factor.is_finite() {
-            Ok(Speed::Times(factor))
-        } else {
-            Err(self.error(
-                key,
-                format!(
-                    "{factor} is not a speed: give a positive factor (1 = as recorded) or \"max\""
-                ),
-            ))
-        }
+        Speed::times(factor).map_err(|problem| self.error(key, problem))
     }
 
     /// The streams of a replayed file: those its capture header declares,
@@ -1785,6 +1791,26 @@ impl Checker<'_> {
                 ),
             )),
         }
+    }
+
+    /// Seconds from `min` to `max`, both included.
+    fn seconds_in(
+        &self,
+        key: &str,
+        value: f64,
+        min: f64,
+        max: f64,
+    ) -> Result<Duration, ConfigError> {
+        if value >= min
+            && value <= max
+            && let Ok(d) = Duration::try_from_secs_f64(value)
+        {
+            return Ok(d);
+        }
+        Err(self.error(
+            key,
+            format!("{value} seconds: give a number of seconds from {min} to {max}"),
+        ))
     }
 
     fn seconds(&self, key: &str, value: f64, max: f64) -> Result<Duration, ConfigError> {

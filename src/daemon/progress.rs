@@ -519,8 +519,10 @@ impl Board {
         };
         if !stored && c.n > 0 {
             logs.push(format!(
-                "{}: rotation complete, {} samples over {:.0}°",
-                c.sensor, c.n, c.coverage_deg
+                "{}: rotation complete, {} over {:.0}°",
+                c.sensor,
+                crate::sample::count(c.n as u64, "sample"),
+                c.coverage_deg
             ));
         }
         match &outcome {

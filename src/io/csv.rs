@@ -400,7 +400,11 @@ fn parse_number(field: &[u8]) -> Result<f64, String> {
         return Err("the value is empty; every sample needs a number here".into());
     }
     match text.parse::<f64>() {
-        Ok(v) if v.is_finite() => Ok(v),
+        Ok(v) if v.is_finite() && !crate::sample::too_large(v) => Ok(v),
+        Ok(v) if v.is_finite() => Err(format!(
+            "'{text}' is too large to square in f64: the fit squares readings, so give values of magnitude at most {:e}",
+            crate::sample::MAX_MAGNITUDE
+        )),
         Ok(_) => Err(format!("'{text}' is not a finite number")),
         Err(_) => Err(format!("'{text}' is not a number")),
     }

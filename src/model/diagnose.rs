@@ -607,8 +607,10 @@ fn judge(t: &Trial<'_>) -> Judgement {
     }
     if *t.effect == Effect::Outliers && !tails_heavy(t.res) {
         return refuse(format!(
-            "no outliers: {} samples lie beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}; {numbers}",
-            t.res.tail_count, t.res.tail_max_sd, t.res.tail_expected
+            "no outliers: {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}; {numbers}",
+            crate::sample::count(t.res.tail_count as u64, "sample"),
+            t.res.tail_max_sd,
+            t.res.tail_expected
         ));
     }
     let drop = if rms0 > 0.0 { 1.0 - rms1 / rms0 } else { 0.0 };
@@ -667,8 +669,8 @@ fn judge(t: &Trial<'_>) -> Judgement {
     }
     let extra = if *t.effect == Effect::Outliers {
         format!(
-            "; {} samples flagged, {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}",
-            t.fit.flagged.len(),
+            "; {} flagged, {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}",
+            crate::sample::count(t.fit.flagged.len() as u64, "sample"),
             t.res.tail_count,
             t.res.tail_max_sd,
             t.res.tail_expected
@@ -956,7 +958,10 @@ fn verdict(rms: f64, res: &Residuals, floor: &NoiseFloor, n: usize) -> String {
         places.push(format!("{} (correlation {:.2})", c.column, c.correlation));
     }
     if tails_heavy(res) {
-        places.push(format!("{} samples beyond 4 robust SD", res.tail_count));
+        places.push(format!(
+            "{} beyond 4 robust SD",
+            crate::sample::count(res.tail_count as u64, "sample")
+        ));
     }
     let where_ = if places.is_empty() {
         "no single harmonic, trend, covariate or tail to blame; the residual changes faster than a turn's structure but slower than white noise".to_string()

@@ -95,7 +95,8 @@ pub enum GyroError {
         value: f64,
     },
     #[error(
-        "only {overlapping} samples fall within the gyro's time span ({gyro_start} s to {gyro_end} s), and the check needs {needed}; the recording runs from {sample_start} s to {sample_end} s: the two must be on the same clock and overlap"
+        "only {} within the gyro's time span ({gyro_start} s to {gyro_end} s), and the check needs {needed}; the recording runs from {sample_start} s to {sample_end} s: the two must be on the same clock and overlap",
+        crate::sample::count(*overlapping as u64, "sample")
     )]
     NoOverlap {
         overlapping: usize,
@@ -110,7 +111,8 @@ pub enum GyroError {
     )]
     HeadingCount { found: usize, expected: usize },
     #[error(
-        "only {found} samples can be checked against the gyro (with a gyro reading and a finite heading, not flagged), and the check needs {needed}"
+        "only {} can be checked against the gyro (with a gyro reading and a finite heading, not flagged), and the check needs {needed}",
+        crate::sample::count(*found as u64, "sample")
     )]
     TooFewChecked { found: usize, needed: usize },
     #[error(

@@ -62,6 +62,13 @@ pub fn coverage(headings: impl IntoIterator<Item = f64>) -> Coverage {
     }
 }
 
+/// Most sweeps of the SVD in [`circle_centre`]. Golub-Kahan SVD converges
+/// in a few sweeps per singular value on finite input (a 3-column design
+/// takes well under 100); 1000 only ends a run that will never converge
+/// (non-finite or pathological input) with an error instead of a hang.
+/// Same cap as the residual fit's SVD in `residuals.rs`.
+pub const SVD_MAX_ITERATIONS: usize = 1000;
+
 /// Centre of the circle that best fits the points (Kåsa's algebraic fit).
 /// Used to judge the coverage of points that no ellipse of the paper's family
 /// fits: a partial arc still has a well-defined centre of curvature.
@@ -94,8 +101,17 @@ pub fn circle_centre(x: &[f64], y: &[f64]) -> Result<(f64, f64), FitError> {
         let (u, v) = scaled(i);
         u * u + v * v
     });
+    if !(design.iter().all(|v| v.is_finite()) && target.iter().all(|v| v.is_finite())) {
+        // Readings whose mean or spread overflows: refused before the SVD,
+        // which would iterate on non-finite entries.
+        return Err(FitError::Degenerate);
+    }
     let p = design
-        .svd(true, true)
+        .try_svd(true, true, f64::EPSILON, SVD_MAX_ITERATIONS)
+        .ok_or(FitError::NoConvergence {
+            iterations: SVD_MAX_ITERATIONS,
+            what: "the SVD of the circle fit did not converge",
+        })?
         .solve(&target, 1e-12)
         .map_err(|_| FitError::Degenerate)?;
     if !p.iter().all(|v| v.is_finite()) {

@@ -32,13 +32,23 @@ use crate::report::significant;
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FitError {
     #[error(
-        "{found} samples are too few to show a turn: fieldcal needs at least {needed} to tell a turn from a sensor that stood still; record a full rotation"
+        "{} too few to show a turn: fieldcal needs at least {needed} to tell a turn from a sensor that stood still; record a full rotation",
+        crate::sample::count_is(*found as u64, "sample")
     )]
     TooFewToTurn { found: usize, needed: usize },
     #[error(
         "reading {index} is not a finite number (x = {x}, y = {y}); remove it from the recording"
     )]
     NonFiniteReading { index: usize, x: f64, y: f64 },
+    #[error(
+        "reading {index} of '{column}' is {value:e}: too large to square in f64 (the fit squares readings, and they must stay within ±{max:e}); these are not a sensor's readings: give counts or physical units",
+        max = crate::sample::MAX_MAGNITUDE
+    )]
+    TooLarge {
+        column: String,
+        index: usize,
+        value: f64,
+    },
     #[error(
         "the readings form a cloud {} across around ({}, {}): their spread is only {}× the noise ({}), and a turn needs {needed}×: the sensor did not turn; turn it a full rotation in a constant field",
         significant(*.across, 2), significant(*.centre_x, 4), significant(*.centre_y, 4), significant(*.ratio, 2), significant(*.noise, 2)
@@ -67,7 +77,8 @@ pub enum FitError {
         y: String,
     },
     #[error(
-        "{found} samples are too few: the model has {unknowns} unknowns and needs at least {needed} samples"
+        "{} too few: the model has {unknowns} unknowns and needs at least {needed} samples",
+        crate::sample::count_is(*found as u64, "sample")
     )]
     TooFewSamples {
         found: usize,

@@ -139,6 +139,20 @@ fn check_named(
             y: y[i],
         });
     }
+    if let Some((column, index, value)) =
+        [(names[0], x), (names[1], y)]
+            .into_iter()
+            .find_map(|(name, v)| {
+                let i = v.iter().position(|&a| crate::sample::too_large(a))?;
+                Some((name, i, v[i]))
+            })
+    {
+        return Err(FitError::TooLarge {
+            column: column.to_string(),
+            index,
+            value,
+        });
+    }
     // One common scale brings every value into [-1, 1]: nothing below can
     // overflow (a difference of two values near f64::MAX would), the solvers
     // see well-conditioned inputs, and the aspect ratio is kept.

@@ -36,10 +36,38 @@ impl FromStr for Speed {
             return Ok(Speed::Max);
         }
         match text.parse::<f64>() {
-            Ok(v) if v > 0.0 && v.is_finite() => Ok(Speed::Times(v)),
+            Ok(v) => Speed::times(v),
             _ => Err(format!(
                 "'{text}' is not a speed: give a positive factor (1 = real time, 10 = ten times faster) or 'max'"
             )),
+        }
+    }
+}
+
+/// Slowest replay speed, as a factor of real time. At 1e-3 one 50 ms
+/// Falcon-GX frame takes 50 s to come round and an hour's capture takes six
+/// weeks: slower replays show nothing a person can watch, and pace times
+/// stay far inside what a `Duration` holds (1e-300 made them overflow it).
+pub const MIN_SPEED: f64 = 1e-3;
+/// Fastest replay speed as a factor: at 1e6 a day's capture is due in
+/// under 0.1 s, which is what `max` does anyway; a larger factor only hides
+/// a typing mistake.
+pub const MAX_SPEED: f64 = 1e6;
+
+impl Speed {
+    /// A factor of real time within [`MIN_SPEED`]..=[`MAX_SPEED`], or why not.
+    pub fn times(factor: f64) -> Result<Speed, String> {
+        if (MIN_SPEED..=MAX_SPEED).contains(&factor) {
+            Ok(Speed::Times(factor))
+        } else {
+            // 1e-300 in full would fill a screen.
+            let shown = match factor.to_string() {
+                s if s.len() > 12 => format!("{factor:e}"),
+                s => s,
+            };
+            Err(format!(
+                "{shown} is not a speed: give a factor from {MIN_SPEED} to {MAX_SPEED:e} (1 = real time, 10 = ten times faster) or 'max'"
+            ))
         }
     }
 }
@@ -91,7 +119,18 @@ impl Pacer {
         let Speed::Times(factor) = self.speed else {
             return;
         };
-        let due = self.started + Duration::from_secs_f64((time / factor).max(0.0));
+        // A capture's times are user data: a due time beyond what a
+        // Duration or the clock holds is treated as "a day from now", and the
+        // stop flag still ends the wait.
+        let day = Duration::from_secs(86_400);
+        let wait = Duration::try_from_secs_f64((time / factor).max(0.0))
+            .unwrap_or(day)
+            .min(day * 366 * 100);
+        let due = self
+            .started
+            .checked_add(wait)
+            .or_else(|| Instant::now().checked_add(day))
+            .unwrap_or_else(Instant::now);
         // Sleep in slices so a stop request is honoured promptly.
         loop {
             let now = Instant::now();

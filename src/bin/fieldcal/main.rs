@@ -82,7 +82,7 @@ struct RecordArgs {
     #[arg(long, value_name = "MS", default_value_t = 30, value_parser = clap::value_parser!(u64).range(1..=60_000))]
     poll_ms: u64,
     /// Stop after this many seconds (default: until Ctrl-C or SIGTERM).
-    #[arg(long, value_name = "SECS", value_parser = parse_positive)]
+    #[arg(long, value_name = "SECS", value_parser = parse_duration, allow_negative_numbers = true)]
     duration: Option<f64>,
     /// Capture file to write.
     #[arg(long, short, value_name = "FILE")]
@@ -107,7 +107,7 @@ struct ReplayArgs {
     /// A capture written by `fieldcal record` or `fieldcal simulate --format falcon`, a raw byte dump of Falcon-GX frames, or (with --config naming a csv source) a CSV recording.
     file: PathBuf,
     /// N times real time (1 = as recorded), or max [default: with --config, the source's configured speed; else 1].
-    #[arg(long, value_parser = parse_speed)]
+    #[arg(long, value_parser = parse_speed, allow_negative_numbers = true)]
     speed: Option<Speed>,
     /// Print a JSON summary line (class SUMMARY) after the samples.
     #[arg(long)]
@@ -311,19 +311,19 @@ struct SimulateArgs {
     #[arg(long, value_enum, default_value_t = SimFormat::Csv)]
     format: SimFormat,
     /// falcon: fraction of garbage bytes spliced between frames (0.01 = 1 %).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = parse_garbage, allow_negative_numbers = true)]
     garbage: f64,
     /// Print the simulated sensor and its true calibration as JSON on stdout (needs --output).
     #[arg(long)]
     json: bool,
     /// Field magnitude, in counts at unit gain.
-    #[arg(long, default_value_t = 1000.0)]
+    #[arg(long, default_value_t = 1000.0, allow_negative_numbers = true)]
     field: f64,
     /// Gain of the x axis.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     gain_x: f64,
     /// Gain of the y axis.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     gain_y: f64,
     /// Offset of the x axis, in counts.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
@@ -332,16 +332,16 @@ struct SimulateArgs {
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     offset_y: f64,
     /// Standard deviation of Gaussian noise on each axis, in counts.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     noise: f64,
     /// Sample period in seconds (0.05 for the Falcon-GX, 0.03 for I2C polling).
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.05, allow_negative_numbers = true)]
     period: f64,
     /// Number of rotations.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     turns: f64,
     /// Seconds one rotation takes.
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
     turn_seconds: f64,
     /// Heading of the first sample, in degrees.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
@@ -428,6 +428,38 @@ fn parse_coverage(text: &str) -> Result<f64, String> {
         Ok(v)
     } else {
         Err(format!("{v} is not between 0 and 360 degrees"))
+    }
+}
+
+/// `--garbage`: a fraction from 0 to [`fieldcal::sim::MAX_GARBAGE`].
+fn parse_garbage(text: &str) -> Result<f64, String> {
+    let v: f64 = text
+        .parse()
+        .map_err(|_| format!("'{text}' is not a number"))?;
+    let max = fieldcal::sim::MAX_GARBAGE;
+    if (0.0..=max).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{text} is not a garbage fraction: give one from 0 to {max} (at {max}, nine bytes in ten are garbage)"
+        ))
+    }
+}
+
+/// Longest `record --duration`: a year. Longer is a typing mistake, and
+/// 1e300 seconds overflowed the conversion to a `Duration`.
+const MAX_DURATION_S: f64 = 365.0 * 86_400.0;
+
+fn parse_duration(text: &str) -> Result<f64, String> {
+    let v: f64 = text
+        .parse()
+        .map_err(|_| format!("'{text}' is not a number"))?;
+    if v > 0.0 && v <= MAX_DURATION_S {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{text} is not a duration: give a number of seconds above 0 and at most {MAX_DURATION_S} (a year)"
+        ))
     }
 }
 

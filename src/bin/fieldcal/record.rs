@@ -113,7 +113,10 @@ pub fn record(args: RecordArgs) -> Result<()> {
             }
         };
         tokio::spawn(crate::signals::forward_signals(stop_tx.clone()));
-        let duration = args.duration.map(Duration::from_secs_f64);
+        // --duration is checked to (0, a year] by its parser.
+        let duration = args
+            .duration
+            .and_then(|s| Duration::try_from_secs_f64(s).ok());
         let result = run_recorder(events_rx, &mut writer, started_unix, duration, stop_rx).await;
         // Stop the source whatever ended the recording; it sends the
         // device's stop command on its way out.
@@ -155,10 +158,10 @@ pub fn record(args: RecordArgs) -> Result<()> {
         bail!("{nothing}{this_run}; {left}");
     }
     eprintln!(
-        "recorded {} chunks ({} bytes, {} readings) to {}; frames good {}, bad {}, lost {}, reconnects {}",
-        summary.chunks,
-        summary.bytes,
-        summary.readings,
+        "recorded {} ({}, {}) to {}; frames good {}, bad {}, lost {}, reconnects {}",
+        fieldcal::sample::count(summary.chunks, "chunk"),
+        fieldcal::sample::count(summary.bytes, "byte"),
+        fieldcal::sample::count(summary.readings, "reading"),
         args.output.display(),
         counters.frames_good,
         counters.frames_bad,

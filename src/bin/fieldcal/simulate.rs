@@ -8,6 +8,7 @@ use anyhow::{Context, Result, bail};
 use fieldcal::capture::CaptureWriter;
 use fieldcal::io::atomic::AtomicFile;
 use fieldcal::io::csv::write_dataset_to;
+use fieldcal::sample::count;
 use fieldcal::sim::{FalconWire, SimEffects, SimSensor};
 
 use crate::output::write_stdout;
@@ -83,7 +84,8 @@ pub fn simulate(args: SimulateArgs) -> Result<()> {
     } else if let Some(path) = &args.output {
         if args.effect.is_empty() {
             eprintln!(
-                "wrote {n} samples to {}; true calibration: a = {}, b = {}, d = {}, r = {}",
+                "wrote {} to {}; true calibration: a = {}, b = {}, d = {}, r = {}",
+                count(n as u64, "sample"),
                 path.display(),
                 truth.a,
                 truth.b,
@@ -98,9 +100,10 @@ pub fn simulate(args: SimulateArgs) -> Result<()> {
                 .map(|(name, value)| format!("{name} = {value}"))
                 .collect();
             eprintln!(
-                "wrote {n} samples to {} ({} spikes); true parameters of the general model: {}",
+                "wrote {} to {} ({}); true parameters of the general model: {}",
+                count(n as u64, "sample"),
                 path.display(),
-                model_truth.outliers.len(),
+                count(model_truth.outliers.len() as u64, "spike"),
                 params.join(", ")
             );
         }
