@@ -300,3 +300,34 @@ fn negative_numbers_get_a_range_error_not_unexpected_argument() {
         &["--duration", "a year"],
     );
 }
+
+#[test]
+fn a_count_of_one_is_singular() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("one.csv");
+    std::fs::write(&file, "x,y\n1,2\n").unwrap();
+    let ended = run_within(&["fit", file.to_str().unwrap()], CAP);
+    assert_eq!(ended.code, Some(1), "{}", ended.stderr);
+    assert!(
+        ended.stderr.contains("1 sample is too few to show a turn"),
+        "{}",
+        ended.stderr
+    );
+    let out = dir.path().join("s.csv");
+    let ended = run_within(
+        &[
+            "simulate",
+            "--turn-seconds",
+            "0.05",
+            "-o",
+            out.to_str().unwrap(),
+        ],
+        CAP,
+    );
+    assert_eq!(ended.code, Some(0), "{}", ended.stderr);
+    assert!(
+        ended.stderr.contains("wrote 1 sample to"),
+        "{}",
+        ended.stderr
+    );
+}
