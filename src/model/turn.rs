@@ -526,6 +526,14 @@ mod tests {
     fn extreme_and_non_finite_values_end_in_an_answer() {
         let (x, y) = ring(50, 360.0, 1e307, 0.0, 0);
         let x: Vec<f64> = x.iter().map(|v| v.clamp(-1.7e308, 1.7e308)).collect();
+        // Finite, but their squares overflow: refused with that reason
+        // (the fits after the gate square them), naming the column.
+        assert!(matches!(
+            check_turn(&x, &y, 300.0),
+            Err(FitError::TooLarge { ref column, index: 0, .. }) if column == "x"
+        ));
+        // Up to the limit, the gate's own scaling still sees a turn.
+        let (x, y) = ring(50, 360.0, 1e149, 0.0, 0);
         assert!(check_turn(&x, &y, 300.0).is_ok());
         let (mut x, y) = ring(50, 360.0, 1.0, 0.0, 0);
         x[7] = f64::NAN;
