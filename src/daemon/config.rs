@@ -17,7 +17,7 @@
 //! # the working directory.
 //! state_dir = "/var/lib/fieldcal"
 //! # Seconds between STATUS messages (and systemd status lines). Default 1.
-//! status_interval_s = 1.0
+//! status_interval_s = 1.0   # 0.05 to 86400 s; default 1
 //! # Log lines on stderr: "text" (default) or "json".
 //! log_format = "text"
 //!
@@ -44,7 +44,7 @@
 //! kind = "falcon"           # falcon | usb-iss | replay
 //! port = "/dev/ttyUSB0"     # falcon, usb-iss: the serial device
 //! baud = 38400              # falcon only; default 38400
-//! retry_s = 2.0             # seconds between tries after a failure; default 2
+//! retry_s = 2.0             # seconds between tries after a failure; 0.05 to 3600; default 2
 //!
 //! [[source]]
 //! name = "bridge"
@@ -61,7 +61,7 @@
 //! name = "bench"
 //! kind = "replay"
 //! file = "captures/turn.fcap"  # relative to this file's directory
-//! speed = 1.0               # a positive factor, or "max"; default 1
+//! speed = 1.0               # a factor from 0.001 to 1e6, or "max"; default 1
 //!
 //! [[source]]
 //! name = "log"
