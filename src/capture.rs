@@ -85,6 +85,15 @@ pub const VERSION: u32 = 1;
 /// means the file is damaged (real headers are a few hundred bytes).
 pub const MAX_HEADER_LEN: u32 = 1 << 20;
 
+/// The largest capture (or raw dump) a reader takes, in bytes: captures are
+/// read whole into memory. The Falcon-GX's line at 38 400 baud carries at
+/// most 3 840 bytes/s, so a day of it, with each record's 17 bytes of
+/// overhead, stays under 0.4 GB; 1 GiB holds well over two days of one and
+/// is still an allocation a 32-bit board can make. Anything larger is not a
+/// recording of this device (a disk image, a log gone wild) and is refused
+/// with this reason rather than read until memory runs out.
+pub const MAX_CAPTURE_LEN: u64 = 1 << 30;
+
 /// Bytes a record takes besides its data: the 13-byte head (time, stream,
 /// length) and the 4-byte CRC.
 pub const RECORD_OVERHEAD: usize = RECORD_HEAD_LEN + CRC_LEN;
@@ -487,11 +496,17 @@ impl fmt::Display for Truncation {
     }
 }
 
-/// Reads a capture, or a raw dump, from a file.
+/// Reads a capture, or a raw dump, from a file. The path must be a regular
+/// file of at most [`MAX_CAPTURE_LEN`] bytes (see
+/// [`crate::io::regular::read_regular`]): a FIFO, a device such as
+/// `/dev/zero` or a directory is refused before anything is read. The
+/// daemon's configuration check refuses the same files.
 pub fn read_capture(path: &Path) -> Result<CaptureFile, CaptureError> {
-    let bytes = std::fs::read(path).map_err(|source| CaptureError::Io {
-        path: path.to_path_buf(),
-        source,
+    let bytes = crate::io::regular::read_regular(path, MAX_CAPTURE_LEN).map_err(|source| {
+        CaptureError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
     })?;
     match parse(&bytes, &path.display().to_string())? {
         Some(capture) => Ok(capture),

@@ -136,6 +136,32 @@ fn an_unusable_state_directory_keeps_the_old_file_and_readings_go_on() {
     assert!(daemon.terminate().success(), "{}", daemon.stderr());
 }
 
+/// The state directory deleted under a running daemon: the failed save
+/// must not claim "the calibration stored before is unchanged" (none is
+/// left); it says the directory is gone.
+#[test]
+fn a_deleted_state_directory_is_told_apart_from_an_unchanged_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut daemon, socket, _) = daemon_with_a_stored_calibration(dir.path(), |_| {});
+    let state = dir.path().join("state");
+    std::fs::remove_dir_all(&state).unwrap();
+    send_unix_command(&socket, r#"{"command":"recalibrate"}"#);
+    let second = daemon.wait_for_value(LONG, "the second CALIBRATION", |v| {
+        is_class(v, "CALIBRATION")
+    });
+    assert_eq!(second["id"], 2, "{second}");
+    let error = daemon.wait_for_value(LONG, "an ERROR line", |v| is_class(v, "ERROR"));
+    let message = error["message"].as_str().unwrap();
+    assert!(
+        message.contains(&format!("the state directory {} is gone", state.display())),
+        "{message}"
+    );
+    assert!(!message.contains("unchanged"), "{message}");
+    let reading = daemon.wait_for_value(LONG, "a READING", |v| is_class(v, "READING"));
+    assert_eq!(reading["calibration"], 2, "{reading}");
+    assert!(daemon.terminate().success(), "{}", daemon.stderr());
+}
+
 /// Simulates a full disk: once the first calibration is stored, the
 /// daemon's file-size limit (RLIMIT_FSIZE, set on the running process with
 /// prlimit) is lowered to 0, so every write to a regular file fails with
@@ -221,6 +247,80 @@ impl Drop for TmpfsMount {
         // so a daemon still holding it open cannot keep the mount.
         unsafe { libc::umount2(target.as_ptr(), libc::MNT_DETACH) };
     }
+}
+
+impl TmpfsMount {
+    /// Makes the mounted tmpfs read-only (MS_REMOUNT | MS_RDONLY).
+    fn remount_read_only(&self) -> Result<(), std::io::Error> {
+        let target = std::ffi::CString::new(self.0.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: mount(2) with NUL-terminated strings that outlive the call.
+        let rc = unsafe {
+            libc::mount(
+                c"tmpfs".as_ptr(),
+                target.as_ptr(),
+                c"tmpfs".as_ptr(),
+                libc::MS_REMOUNT | libc::MS_RDONLY,
+                std::ptr::null(),
+            )
+        };
+        if rc == 0 {
+            Ok(())
+        } else {
+            Err(std::io::Error::last_os_error())
+        }
+    }
+}
+
+/// A read-only state directory (a tmpfs remounted read-only: refused even
+/// to root, EROFS) no longer stops the start: the calibration in it is
+/// loaded and corrects from the first reading, an ERROR line and the log
+/// say new calibrations cannot be stored, and readings go on.
+#[test]
+fn a_read_only_state_directory_loads_reports_and_readings_go_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let mount = match TmpfsMount::mount(&state, 1 << 20) {
+        Ok(mount) => mount,
+        Err(e) => {
+            eprintln!("skipped: cannot mount a tmpfs here ({e})");
+            return;
+        }
+    };
+    let stored = calibration(7);
+    StateStore::open(&state).unwrap().save(&stored).unwrap();
+    if let Err(e) = mount.remount_read_only() {
+        eprintln!("skipped: cannot remount the tmpfs read-only ({e})");
+        return;
+    }
+    let refused = std::fs::write(state.join("probe"), "x").unwrap_err();
+    assert_eq!(refused.raw_os_error(), Some(libc::EROFS));
+
+    let capture = long_capture(dir.path(), 20);
+    let config = replay_config(dir.path(), &capture, "20.0", "stdout = true");
+    let mut daemon = Daemon::start(&config, &[]);
+    let error = daemon.wait_for_value(LONG, "an ERROR line", |v| is_class(v, "ERROR"));
+    let message = error["message"].as_str().unwrap();
+    assert!(message.contains("cannot be written"), "{message}");
+    assert!(message.contains("Read-only file system"), "{message}");
+    assert!(message.contains(&state.display().to_string()), "{message}");
+    let loaded = daemon.wait_for_value(LONG, "the loaded CALIBRATION", |v| {
+        is_class(v, "CALIBRATION")
+    });
+    assert_eq!(loaded["origin"], "state", "{loaded}");
+    assert_eq!(loaded["id"], 7, "{loaded}");
+    // The first readings, before any rotation can end, use the stored one.
+    for _ in 0..5 {
+        let reading = daemon.wait_for_value(LONG, "a READING", |v| is_class(v, "READING"));
+        assert_eq!(reading["calibrated"], true, "{reading}");
+        assert_eq!(reading["calibration"], 7, "{reading}");
+    }
+    let log = daemon.stderr();
+    assert!(
+        log.lines()
+            .any(|l| l.contains("ERROR") && l.contains("cannot be written")),
+        "{log}"
+    );
+    assert!(daemon.terminate().success(), "{}", daemon.stderr());
 }
 
 /// A real full disk, where the machine lets the test mount one: the state

@@ -274,11 +274,16 @@ fn a_save_into_an_unwritable_directory_fails_and_keeps_the_old_file() {
         assert!(message.contains("compass.json"), "{message}");
         assert!(message.contains("unchanged"), "{message}");
         assert_eq!(fs::read(store.path_for("compass")).unwrap(), old);
-        // And opening a read-only directory is refused up front.
+        // And a read-only directory opens, loads, and says it cannot store.
         fs::set_permissions(&dir, fs::Permissions::from_mode(0o555)).unwrap();
-        let err = StateStore::open(&dir).unwrap_err();
+        let opened = StateStore::open(&dir);
         fs::set_permissions(&dir, fs::Permissions::from_mode(0o755)).unwrap();
-        assert!(matches!(err, StateError::NotWritable { .. }), "{err}");
+        let opened = opened.unwrap();
+        let why = opened
+            .unwritable()
+            .expect("the read-only state is reported");
+        assert!(matches!(why, StateError::ReadOnly { .. }), "{why}");
+        assert_eq!(opened.load("compass").unwrap().map(|c| c.id), Some(1));
         return;
     }
     // Root: permissions do not apply.
@@ -294,7 +299,10 @@ fn a_save_into_an_unwritable_directory_fails_and_keeps_the_old_file() {
         message.contains(&dir.join("compass.json").display().to_string()),
         "{message}"
     );
-    assert!(message.contains("unchanged"), "{message}");
+    // At the path, the directory is gone: the message must not promise
+    // that the stored calibration is unchanged.
+    assert!(message.contains("is gone"), "{message}");
+    assert!(!message.contains("unchanged"), "{message}");
     assert_eq!(fs::read(moved.join("compass.json")).unwrap(), old);
     assert_eq!(entries(&moved), ["compass.json"], "no temporary file left");
 }

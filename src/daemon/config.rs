@@ -434,12 +434,22 @@ impl ConfigError {
     }
 }
 
-/// Reads and checks the configuration at `path`. Starts nothing.
+/// The largest configuration file read, in bytes. A configuration of a
+/// dozen sources and sensors with comments is a few kilobytes; a file of a
+/// megabyte is not one, and is refused rather than read into memory.
+pub const MAX_CONFIG_LEN: u64 = 1 << 20;
+
+/// Reads and checks the configuration at `path`. Starts nothing. The path
+/// must be a regular file (a FIFO or a device is refused before it can
+/// block, see [`crate::io::regular`]) of at most [`MAX_CONFIG_LEN`] bytes.
 pub fn load(path: &Path) -> Result<Config, ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+    let read = |source| ConfigError::Read {
         path: path.to_path_buf(),
         source,
-    })?;
+    };
+    let bytes = crate::io::regular::read_regular(path, MAX_CONFIG_LEN).map_err(read)?;
+    let text = String::from_utf8(bytes)
+        .map_err(|e| read(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
     parse(&text, path)
 }
 
@@ -1412,6 +1422,18 @@ impl Checker<'_> {
                 ),
             ));
         }
+        if meta.len() > capture::MAX_CAPTURE_LEN {
+            return Err(self.error(
+                key,
+                format!(
+                    "{} holds {} bytes, more than the {} a capture can be: give a capture or \
+                     raw dump of the device",
+                    file.display(),
+                    meta.len(),
+                    capture::MAX_CAPTURE_LEN
+                ),
+            ));
+        }
         if crate::io::csv::looks_like_csv(file) {
             return Err(self.error(
                 key,
@@ -1895,7 +1917,8 @@ fn parse_chip(text: &str) -> Result<(Chip, Option<u8>), String> {
 /// The magic, length and header of a capture, or the first bytes of a raw
 /// dump: enough to tell its streams without reading the whole file.
 fn read_capture_prefix(file: &Path) -> std::io::Result<Vec<u8>> {
-    let mut f = std::fs::File::open(file)?;
+    // The same check as `read_capture`: a regular file, never waited on.
+    let mut f = crate::io::regular::open_regular(file)?;
     let mut head = Vec::new();
     (&mut f)
         .take(capture::MAGIC.len() as u64 + 4)

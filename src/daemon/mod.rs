@@ -19,6 +19,7 @@ pub mod run;
 pub mod sensor;
 pub mod state;
 pub mod state_writer;
+pub mod unix_socket;
 
 use serde::{Deserialize, Serialize};
 

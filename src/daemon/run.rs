@@ -60,6 +60,8 @@ pub enum DaemonError {
         #[source]
         source: std::io::Error,
     },
+    #[error(transparent)]
+    UnixSocket(#[from] super::unix_socket::UnixSocketError),
     #[error(
         "cannot listen for the live page on {address}: {source}; choose another address in [outputs] http (port 0 picks a free one), or stop what holds it"
     )]
@@ -226,6 +228,12 @@ pub async fn run_with_progress(
 ) -> Result<(), DaemonError> {
     let notifier = Notifier::from_env();
     let store = StateStore::open(&config.daemon.state_dir)?;
+    // A read-only state directory: what is in it loads, readings go on,
+    // new calibrations are held in memory only; said at start.
+    let unwritable_state = store.unwritable().map(ToString::to_string);
+    if let Some(message) = &unwritable_state {
+        tracing::error!("{message}");
+    }
     let mut sensors = Sensors::build(&config, Some(&store));
     let (failures_tx, mut save_failures) = mpsc::unbounded_channel::<SaveFailure>();
     let writer = StateWriter::spawn(
@@ -256,14 +264,12 @@ pub async fn run_with_progress(
         });
     }
     if let Some(path) = &config.outputs.unix {
-        remove_stale_socket(path);
-        let listener =
-            tokio::net::UnixListener::bind(path).map_err(|source| DaemonError::Unix {
-                path: path.clone(),
-                source,
+        let (listener, bound) =
+            super::unix_socket::bind(path, super::unix_socket::SOCKET_MODE, |p| {
+                tokio::net::UnixListener::bind(p)
             })?;
         tracing::info!(path = %path.display(), "listening on a Unix socket");
-        unix_path = Some(path.clone());
+        unix_path = Some(bound);
         tokio::spawn({
             let hub = hub.clone();
             let (commands, stop) = (commands_tx.clone(), outputs_stop_rx.clone());
@@ -283,6 +289,10 @@ pub async fn run_with_progress(
     });
     drop(commands_tx);
 
+    if let Some(message) = unwritable_state {
+        let line = serde_json::json!({ "class": "ERROR", "message": message });
+        hub.publish(Lane::Control, Arc::from(line.to_string()));
+    }
     // Calibrations loaded from the state directory correct from the start.
     for (_, sensor) in &sensors.sensors {
         if let Some(c) = sensor.calibration() {
@@ -546,8 +556,9 @@ pub async fn run_with_progress(
     if let Some(task) = stdout_task {
         let _ = tokio::time::timeout(Duration::from_secs(1), task).await;
     }
-    if let Some(path) = unix_path {
-        let _ = std::fs::remove_file(path);
+    // Only the socket bound at start: a file put at the path since stays.
+    if let Some(bound) = unix_path {
+        bound.remove_if_ours();
     }
     Ok(())
 }
@@ -638,18 +649,6 @@ fn status_text(sensors: &Sensors) -> String {
         })
         .collect();
     parts.join("; ")
-}
-
-/// A socket file left by a daemon that died is removed; anything else at
-/// that path is left for bind to report.
-fn remove_stale_socket(path: &std::path::Path) {
-    use std::os::unix::fs::FileTypeExt;
-    if let Ok(meta) = std::fs::symlink_metadata(path)
-        && meta.file_type().is_socket()
-        && std::os::unix::net::UnixStream::connect(path).is_err()
-    {
-        let _ = std::fs::remove_file(path);
-    }
 }
 
 /// STATUS lines due at once after a gap in a recording, at most: a longer

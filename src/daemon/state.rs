@@ -18,7 +18,7 @@
 //! ```
 
 use std::fs;
-use std::io::{self, Read, Write};
+use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
@@ -38,6 +38,9 @@ const MAX_FILE_LEN: u64 = 64 * 1024;
 #[derive(Debug, Clone)]
 pub struct StateStore {
     dir: PathBuf,
+    /// Set when the directory could be read but not written at open (a
+    /// read-only mount, missing permission): a [`StateError::ReadOnly`].
+    unwritable: Option<std::sync::Arc<StateError>>,
 }
 
 /// Why the store could not be opened, or a calibration loaded or saved.
@@ -94,14 +97,23 @@ pub enum StateError {
         source: io::Error,
     },
     #[error(
-        "cannot write {}: {source}; the calibration stored before is unchanged: check that \
-         the state directory is writable and the disk is not full",
-        path.display()
+        "state directory {} cannot be written ({source}): the calibrations in it are loaded, \
+         but new ones cannot be stored and are lost at the next restart; let the user \
+         fieldcal runs as write to it (or mount it read-write), or set daemon.state_dir",
+        dir.display()
     )]
+    ReadOnly {
+        dir: PathBuf,
+        #[source]
+        source: io::Error,
+    },
+    #[error("cannot write {}: {source}; {before}", path.display())]
     Write {
         path: PathBuf,
         #[source]
         source: io::Error,
+        /// What is left of the stored calibration after the failure.
+        before: StoredBefore,
     },
     #[error(
         "refusing to store the calibration of sensor '{sensor}' in {}: {problem} \
@@ -113,6 +125,40 @@ pub enum StateError {
         path: PathBuf,
         problem: String,
     },
+}
+
+/// After a failed save: what is left of the sensor's stored calibration.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum StoredBefore {
+    /// Its file is there, as it was.
+    Unchanged,
+    /// The directory is there, but no calibration of the sensor was stored.
+    Nothing,
+    /// The state directory itself is gone (deleted, moved, or something
+    /// else in its place), and any calibration stored in it with it.
+    DirectoryGone { dir: PathBuf },
+}
+
+impl std::fmt::Display for StoredBefore {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StoredBefore::Unchanged => f.write_str(
+                "the calibration stored before is unchanged: check that the state directory \
+                 is writable and the disk is not full",
+            ),
+            StoredBefore::Nothing => f.write_str(
+                "no calibration of this sensor was stored before, so none survives a \
+                 restart: check that the state directory is writable and the disk is not full",
+            ),
+            StoredBefore::DirectoryGone { dir } => write!(
+                f,
+                "the state directory {} is gone (deleted, moved, or replaced by a file), and \
+                 no stored calibration is left: create the directory again (a restart of \
+                 fieldcal does) and recalibrate, or set daemon.state_dir",
+                dir.display()
+            ),
+        }
+    }
 }
 
 /// The file as written.
@@ -139,9 +185,12 @@ struct Stored {
 
 impl StateStore {
     /// Opens (creating if needed) the state directory. The directory must
-    /// exist or be creatable and be writable: a store that cannot keep a
-    /// calibration would lose every one at the next restart, so that is an
-    /// error at start, not at the first save.
+    /// exist or be creatable, and be listable. One that can be read but not
+    /// written (a read-only file system, missing permission) still opens:
+    /// the calibrations in it load and correct readings, and
+    /// [`StateStore::unwritable`] says why new ones cannot be kept, for
+    /// the caller to report at start. Saves are still tried (the directory
+    /// may be made writable meanwhile) and report their own failure.
     pub fn open(dir: &Path) -> Result<StateStore, StateError> {
         match fs::metadata(dir) {
             Ok(meta) if !meta.is_dir() => {
@@ -171,18 +220,32 @@ impl StateStore {
         }
         // Probe: can we list it and create a file in it? The probe file is
         // removed when dropped uncommitted.
-        let probe = fs::read_dir(dir)
-            .and_then(|_| AtomicFile::create(&dir.join(".fieldcal-probe")).map(drop));
-        if let Err(source) = probe {
+        if let Err(source) = fs::read_dir(dir) {
             return Err(StateError::NotWritable {
                 dir: dir.to_path_buf(),
                 source,
             });
         }
+        if let Err(source) = AtomicFile::create(&dir.join(".fieldcal-probe")) {
+            return Ok(StateStore {
+                dir: dir.to_path_buf(),
+                unwritable: Some(std::sync::Arc::new(StateError::ReadOnly {
+                    dir: dir.to_path_buf(),
+                    source,
+                })),
+            });
+        }
         remove_stale_temporaries(dir);
         Ok(StateStore {
             dir: dir.to_path_buf(),
+            unwritable: None,
         })
+    }
+
+    /// Why new calibrations cannot be stored, when the directory could not
+    /// be written at open: a [`StateError::ReadOnly`].
+    pub fn unwritable(&self) -> Option<&StateError> {
+        self.unwritable.as_deref()
     }
 
     /// The state directory.
@@ -249,6 +312,7 @@ impl StateStore {
         let mut json = serde_json::to_vec_pretty(&stored)
             .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e))
             .map_err(|source| StateError::Write {
+                before: self.stored_before(&path),
                 path: path.clone(),
                 source,
             })?;
@@ -259,9 +323,34 @@ impl StateStore {
             file.commit()
         };
         write().map_err(|source| StateError::Write {
+            before: self.stored_before(&path),
             path: path.clone(),
             source,
         })
+    }
+
+    /// After a failed save of `path`: what is left of what was stored.
+    fn stored_before(&self, path: &Path) -> StoredBefore {
+        let gone = StoredBefore::DirectoryGone {
+            dir: self.dir.clone(),
+        };
+        match fs::metadata(&self.dir) {
+            Ok(meta) if !meta.is_dir() => gone,
+            Ok(_) => match fs::symlink_metadata(path) {
+                Err(e) if e.kind() == io::ErrorKind::NotFound => StoredBefore::Nothing,
+                _ => StoredBefore::Unchanged,
+            },
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::NotFound | io::ErrorKind::NotADirectory
+                ) =>
+            {
+                gone
+            }
+            // Cannot tell (a permission on the way): nothing was touched.
+            Err(_) => StoredBefore::Unchanged,
+        }
     }
 
     fn move_aside(&self, path: PathBuf, problem: String) -> StateError {
@@ -344,22 +433,15 @@ fn stale_temporary_pid(name: &str) -> Option<u32> {
 }
 
 /// The file's bytes, `None` when there is no file; a file above
-/// [`MAX_FILE_LEN`] is an error rather than a large allocation.
+/// [`MAX_FILE_LEN`] is an error rather than a large allocation, and so is
+/// anything but a regular file: a FIFO put in a state file's place would
+/// otherwise hold the start in `open` (before READY, deaf to SIGTERM).
 fn read_bounded(path: &Path) -> io::Result<Option<Vec<u8>>> {
-    let file = match fs::File::open(path) {
-        Ok(f) => f,
-        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(e),
-    };
-    let mut bytes = Vec::new();
-    file.take(MAX_FILE_LEN + 1).read_to_end(&mut bytes)?;
-    if bytes.len() as u64 > MAX_FILE_LEN {
-        return Err(io::Error::new(
-            io::ErrorKind::InvalidData,
-            format!("larger than {MAX_FILE_LEN} bytes, not a calibration file"),
-        ));
+    match crate::io::regular::read_regular(path, MAX_FILE_LEN) {
+        Ok(bytes) => Ok(Some(bytes)),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(e),
     }
-    Ok(Some(bytes))
 }
 
 /// Parses and checks a stored file; the error is the problem, for a person.

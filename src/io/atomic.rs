@@ -36,12 +36,21 @@ impl AtomicFile {
             .write(true)
             .create_new(true)
             .open(&temp)?;
-        Ok(AtomicFile {
+        let atomic = AtomicFile {
             target: target.to_path_buf(),
             temp,
             file,
             committed: false,
-        })
+        };
+        // The new file takes the place of the old one and keeps its mode: a
+        // calibration kept 0600 stays 0600 (dropped on error, the temporary
+        // file is removed). A new target gets the umask's default.
+        if let Ok(meta) = fs::metadata(target)
+            && meta.is_file()
+        {
+            atomic.file.set_permissions(meta.permissions())?;
+        }
+        Ok(atomic)
     }
 
     pub fn as_file_mut(&mut self) -> &mut File {
@@ -126,6 +135,21 @@ mod tests {
         f.as_file_mut().write_all(b"new").unwrap();
         f.commit().unwrap();
         assert_eq!(fs::read_to_string(&target).unwrap(), "new");
+    }
+
+    #[test]
+    fn replacing_keeps_the_mode_of_the_old_file() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("cal.json");
+        fs::write(&target, "old").unwrap();
+        fs::set_permissions(&target, fs::Permissions::from_mode(0o600)).unwrap();
+        let mut f = AtomicFile::create(&target).unwrap();
+        f.as_file_mut().write_all(b"new").unwrap();
+        f.commit().unwrap();
+        assert_eq!(fs::read_to_string(&target).unwrap(), "new");
+        let mode = fs::metadata(&target).unwrap().permissions().mode() & 0o7777;
+        assert_eq!(mode, 0o600);
     }
 
     #[test]

@@ -10,6 +10,7 @@ use std::io::{self, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
 use crate::io::atomic::AtomicFile;
+use crate::io::regular::{not_regular_kind, open_regular};
 use crate::sample::{Covariate, Dataset};
 
 /// Time columns looked for, in order, when the user names none.
@@ -130,7 +131,7 @@ enum Role {
 
 /// Reads a recording from a file.
 pub fn read_dataset(path: &Path, spec: &ColumnSpec) -> Result<Dataset, CsvError> {
-    let file = File::open(path).map_err(|source| CsvError::Io {
+    let file = open_regular(path).map_err(|source| CsvError::Io {
         path: path.to_path_buf(),
         source,
     })?;
@@ -326,7 +327,7 @@ pub fn read_series(
     role: &'static str,
     flag: &'static str,
 ) -> Result<Series, CsvError> {
-    let file = File::open(path).map_err(|source| CsvError::Io {
+    let file = open_regular(path).map_err(|source| CsvError::Io {
         path: path.to_path_buf(),
         source,
     })?;
@@ -974,7 +975,8 @@ pub fn looks_like_csv(path: &Path) -> bool {
     {
         return true;
     }
-    let Ok(file) = File::open(path) else {
+    // A FIFO or a device is not a recording (and must not block here).
+    let Ok(file) = open_regular(path) else {
         return false;
     };
     let mut head = Vec::new();
@@ -1023,17 +1025,15 @@ pub fn open_rows(
     period_s: Option<f64>,
     required: &[usize],
 ) -> Result<CsvRows<io::BufReader<File>>, CsvError> {
-    let io_err = |source| CsvError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let meta = std::fs::metadata(path).map_err(io_err)?;
-    if !meta.is_file() {
-        return Err(CsvError::NotAFile {
+    let file = open_regular(path).map_err(|source| match not_regular_kind(&source) {
+        Some(_) => CsvError::NotAFile {
             path: path.to_path_buf(),
-        });
-    }
-    let file = File::open(path).map_err(io_err)?;
+        },
+        None => CsvError::Io {
+            path: path.to_path_buf(),
+            source,
+        },
+    })?;
     let mut lines = CsvLines::new(io::BufReader::with_capacity(1 << 16, file));
     let header = read_header(&mut lines, path)?;
     let layout = CsvLayout::resolve(path, header, time_column, period_s)?;

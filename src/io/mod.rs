@@ -1,4 +1,6 @@
-//! Files in and out: CSV recordings and atomic replacement.
+//! Files in and out: CSV recordings, atomic replacement, and the check that
+//! an input is a regular file.
 
 pub mod atomic;
 pub mod csv;
+pub mod regular;

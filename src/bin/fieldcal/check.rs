@@ -14,16 +14,14 @@ const MAX_CALIBRATION_BYTES: u64 = 1 << 20;
 pub fn check(args: CheckArgs) -> Result<()> {
     let cal_path = &args.calibration;
     let cal_name = cal_path.display();
-    let len = std::fs::metadata(cal_path)
-        .with_context(|| format!("{cal_name}: cannot read the calibration file"))?
-        .len();
-    if len > MAX_CALIBRATION_BYTES {
-        anyhow::bail!(
-            "{cal_name}: {len} bytes is not a calibration file (the JSON of `fieldcal fit --json` or a daemon state file is a few kilobytes)"
-        );
-    }
-    let bytes = std::fs::read(cal_path)
-        .with_context(|| format!("{cal_name}: cannot read the calibration file"))?;
+    // A regular file only (a FIFO or device is refused before it blocks).
+    let bytes = fieldcal::io::regular::read_regular(cal_path, MAX_CALIBRATION_BYTES)
+        .map_err(|e| match e.kind() {
+            std::io::ErrorKind::InvalidData => anyhow::anyhow!(
+                "{cal_name}: {e}: not a calibration file (the JSON of `fieldcal fit --json` or a daemon state file is a few kilobytes)"
+            ),
+            _ => anyhow::Error::new(e).context(format!("{cal_name}: cannot read the calibration file")),
+        })?;
     let stored = parse_stored(&bytes).with_context(|| format!("{cal_name}"))?;
     let (data, reference) = args.input.read_with_reference()?;
     let file = args.input.file.display().to_string();
