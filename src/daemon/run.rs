@@ -161,10 +161,10 @@ impl Sensors {
         store: &mut dyn FnMut(&Calibration),
     ) {
         for (src, sensor) in &mut self.sensors {
-            if *src == source {
-                if let Some(accepted) = sensor.on_row(row, emit) {
-                    store(&accepted);
-                }
+            if *src == source
+                && let Some(accepted) = sensor.on_row(row, emit)
+            {
+                store(&accepted);
             }
         }
     }
