@@ -92,22 +92,12 @@ impl Driver {
     }
 
     fn open_session(&mut self, profile: &Path) {
-        let args = [
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--hide-scrollbars",
-            "--window-size=1000,820",
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .chain([format!("--user-data-dir={}", profile.display())])
-        .collect::<Vec<_>>();
+        let args = common::CHROMIUM_FLAGS
+            .iter()
+            .chain(&["--window-size=1000,820"])
+            .map(|s| s.to_string())
+            .chain([format!("--user-data-dir={}", profile.display())])
+            .collect::<Vec<_>>();
         let v = self.call(
             "POST",
             "/session",

@@ -5,6 +5,8 @@
 //! package `chromium`. Without /usr/bin/chromium this test says so and
 //! passes, so a developer's `cargo test` does not need a browser.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -17,18 +19,8 @@ const CHROMIUM: &str = "/usr/bin/chromium";
 /// minute so a wedged browser fails the test instead of hanging CI.
 fn chromium(profile: &Path, extra: &[String], url: &str) -> Output {
     let mut child = Command::new(CHROMIUM)
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--hide-scrollbars",
-            "--virtual-time-budget=5000",
-        ])
+        .args(common::CHROMIUM_FLAGS)
+        .arg("--virtual-time-budget=5000")
         .arg(format!("--user-data-dir={}", profile.display()))
         .args(extra)
         .arg(url)

@@ -8,6 +8,21 @@ pub mod pty;
 pub mod table;
 
 use std::path::{Path, PathBuf};
+
+/// Headless Chromium's flags for the browser tests: what it needs as root
+/// and on a machine with no network (no sandbox, no GPU, no background
+/// connections); each caller adds a fresh `--user-data-dir`.
+pub const CHROMIUM_FLAGS: [&str; 9] = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--hide-scrollbars",
+];
 use std::process::{Command, Output};
 
 /// Marks a descriptor close-on-exec. serialport's pty pairs are opened
