@@ -225,3 +225,41 @@ fn fit_output_over_a_private_file_keeps_its_mode() {
     let mode = std::fs::metadata(&output).unwrap().permissions().mode() & 0o7777;
     assert_eq!(mode, 0o600, "mode {mode:o}");
 }
+
+/// A huge field (here 20 MB of digits with a letter in it) in a CSV:
+/// `fit` and `diagnose` say which line and column are wrong without
+/// echoing the field whole to stderr.
+#[test]
+fn a_huge_bad_field_is_named_not_echoed() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("huge.csv");
+    let mut text = String::from("t,x,y\n0,1,0\n0.1,0,1\n0.2,");
+    text.push_str(&"7".repeat(10_000_000));
+    text.push('x');
+    text.push_str(&"7".repeat(10_000_000));
+    text.push_str(",0\n");
+    std::fs::write(&csv, text).unwrap();
+    let file = csv.to_str().unwrap();
+    for command in ["fit", "diagnose"] {
+        let (code, stderr, _) = run_capped(&[command, file]);
+        assert_eq!(code, Some(1), "{command}: {stderr}");
+        assert!(
+            stderr.contains("line 4") || stderr.contains(":4:"),
+            "{command}: {stderr}"
+        );
+        assert!(stderr.contains("column 'x'"), "{command}: {stderr}");
+        assert!(stderr.contains("(20000001 bytes)"), "{command}: {stderr}");
+        assert!(
+            stderr.len() < 4096,
+            "{command}: {} bytes of stderr",
+            stderr.len()
+        );
+    }
+    // The same in a header: a 1 MB column name.
+    let header = dir.path().join("header.csv");
+    std::fs::write(&header, format!("t,{},y\n0,1,0\n", "n".repeat(1_000_000))).unwrap();
+    let (code, stderr, _) = run_capped(&["fit", header.to_str().unwrap()]);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("no column 'x'"), "{stderr}");
+    assert!(stderr.len() < 4096, "{} bytes of stderr", stderr.len());
+}

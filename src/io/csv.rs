@@ -150,7 +150,7 @@ fn cell(
     parse_number(&record[i]).map_err(|problem| CsvError::BadValue {
         path: path.to_path_buf(),
         line,
-        column: names[i].clone(),
+        column: super::excerpt(&names[i]).into_owned(),
         field: i + 1,
         problem,
     })
@@ -188,7 +188,7 @@ fn check_unique(names: &[String], path: &Path) -> Result<(), CsvError> {
         if let Some(j) = names[i + 1..].iter().position(|n| n == name) {
             return Err(CsvError::DuplicateColumn {
                 path: path.to_path_buf(),
-                name: name.clone(),
+                name: super::excerpt(name).into_owned(),
                 first: i + 1,
                 second: i + j + 2,
             });
@@ -220,7 +220,7 @@ pub fn parse_dataset<R: Read>(
         name: name.to_string(),
         role,
         flag,
-        available: names.join(", "),
+        available: super::name_list(&names),
     };
     let x_index = find(&spec.x).ok_or_else(|| missing(&spec.x, "the x axis", "--x"))?;
     let y_index = find(&spec.y).ok_or_else(|| missing(&spec.y, "the y axis", "--y"))?;
@@ -355,7 +355,7 @@ pub fn parse_series<R: Read>(
         name: column.to_string(),
         role,
         flag,
-        available: names.join(", "),
+        available: super::name_list(&names),
     })?;
     let t_index = DEFAULT_TIME_COLUMNS
         .iter()
@@ -365,7 +365,7 @@ pub fn parse_series<R: Read>(
             name: DEFAULT_TIME_COLUMNS.join(" or "),
             role: "time (a second file is joined to the recording by time)",
             flag,
-            available: names.join(", "),
+            available: super::name_list(&names),
         })?;
     if t_index == value_index {
         return Err(CsvError::SameAxis {
@@ -403,11 +403,12 @@ fn parse_number(field: &[u8]) -> Result<f64, String> {
     match text.parse::<f64>() {
         Ok(v) if v.is_finite() && !crate::sample::too_large(v) => Ok(v),
         Ok(v) if v.is_finite() => Err(format!(
-            "'{text}' is too large to square in f64: the fit squares readings, so give values of magnitude at most {:e}",
+            "'{}' is too large to square in f64: the fit squares readings, so give values of magnitude at most {:e}",
+            super::excerpt(text),
             crate::sample::MAX_MAGNITUDE
         )),
-        Ok(_) => Err(format!("'{text}' is not a finite number")),
-        Err(_) => Err(format!("'{text}' is not a number")),
+        Ok(_) => Err(format!("'{}' is not a finite number", super::excerpt(text))),
+        Err(_) => Err(format!("'{}' is not a number", super::excerpt(text))),
     }
 }
 
@@ -737,7 +738,7 @@ impl CsvLayout {
                 name: name.to_string(),
                 role: "time",
                 flag: "time_column",
-                available: header.names.join(", "),
+                available: super::name_list(&header.names),
             })?),
             None => DEFAULT_TIME_COLUMNS.iter().find_map(|t| find(t)),
         };
@@ -747,7 +748,7 @@ impl CsvLayout {
                 return Err(CsvError::TimeAndPeriod {
                     path: path.to_path_buf(),
                     line: header.line,
-                    column: header.names[i].clone(),
+                    column: super::excerpt(&header.names[i]).into_owned(),
                 });
             }
             (None, Some(p)) => TimeBase::Period(p),
@@ -755,7 +756,7 @@ impl CsvLayout {
                 return Err(CsvError::NoTime {
                     path: path.to_path_buf(),
                     line: header.line,
-                    available: header.names.join(", "),
+                    available: super::name_list(&header.names),
                 });
             }
         };
@@ -773,7 +774,7 @@ impl CsvLayout {
 
     /// The column names, comma-separated, for messages.
     pub fn available(&self) -> String {
-        self.names.join(", ")
+        super::name_list(&self.names)
     }
 
     /// The time column's index, if the time comes from one.
@@ -812,7 +813,7 @@ impl CsvLayout {
                 Err(problem) if required.contains(&i) || self.time_index() == Some(i) => {
                     return Err(RowError {
                         line,
-                        column: Some((self.names[i].clone(), i + 1)),
+                        column: Some((super::excerpt(&self.names[i]).into_owned(), i + 1)),
                         problem,
                     });
                 }
