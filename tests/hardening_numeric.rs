@@ -331,3 +331,50 @@ fn a_count_of_one_is_singular() {
         ended.stderr
     );
 }
+
+/// `simulate` killed (SIGKILL: nothing of it runs) while it writes a large
+/// file leaves nothing in the output's directory: the content has no name
+/// until it is complete.
+#[test]
+fn a_killed_simulate_leaves_no_temporary_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("big.csv");
+    let mut child = fieldcal()
+        .args(["simulate", "--turns", "1000", "--turn-seconds", "100", "-o"])
+        .arg(&out)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start fieldcal simulate");
+    // Wait until it has a file open in the directory, and written to it.
+    let fd_dir = format!("/proc/{}/fd", child.id());
+    let started = Instant::now();
+    let writing = loop {
+        let open_there = std::fs::read_dir(&fd_dir).ok().and_then(|fds| {
+            fds.flatten()
+                .filter_map(|fd| std::fs::read_link(fd.path()).ok())
+                .find(|target| target.starts_with(dir.path()))
+        });
+        if let Some(target) = open_there {
+            break target;
+        }
+        assert!(
+            started.elapsed() < CAP,
+            "simulate never opened a file in the directory"
+        );
+        assert!(child.try_wait().unwrap().is_none(), "simulate ended first");
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    std::thread::sleep(Duration::from_millis(200));
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert!(
+        left.is_empty(),
+        "left behind: {left:?} (it was writing {})",
+        writing.display()
+    );
+}

@@ -2,6 +2,12 @@
 //! it, rename it over the target, fsync the directory. A reader (or a crash)
 //! sees either the old file or the whole new one, never a torn one; a full
 //! disk fails the write and leaves the old file untouched.
+//!
+//! On Linux the new content is first an unnamed file (`O_TMPFILE`) that only
+//! gets a name when it is complete: a run killed while writing (even by
+//! SIGKILL, or a power cut) leaves no temporary file behind, however large.
+//! Where the file system cannot make unnamed files (or `/proc` is not
+//! mounted), a hidden named temporary file is used, removed on any error.
 
 use std::fs::{self, File, OpenOptions};
 use std::io;
@@ -15,9 +21,70 @@ static COUNTER: AtomicU64 = AtomicU64::new(0);
 #[derive(Debug)]
 pub struct AtomicFile {
     target: PathBuf,
+    /// The hidden name the content is written under, or (for an unnamed
+    /// file) linked under just before it is renamed over the target.
     temp: PathBuf,
     file: File,
+    /// The content has no name yet (`O_TMPFILE`).
+    unnamed: bool,
     committed: bool,
+}
+
+/// Opens an unnamed file in `dir`, or None where that cannot be done here
+/// (no `O_TMPFILE` on this file system or kernel, or no `/proc` to name it
+/// by later).
+#[cfg(target_os = "linux")]
+fn open_unnamed(dir: &Path) -> Option<File> {
+    use std::os::unix::fs::OpenOptionsExt;
+    if !Path::new("/proc/self/fd").is_dir() {
+        return None;
+    }
+    OpenOptions::new()
+        .write(true)
+        .custom_flags(libc::O_TMPFILE)
+        .mode(0o666)
+        .open(dir)
+        .ok()
+}
+
+#[cfg(not(target_os = "linux"))]
+fn open_unnamed(_dir: &Path) -> Option<File> {
+    None
+}
+
+/// Gives the unnamed `file` the name `to`; fails with AlreadyExists if the
+/// name is taken (linkat never replaces).
+#[cfg(target_os = "linux")]
+fn name_unnamed(file: &File, to: &Path) -> io::Result<()> {
+    use std::os::fd::AsRawFd;
+    use std::os::unix::ffi::OsStrExt;
+    let from = std::ffi::CString::new(format!("/proc/self/fd/{}", file.as_raw_fd()))
+        .map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
+    let to = std::ffi::CString::new(to.as_os_str().as_bytes())
+        .map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
+    // SAFETY: linkat(2) with two NUL-terminated paths that outlive the call.
+    let done = unsafe {
+        libc::linkat(
+            libc::AT_FDCWD,
+            from.as_ptr(),
+            libc::AT_FDCWD,
+            to.as_ptr(),
+            libc::AT_SYMLINK_FOLLOW,
+        )
+    };
+    if done == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn name_unnamed(_file: &File, _to: &Path) -> io::Result<()> {
+    Err(io::Error::new(
+        io::ErrorKind::Unsupported,
+        "unnamed files are not supported here",
+    ))
 }
 
 impl AtomicFile {
@@ -32,14 +99,21 @@ impl AtomicFile {
             std::process::id(),
             COUNTER.fetch_add(1, Ordering::Relaxed)
         ));
-        let file = OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&temp)?;
+        let (file, unnamed) = match open_unnamed(dir) {
+            Some(file) => (file, true),
+            None => (
+                OpenOptions::new()
+                    .write(true)
+                    .create_new(true)
+                    .open(&temp)?,
+                false,
+            ),
+        };
         let atomic = AtomicFile {
             target: target.to_path_buf(),
             temp,
             file,
+            unnamed,
             committed: false,
         };
         // The new file takes the place of the old one and keeps its mode: a
@@ -60,6 +134,11 @@ impl AtomicFile {
     /// Makes the new content durable and puts it in place of the target.
     pub fn commit(mut self) -> io::Result<()> {
         self.file.sync_all()?;
+        if self.unnamed {
+            // Named under the hidden name only now, for the rename.
+            name_unnamed(&self.file, &self.temp)?;
+            self.unnamed = false;
+        }
         fs::rename(&self.temp, &self.target)?;
         self.committed = true;
         // The rename itself is durable only once the directory is synced.
@@ -74,6 +153,14 @@ impl AtomicFile {
     /// (FAT on an SD card), the target is checked and then renamed over.
     pub fn commit_new(mut self) -> io::Result<()> {
         self.file.sync_all()?;
+        if self.unnamed {
+            // linkat never replaces: a name taken since is AlreadyExists.
+            // (File systems without hard links have no O_TMPFILE either,
+            // so they took the named path below.)
+            name_unnamed(&self.file, &self.target)?;
+            self.committed = true;
+            return File::open(parent_dir(&self.target))?.sync_all();
+        }
         match fs::hard_link(&self.temp, &self.target) {
             Ok(()) => {
                 self.committed = true;
@@ -97,7 +184,7 @@ impl AtomicFile {
 
 impl Drop for AtomicFile {
     fn drop(&mut self) {
-        if !self.committed {
+        if !self.committed && !self.unnamed {
             let _ = fs::remove_file(&self.temp);
         }
     }
@@ -172,5 +259,38 @@ mod tests {
             .map(|e| e.unwrap().file_name())
             .collect();
         assert_eq!(names, vec![std::ffi::OsString::from("out.csv")]);
+    }
+}
+
+#[cfg(all(test, target_os = "linux"))]
+mod unnamed_tests {
+    use super::*;
+    use std::io::Write;
+
+    /// While it is being written, the new content has no name in the
+    /// directory: a writer killed at this point leaves nothing behind.
+    #[test]
+    fn the_content_has_no_name_until_commit() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("big.fcap");
+        let mut f = AtomicFile::create(&target).unwrap();
+        f.as_file_mut().write_all(&[0u8; 4096]).unwrap();
+        let names = || -> Vec<_> {
+            fs::read_dir(dir.path())
+                .unwrap()
+                .map(|e| e.unwrap().file_name())
+                .collect()
+        };
+        assert!(names().is_empty(), "named while written: {:?}", names());
+        f.commit_new().unwrap();
+        assert_eq!(names(), vec![std::ffi::OsString::from("big.fcap")]);
+        assert_eq!(fs::metadata(&target).unwrap().len(), 4096);
+
+        let mut f = AtomicFile::create(&target).unwrap();
+        f.as_file_mut().write_all(b"short").unwrap();
+        assert_eq!(names().len(), 1);
+        f.commit().unwrap();
+        assert_eq!(names(), vec![std::ffi::OsString::from("big.fcap")]);
+        assert_eq!(fs::read_to_string(&target).unwrap(), "short");
     }
 }
