@@ -942,7 +942,7 @@ impl<R: io::BufRead> CsvRows<R> {
             let column = self
                 .layout
                 .time_index()
-                .map(|i| (self.layout.names[i].clone(), i + 1));
+                .map(|i| (super::excerpt(&self.layout.names[i]).into_owned(), i + 1));
             return Ok(Some(Err((
                 RowError {
                     line,
