@@ -487,3 +487,56 @@ fn monotonic_usec() -> u64 {
     assert_eq!(rc, 0);
     ts.tv_sec as u64 * 1_000_000 + ts.tv_nsec as u64 / 1_000
 }
+
+/// A csv sensor's columns change on a real recording (the HMC5883L turning
+/// about z, in gauss): the sensor binds the new columns in the header of
+/// the file its source is playing, and its readings carry them at once.
+#[test]
+fn a_csv_sensor_takes_new_columns_of_the_running_recording() {
+    let csv = common::shared_path(
+        "data/real/sunsided-set-1/rotate-360ccw-around-z-pointing-up/hmc5883l_mag.csv",
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let text = |axes: &str| {
+        format!(
+            "[daemon]\nstate_dir = \"{}\"\n[[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"{}\"\nspeed = 1.0\n\
+             [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = {axes}\n",
+            dir.path().join("state").display(),
+            csv.display()
+        )
+    };
+    let config = write_config(dir.path(), &text(r#"["mag_x", "mag_z"]"#));
+    let mut daemon = Daemon::start(&config, &[]);
+    let first = daemon.wait_for_value(Duration::from_secs(10), "a READING", |v| {
+        is_class(v, "READING")
+    });
+    assert!(first["columns"].get("mag_y").is_some(), "{first}");
+
+    write_config(dir.path(), &text(r#"["mag_x", "mag_y"]"#));
+    signal(&daemon, libc::SIGHUP);
+    let changed = daemon.wait_for_value(Duration::from_secs(10), "the RELOAD of compass", |v| {
+        is_class(v, "RELOAD") && v["sensor"] == "compass"
+    });
+    assert!(
+        changed["message"]
+            .as_str()
+            .unwrap()
+            .starts_with("sensor 'compass': axes changed: a new rotation starts"),
+        "{changed}"
+    );
+    let after = daemon.wait_for_value(Duration::from_secs(10), "a READING", |v| {
+        is_class(v, "READING")
+    });
+    assert!(after["columns"].get("mag_y").is_none(), "{after}");
+    let mag_z = after["columns"]["mag_z"].as_f64().unwrap();
+    assert!((-1.0..1.0).contains(&mag_z), "gauss: {after}");
+    let status = daemon.wait_for_value(Duration::from_secs(5), "a STATUS", |v| {
+        is_class(v, "STATUS")
+    });
+    assert_eq!(
+        sensor_status(&status, "compass")["state"],
+        "collecting",
+        "{status}"
+    );
+    assert_eq!(daemon.terminate().code(), Some(0), "{}", daemon.stderr());
+}
