@@ -227,7 +227,7 @@ fn a_changed_model_starts_a_new_rotation_for_that_sensor_only() {
     let summary = reload_summary(&mut daemon);
     assert!(
         summary["message"].as_str().unwrap().contains(
-            "1 sensors changed, 0 added, 0 removed, 1 unchanged; 0 changes need a restart"
+            "1 sensor changed, 0 added, 0 removed, 1 unchanged; 0 changes need a restart"
         ),
         "{summary}"
     );

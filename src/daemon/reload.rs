@@ -489,6 +489,10 @@ fn reload_line(file: &str, message: &str, sensor: Option<&str>, restart: bool) -
     line.to_string()
 }
 
+fn plural(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
+}
+
 fn model_of(config: &SensorConfig) -> String {
     let effects = crate::model::effects::parse_list(&config.effects.join(","))
         .unwrap_or_else(|_| crate::model::effects::PAPER.to_vec());
@@ -696,13 +700,14 @@ fn apply_plan(
     let summary = if plan.is_empty() {
         format!("reload of {file}: no change")
     } else {
+        let restarts = plan.restart.len() + held;
         format!(
-            "reload of {file} applied: {} sensors changed, {} added, {} removed, {} unchanged; {} changes need a restart",
-            counts[0],
+            "reload of {file} applied: {} changed, {} added, {} removed, {} unchanged; {}",
+            plural(counts[0], "sensor", "sensors"),
             counts[1],
             counts[2],
             counts[3],
-            plan.restart.len() + held
+            plural(restarts, "change needs a restart", "changes need a restart"),
         )
     };
     info(&mut lines, summary, None);
