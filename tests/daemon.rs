@@ -544,6 +544,8 @@ fn the_service_unit_verifies_where_systemd_analyze_exists() {
     let text = std::fs::read_to_string(&unit).unwrap();
     for needed in [
         "Type=notify",
+        // SIGHUP reloads the configuration (tests/reload.rs).
+        "ExecReload=/bin/kill -HUP $MAINPID",
         "WatchdogSec=",
         "StateDirectory=",
         "SupplementaryGroups=dialout",

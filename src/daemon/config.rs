@@ -321,7 +321,7 @@ impl Axis {
 }
 
 /// One `[[sensor]]`: two axes of one field of one stream of a source.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct SensorConfig {
     pub name: String,
     /// The name of its source (present in [`Config::sources`]).

@@ -14,6 +14,7 @@ pub mod messages;
 pub mod notify;
 pub mod progress;
 pub mod publish;
+pub mod reload;
 pub mod rotation;
 pub mod run;
 pub mod sensor;

@@ -86,6 +86,16 @@ impl Notifier {
         self.send(&[NotifyState::Watchdog]);
     }
 
+    /// `RELOADING=1` with `MONOTONIC_USEC=` (CLOCK_MONOTONIC, as systemd
+    /// requires with it): the configuration is being reloaded; a
+    /// [`Notifier::ready`] follows when it is over, applied or refused.
+    pub fn reloading(&self) {
+        match NotifyState::monotonic_usec_now() {
+            Ok(now) => self.send(&[NotifyState::Reloading, now]),
+            Err(_) => self.send(&[NotifyState::Reloading]),
+        }
+    }
+
     /// `STOPPING=1`: shutting down on request, not crashing.
     pub fn stopping(&self) {
         self.send(&[NotifyState::Stopping]);

@@ -28,6 +28,7 @@ use super::messages::{CalibrationMessage, SourceStatus, StatusMessage, to_line};
 use super::notify::Notifier;
 use super::progress::{ProgressFeed, REDRAW};
 use super::publish::{ClientCommand, Hub, Lane, ReplyTo};
+use super::reload::ReloadEvent;
 use super::sensor::Sensor;
 use super::state::StateStore;
 use super::state_writer::{SaveFailure, StateWriter};
@@ -102,6 +103,8 @@ struct SourceHandle {
     counters: Arc<SourceCounters>,
     connected: bool,
     task: SourceTask,
+    /// A csv source's header, for sensors a reload binds to it.
+    csv_layout: Option<Arc<CsvLayout>>,
 }
 
 enum SourceTask {
@@ -215,7 +218,7 @@ impl Sensors {
 /// Runs the daemon until `shutdown` turns true. Returns once sources are
 /// stopped (the Falcon stop command sent) and subscribers flushed.
 pub async fn run(config: Config, shutdown: watch::Receiver<bool>) -> Result<(), DaemonError> {
-    run_with_progress(config, shutdown, None).await
+    run_with(config, shutdown, RunOptions::default()).await
 }
 
 /// [`run`], feeding `progress` (the live lines or milestone log of
@@ -223,11 +226,39 @@ pub async fn run(config: Config, shutdown: watch::Receiver<bool>) -> Result<(), 
 /// [`super::progress::REDRAW`] and with every CALIBRATION line.
 pub async fn run_with_progress(
     config: Config,
-    mut shutdown: watch::Receiver<bool>,
+    shutdown: watch::Receiver<bool>,
     progress: Option<ProgressFeed>,
 ) -> Result<(), DaemonError> {
+    let options = RunOptions {
+        progress,
+        ..RunOptions::default()
+    };
+    run_with(config, shutdown, options).await
+}
+
+/// What drives [`run_with`] beside its configuration and `shutdown`.
+#[derive(Default)]
+pub struct RunOptions {
+    /// Fed as in [`run_with_progress`].
+    pub progress: Option<ProgressFeed>,
+    /// Each message asks for the configuration to be read again from the
+    /// file it came from ([`Config::path`]) and applied as far as it can be
+    /// live ([`super::reload`]); `fieldcal run` sends one on SIGHUP.
+    /// Requests that come while one is being checked make one more.
+    pub reload: Option<mpsc::Receiver<()>>,
+}
+
+/// [`run`] with [`RunOptions`]: a progress feed and reload requests.
+pub async fn run_with(
+    config: Config,
+    mut shutdown: watch::Receiver<bool>,
+    options: RunOptions,
+) -> Result<(), DaemonError> {
+    let RunOptions { progress, reload } = options;
     let notifier = Notifier::from_env();
     let store = StateStore::open(&config.daemon.state_dir)?;
+    // Loads the stored calibration of a sensor a reload adds.
+    let reload_store = store.clone();
     // A read-only state directory: what is in it loads, readings go on,
     // new calibrations are held in memory only; said at start.
     let unwritable_state = store.unwritable().map(ToString::to_string);
@@ -314,6 +345,7 @@ pub async fn run_with_progress(
     for (index, source) in config.sources.iter().enumerate() {
         let counters = Arc::new(SourceCounters::default());
         let (tx, mut rx) = mpsc::channel::<SourceEvent>(4096);
+        let mut csv_layout = None;
         let task = match &source.kind {
             SourceKind::Falcon { port, baud } => {
                 let serial = SerialConfig {
@@ -389,6 +421,7 @@ pub async fn run_with_progress(
                 // Checked whole before READY: the header, and times that increase.
                 let (layout, scan) = check_csv(file, time_column.as_deref(), *period_s)?;
                 let layout = Arc::new(layout);
+                csv_layout = Some(layout.clone());
                 let required = sensors.bind_csv(index, &layout, file)?;
                 tracing::info!(
                     rows = scan.rows,
@@ -431,6 +464,7 @@ pub async fn run_with_progress(
             counters,
             connected: false,
             task,
+            csv_layout,
         });
     }
     drop(events_tx);
@@ -466,6 +500,9 @@ pub async fn run_with_progress(
         }
     };
     let mut save = |c: &Calibration| writer.save(c);
+    let mut reloader = super::reload::Reloader::new(config.path.clone(), reload);
+    // Sources, outputs and [daemon] as started; sensors as last reloaded.
+    let mut running = config;
 
     loop {
         tokio::select! {
@@ -496,6 +533,33 @@ pub async fn run_with_progress(
                 hub.publish(Lane::Control, Arc::from(line));
                 notifier.status(&status_text(&sensors));
             }
+            event = reloader.next() => match event {
+                ReloadEvent::Requested => reloader.start(&notifier),
+                ReloadEvent::Checked(checked) => {
+                    let running_sources: Vec<_> = sources
+                        .iter()
+                        .map(|s| super::reload::RunningSource {
+                            name: &s.name,
+                            layout: s.csv_layout.as_ref(),
+                        })
+                        .collect();
+                    let outcome = super::reload::apply(
+                        *checked,
+                        &mut running,
+                        &mut sensors.sensors,
+                        &running_sources,
+                        Some(&reload_store),
+                    );
+                    for line in outcome.lines {
+                        emit(Lane::Control, line);
+                    }
+                    if let Some(interval) = outcome.status_interval {
+                        status_tick = tokio::time::interval(interval);
+                        status_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+                    }
+                    reloader.done(&notifier, &status_text(&sensors));
+                }
+            },
             _ = watchdog_tick.tick(), if watchdog.is_some() => notifier.ping(),
             _ = progress_tick.tick(), if progress.is_some() => {
                 if let Some(progress) = &progress {

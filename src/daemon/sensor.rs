@@ -303,6 +303,22 @@ impl Sensor {
         self.collect(row.time, x, y, emit)
     }
 
+    /// Takes over what `old` (the same sensor under the settings before a
+    /// reload) had earned: its calibration, which keeps correcting (and
+    /// keeps naming its own model) until one under the new settings is
+    /// accepted, the next id, and its counts. The rotation starts afresh
+    /// under the new settings, so a sensor built by [`Sensor::new`] with
+    /// the new section (and bound to its csv file) collects at once.
+    pub fn carry_over(&mut self, old: Sensor) {
+        self.current = old.current;
+        self.next_id = self.next_id.max(old.next_id);
+        self.readings = old.readings;
+        self.fits_accepted = old.fits_accepted;
+        self.fits_rejected = old.fits_rejected;
+        self.last_rejection = old.last_rejection;
+        self.recalibrate();
+    }
+
     pub fn name(&self) -> &str {
         &self.config.name
     }

@@ -3,10 +3,11 @@
 use std::io::IsTerminal as _;
 
 use anyhow::{Context, Result};
-use tokio::sync::watch;
+use tokio::sync::{mpsc, watch};
 
 use fieldcal::daemon::config::{LogFormat, load};
 use fieldcal::daemon::progress::{Live, ProgressFeed, ProgressMode, draw_target};
+use fieldcal::daemon::run::RunOptions;
 
 use crate::RunArgs;
 
@@ -39,8 +40,18 @@ pub fn run(args: RunArgs) -> Result<()> {
         .context("cannot start the runtime")?;
     let result = runtime.block_on(async {
         let (stop_tx, stop_rx) = watch::channel(false);
-        tokio::spawn(crate::signals::forward_signals(stop_tx));
-        fieldcal::daemon::run::run_with_progress(config, stop_rx, Some(feed)).await
+        // SIGHUP reloads the configuration: the library reads the file again.
+        let (reload_tx, reload_rx) = mpsc::channel(1);
+        let signals = crate::signals::forward_daemon_signals(stop_tx, reload_tx)
+            .context("cannot install the signal handlers")?;
+        tokio::spawn(signals);
+        let options = RunOptions {
+            progress: Some(feed),
+            reload: Some(reload_rx),
+        };
+        fieldcal::daemon::run::run_with(config, stop_rx, options)
+            .await
+            .map_err(anyhow::Error::from)
     });
     if let Some(display) = display {
         display.finish();

@@ -1,0 +1,1073 @@
+//! Reloading the configuration while the daemon runs (SIGHUP under
+//! `fieldcal run`, `ExecReload=` in the systemd unit).
+//!
+//! The file the daemon started from ([`Config::path`]) is read again and
+//! checked as a start checks it ([`check`]: [`super::config::load`], then
+//! every replayed capture read and every csv recording scanned with its
+//! sensors' columns found, as `run` does before READY), off the main loop so
+//! readings keep flowing. A file that fails is refused whole: the log (at
+//! error) and every subscriber (an `ERROR` line naming the file, line and
+//! key) say why, and the running configuration is kept unchanged.
+//!
+//! A file that passes is compared with the running configuration
+//! ([`plan`], a pure function) and applied as far as it can be live:
+//!
+//! - a sensor whose `[[sensor]]` section is unchanged keeps everything: its
+//!   calibration, its rotation buffer mid-turn, its counts;
+//! - a sensor whose section changed (model, axes, rotation, limits, gyro,
+//!   ...) starts a new rotation under the new settings; the calibration it
+//!   has keeps correcting readings (its CALIBRATION names its own model)
+//!   until one under the new settings is accepted, and ids go on from it;
+//! - a sensor added is started (with its stored calibration, if the state
+//!   directory has one); a sensor removed is no longer read or published,
+//!   its stored calibration stays on disk;
+//! - `[daemon] status_interval_s` applies at once;
+//! - sources, `[outputs]`, `state_dir` and `log_format` need a restart:
+//!   each change is reported ("[outputs] tcp changed to ...: restart
+//!   fieldcal to apply; kept 127.0.0.1:2947") and what runs stays as it
+//!   started. A sensor whose section changed but whose source changed too
+//!   (or is new) keeps running as it was until that restart: its settings
+//!   may only make sense for the new source.
+//!
+//! Every applied change is one `RELOAD` line (and one log line), and a
+//! last `RELOAD` line sums the reload up.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::sync::mpsc;
+
+use super::config::{self, Config, ConfigError, SensorConfig, SourceConfig, SourceKind};
+use super::messages::{CalibrationMessage, to_line};
+use super::notify::Notifier;
+use super::sensor::Sensor;
+use super::state::StateStore;
+use crate::capture::{CaptureError, read_capture};
+use crate::io::csv::{CsvError, CsvLayout};
+use crate::source::csv::check_csv;
+
+/// Why a new configuration was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ReloadError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error(transparent)]
+    Capture(#[from] CaptureError),
+    #[error(transparent)]
+    Csv(#[from] CsvError),
+}
+
+impl ReloadError {
+    /// The dotted key the error is about, if it is about one.
+    pub fn key(&self) -> Option<&str> {
+        match self {
+            ReloadError::Config(e) => e.key(),
+            _ => None,
+        }
+    }
+
+    /// The line and column in the configuration, where known.
+    pub fn position(&self) -> Option<config::Position> {
+        match self {
+            ReloadError::Config(e) => e.position(),
+            _ => None,
+        }
+    }
+}
+
+/// Reads and checks the configuration at `path` as a start does: the file
+/// itself ([`config::load`]), then what `run` checks before READY (each
+/// replayed capture read whole, each csv recording scanned and its
+/// sensors' columns found in its header). Opens no port and binds nothing,
+/// so listener addresses are only checked for their form. Blocking: run it
+/// off the main loop.
+pub fn check(path: &Path) -> Result<Config, ReloadError> {
+    let config = config::load(path)?;
+    for source in &config.sources {
+        match &source.kind {
+            SourceKind::Replay { file, .. } => {
+                read_capture(file)?;
+            }
+            SourceKind::Csv {
+                file,
+                time_column,
+                period_s,
+                ..
+            } => {
+                let (layout, _) = check_csv(file, time_column.as_deref(), *period_s)?;
+                let layout = Arc::new(layout);
+                for sensor in config.sensors.iter().filter(|s| s.source == source.name) {
+                    Sensor::new(sensor.clone(), None).bind_csv(&layout, file)?;
+                }
+            }
+            SourceKind::Falcon { .. } | SourceKind::UsbIss { .. } => {}
+        }
+    }
+    Ok(config)
+}
+
+/// What a reload does, worked out from the running and the new
+/// configuration alone.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReloadPlan {
+    /// The new file's sensors in its order, then those it removed.
+    pub sensors: Vec<SensorPlan>,
+    /// The new `status_interval_s`, when it changed (applied live).
+    pub status_interval: Option<Duration>,
+    /// Changes that only a restart applies, one message each.
+    pub restart: Vec<String>,
+}
+
+/// What happens to one sensor.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SensorPlan {
+    /// Its section is unchanged: it keeps its state, rotation and
+    /// calibration.
+    Unchanged(String),
+    /// Its section changed (the keys named): a new rotation under the new
+    /// settings; its calibration corrects until a new one is accepted.
+    Changed {
+        name: String,
+        keys: Vec<&'static str>,
+    },
+    /// New in the file, on a running source: started.
+    Added(String),
+    /// Gone from the file: no longer read or published.
+    Removed(String),
+    /// Its section changed (or is new) but its source is new or changed,
+    /// which needs a restart: it keeps running as it was (or is not
+    /// started) until then.
+    Held {
+        name: String,
+        source: String,
+        added: bool,
+    },
+}
+
+impl ReloadPlan {
+    /// Whether the file changes nothing at all.
+    pub fn is_empty(&self) -> bool {
+        self.status_interval.is_none()
+            && self.restart.is_empty()
+            && self
+                .sensors
+                .iter()
+                .all(|s| matches!(s, SensorPlan::Unchanged(_)))
+    }
+}
+
+/// Compares the running configuration `old` with the new file's `new`.
+/// Pure: reads nothing, changes nothing.
+pub fn plan(old: &Config, new: &Config) -> ReloadPlan {
+    // A source runs live only as it started: a sensor can take new
+    // settings live only on a source that the file leaves as it runs.
+    let live =
+        |name: &str| matches!((old.source(name), new.source(name)), (Some(a), Some(b)) if a == b);
+    let mut sensors = Vec::new();
+    for s in &new.sensors {
+        let before = old.sensors.iter().find(|o| o.name == s.name);
+        sensors.push(match before {
+            Some(o) if o == s => SensorPlan::Unchanged(s.name.clone()),
+            _ if !live(&s.source) => SensorPlan::Held {
+                name: s.name.clone(),
+                source: s.source.clone(),
+                added: before.is_none(),
+            },
+            Some(o) => SensorPlan::Changed {
+                name: s.name.clone(),
+                keys: changed_keys(o, s),
+            },
+            None => SensorPlan::Added(s.name.clone()),
+        });
+    }
+    for o in &old.sensors {
+        if !new.sensors.iter().any(|s| s.name == o.name) {
+            sensors.push(SensorPlan::Removed(o.name.clone()));
+        }
+    }
+    let status_interval = (old.daemon.status_interval != new.daemon.status_interval)
+        .then_some(new.daemon.status_interval);
+    ReloadPlan {
+        sensors,
+        status_interval,
+        restart: restart_changes(old, new),
+    }
+}
+
+/// The keys of a `[[sensor]]` section that differ.
+fn changed_keys(old: &SensorConfig, new: &SensorConfig) -> Vec<&'static str> {
+    let mut keys = Vec::new();
+    if old.source != new.source {
+        keys.push("source");
+    }
+    if old.stream != new.stream {
+        keys.push("chip");
+    }
+    if old.field != new.field {
+        keys.push("field");
+    }
+    if old.axes != new.axes || old.columns != new.columns {
+        keys.push("axes");
+    }
+    if old.effects != new.effects {
+        keys.push("model");
+    }
+    if old.gyro != new.gyro {
+        keys.push("gyro");
+    }
+    if old.rotation != new.rotation {
+        keys.push("rotation");
+    }
+    if old.limits != new.limits {
+        keys.push("limits");
+    }
+    if keys.is_empty() && old != new {
+        keys.push("settings");
+    }
+    keys
+}
+
+/// The changes outside the sensors that need a restart, one message each.
+fn restart_changes(old: &Config, new: &Config) -> Vec<String> {
+    const RESTART: &str = "restart fieldcal to apply";
+    let mut out = Vec::new();
+    let changed = |out: &mut Vec<String>, what: &str, now: String, kept: String| {
+        out.push(format!("{what} changed to {now}: {RESTART}; kept {kept}"));
+    };
+    let (od, nd) = (&old.daemon, &new.daemon);
+    if od.state_dir != nd.state_dir {
+        changed(
+            &mut out,
+            "[daemon] state_dir",
+            nd.state_dir.display().to_string(),
+            od.state_dir.display().to_string(),
+        );
+    }
+    if od.log_format != nd.log_format {
+        changed(
+            &mut out,
+            "[daemon] log_format",
+            format!("{:?}", nd.log_format).to_lowercase(),
+            format!("{:?}", od.log_format).to_lowercase(),
+        );
+    }
+    let (oo, no) = (&old.outputs, &new.outputs);
+    let address =
+        |a: &Option<std::net::SocketAddr>| a.map_or("none".to_string(), |a| a.to_string());
+    let path = |p: &Option<PathBuf>| {
+        p.as_ref()
+            .map_or("none".to_string(), |p| p.display().to_string())
+    };
+    let before = out.len();
+    if oo.stdout != no.stdout {
+        changed(
+            &mut out,
+            "[outputs] stdout",
+            no.stdout.to_string(),
+            oo.stdout.to_string(),
+        );
+    }
+    if oo.tcp != no.tcp {
+        changed(
+            &mut out,
+            "[outputs] tcp",
+            address(&no.tcp),
+            address(&oo.tcp),
+        );
+    }
+    if oo.unix != no.unix {
+        changed(&mut out, "[outputs] unix", path(&no.unix), path(&oo.unix));
+    }
+    if oo.http != no.http {
+        changed(
+            &mut out,
+            "[outputs] http",
+            address(&no.http),
+            address(&oo.http),
+        );
+    }
+    if oo.queue != no.queue {
+        changed(
+            &mut out,
+            "[outputs] queue",
+            no.queue.to_string(),
+            oo.queue.to_string(),
+        );
+    }
+    if out.len() == before && oo != no {
+        out.push(format!(
+            "[outputs] changed: {RESTART}; kept the outputs it started with"
+        ));
+    }
+    for s in &new.sources {
+        match old.source(&s.name) {
+            None => out.push(format!(
+                "[[source]] {} added: restart fieldcal to start it",
+                s.name
+            )),
+            Some(o) if o != s => out.push(format!(
+                "[[source]] {} changed ({}): {RESTART}; it keeps running as it started",
+                s.name,
+                source_keys(o, s).join(", ")
+            )),
+            Some(_) => {}
+        }
+    }
+    for o in &old.sources {
+        if new.source(&o.name).is_none() {
+            out.push(format!(
+                "[[source]] {} removed: restart fieldcal to stop it; it keeps running",
+                o.name
+            ));
+        }
+    }
+    out
+}
+
+/// The keys of a `[[source]]` section that differ.
+fn source_keys(old: &SourceConfig, new: &SourceConfig) -> Vec<&'static str> {
+    let mut keys = Vec::new();
+    if old.retry != new.retry {
+        keys.push("retry_s");
+    }
+    match (&old.kind, &new.kind) {
+        (SourceKind::Falcon { port: p0, baud: b0 }, SourceKind::Falcon { port: p1, baud: b1 }) => {
+            if p0 != p1 {
+                keys.push("port");
+            }
+            if b0 != b1 {
+                keys.push("baud");
+            }
+        }
+        (
+            SourceKind::UsbIss {
+                port: p0,
+                chips: c0,
+                poll: q0,
+                i2c_khz: k0,
+            },
+            SourceKind::UsbIss {
+                port: p1,
+                chips: c1,
+                poll: q1,
+                i2c_khz: k1,
+            },
+        ) => {
+            if p0 != p1 {
+                keys.push("port");
+            }
+            if c0 != c1 {
+                keys.push("chips");
+            }
+            if q0 != q1 {
+                keys.push("poll_ms");
+            }
+            if k0 != k1 {
+                keys.push("i2c_khz");
+            }
+        }
+        (
+            SourceKind::Replay {
+                file: f0,
+                speed: s0,
+            },
+            SourceKind::Replay {
+                file: f1,
+                speed: s1,
+            },
+        ) => {
+            if f0 != f1 {
+                keys.push("file");
+            }
+            if s0 != s1 {
+                keys.push("speed");
+            }
+        }
+        (
+            SourceKind::Csv {
+                file: f0,
+                speed: s0,
+                time_column: t0,
+                period_s: p0,
+            },
+            SourceKind::Csv {
+                file: f1,
+                speed: s1,
+                time_column: t1,
+                period_s: p1,
+            },
+        ) => {
+            if f0 != f1 {
+                keys.push("file");
+            }
+            if s0 != s1 {
+                keys.push("speed");
+            }
+            if t0 != t1 {
+                keys.push("time_column");
+            }
+            if p0 != p1 {
+                keys.push("period_s");
+            }
+        }
+        _ => keys.push("kind"),
+    }
+    if keys.is_empty() {
+        keys.push("settings");
+    }
+    keys
+}
+
+/// A running source as a reload sees it: its name, and for a csv source
+/// the header of the file it plays (sensors bind their columns to it).
+pub struct RunningSource<'a> {
+    pub name: &'a str,
+    pub layout: Option<&'a Arc<CsvLayout>>,
+}
+
+/// What a reload did, for the main loop to publish and apply.
+#[derive(Debug, Default)]
+pub struct Outcome {
+    /// `RELOAD` (or, refused, `ERROR`) lines to publish, in order.
+    pub lines: Vec<String>,
+    /// The new STATUS interval, when it changed.
+    pub status_interval: Option<Duration>,
+}
+
+/// Applies a checked file (or reports a refused one): `running` is the
+/// running configuration (sources, outputs and daemon settings as started,
+/// sensors as last applied), `sensors` the running sensors with the index
+/// of their source in `sources`, in `running.sensors`' order; both are
+/// updated together. `store` loads the stored calibration of an added
+/// sensor. Logs each line it returns.
+pub fn apply(
+    checked: Result<Config, ReloadError>,
+    running: &mut Config,
+    sensors: &mut Vec<(usize, Sensor)>,
+    sources: &[RunningSource<'_>],
+    store: Option<&StateStore>,
+) -> Outcome {
+    let file = running.path.display().to_string();
+    let new = match checked {
+        Ok(new) => new,
+        Err(e) => return refused(&file, &e),
+    };
+    let plan = plan(running, &new);
+    match apply_plan(&plan, &new, running, sensors, sources, store) {
+        Ok(outcome) => outcome,
+        Err(e) => refused(&file, &ReloadError::Csv(e)),
+    }
+}
+
+fn refused(file: &str, e: &ReloadError) -> Outcome {
+    let message = format!("reload of {file} refused: {e}; the running configuration is kept");
+    tracing::error!("{message}");
+    let mut line = serde_json::json!({ "class": "ERROR", "file": file, "message": message });
+    if let Some(key) = e.key() {
+        line["key"] = key.into();
+    }
+    if let Some(p) = e.position() {
+        line["line"] = p.line.into();
+        line["column"] = p.column.into();
+    }
+    Outcome {
+        lines: vec![line.to_string()],
+        status_interval: None,
+    }
+}
+
+fn reload_line(file: &str, message: &str, sensor: Option<&str>, restart: bool) -> String {
+    let mut line = serde_json::json!({ "class": "RELOAD", "file": file, "message": message });
+    if let Some(sensor) = sensor {
+        line["sensor"] = sensor.into();
+    }
+    if restart {
+        line["restart"] = true.into();
+    }
+    line.to_string()
+}
+
+fn plural(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
+}
+
+fn model_of(config: &SensorConfig) -> String {
+    let effects = crate::model::effects::parse_list(&config.effects.join(","))
+        .unwrap_or_else(|_| crate::model::effects::PAPER.to_vec());
+    crate::model::effects::model_name(&effects)
+}
+
+/// The plan applied: every fallible step (binding csv columns) first, so
+/// an error changes nothing.
+fn apply_plan(
+    plan: &ReloadPlan,
+    new: &Config,
+    running: &mut Config,
+    sensors: &mut Vec<(usize, Sensor)>,
+    sources: &[RunningSource<'_>],
+    store: Option<&StateStore>,
+) -> Result<Outcome, CsvError> {
+    let file = running.path.display().to_string();
+    let source_of = |name: &str| sources.iter().position(|s| s.name == name);
+    // Built and bound before anything running is touched.
+    let mut built: HashMap<&str, (usize, Sensor)> = HashMap::new();
+    for entry in &plan.sensors {
+        let (name, added) = match entry {
+            SensorPlan::Changed { name, .. } => (name, false),
+            SensorPlan::Added(name) => (name, true),
+            _ => continue,
+        };
+        let Some(config) = new.sensors.iter().find(|s| &s.name == name) else {
+            continue;
+        };
+        let Some(index) = source_of(&config.source) else {
+            continue;
+        };
+        let stored = if added {
+            store.and_then(|store| match store.load(name) {
+                Ok(found) => found,
+                Err(e) => {
+                    tracing::warn!("{e}; the sensor starts uncalibrated");
+                    None
+                }
+            })
+        } else {
+            None
+        };
+        let mut sensor = Sensor::new(config.clone(), stored);
+        // A live source is as it runs: its file is the running one's.
+        if let (Some(layout), Some(SourceKind::Csv { file, .. })) = (
+            sources[index].layout,
+            running.source(&config.source).map(|s| &s.kind),
+        ) {
+            sensor.bind_csv(layout, file)?;
+        }
+        built.insert(name.as_str(), (index, sensor));
+    }
+
+    // Nothing below can fail.
+    let mut old: HashMap<String, ((usize, Sensor), SensorConfig)> = sensors
+        .drain(..)
+        .zip(running.sensors.drain(..))
+        .map(|(s, c)| (c.name.clone(), (s, c)))
+        .collect();
+    let mut lines = Vec::new();
+    let info = |lines: &mut Vec<String>, message: String, sensor: Option<&str>| {
+        tracing::info!("{message}");
+        lines.push(reload_line(&file, &message, sensor, false));
+    };
+    let mut counts = [0usize; 4]; // changed, added, removed, unchanged
+    for entry in &plan.sensors {
+        match entry {
+            SensorPlan::Unchanged(name) => {
+                if let Some((s, c)) = old.remove(name) {
+                    sensors.push(s);
+                    running.sensors.push(c);
+                    counts[3] += 1;
+                }
+            }
+            SensorPlan::Changed { name, keys } => {
+                let Some((before, was)) = old.remove(name) else {
+                    continue;
+                };
+                let Some((index, mut sensor)) = built.remove(name.as_str()) else {
+                    // Not built (its source is not running): as it was.
+                    sensors.push(before);
+                    running.sensors.push(was);
+                    continue;
+                };
+                let Some(config) = new.sensors.iter().find(|s| &s.name == name) else {
+                    continue;
+                };
+                let (model_was, model_now) = (model_of(&was), model_of(config));
+                let what = if keys.contains(&"model") {
+                    let others: Vec<&str> =
+                        keys.iter().copied().filter(|k| *k != "model").collect();
+                    let mut what = format!("model {model_was} -> {model_now}");
+                    if !others.is_empty() {
+                        what.push_str(&format!("; {} changed", others.join(", ")));
+                    }
+                    what
+                } else {
+                    format!("{} changed", keys.join(", "))
+                };
+                let keeps = match before.1.calibration() {
+                    Some(c) => format!(
+                        "calibration #{} ({}) keeps correcting until one under them is accepted",
+                        c.id, c.model
+                    ),
+                    None => "it has no calibration yet".to_string(),
+                };
+                sensor.carry_over(before.1);
+                info(
+                    &mut lines,
+                    format!(
+                        "sensor '{name}': {what}: a new rotation starts under the new settings; {keeps}"
+                    ),
+                    Some(name),
+                );
+                sensors.push((index, sensor));
+                running.sensors.push(config.clone());
+                counts[0] += 1;
+            }
+            SensorPlan::Added(name) => {
+                let Some((index, sensor)) = built.remove(name.as_str()) else {
+                    continue;
+                };
+                let Some(config) = new.sensors.iter().find(|s| &s.name == name) else {
+                    continue;
+                };
+                let how = match sensor.calibration() {
+                    Some(c) => {
+                        lines.push(to_line(&CalibrationMessage::loaded(c)));
+                        format!(
+                            "corrects with calibration #{} from the state directory and waits for a recalibrate",
+                            c.id
+                        )
+                    }
+                    None => "collects its first rotation".to_string(),
+                };
+                info(
+                    &mut lines,
+                    format!(
+                        "sensor '{name}' added on source '{}': it {how}",
+                        config.source
+                    ),
+                    Some(name),
+                );
+                sensors.push((index, sensor));
+                running.sensors.push(config.clone());
+                counts[1] += 1;
+            }
+            SensorPlan::Removed(name) => {
+                if old.remove(name).is_some() {
+                    info(
+                        &mut lines,
+                        format!(
+                            "sensor '{name}' removed: no longer read or published; its stored calibration stays in the state directory"
+                        ),
+                        Some(name),
+                    );
+                    counts[2] += 1;
+                }
+            }
+            SensorPlan::Held {
+                name,
+                source,
+                added,
+            } => {
+                let message = if *added {
+                    format!(
+                        "sensor '{name}' is on source '{source}', which is new or changed: restart fieldcal to start it"
+                    )
+                } else {
+                    format!(
+                        "sensor '{name}' changed, on source '{source}', which is new or changed: restart fieldcal to apply; it keeps running as it was"
+                    )
+                };
+                tracing::warn!("{message}");
+                lines.push(reload_line(&file, &message, Some(name), true));
+                if let Some((s, c)) = old.remove(name) {
+                    sensors.push(s);
+                    running.sensors.push(c);
+                }
+            }
+        }
+    }
+    if let Some(interval) = plan.status_interval {
+        info(
+            &mut lines,
+            format!(
+                "[daemon] status_interval_s changed from {} s to {} s: applied",
+                running.daemon.status_interval.as_secs_f64(),
+                interval.as_secs_f64()
+            ),
+            None,
+        );
+        running.daemon.status_interval = interval;
+    }
+    for message in &plan.restart {
+        tracing::warn!("{message}");
+        lines.push(reload_line(&file, message, None, true));
+    }
+    let held = plan
+        .sensors
+        .iter()
+        .filter(|s| matches!(s, SensorPlan::Held { .. }))
+        .count();
+    let summary = if plan.is_empty() {
+        format!("reload of {file}: no change")
+    } else {
+        let restarts = plan.restart.len() + held;
+        format!(
+            "reload of {file} applied: {} changed, {} added, {} removed, {} unchanged; {}",
+            plural(counts[0], "sensor", "sensors"),
+            counts[1],
+            counts[2],
+            counts[3],
+            plural(restarts, "change needs a restart", "changes need a restart"),
+        )
+    };
+    info(&mut lines, summary, None);
+    Ok(Outcome {
+        lines,
+        status_interval: plan.status_interval,
+    })
+}
+
+/// What [`Reloader::next`] brings.
+pub enum ReloadEvent {
+    /// A reload was asked for: [`Reloader::start`].
+    Requested,
+    /// A file was checked: [`apply`] it, then [`Reloader::done`].
+    Checked(Box<Result<Config, ReloadError>>),
+}
+
+/// The next request; never, when nothing can ask any more. Cancel-safe.
+async fn next_request(requests: &mut Option<mpsc::Receiver<()>>) {
+    if let Some(rx) = requests {
+        if rx.recv().await.is_some() {
+            return;
+        }
+        *requests = None;
+    }
+    std::future::pending::<()>().await;
+}
+
+/// The reload requests and the checks they start, for the main loop:
+/// requests that come while a check runs are folded into one more check
+/// after it (the file may have changed again), and systemd is told
+/// `RELOADING=1` when a check starts and `READY=1` when it is over.
+pub struct Reloader {
+    path: PathBuf,
+    requests: Option<mpsc::Receiver<()>>,
+    checked_tx: mpsc::Sender<Result<Config, ReloadError>>,
+    checked_rx: mpsc::Receiver<Result<Config, ReloadError>>,
+    busy: bool,
+    again: bool,
+}
+
+impl Reloader {
+    /// Reloads read `path`; `requests` is `None` when nothing can ask.
+    pub fn new(path: PathBuf, requests: Option<mpsc::Receiver<()>>) -> Reloader {
+        let (checked_tx, checked_rx) = mpsc::channel(1);
+        Reloader {
+            path,
+            requests,
+            checked_tx,
+            checked_rx,
+            busy: false,
+            again: false,
+        }
+    }
+
+    /// The next request, or the result of the running check.
+    /// Cancel-safe (for `select!`).
+    pub async fn next(&mut self) -> ReloadEvent {
+        tokio::select! {
+            () = next_request(&mut self.requests) => ReloadEvent::Requested,
+            Some(checked) = self.checked_rx.recv() => ReloadEvent::Checked(Box::new(checked)),
+        }
+    }
+
+    /// Starts a check of the file, or notes one more for after the
+    /// running check.
+    pub fn start(&mut self, notifier: &Notifier) {
+        if self.busy {
+            self.again = true;
+            return;
+        }
+        self.busy = true;
+        notifier.reloading();
+        tracing::info!("reloading the configuration {}", self.path.display());
+        let (path, tx) = (self.path.clone(), self.checked_tx.clone());
+        tokio::task::spawn_blocking(move || {
+            let _ = tx.blocking_send(check(&path));
+        });
+    }
+
+    /// The check's result is applied: tells systemd, and starts the check
+    /// asked for meanwhile, if any.
+    pub fn done(&mut self, notifier: &Notifier, status: &str) {
+        self.busy = false;
+        notifier.ready();
+        notifier.status(status);
+        if std::mem::take(&mut self.again) {
+            self.start(notifier);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::daemon::messages::SensorState;
+    use crate::sample::Reading;
+
+    const BASE: &str = r#"
+[daemon]
+state_dir = "/tmp/fieldcal-reload-unit"
+status_interval_s = 1.0
+
+[outputs]
+stdout = true
+tcp = "127.0.0.1:2947"
+
+[[source]]
+name = "imu"
+kind = "falcon"
+port = "/dev/null"
+
+[[sensor]]
+name = "compass"
+source = "imu"
+field = "mag"
+axes = ["x", "y"]
+
+[[sensor]]
+name = "tilt"
+source = "imu"
+field = "accel"
+axes = ["x", "y"]
+"#;
+
+    fn parse(text: &str) -> Config {
+        config::parse(text, Path::new("/etc/fieldcal/fieldcal.toml")).unwrap()
+    }
+
+    #[test]
+    fn the_same_file_plans_nothing() {
+        let p = plan(&parse(BASE), &parse(BASE));
+        assert!(p.is_empty(), "{p:?}");
+        assert_eq!(
+            p.sensors,
+            [
+                SensorPlan::Unchanged("compass".into()),
+                SensorPlan::Unchanged("tilt".into())
+            ]
+        );
+    }
+
+    #[test]
+    fn a_sensor_section_change_names_its_keys() {
+        let new = BASE.replacen(
+            "axes = [\"x\", \"y\"]\n",
+            "axes = [\"x\", \"y\"]\nmodel = [\"paper\", \"cross-axis\"]\n[sensor.limits]\nmax_rms = 0.04\n",
+            1,
+        );
+        let p = plan(&parse(BASE), &parse(&new));
+        assert_eq!(
+            p.sensors,
+            [
+                SensorPlan::Changed {
+                    name: "compass".into(),
+                    keys: vec!["model", "limits"]
+                },
+                SensorPlan::Unchanged("tilt".into())
+            ]
+        );
+        assert!(p.restart.is_empty() && p.status_interval.is_none());
+    }
+
+    #[test]
+    fn outputs_sources_and_state_dir_need_a_restart_and_say_what_is_kept() {
+        let new = BASE
+            .replace("127.0.0.1:2947", "127.0.0.1:2950")
+            .replace("/tmp/fieldcal-reload-unit", "/tmp/elsewhere")
+            .replace("status_interval_s = 1.0", "status_interval_s = 0.5")
+            .replace(
+                "port = \"/dev/null\"",
+                "port = \"/dev/null\"\nbaud = 115200",
+            );
+        let p = plan(&parse(BASE), &parse(&new));
+        assert_eq!(p.status_interval, Some(Duration::from_millis(500)));
+        assert_eq!(
+            p.restart,
+            [
+                "[daemon] state_dir changed to /tmp/elsewhere: restart fieldcal to apply; kept /tmp/fieldcal-reload-unit",
+                "[outputs] tcp changed to 127.0.0.1:2950: restart fieldcal to apply; kept 127.0.0.1:2947",
+                "[[source]] imu changed (baud): restart fieldcal to apply; it keeps running as it started",
+            ]
+        );
+        // Sensors whose sections did not change are unchanged, though
+        // their source changed: they keep running on it.
+        assert!(
+            p.sensors
+                .iter()
+                .all(|s| matches!(s, SensorPlan::Unchanged(_)))
+        );
+    }
+
+    #[test]
+    fn sensors_added_removed_and_held_for_a_new_source() {
+        let new = BASE.replace("name = \"tilt\"", "name = \"level\"")
+            + "\n[[source]]\nname = \"bench\"\nkind = \"falcon\"\nport = \"/dev/zero\"\n\n\
+               [[sensor]]\nname = \"bench-compass\"\nsource = \"bench\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n";
+        let p = plan(&parse(BASE), &parse(&new));
+        assert_eq!(
+            p.sensors,
+            [
+                SensorPlan::Unchanged("compass".into()),
+                SensorPlan::Added("level".into()),
+                SensorPlan::Held {
+                    name: "bench-compass".into(),
+                    source: "bench".into(),
+                    added: true
+                },
+                SensorPlan::Removed("tilt".into()),
+            ]
+        );
+        assert_eq!(
+            p.restart,
+            ["[[source]] bench added: restart fieldcal to start it"]
+        );
+    }
+
+    /// Readings of a compass turning at 36°/s around (300, -200), radius
+    /// 1000, every 50 ms from `from` for `n` readings.
+    fn turn(sensor: &mut Sensor, from: usize, n: usize) -> Vec<String> {
+        let mut lines = Vec::new();
+        for i in from..from + n {
+            let t = i as f64 * 0.05;
+            let h = (36.0 * t).to_radians();
+            let r = Reading {
+                time: t,
+                mag: Some([
+                    (300.0 + 1000.0 * h.cos()).round() as i16,
+                    (-200.0 + 1000.0 * h.sin()).round() as i16,
+                    0,
+                ]),
+                accel: Some([0, 0, 4096]),
+                ..Reading::default()
+            };
+            sensor.on_reading(&r, &mut |_, line| lines.push(line));
+        }
+        lines
+    }
+
+    fn running(text: &str) -> (Config, Vec<(usize, Sensor)>) {
+        let config = parse(text);
+        let sensors = config
+            .sensors
+            .iter()
+            .map(|s| (0, Sensor::new(s.clone(), None)))
+            .collect();
+        (config, sensors)
+    }
+
+    const SOURCES: [RunningSource<'static>; 1] = [RunningSource {
+        name: "imu",
+        layout: None,
+    }];
+
+    #[test]
+    fn unchanged_sensors_keep_their_rotation_and_calibration_a_changed_one_starts_anew() {
+        let (mut config, mut sensors) = running(BASE);
+        // compass: calibrated (#1), then asked to recalibrate and halfway
+        // through its next turn; tilt: collecting, never calibrated.
+        let lines = turn(&mut sensors[0].1, 0, 201);
+        assert!(lines.iter().any(|l| l.contains("\"accepted\":true")));
+        assert_eq!(sensors[0].1.calibration().map(|c| c.id), Some(1));
+        sensors[0].1.recalibrate();
+        turn(&mut sensors[0].1, 201, 100);
+        let held = sensors[0].1.status().rotation.unwrap().samples;
+        assert_eq!(held, 100);
+
+        // The same file: nothing moves.
+        let out = apply(Ok(parse(BASE)), &mut config, &mut sensors, &SOURCES, None);
+        assert_eq!(out.lines.len(), 1, "{:?}", out.lines);
+        assert!(out.lines[0].contains("no change"), "{:?}", out.lines);
+        let status = sensors[0].1.status();
+        assert_eq!(status.rotation.unwrap().samples, 100);
+        assert_eq!(status.calibration, Some(1));
+        assert_eq!(status.state, SensorState::Recalibrating);
+
+        // tilt's model changes: compass keeps its half turn, tilt starts
+        // afresh under the new model.
+        let new = BASE.replace(
+            "field = \"accel\"\naxes = [\"x\", \"y\"]",
+            "field = \"accel\"\naxes = [\"x\", \"y\"]\nmodel = [\"paper\", \"cubic\"]",
+        );
+        let out = apply(Ok(parse(&new)), &mut config, &mut sensors, &SOURCES, None);
+        assert_eq!(out.lines.len(), 2, "{:?}", out.lines);
+        assert!(
+            out.lines[0].contains("sensor 'tilt': model offset+scale -> offset+scale+cubic"),
+            "{:?}",
+            out.lines
+        );
+        assert_eq!(sensors[0].1.status().rotation.unwrap().samples, 100);
+        assert_eq!(sensors[0].1.calibration().map(|c| c.id), Some(1));
+        assert_eq!(config.sensors[1].effects, ["offset", "scale", "cubic"]);
+
+        // compass's model changes mid-turn: a new rotation under the new
+        // model, and calibration #1 (the paper's) corrects meanwhile.
+        let new2 = new.replacen(
+            "field = \"mag\"\naxes = [\"x\", \"y\"]",
+            "field = \"mag\"\naxes = [\"x\", \"y\"]\nmodel = [\"paper\", \"cross-axis\"]",
+            1,
+        );
+        let out = apply(Ok(parse(&new2)), &mut config, &mut sensors, &SOURCES, None);
+        assert!(
+            out.lines[0].contains("calibration #1 (offset+scale) keeps correcting"),
+            "{:?}",
+            out.lines
+        );
+        let status = sensors[0].1.status();
+        assert_eq!(status.rotation.unwrap().samples, 0);
+        assert_eq!(status.calibration, Some(1));
+        assert_eq!(status.state, SensorState::Recalibrating);
+        assert_eq!(status.readings, 301);
+        let lines = turn(&mut sensors[0].1, 400, 201);
+        assert!(
+            lines[0].contains("\"calibration\":1"),
+            "corrected by #1 meanwhile: {}",
+            lines[0]
+        );
+        let accepted: Vec<&String> = lines
+            .iter()
+            .filter(|l| l.contains("\"accepted\":true"))
+            .collect();
+        assert_eq!(accepted.len(), 1, "{lines:?}");
+        assert!(
+            accepted[0].contains("\"id\":2") && accepted[0].contains("offset+scale+cross-axis"),
+            "{}",
+            accepted[0]
+        );
+    }
+
+    #[test]
+    fn a_refused_file_changes_nothing() {
+        let (mut config, mut sensors) = running(BASE);
+        turn(&mut sensors[0].1, 0, 50);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("fieldcal.toml");
+        std::fs::write(
+            &path,
+            BASE.replace(
+                "axes = [\"x\", \"y\"]\n\n[[sensor]]",
+                "axes = [\"x\", \"y\"]\nmodle = \"paper\"\n\n[[sensor]]",
+            ),
+        )
+        .unwrap();
+        let out = apply(check(&path), &mut config, &mut sensors, &SOURCES, None);
+        assert_eq!(out.lines.len(), 1);
+        let line: serde_json::Value = serde_json::from_str(&out.lines[0]).unwrap();
+        assert_eq!(line["class"], "ERROR");
+        assert_eq!(line["key"], "sensor[0].modle");
+        assert_eq!(line["line"], 20);
+        let message = line["message"].as_str().unwrap();
+        assert!(
+            message.starts_with("reload of /etc/fieldcal/fieldcal.toml refused: "),
+            "{message}"
+        );
+        assert!(
+            message.ends_with("; the running configuration is kept"),
+            "{message}"
+        );
+        assert_eq!(sensors.len(), 2);
+        assert_eq!(sensors[0].1.status().rotation.unwrap().samples, 50);
+        assert_eq!(config.sensors.len(), 2);
+    }
+}
