@@ -12,6 +12,13 @@ use fieldcal::daemon::run::RunOptions;
 use crate::RunArgs;
 
 pub fn run(args: RunArgs) -> Result<()> {
+    // Until the reload handler is installed (inside the runtime, below), a
+    // SIGHUP is ignored rather than killing a daemon that is starting.
+    #[cfg(unix)]
+    // SAFETY: signal(2) with SIG_IGN, before any other thread exists.
+    unsafe {
+        libc::signal(libc::SIGHUP, libc::SIG_IGN);
+    }
     // A bad configuration starts nothing: no port is opened, no socket bound.
     let config = load(&args.config)?;
     let mode: ProgressMode = args.progress.parse().map_err(anyhow::Error::msg)?;
