@@ -61,9 +61,9 @@
 //! stream) is never evicted. It may lose its oldest READINGs (counted, as
 //! any subscriber), and its control lines are coalesced instead of
 //! overflowing: a queued STATUS is replaced by the newer one; when the
-//! control queue is still full the oldest ERROR (or STATUS) is dropped
-//! (counted in [`HubStats::coalesced`]); a CALIBRATION is never dropped. That
-//! keeps the queue bounded: CALIBRATION lines come a few per rotation per
+//! control queue is still full the oldest ERROR is dropped (counted in
+//! [`HubStats::coalesced`]); a CALIBRATION is never dropped. That keeps the
+//! queue bounded (its bound, one STATUS, and the CALIBRATIONs): CALIBRATION lines come a few per rotation per
 //! sensor (one when a rotation ends, one when it is loaded or restarted),
 //! so even a stdout stalled for hours holds a handful of them per sensor
 //! beyond the bound.
@@ -291,16 +291,16 @@ impl Access {
         match (&self.token, token) {
             (Some(ours), Some(given)) if ours.matches(given) => Ok(()),
             (Some(_), Some(_)) => Err(format!(
-                "recalibrate refused: the \"token\" does not match [outputs] token_file                  (recalibrate from {o} needs the token, or \"{o}\" in [outputs] recalibrate_from)",
+                "recalibrate refused: the \"token\" does not match [outputs] token_file (recalibrate from {o} needs the token, or \"{o}\" in [outputs] recalibrate_from)",
                 o = origin.name()
             )),
             (Some(_), None) => Err(format!(
-                "recalibrate refused from {o}: send \"token\" with the content of [outputs]                  token_file, or add \"{o}\" to [outputs] recalibrate_from (now {from})",
+                "recalibrate refused from {o}: send \"token\" with the content of [outputs] token_file, or add \"{o}\" to [outputs] recalibrate_from (now {from})",
                 o = origin.name(),
                 from = self.from_list()
             )),
             (None, _) => Err(format!(
-                "recalibrate refused from {o}: it is allowed from {from} ([outputs]                  recalibrate_from); add \"{o}\" there, or set [outputs] token_file and send                  \"token\"",
+                "recalibrate refused from {o}: it is allowed from {from} ([outputs] recalibrate_from); add \"{o}\" there, or set [outputs] token_file and send \"token\"",
                 o = origin.name(),
                 from = self.from_list()
             )),
@@ -1550,8 +1550,8 @@ impl Queue {
     }
 
     /// The writer's control lane: a newer STATUS replaces a queued one;
-    /// when full, the oldest line that is not a CALIBRATION goes (or this
-    /// one, if it is not a CALIBRATION either); a CALIBRATION is always
+    /// when full, the oldest ERROR goes (or this one, if it is an ERROR and
+    /// none is queued); a CALIBRATION, and the one STATUS, are always
     /// queued, beyond the bound if need be (they are few: see the module).
     fn push_coalesced(&mut self, seq: u64, line: Arc<str>) -> Pushed {
         let class = class_of(&line);
@@ -1569,13 +1569,14 @@ impl Queue {
             match self
                 .control
                 .iter()
-                .position(|(_, l)| class_of(l) != Class::Calibration)
+                .position(|(_, l)| class_of(l) == Class::Other)
             {
                 Some(i) => {
                     self.control.remove(i);
                     let_go += 1;
                 }
-                None if class != Class::Calibration => return Pushed::Coalesced(let_go + 1),
+                None if class == Class::Other => return Pushed::Coalesced(let_go + 1),
+                // A STATUS (at most one is queued) or a CALIBRATION.
                 None => {}
             }
         }
