@@ -567,14 +567,16 @@ fn a_crowd_beyond_the_descriptor_limit_cannot_stop_a_calibration_being_stored() 
     let dir = tempfile::tempdir().unwrap();
     // Two turns in 20 s played at 2x: calibrated after about 5 s.
     let capture = common::repo_path("tests/data/falcon_garbage.fcap");
+    let port = free_port();
     let config = replay_config(
         dir.path(),
         &capture,
         "2.0",
-        "stdout = true\ntcp = \"127.0.0.1:0\"",
+        &format!("stdout = true\ntcp = \"127.0.0.1:{port}\""),
     );
     let mut daemon = Daemon::start_with(&config, |c| limit_descriptors(c, 64));
-    let addr = tcp_address(&daemon);
+    daemon.wait_for_log(T, "listening on TCP");
+    let addr = std::net::SocketAddr::from(([127, 0, 0, 1], port));
     // More clients than the daemon has descriptors, held open.
     let mut held = Vec::new();
     let mut refused = 0;
@@ -618,6 +620,13 @@ fn a_crowd_beyond_the_descriptor_limit_cannot_stop_a_calibration_being_stored() 
     assert!(daemon.terminate().success());
 }
 
+/// A loopback port free now (so the test also runs against a build that
+/// logs port 0 for `127.0.0.1:0`).
+fn free_port() -> u16 {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().port()
+}
+
 /// Resident memory of `pid`, in kB.
 fn rss_kb(pid: u32) -> u64 {
     let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
@@ -634,32 +643,37 @@ fn memory_is_back_near_its_baseline_after_a_crowd_leaves() {
         "--format",
         "falcon",
         "--turns",
-        "150",
+        "2000",
         "--noise",
         "2",
         "-o",
         capture.to_str().unwrap(),
     ]);
-    // 30,000 frames at 100x: 15 s of readings, more than the test needs.
+    // 400,000 frames at 1000x: 20 s of 20,000 readings a second, more than
+    // the test needs.
+    let port = free_port();
     let config = replay_config(
         dir.path(),
         &capture,
-        "100.0",
-        "stdout = false\ntcp = \"127.0.0.1:0\"",
+        "1000.0",
+        &format!("stdout = false\ntcp = \"127.0.0.1:{port}\""),
     );
     let mut daemon = Daemon::start_with(&config, |c| limit_descriptors(c, 4096));
-    let addr = tcp_address(&daemon);
+    daemon.wait_for_log(T, "listening on TCP");
+    let addr = std::net::SocketAddr::from(([127, 0, 0, 1], port));
     std::thread::sleep(Duration::from_millis(500));
     let baseline = rss_kb(daemon.pid());
     // 600 idle clients that never read (the default allows 64).
     let crowd: Vec<_> = (0..600)
         .filter_map(|_| std::net::TcpStream::connect(addr).ok())
         .collect();
-    // Their queues fill (4096 readings at 2000 a second, after the socket buffers).
-    std::thread::sleep(Duration::from_secs(5));
+    // Their queues fill (4096 readings each, after the socket buffers).
+    std::thread::sleep(Duration::from_secs(4));
+    assert!(daemon.is_running(), "the daemon ended: {}", daemon.stderr());
     let peak = rss_kb(daemon.pid());
     drop(crowd);
     std::thread::sleep(Duration::from_secs(2));
+    assert!(daemon.is_running(), "the daemon ended: {}", daemon.stderr());
     let after = rss_kb(daemon.pid());
     eprintln!("RSS: baseline {baseline} kB, with the crowd {peak} kB, after {after} kB");
     // Allocators keep some: 20 MB over the baseline at most.
