@@ -297,17 +297,17 @@ impl Access {
             (Some(_), None) => Err(format!(
                 "recalibrate refused from {o}: send \"token\" with the content of [outputs] token_file, or add \"{o}\" to [outputs] recalibrate_from (now {from})",
                 o = origin.name(),
-                from = self.from_list()
+                from = self.listed()
             )),
             (None, _) => Err(format!(
                 "recalibrate refused from {o}: it is allowed from {from} ([outputs] recalibrate_from); add \"{o}\" there, or set [outputs] token_file and send \"token\"",
                 o = origin.name(),
-                from = self.from_list()
+                from = self.listed()
             )),
         }
     }
 
-    fn from_list(&self) -> String {
+    fn listed(&self) -> String {
         let names: Vec<String> = self
             .recalibrate_from
             .iter()
@@ -1930,6 +1930,52 @@ mod tests {
         q.close();
         assert_eq!(q.push(Lane::Reading, line("r1")), Pushed::Refused);
         assert_eq!(drain(&mut q), ["r0"]);
+    }
+
+    #[test]
+    fn readings_ahead_of_a_status_reply_are_kept_so_its_accounting_holds() {
+        let mut q = Queue::new(3, 10);
+        for i in 0..5 {
+            q.push(Lane::Reading, line(&format!("r{i}")));
+        }
+        q.push_status_reply(r#"{"class":"STATUS"}"#, 7, "p");
+        // More readings while the reply waits: those after it are dropped,
+        // never the three before it.
+        for i in 5..9 {
+            q.push(Lane::Reading, line(&format!("r{i}")));
+        }
+        let out = drain(&mut q);
+        assert_eq!(out[..3], ["r2", "r3", "r4"]);
+        let reply: Value = serde_json::from_str(&out[3]).unwrap_or_default();
+        let sub = &reply["subscriber"];
+        assert_eq!(
+            (sub["readings"].as_u64(), sub["dropped"].as_u64()),
+            (Some(5), Some(2))
+        );
+        assert_eq!(sub["queued"], 3);
+        assert_eq!(out.len(), 4, "{out:?}");
+        assert_eq!(q.readings_in, 9);
+    }
+
+    #[test]
+    fn the_writers_control_lines_coalesce_and_keep_every_calibration() {
+        let mut q = Queue::new(3, 2);
+        q.coalesce = true;
+        q.push(Lane::Control, line(r#"{"class":"STATUS","n":1}"#));
+        q.push(Lane::Control, line(r#"{"class":"ERROR","n":2}"#));
+        q.push(Lane::Control, line(r#"{"class":"STATUS","n":3}"#));
+        q.push(Lane::Control, line(r#"{"class":"CALIBRATION","n":4}"#));
+        q.push(Lane::Control, line(r#"{"class":"CALIBRATION","n":5}"#));
+        q.push(Lane::Control, line(r#"{"class":"ERROR","n":6}"#));
+        assert_eq!(q.state, QueueState::Open);
+        assert_eq!(
+            drain(&mut q),
+            [
+                r#"{"class":"STATUS","n":3}"#,
+                r#"{"class":"CALIBRATION","n":4}"#,
+                r#"{"class":"CALIBRATION","n":5}"#,
+            ]
+        );
     }
 
     #[test]
