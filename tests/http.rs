@@ -21,7 +21,7 @@ const T: Duration = Duration::from_secs(30);
 fn config() -> Config {
     let capture = common::repo_path("tests/data/falcon_turn.fcap");
     let text = format!(
-        "[outputs]\nhttp = \"127.0.0.1:0\"\n[[source]]\nname = \"imu\"\nkind = \"replay\"\nfile = \"{}\"\n\
+        "[outputs]\nhttp = \"127.0.0.1:0\"\nrecalibrate_from = [\"unix\", \"http\"]\n[[source]]\nname = \"imu\"\nkind = \"replay\"\nfile = \"{}\"\n\
          [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n",
         capture.display()
     );
@@ -337,7 +337,7 @@ fn the_daemon_serves_the_page_its_state_and_the_recalibrate_button() {
         dir.path(),
         &capture,
         "2.0",
-        "stdout = false\nhttp = \"127.0.0.1:0\"",
+        "stdout = false\nhttp = \"127.0.0.1:0\"\nrecalibrate_from = [\"unix\", \"tcp\", \"http\"]",
     );
     let daemon = Daemon::start(&config, &[]);
     let log = daemon.wait_for_log(T, "live page at http://");

@@ -212,7 +212,7 @@ fn the_live_page_fills_the_coverage_and_shows_the_calibration_in_chromium() {
         dir.path(),
         &capture,
         "2.0",
-        "stdout = false\nhttp = \"127.0.0.1:0\"",
+        "stdout = false\nhttp = \"127.0.0.1:0\"\nrecalibrate_from = [\"unix\", \"tcp\", \"http\"]",
     );
     let daemon = Daemon::start(&config, &[]);
     let addr = live_address(&daemon.wait_for_log(T, "live page at http://"));

@@ -38,6 +38,22 @@
 //! http_public = false
 //! # Lines queued per subscriber before a slow one is dropped. Default 4096.
 //! queue = 4096
+//! # Subscribers at once (TCP, Unix socket, live page streams; stdout does
+//! # not count); 1 to 100000. Default: 64, fewer when the descriptor limit
+//! # (RLIMIT_NOFILE) minus 32 kept for the daemon is less; a value that does
+//! # not leave those 32 stops the start.
+//! max_subscribers = 64
+//! # The Unix socket's mode, octal (default "0660"), and its group (a name
+//! # or a number; default the daemon's group).
+//! unix_mode = "0660"
+//! unix_group = "fieldcal"
+//! # Listeners whose subscribers may send "recalibrate": any of "unix",
+//! # "tcp", "http". Default ["unix"]. "status" is open to all.
+//! recalibrate_from = ["unix"]
+//! # A file holding a token (not readable by others, not writable by its
+//! # group); a command carrying "token":"..." equal to it may recalibrate
+//! # from any listener. Optional.
+//! token_file = "/etc/fieldcal/token"
 //!
 //! [[source]]
 //! name = "imu"              # letters, digits, '-', '_'
@@ -115,6 +131,7 @@ use serde::{Deserialize, Serialize};
 use toml::Spanned;
 use toml::de::{DeTable, DeValue};
 
+use super::publish::{Access, Origin, Token};
 use crate::capture::{self, CaptureFile, StreamKind};
 use crate::io::csv::{CsvLayout, open_rows};
 use crate::model::effects::{self, Effect};
@@ -202,6 +219,14 @@ pub struct OutputsConfig {
     pub http: Option<SocketAddr>,
     /// Lines queued per subscriber.
     pub queue: usize,
+    /// Subscribers at once; None: derived from the descriptor limit at start.
+    pub max_subscribers: Option<usize>,
+    /// The Unix socket's mode.
+    pub unix_mode: u32,
+    /// The Unix socket's group id, when set.
+    pub unix_group: Option<u32>,
+    /// Who may recalibrate (`recalibrate_from`, and the token of `token_file`).
+    pub access: Access,
 }
 
 /// One `[[source]]`.
@@ -517,6 +542,11 @@ struct RawOutputs {
     http: Option<String>,
     http_public: bool,
     queue: Option<u64>,
+    max_subscribers: Option<u64>,
+    unix_mode: Option<String>,
+    unix_group: Option<toml::Value>,
+    recalibrate_from: Option<Vec<String>>,
+    token_file: Option<PathBuf>,
 }
 
 #[derive(Deserialize, Clone, Copy, PartialEq)]
@@ -953,12 +983,169 @@ impl Checker<'_> {
                 ));
             }
         };
+        let max_subscribers = match raw.max_subscribers {
+            None => None,
+            Some(n) if (1..=MAX_SUBSCRIBERS_LIMIT).contains(&n) => usize::try_from(n).ok(),
+            Some(n) => {
+                return Err(self.error(
+                    "outputs.max_subscribers",
+                    format!(
+                        "{n}: give 1 to {MAX_SUBSCRIBERS_LIMIT} subscribers, or leave the key out \
+                         for the default (64, fewer under a low descriptor limit)"
+                    ),
+                ));
+            }
+        };
+        let unix_mode = match raw.unix_mode {
+            None => super::unix_socket::SOCKET_MODE,
+            Some(text) => self.unix_mode(&text)?,
+        };
+        let unix_group = match raw.unix_group {
+            None => None,
+            Some(value) => Some(self.unix_group(&value)?),
+        };
+        let recalibrate_from = match raw.recalibrate_from {
+            None => Access::default().recalibrate_from,
+            Some(list) => {
+                let mut from = Vec::new();
+                for name in list {
+                    let Some(origin) = Origin::ALL.into_iter().find(|o| o.name() == name) else {
+                        return Err(self.error(
+                            "outputs.recalibrate_from",
+                            format!(
+                                "'{name}' is not a listener: give a list of \"unix\", \"tcp\", \"http\" \
+                                 (or [] to refuse recalibrate without the token)"
+                            ),
+                        ));
+                    };
+                    if !from.contains(&origin) {
+                        from.push(origin);
+                    }
+                }
+                from
+            }
+        };
+        let token = match raw.token_file {
+            None => None,
+            Some(path) => Some(self.token_file(&self.resolve(&path))?),
+        };
         Ok(OutputsConfig {
             stdout: raw.stdout.unwrap_or(true),
             tcp,
             unix,
             http,
             queue,
+            max_subscribers,
+            unix_mode,
+            unix_group,
+            access: Access {
+                recalibrate_from,
+                token,
+            },
+        })
+    }
+
+    /// `outputs.unix_mode`: octal permission bits, at most 0777.
+    fn unix_mode(&self, text: &str) -> Result<u32, ConfigError> {
+        let digits = text.trim();
+        let digits = digits.strip_prefix("0o").unwrap_or(digits);
+        match u32::from_str_radix(digits, 8) {
+            Ok(mode) if !digits.is_empty() && mode <= 0o777 && !digits.starts_with('+') => Ok(mode),
+            _ => Err(self.error(
+                "outputs.unix_mode",
+                format!(
+                    "'{text}' is not a file mode: give octal permission bits from \"0000\" to \
+                     \"0777\", such as \"0660\" (owner and group may connect)"
+                ),
+            )),
+        }
+    }
+
+    /// `outputs.unix_group`: a group name or number, which must exist.
+    fn unix_group(&self, value: &toml::Value) -> Result<u32, ConfigError> {
+        let key = "outputs.unix_group";
+        let name = match value {
+            toml::Value::Integer(n) => {
+                return u32::try_from(*n).map_err(|_| {
+                    self.error(
+                        key,
+                        format!("{n} is not a group id: give 0 to {}", u32::MAX),
+                    )
+                });
+            }
+            toml::Value::String(s) => s.trim(),
+            other => {
+                return Err(self.error(
+                    key,
+                    format!(
+                        "a {} is not a group: give a group name (\"fieldcal\") or number",
+                        type_name(other)
+                    ),
+                ));
+            }
+        };
+        if let Ok(gid) = name.parse::<u32>() {
+            return Ok(gid);
+        }
+        match group_id(name) {
+            Some(gid) => Ok(gid),
+            None => Err(self.error(
+                key,
+                format!(
+                    "no group named '{name}' on this system (see /etc/group, getent group): \
+                     create it, or give an existing group's name or number"
+                ),
+            )),
+        }
+    }
+
+    /// Reads the token of `outputs.token_file`: a regular file that others
+    /// cannot read and its group cannot write (as ssh refuses a key others
+    /// can read), whose trimmed content is the token.
+    fn token_file(&self, path: &Path) -> Result<Token, ConfigError> {
+        use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
+        let key = "outputs.token_file";
+        let shown = path.display();
+        let meta = std::fs::metadata(path)
+            .map_err(|e| self.error(key, format!("cannot read {shown}: {e}")))?;
+        if !meta.is_file() {
+            return Err(self.error(
+                key,
+                format!("{shown} is not a regular file: give a file holding the token"),
+            ));
+        }
+        let mode = meta.permissions().mode() & 0o777;
+        if mode & 0o027 != 0 {
+            return Err(self.error(
+                key,
+                format!(
+                    "{shown} has mode {mode:04o}: a token others can read, or its group can \
+                     change, is no secret; chmod 600 (or 640) it"
+                ),
+            ));
+        }
+        let mut text = String::new();
+        std::fs::OpenOptions::new()
+            .read(true)
+            .custom_flags(libc::O_NONBLOCK)
+            .open(path)
+            .and_then(|f| f.take(MAX_TOKEN_FILE_BYTES + 1).read_to_string(&mut text))
+            .map_err(|e| self.error(key, format!("cannot read {shown}: {e}")))?;
+        if text.len() as u64 > MAX_TOKEN_FILE_BYTES {
+            return Err(self.error(
+                key,
+                format!(
+                    "{shown} is longer than {MAX_TOKEN_FILE_BYTES} bytes: a token is one short line"
+                ),
+            ));
+        }
+        Token::new(&text).ok_or_else(|| {
+            self.error(
+                key,
+                format!(
+                    "{shown} is empty: put the token in it (for example: openssl rand -hex 32)"
+                ),
+            )
         })
     }
 
@@ -1934,6 +2121,42 @@ fn read_capture_prefix(file: &Path) -> std::io::Result<Vec<u8>> {
 
 /// `$STATE_DIRECTORY` (systemd's `StateDirectory=`; the first if several),
 /// else `./state`.
+/// `outputs.max_subscribers` at most: far beyond any descriptor limit a
+/// service gets by default; the start checks the real limit.
+const MAX_SUBSCRIBERS_LIMIT: u64 = 100_000;
+/// A token file's size at most: a token is one short line.
+const MAX_TOKEN_FILE_BYTES: u64 = 4096;
+/// Bytes of a group entry's buffer at most (getgrnam_r): groups with
+/// thousands of members need more than the suggested size.
+const MAX_GROUP_BUFFER: usize = 1 << 20;
+
+/// The id of the group named `name`, via getgrnam_r.
+fn group_id(name: &str) -> Option<u32> {
+    let name = std::ffi::CString::new(name).ok()?;
+    let mut size = 4096usize;
+    loop {
+        let mut buf = vec![0 as libc::c_char; size];
+        // SAFETY: an all-zero `group` is a valid value to be overwritten.
+        let mut group: libc::group = unsafe { std::mem::zeroed() };
+        let mut result: *mut libc::group = std::ptr::null_mut();
+        // SAFETY: every pointer is to live memory of the size given.
+        let rc = unsafe {
+            libc::getgrnam_r(
+                name.as_ptr(),
+                &mut group,
+                buf.as_mut_ptr(),
+                buf.len(),
+                &mut result,
+            )
+        };
+        if rc == libc::ERANGE && size < MAX_GROUP_BUFFER {
+            size *= 2;
+            continue;
+        }
+        return (rc == 0 && !result.is_null()).then_some(group.gr_gid);
+    }
+}
+
 fn default_state_dir() -> PathBuf {
     std::env::var_os("STATE_DIRECTORY")
         .and_then(|v| {

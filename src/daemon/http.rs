@@ -16,11 +16,16 @@
 //!   page in a `{"class":"SUBSCRIBER","id":..,"dropped":..}` line), never
 //!   slows the daemon. It starts with the current state: each sensor's last
 //!   accepted and last CALIBRATION, the latest readings, the last STATUS.
+//!   At `[outputs] max_subscribers` an event stream is refused with 503.
 //! - `POST /api/recalibrate`: body empty (every sensor) or
-//!   `{"sensor":"NAME"}`. The same command a TCP client sends; answers 200
-//!   with the daemon's STATUS reply, 400 for a bad body, 404 for an unknown
-//!   sensor, 503 when the daemon takes no commands, 504 when it did not
-//!   answer in time.
+//!   `{"sensor":"NAME"}`, with `"token":"..."` where `[outputs] token_file`
+//!   is set. The same command a TCP client sends; answers 200 with the
+//!   daemon's STATUS reply, 400 for a bad body, 403 when the live page may
+//!   not recalibrate (`"http"` not in `[outputs] recalibrate_from` and no
+//!   matching token), 404 for an unknown sensor, 503 when the daemon takes
+//!   no commands, 504 when it did not answer in time. `/api/config` says
+//!   whether the button works (`"recalibrate": {"allowed", "token",
+//!   "reason"}`), and the page disables it with the reason otherwise.
 
 use std::convert::Infallible;
 use std::net::SocketAddr;
@@ -38,7 +43,9 @@ use serde_json::{Value, json};
 use tokio::sync::{mpsc, watch};
 
 use super::config::Config;
-use super::publish::{ClientCommand, Hub, MAX_COMMAND_LEN, ReplyTo};
+use super::publish::{
+    Access, ClientCommand, Hub, MAX_COMMAND_LEN, Origin, ReplyTo, SubscribeError,
+};
 use crate::model::effects::{model_name, parse_list};
 
 /// The page: HTML, CSS and script in one file, drawn by hand on a canvas.
@@ -65,6 +72,7 @@ struct App {
     hub: Hub,
     commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
     config_json: Arc<str>,
+    access: Access,
 }
 
 /// What `/api/config` serves: the sensors with the limits their fits are
@@ -86,7 +94,24 @@ pub fn page_config(config: &Config) -> Value {
             })
         })
         .collect();
-    json!({ "sensors": sensors, "max_points": PAGE_POINTS })
+    let access = &config.outputs.access;
+    let allowed = access.allows(Origin::Http);
+    let token = !allowed && access.token.is_some();
+    let reason = (!allowed).then(|| {
+        if token {
+            "the live page needs the token of [outputs] token_file to recalibrate".to_owned()
+        } else {
+            access
+                .check_recalibrate(Origin::Http, None)
+                .err()
+                .unwrap_or_default()
+        }
+    });
+    json!({
+        "sensors": sensors,
+        "max_points": PAGE_POINTS,
+        "recalibrate": { "allowed": allowed, "token": token, "reason": reason },
+    })
 }
 
 /// The page's routes, served by [`serve`]. `commands` is the daemon's
@@ -100,6 +125,7 @@ pub fn router(
         hub,
         commands,
         config_json: Arc::from(page_config(config).to_string()),
+        access: config.outputs.access.clone(),
     };
     Router::new()
         .route("/", get(page))
@@ -156,11 +182,14 @@ async fn not_found() -> Response {
 }
 
 async fn events(State(app): State<App>, ConnectInfo(peer): ConnectInfo<SocketAddr>) -> Response {
-    let Some(sub) = app.hub.subscribe(format!("http {peer}"), true) else {
-        return error(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "the daemon is shutting down",
-        );
+    let sub = match app
+        .hub
+        .try_subscribe(format!("http {peer}"), Origin::Http, true)
+    {
+        Ok(sub) => sub,
+        Err(e @ (SubscribeError::Closed | SubscribeError::Full { .. })) => {
+            return error(StatusCode::SERVICE_UNAVAILABLE, &e.to_string());
+        }
     };
     tracing::debug!(id = sub.id(), %peer, "live page connected");
     let stream = futures_util::stream::unfold((sub, 0u64), |(mut sub, told)| async move {
@@ -193,27 +222,41 @@ async fn events(State(app): State<App>, ConnectInfo(peer): ConnectInfo<SocketAdd
 }
 
 /// Why a recalibrate body was refused.
+#[cfg(test)]
 fn parse_recalibrate(body: &[u8]) -> Result<Option<String>, String> {
-    const ALLOWED: &str = r#"send no body to recalibrate every sensor, or {"sensor":"NAME"}"#;
+    parse_recalibrate_body(body).map(|(sensor, _)| sensor)
+}
+
+/// The sensor and the token of a recalibrate body.
+fn parse_recalibrate_body(body: &[u8]) -> Result<(Option<String>, Option<String>), String> {
+    const ALLOWED: &str = r#"send no body to recalibrate every sensor, or {"sensor":"NAME"} (with "token":"..." where one is configured)"#;
     if body.len() > MAX_COMMAND_LEN {
         return Err(format!(
             "the body is longer than {MAX_COMMAND_LEN} bytes; {ALLOWED}"
         ));
     }
     if body.iter().all(u8::is_ascii_whitespace) {
-        return Ok(None);
+        return Ok((None, None));
     }
     let value: Value = serde_json::from_slice(body)
         .map_err(|e| format!("the body is not JSON ({e}); {ALLOWED}"))?;
     let Value::Object(map) = value else {
         return Err(format!("the body is not a JSON object; {ALLOWED}"));
     };
-    if let Some(key) = map.keys().find(|k| k.as_str() != "sensor") {
+    if let Some(key) = map
+        .keys()
+        .find(|k| !["sensor", "token"].contains(&k.as_str()))
+    {
         return Err(format!("unknown field {key:?}; {ALLOWED}"));
     }
+    let token = match map.get("token") {
+        None => None,
+        Some(Value::String(t)) => Some(t.clone()),
+        Some(_) => return Err(format!("\"token\" must be a string; {ALLOWED}")),
+    };
     match map.get("sensor") {
-        None => Ok(None),
-        Some(Value::String(s)) if !s.is_empty() => Ok(Some(s.clone())),
+        None => Ok((None, token)),
+        Some(Value::String(s)) if !s.is_empty() => Ok((Some(s.clone()), token)),
         Some(_) => Err(format!(
             "\"sensor\" must be a non-empty string naming a configured sensor; {ALLOWED}"
         )),
@@ -221,10 +264,13 @@ fn parse_recalibrate(body: &[u8]) -> Result<Option<String>, String> {
 }
 
 async fn recalibrate(State(app): State<App>, body: Bytes) -> Response {
-    let sensor = match parse_recalibrate(&body) {
-        Ok(sensor) => sensor,
+    let (sensor, token) = match parse_recalibrate_body(&body) {
+        Ok(parsed) => parsed,
         Err(message) => return error(StatusCode::BAD_REQUEST, &message),
     };
+    if let Err(message) = app.access.check_recalibrate(Origin::Http, token.as_deref()) {
+        return error(StatusCode::FORBIDDEN, &message);
+    }
     let mut mailbox = app.hub.mailbox("http recalibrate".to_owned());
     let command = ClientCommand::Recalibrate {
         sensor: sensor.clone(),

@@ -36,11 +36,42 @@
 //! `"sensor":"name"`) or `{"command":"status"}`. They are forwarded with a
 //! [`ReplyTo`] for the answer; anything else gets an
 //! `{"class":"ERROR","message":...}` line back to that subscriber only.
+//! A command object with a key given twice is refused (naming the key):
+//! JSON parsers disagree on which one wins.
+//!
+//! # Limits and rights
+//! - At most [`Policy::max_subscribers`] subscribers (TCP, Unix socket and
+//!   the live page's event streams; stdout, the "writer", never counts). One
+//!   more gets a single ERROR line (an HTTP 503 for the live page) and is
+//!   closed. The daemon derives the default from its descriptor limit
+//!   ([`default_max_subscribers`]) so the ports and the state writer always
+//!   have descriptors left.
+//! - Accepts are paced by a token bucket ([`ACCEPT_RATE`]): beyond it the
+//!   listener stops accepting for a moment and the kernel's backlog holds
+//!   or refuses, so a connect/close flood cannot take a core.
+//! - Each subscriber's command lines (bad ones too) are paced by a token
+//!   bucket ([`COMMAND_RATE`]); over it the daemon simply stops reading that
+//!   connection (TCP backpressure) rather than answering each line.
+//! - `recalibrate` changes state: it is taken only from the listeners in
+//!   [`Access::recalibrate_from`], or with the [`Access::token`]; otherwise it
+//!   is answered with an ERROR naming what to configure. `status` is open.
+//!
+//! # stdout
+//! The writer ([`Hub::serve_writer`], stdout: under systemd the journal's
+//! stream) is never evicted. It may lose its oldest READINGs (counted, as
+//! any subscriber), and its control lines are coalesced instead of
+//! overflowing: a queued STATUS is replaced by the newer one; when the
+//! control queue is still full the oldest ERROR is dropped (counted in
+//! [`HubStats::coalesced`]); a CALIBRATION is never dropped. That keeps the
+//! queue bounded (its bound, one STATUS, and the CALIBRATIONs): CALIBRATION lines come a few per rotation per
+//! sensor (one when a rotation ends, one when it is loaded or restarted),
+//! so even a stdout stalled for hours holds a handful of them per sensor
+//! beyond the bound.
 
 use std::collections::VecDeque;
 use std::fmt;
 use std::future::Future;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard, Weak};
 use std::time::Duration;
 
@@ -68,7 +99,298 @@ const MAX_BATCH_BYTES: usize = 64 * 1024;
 /// does not spin.
 const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
 
-const ALLOWED: &str = r#"allowed: {"command":"recalibrate"} with an optional "sensor":"<name>", and {"command":"status"}, one JSON object a line"#;
+const ALLOWED: &str = r#"allowed: {"command":"recalibrate"} with an optional "sensor":"<name>" (and "token":"<token>" where one is configured), and {"command":"status"}, one JSON object a line"#;
+
+/// Commands a subscriber may send: 10 a second, in bursts of 20. A person
+/// at a terminal or a robot's supervisor sends a few a minute (a status
+/// poll, a recalibrate after a mount change); a status poll at 10 Hz is
+/// already more than any display needs. The bound keeps one client's flood
+/// to a few hundred microseconds of the daemon's loop a second.
+pub const COMMAND_RATE: Rate = Rate {
+    per_s: 10.0,
+    burst: 20.0,
+};
+/// Connections accepted per listener: 100 a second, in bursts of 64 (the
+/// default [`Policy::max_subscribers`], so a whole crowd reconnecting after
+/// a restart is taken at once). An accept, register and close costs tens
+/// of microseconds, so a connect/close flood costs the daemon well under a
+/// tenth of a core; the rest waits in (or is refused by) the kernel's
+/// backlog.
+pub const ACCEPT_RATE: Rate = Rate {
+    per_s: 100.0,
+    burst: 64.0,
+};
+/// The most subscribers the daemon allows by default, when the descriptor
+/// limit leaves room for more: gpsd's default is 64 clients as well
+/// (MAX_CLIENTS), and each one costs a queue of up to `queue` lines.
+pub const DEFAULT_MAX_SUBSCRIBERS: usize = 64;
+/// Descriptors kept for the daemon itself out of RLIMIT_NOFILE, never given
+/// to subscribers: stdin/stdout/stderr (3), the runtime's epoll and waker
+/// (2), the signal pipe (2), three listeners (3), the sources' ports or
+/// files (1 to 2 each, up to 8 sources: 12), the state writer (the
+/// temporary file, the directory it fsyncs, a stored file read at start:
+/// 3), the systemd notify socket (1), and 6 for the live page's short
+/// requests and a connection being refused.
+pub const RESERVED_DESCRIPTORS: u64 = 32;
+/// Above this many entries an idle lane gives its memory back.
+const SHRINK_LANE_ABOVE: usize = 256;
+/// Above this many bytes an idle writer's batch buffer is freed.
+const SHRINK_BUF_ABOVE: usize = 16 * 1024;
+/// How long a refused connection's one ERROR line may take to write: it
+/// goes into an empty socket buffer, so this only bounds a broken peer.
+const REFUSE_WRITE: Duration = Duration::from_millis(100);
+/// Free memory back to the system (malloc_trim) when the subscriber count
+/// falls to half its peak, once the peak was at least this.
+const TRIM_PEAK: usize = 8;
+
+/// A token bucket's rate: `per_s` tokens a second, holding at most `burst`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rate {
+    pub per_s: f64,
+    pub burst: f64,
+}
+
+/// A token bucket; `take` says how long to wait when it is empty.
+#[derive(Debug)]
+struct Bucket {
+    rate: Rate,
+    tokens: f64,
+    last: Instant,
+}
+
+impl Bucket {
+    fn new(rate: Rate) -> Bucket {
+        Bucket {
+            rate,
+            tokens: rate.burst.max(1.0),
+            last: Instant::now(),
+        }
+    }
+
+    /// Takes a token, or says how long until one is there.
+    fn take(&mut self, now: Instant) -> Option<Duration> {
+        let per_s = self.rate.per_s.max(1e-3);
+        let elapsed = now.saturating_duration_since(self.last).as_secs_f64();
+        self.last = now;
+        self.tokens = (self.tokens + elapsed * per_s).min(self.rate.burst.max(1.0));
+        if self.tokens >= 1.0 {
+            self.tokens -= 1.0;
+            None
+        } else {
+            Some(Duration::from_secs_f64((1.0 - self.tokens) / per_s))
+        }
+    }
+
+    /// Waits for a token.
+    async fn wait(&mut self) {
+        while let Some(wait) = self.take(Instant::now()) {
+            tokio::time::sleep(wait).await;
+        }
+    }
+}
+
+/// Which listener a subscriber came through; decides what it may do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Origin {
+    /// The Unix socket: who may connect is set by its mode and group.
+    Unix,
+    /// The TCP listener: any local user (or any host, with `tcp_public`).
+    Tcp,
+    /// The live page (its recalibrate button).
+    Http,
+}
+
+impl Origin {
+    pub const ALL: [Origin; 3] = [Origin::Unix, Origin::Tcp, Origin::Http];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Origin::Unix => "unix",
+            Origin::Tcp => "tcp",
+            Origin::Http => "http",
+        }
+    }
+}
+
+/// A secret read from `[outputs] token_file`. Compared in constant time;
+/// never printed.
+#[derive(Clone)]
+pub struct Token(Box<[u8]>);
+
+impl Token {
+    /// None for an empty token.
+    pub fn new(text: &str) -> Option<Token> {
+        let text = text.trim();
+        (!text.is_empty()).then(|| Token(text.as_bytes().into()))
+    }
+
+    /// Whether `given` is the token; the time taken depends only on the
+    /// lengths, not on where they differ.
+    pub fn matches(&self, given: &str) -> bool {
+        let given = given.as_bytes();
+        let mut diff = u8::from(given.len() != self.0.len());
+        for (i, &b) in self.0.iter().enumerate() {
+            diff |= b ^ given.get(i).copied().unwrap_or(!b);
+        }
+        std::hint::black_box(diff) == 0
+    }
+}
+
+impl fmt::Debug for Token {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("Token(<redacted>)")
+    }
+}
+
+impl PartialEq for Token {
+    fn eq(&self, other: &Token) -> bool {
+        std::str::from_utf8(&other.0).is_ok_and(|o| self.matches(o))
+    }
+}
+
+/// Who may change the daemon's state (`recalibrate`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Access {
+    /// Listeners whose subscribers may recalibrate.
+    pub recalibrate_from: Vec<Origin>,
+    /// With it, a command carrying `"token"` may recalibrate from any listener.
+    pub token: Option<Token>,
+}
+
+impl Default for Access {
+    /// The daemon's default: the Unix socket only, no token.
+    fn default() -> Access {
+        Access {
+            recalibrate_from: vec![Origin::Unix],
+            token: None,
+        }
+    }
+}
+
+impl Access {
+    /// Every listener may recalibrate (a hub used as a library, tests).
+    pub fn everyone() -> Access {
+        Access {
+            recalibrate_from: Origin::ALL.to_vec(),
+            token: None,
+        }
+    }
+
+    /// Whether a subscriber from `origin` may recalibrate without a token.
+    pub fn allows(&self, origin: Origin) -> bool {
+        self.recalibrate_from.contains(&origin)
+    }
+
+    /// Ok when a recalibrate from `origin` carrying `token` is allowed; else
+    /// the ERROR message, naming what to configure.
+    pub fn check_recalibrate(&self, origin: Origin, token: Option<&str>) -> Result<(), String> {
+        if self.allows(origin) {
+            return Ok(());
+        }
+        match (&self.token, token) {
+            (Some(ours), Some(given)) if ours.matches(given) => Ok(()),
+            (Some(_), Some(_)) => Err(format!(
+                "recalibrate refused: the \"token\" does not match [outputs] token_file (recalibrate from {o} needs the token, or \"{o}\" in [outputs] recalibrate_from)",
+                o = origin.name()
+            )),
+            (Some(_), None) => Err(format!(
+                "recalibrate refused from {o}: send \"token\" with the content of [outputs] token_file, or add \"{o}\" to [outputs] recalibrate_from (now {from})",
+                o = origin.name(),
+                from = self.listed()
+            )),
+            (None, _) => Err(format!(
+                "recalibrate refused from {o}: it is allowed from {from} ([outputs] recalibrate_from); add \"{o}\" there, or set [outputs] token_file and send \"token\"",
+                o = origin.name(),
+                from = self.listed()
+            )),
+        }
+    }
+
+    fn listed(&self) -> String {
+        let names: Vec<String> = self
+            .recalibrate_from
+            .iter()
+            .map(|o| format!("\"{}\"", o.name()))
+            .collect();
+        format!("[{}]", names.join(","))
+    }
+}
+
+/// The hub's limits and rights.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Policy {
+    /// Subscribers at once (the writer not counted).
+    pub max_subscribers: usize,
+    /// Each subscriber's command budget.
+    pub commands: Rate,
+    /// Each listener's accept budget.
+    pub accepts: Rate,
+    pub access: Access,
+}
+
+impl Default for Policy {
+    /// No subscriber limit, the rates above, everyone may recalibrate: the
+    /// hub of [`Hub::new`]. The daemon builds its own from the configuration.
+    fn default() -> Policy {
+        Policy {
+            max_subscribers: usize::MAX,
+            commands: COMMAND_RATE,
+            accepts: ACCEPT_RATE,
+            access: Access::everyone(),
+        }
+    }
+}
+
+/// The soft RLIMIT_NOFILE, if it can be read.
+pub fn descriptor_limit() -> Option<u64> {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes one rlimit into the struct it is given.
+    let ok = unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) } == 0;
+    ok.then_some(limit.rlim_cur)
+}
+
+/// The default maximum of subscribers: [`DEFAULT_MAX_SUBSCRIBERS`], fewer
+/// when the descriptor limit `nofile` leaves less than that beyond
+/// [`RESERVED_DESCRIPTORS`] (one descriptor a subscriber).
+pub fn default_max_subscribers(nofile: Option<u64>) -> usize {
+    match nofile {
+        None => DEFAULT_MAX_SUBSCRIBERS,
+        Some(n) => usize::try_from(n.saturating_sub(RESERVED_DESCRIPTORS))
+            .unwrap_or(usize::MAX)
+            .min(DEFAULT_MAX_SUBSCRIBERS),
+    }
+}
+
+/// Checks a configured maximum against the descriptor limit: it must leave
+/// [`RESERVED_DESCRIPTORS`]. The error names the key and what to do.
+pub fn check_max_subscribers(configured: usize, nofile: Option<u64>) -> Result<usize, String> {
+    let Some(n) = nofile else {
+        return Ok(configured);
+    };
+    let room = n.saturating_sub(RESERVED_DESCRIPTORS);
+    if u64::try_from(configured).unwrap_or(u64::MAX) > room {
+        return Err(format!(
+            "[outputs] max_subscribers = {configured} leaves fewer than {RESERVED_DESCRIPTORS} of \
+             the {n} descriptors this process may open (RLIMIT_NOFILE) for its ports and state \
+             files: set it to at most {room}, or raise the limit (LimitNOFILE= in the unit, \
+             ulimit -n)"
+        ));
+    }
+    Ok(configured)
+}
+
+/// Gives freed memory back to the system (glibc keeps it otherwise).
+fn release_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only walks the allocator's own free lists.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
 
 /// Which lane a line travels in; decides what may be dropped for slowness.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -101,6 +423,12 @@ pub struct HubStats {
     pub published: u64,
     /// Subscribers disconnected because their control queue overflowed.
     pub evicted: u64,
+    /// Control lines the writer (stdout) did not get because it was slow:
+    /// an unsent STATUS replaced by a newer one, or an ERROR (or STATUS)
+    /// dropped from a full control queue.
+    pub coalesced: u64,
+    /// Connections refused because [`Policy::max_subscribers`] were connected.
+    pub refused: u64,
 }
 
 /// One subscriber's state, for STATUS replies and diagnostics.
@@ -138,20 +466,102 @@ pub enum CommandError {
     UnknownField { command: String, field: String },
     #[error("\"sensor\" must be a non-empty string naming a configured sensor; {allowed}", allowed = ALLOWED)]
     BadSensor,
+    #[error("\"token\" must be a string; {allowed}", allowed = ALLOWED)]
+    BadToken,
+    /// Not allowed from this subscriber; the message says what to configure.
+    #[error("{0}")]
+    Refused(String),
+    #[error("key {0:?} is given twice in the command object; give each key once; {allowed}", allowed = ALLOWED)]
+    DuplicateKey(String),
+}
+
+/// A parsed command line: the command and the token it carried, if any.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Request {
+    pub command: ClientCommand,
+    pub token: Option<String>,
+}
+
+/// A top-level JSON value, objects kept as their entries in order, so a
+/// key given twice can be told (serde_json's `Value` keeps the last).
+enum TopLevel {
+    Object(Vec<(String, Value)>),
+    Other(&'static str),
+}
+
+impl<'de> serde::Deserialize<'de> for TopLevel {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<TopLevel, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = TopLevel;
+            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str("a JSON value")
+            }
+            fn visit_bool<E>(self, _: bool) -> Result<TopLevel, E> {
+                Ok(TopLevel::Other("boolean"))
+            }
+            fn visit_i64<E>(self, _: i64) -> Result<TopLevel, E> {
+                Ok(TopLevel::Other("number"))
+            }
+            fn visit_u64<E>(self, _: u64) -> Result<TopLevel, E> {
+                Ok(TopLevel::Other("number"))
+            }
+            fn visit_f64<E>(self, _: f64) -> Result<TopLevel, E> {
+                Ok(TopLevel::Other("number"))
+            }
+            fn visit_str<E>(self, _: &str) -> Result<TopLevel, E> {
+                Ok(TopLevel::Other("string"))
+            }
+            fn visit_unit<E>(self) -> Result<TopLevel, E> {
+                Ok(TopLevel::Other("null"))
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> Result<TopLevel, A::Error> {
+                while seq.next_element::<serde::de::IgnoredAny>()?.is_some() {}
+                Ok(TopLevel::Other("array"))
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<TopLevel, A::Error> {
+                let mut entries = Vec::new();
+                while let Some((k, v)) = map.next_entry::<String, Value>()? {
+                    entries.push((k, v));
+                }
+                Ok(TopLevel::Object(entries))
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
 }
 
 /// Parses one command line (without its newline).
 pub fn parse_command(line: &[u8]) -> Result<ClientCommand, CommandError> {
+    parse_request(line).map(|r| r.command)
+}
+
+/// Parses one command line (without its newline), with its `"token"`.
+pub fn parse_request(line: &[u8]) -> Result<Request, CommandError> {
     let text = std::str::from_utf8(line).map_err(|_| CommandError::NotUtf8)?;
-    let value: Value =
+    let top: TopLevel =
         serde_json::from_str(text).map_err(|e| CommandError::NotJson(e.to_string()))?;
-    let map = match value {
-        Value::Object(map) => map,
-        Value::Null => return Err(CommandError::NotObject("null")),
-        Value::Bool(_) => return Err(CommandError::NotObject("boolean")),
-        Value::Number(_) => return Err(CommandError::NotObject("number")),
-        Value::String(_) => return Err(CommandError::NotObject("string")),
-        Value::Array(_) => return Err(CommandError::NotObject("array")),
+    let entries = match top {
+        TopLevel::Object(entries) => entries,
+        TopLevel::Other(kind) => return Err(CommandError::NotObject(kind)),
+    };
+    let mut map = serde_json::Map::new();
+    for (key, value) in entries {
+        if map.contains_key(&key) {
+            return Err(CommandError::DuplicateKey(key));
+        }
+        map.insert(key, value);
+    }
+    let token = match map.get("token") {
+        None => None,
+        Some(Value::String(t)) => Some(t.clone()),
+        Some(_) => return Err(CommandError::BadToken),
     };
     let command = match map.get("command") {
         None => return Err(CommandError::MissingCommand),
@@ -159,8 +569,8 @@ pub fn parse_command(line: &[u8]) -> Result<ClientCommand, CommandError> {
         Some(_) => return Err(CommandError::CommandNotString),
     };
     let fields: &[&str] = match command {
-        "recalibrate" => &["command", "sensor"],
-        "status" => &["command"],
+        "recalibrate" => &["command", "sensor", "token"],
+        "status" => &["command", "token"],
         other => return Err(CommandError::UnknownCommand(other.to_owned())),
     };
     if let Some(field) = map.keys().find(|k| !fields.contains(&k.as_str())) {
@@ -170,14 +580,20 @@ pub fn parse_command(line: &[u8]) -> Result<ClientCommand, CommandError> {
         });
     }
     if command == "status" {
-        return Ok(ClientCommand::Status);
+        return Ok(Request {
+            command: ClientCommand::Status,
+            token,
+        });
     }
     let sensor = match map.get("sensor") {
         None => None,
         Some(Value::String(s)) if !s.is_empty() => Some(s.clone()),
         Some(_) => return Err(CommandError::BadSensor),
     };
-    Ok(ClientCommand::Recalibrate { sensor })
+    Ok(Request {
+        command: ClientCommand::Recalibrate { sensor },
+        token,
+    })
 }
 
 /// An `{"class":"ERROR","message":...}` line, for replies.
@@ -207,6 +623,22 @@ impl ReplyTo {
     pub fn send(&self, line: Arc<str>) {
         if let Some(sub) = self.sub.upgrade() {
             sub.push(Lane::Control, line);
+        }
+    }
+
+    /// Queues a STATUS reply (`status`, a JSON object) with the asking
+    /// subscriber's own accounting added as `"subscriber"`: `{"id", "peer",
+    /// "readings"` (READING lines given to its queue since it connected,
+    /// dropped ones included), `"dropped"` (READING lines dropped for it),
+    /// `"queued"` (READING lines in its queue ahead of this reply)`}`,
+    /// snapshotted under the queue's lock as the reply is queued. The
+    /// readings queued ahead of a reply are never dropped, so the READING
+    /// lines the subscriber receives before this reply are exactly
+    /// `readings - dropped`.
+    pub fn send_status(&self, status: &str) {
+        if let Some(sub) = self.sub.upgrade() {
+            let pushed = sub.queue().push_status_reply(status, sub.id, &sub.peer);
+            sub.pushed(pushed);
         }
     }
 
@@ -240,6 +672,9 @@ pub struct Hub {
 struct Inner {
     reading_cap: usize,
     control_cap: usize,
+    policy: Policy,
+    /// The most subscribers since memory was last given back.
+    peak: AtomicUsize,
     subscribers: RwLock<Vec<Arc<Subscriber>>>,
     counters: Arc<Counters>,
     next_id: AtomicU64,
@@ -258,6 +693,8 @@ struct Counters {
     published: AtomicU64,
     dropped: AtomicU64,
     evicted: AtomicU64,
+    coalesced: AtomicU64,
+    refused: AtomicU64,
 }
 
 impl fmt::Debug for Hub {
@@ -275,10 +712,17 @@ impl Hub {
 
     /// Like [`Hub::new`] with the control queue's bound chosen too (at least 1).
     pub fn with_control_len(queue_len: usize, control_len: usize) -> Hub {
+        Hub::with_policy(queue_len, control_len, Policy::default())
+    }
+
+    /// A hub with limits and rights ([`Policy`]); the daemon's.
+    pub fn with_policy(queue_len: usize, control_len: usize, policy: Policy) -> Hub {
         Hub {
             inner: Arc::new(Inner {
                 reading_cap: queue_len.max(1),
                 control_cap: control_len.max(1),
+                policy,
+                peak: AtomicUsize::new(0),
                 subscribers: RwLock::new(Vec::new()),
                 counters: Arc::default(),
                 next_id: AtomicU64::new(1),
@@ -314,7 +758,19 @@ impl Hub {
             dropped: c.dropped.load(Ordering::Relaxed),
             published: c.published.load(Ordering::Relaxed),
             evicted: c.evicted.load(Ordering::Relaxed),
+            coalesced: c.coalesced.load(Ordering::Relaxed),
+            refused: c.refused.load(Ordering::Relaxed),
         }
+    }
+
+    /// The limits and rights the hub applies.
+    pub fn policy(&self) -> &Policy {
+        &self.inner.policy
+    }
+
+    /// Whether [`Policy::max_subscribers`] are connected now.
+    pub fn is_full(&self) -> bool {
+        counted(&self.inner.read_subs()) >= self.inner.policy.max_subscribers
     }
 
     /// Every subscriber connected now (the hub's internal list).
@@ -346,16 +802,41 @@ impl Hub {
     ) where
         S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
-        let Some(reg) = self.register(peer) else {
-            tracing::debug!("subscriber refused: the hub is closed");
-            return;
+        self.serve_connection_from(stream, peer, Origin::Tcp, commands)
+            .await;
+    }
+
+    /// [`Hub::serve_connection`] for a subscriber that came through
+    /// `origin`, which decides what it may do. At
+    /// [`Policy::max_subscribers`] it is sent one ERROR line and closed.
+    pub async fn serve_connection_from<S>(
+        &self,
+        mut stream: S,
+        peer: String,
+        origin: Origin,
+        commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
+    ) where
+        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+    {
+        let reg = match self.register(peer, Some(origin)) {
+            Ok(reg) => reg,
+            Err(SubscribeError::Closed) => {
+                tracing::debug!("subscriber refused: the hub is closed");
+                return;
+            }
+            Err(e @ SubscribeError::Full { .. }) => {
+                refuse(&mut stream, &e).await;
+                return;
+            }
         };
         let sub = &reg.sub;
         tracing::debug!(id = sub.id, peer = %sub.peer, "subscriber connected");
         let (mut rd, mut wr) = tokio::io::split(stream);
+        let mut bucket = Bucket::new(self.inner.policy.commands);
+        let access = &self.inner.policy.access;
         let end = tokio::select! {
             end = write_loop(sub, &mut wr) => end,
-            end = read_loop(sub, &mut rd, &commands) => end,
+            end = read_loop(sub, &mut rd, &commands, origin, access, &mut bucket) => end,
         };
         log_end(sub, end);
     }
@@ -374,7 +855,8 @@ impl Hub {
             let _ = stream.set_nodelay(true);
             Ok((stream, addr.to_string()))
         };
-        self.accept_loop("TCP", accept, commands, shutdown).await;
+        self.accept_loop(Origin::Tcp, accept, commands, shutdown)
+            .await;
     }
 
     /// Accepts Unix-socket subscribers until `shutdown` turns true, like
@@ -389,7 +871,7 @@ impl Hub {
             let (stream, _addr) = listener.accept().await?;
             Ok((stream, "unix".to_owned()))
         };
-        self.accept_loop("Unix-socket", accept, commands, shutdown)
+        self.accept_loop(Origin::Unix, accept, commands, shutdown)
             .await;
     }
 
@@ -398,7 +880,7 @@ impl Hub {
     /// pause instead of spinning.
     async fn accept_loop<S, F, Fut>(
         &self,
-        kind: &str,
+        origin: Origin,
         mut accept: F,
         commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
         mut shutdown: watch::Receiver<bool>,
@@ -407,17 +889,40 @@ impl Hub {
         F: FnMut() -> Fut,
         Fut: Future<Output = std::io::Result<(S, String)>>,
     {
+        let kind = match origin {
+            Origin::Tcp => "TCP",
+            Origin::Unix => "Unix-socket",
+            Origin::Http => "HTTP",
+        };
+        let mut bucket = Bucket::new(self.inner.policy.accepts);
         loop {
+            // Over the accept budget, stop accepting for a moment: the
+            // kernel's backlog holds (or refuses) the rest.
+            if let Some(wait) = bucket.take(Instant::now()) {
+                tokio::select! {
+                    () = tokio::time::sleep(wait) => continue,
+                    () = turned_true(&mut shutdown) => break,
+                }
+            }
             let accepted = tokio::select! {
                 accepted = accept() => accepted,
                 () = turned_true(&mut shutdown) => break,
             };
             match accepted {
-                Ok((stream, peer)) => {
+                Ok((mut stream, peer)) => {
+                    // Refused here, not in a task: a refused connection
+                    // holds its descriptor only for this one write.
+                    if self.is_full() {
+                        let max = self.inner.policy.max_subscribers;
+                        refuse(&mut stream, &SubscribeError::Full { max }).await;
+                        self.inner.counters.refused.fetch_add(1, Ordering::Relaxed);
+                        continue;
+                    }
                     let hub = self.clone();
                     let commands = commands.clone();
                     tokio::spawn(async move {
-                        hub.serve_connection(stream, peer, commands).await;
+                        hub.serve_connection_from(stream, peer, origin, commands)
+                            .await;
                     });
                 }
                 Err(e) => {
@@ -441,9 +946,9 @@ impl Hub {
     {
         // Registered now, not when the future first runs: lines published
         // between spawning the writer and its first poll reach it too.
-        let reg = self.register("writer".to_owned());
+        let reg = self.register("writer".to_owned(), None);
         async move {
-            let Some(reg) = reg else {
+            let Ok(reg) = reg else {
                 return;
             };
             let sub = &reg.sub;
@@ -491,25 +996,39 @@ impl Hub {
         }
     }
 
-    fn register(&self, peer: String) -> Option<Registration> {
+    /// Adds a subscriber; `origin` None for the writer, which is never
+    /// refused for the limit nor evicted.
+    fn register(
+        &self,
+        peer: String,
+        origin: Option<Origin>,
+    ) -> Result<Registration, SubscribeError> {
         let mut subs = self.inner.write_subs();
-        if self.inner.closed.load(Ordering::SeqCst) {
-            return None;
-        }
-        let (deadline, _) = watch::channel(None);
-        let sub = Arc::new(Subscriber {
-            id: self.inner.next_id.fetch_add(1, Ordering::Relaxed),
-            peer,
-            queue: Mutex::new(Queue::new(self.inner.reading_cap, self.inner.control_cap)),
-            wake: Notify::new(),
-            deadline,
-            counters: Arc::clone(&self.inner.counters),
-        });
+        self.admit(&subs, origin)?;
+        let sub = Arc::new(self.new_subscriber(peer, origin));
         subs.push(Arc::clone(&sub));
-        Some(Registration {
+        self.inner.peak.fetch_max(subs.len(), Ordering::Relaxed);
+        Ok(Registration {
             hub: self.clone(),
             sub,
         })
+    }
+
+    /// Whether one more subscriber from `origin` may join `subs`.
+    fn admit(
+        &self,
+        subs: &[Arc<Subscriber>],
+        origin: Option<Origin>,
+    ) -> Result<(), SubscribeError> {
+        if self.inner.closed.load(Ordering::SeqCst) {
+            return Err(SubscribeError::Closed);
+        }
+        let max = self.inner.policy.max_subscribers;
+        if origin.is_some() && counted(subs) >= max {
+            self.inner.counters.refused.fetch_add(1, Ordering::Relaxed);
+            return Err(SubscribeError::Full { max });
+        }
+        Ok(())
     }
 }
 
@@ -658,6 +1177,9 @@ impl Subscription {
                     taken += 1;
                 }
                 if taken > 0 && q.state != QueueState::Evicted {
+                    if q.len() == 0 {
+                        q.shrink_idle();
+                    }
                     return true;
                 }
                 q.state
@@ -705,17 +1227,28 @@ impl Hub {
     /// registration: no line is missed or given twice. None once the hub is
     /// closed.
     pub fn subscribe(&self, peer: String, replay: bool) -> Option<Subscription> {
+        self.try_subscribe(peer, Origin::Http, replay).ok()
+    }
+
+    /// [`Hub::subscribe`] for a subscriber from `origin`, saying why it was
+    /// refused: the hub is closed, or [`Policy::max_subscribers`] are
+    /// connected.
+    pub fn try_subscribe(
+        &self,
+        peer: String,
+        origin: Origin,
+        replay: bool,
+    ) -> Result<Subscription, SubscribeError> {
         let mut subs = self.inner.write_subs();
-        if self.inner.closed.load(Ordering::SeqCst) {
-            return None;
-        }
-        let sub = Arc::new(self.new_subscriber(peer));
+        self.admit(&subs, Some(origin))?;
+        let sub = Arc::new(self.new_subscriber(peer, Some(origin)));
         if replay && let Some(retained) = self.inner.retained.get() {
             lock(retained).replay_into(&mut sub.queue());
         }
         subs.push(Arc::clone(&sub));
+        self.inner.peak.fetch_max(subs.len(), Ordering::Relaxed);
         drop(subs);
-        Some(Subscription {
+        Ok(Subscription {
             sub: Arc::clone(&sub),
             _registration: Some(Registration {
                 hub: self.clone(),
@@ -730,17 +1263,21 @@ impl Hub {
     /// subscriber.
     pub fn mailbox(&self, peer: String) -> Subscription {
         Subscription {
-            sub: Arc::new(self.new_subscriber(peer)),
+            sub: Arc::new(self.new_subscriber(peer, Some(Origin::Http))),
             _registration: None,
         }
     }
 
-    fn new_subscriber(&self, peer: String) -> Subscriber {
+    fn new_subscriber(&self, peer: String, origin: Option<Origin>) -> Subscriber {
         let (deadline, _) = watch::channel(None);
+        let mut queue = Queue::new(self.inner.reading_cap, self.inner.control_cap);
+        // The writer (stdout) is never evicted: its control lines coalesce.
+        queue.coalesce = origin.is_none();
         Subscriber {
             id: self.inner.next_id.fetch_add(1, Ordering::Relaxed),
             peer,
-            queue: Mutex::new(Queue::new(self.inner.reading_cap, self.inner.control_cap)),
+            origin,
+            queue: Mutex::new(queue),
             wake: Notify::new(),
             deadline,
             counters: Arc::clone(&self.inner.counters),
@@ -771,19 +1308,65 @@ struct Registration {
 
 impl Drop for Registration {
     fn drop(&mut self) {
-        {
+        let left = {
             let mut subs = self.hub.inner.write_subs();
             if let Some(i) = subs.iter().position(|s| s.id == self.sub.id) {
                 subs.swap_remove(i);
             }
-        }
+            subs.len()
+        };
         self.hub.inner.removed.notify_waiters();
+        // A crowd left: give its queues' memory back to the system, at most
+        // log2(peak) times while it leaves.
+        let peak = self.hub.inner.peak.load(Ordering::Relaxed);
+        if peak >= TRIM_PEAK
+            && left <= peak / 2
+            && self
+                .hub
+                .inner
+                .peak
+                .compare_exchange(peak, left, Ordering::Relaxed, Ordering::Relaxed)
+                .is_ok()
+        {
+            release_memory();
+        }
     }
+}
+
+/// Why a subscriber was not taken.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SubscribeError {
+    #[error("the daemon is shutting down")]
+    Closed,
+    #[error(
+        "too many subscribers ({max}, [outputs] max_subscribers); try again later, or raise \
+         [outputs] max_subscribers (and the descriptor limit, LimitNOFILE=)"
+    )]
+    Full { max: usize },
+}
+
+/// Subscribers that count against [`Policy::max_subscribers`]: all but the writer.
+fn counted(subs: &[Arc<Subscriber>]) -> usize {
+    subs.iter().filter(|s| s.origin.is_some()).count()
+}
+
+/// Sends a refused connection its one ERROR line and closes it.
+async fn refuse<S: AsyncWrite + Unpin>(stream: &mut S, why: &SubscribeError) {
+    tracing::debug!(%why, "subscriber refused");
+    let mut line = error_line(&why.to_string()).to_string();
+    line.push('\n');
+    let _ = tokio::time::timeout(REFUSE_WRITE, async {
+        stream.write_all(line.as_bytes()).await?;
+        stream.shutdown().await
+    })
+    .await;
 }
 
 struct Subscriber {
     id: u64,
     peer: String,
+    /// None for the writer (stdout).
+    origin: Option<Origin>,
     queue: Mutex<Queue>,
     /// Wakes the writer: a line was queued, or the queue was closed.
     wake: Notify,
@@ -800,8 +1383,17 @@ impl Subscriber {
 
     fn push(&self, lane: Lane, line: Arc<str>) {
         let pushed = self.queue().push(lane, line);
+        self.pushed(pushed);
+    }
+
+    /// Counts, logs and wakes the writer after a push.
+    fn pushed(&self, pushed: Pushed) {
         match pushed {
             Pushed::Queued => self.wake.notify_one(),
+            Pushed::Coalesced(n) => {
+                self.counters.coalesced.fetch_add(n, Ordering::Relaxed);
+                self.wake.notify_one();
+            }
             Pushed::DroppedOldest => {
                 self.counters.dropped.fetch_add(1, Ordering::Relaxed);
                 self.wake.notify_one();
@@ -843,6 +1435,9 @@ enum QueueState {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Pushed {
     Queued,
+    /// Queued after this many older control lines were let go (the writer
+    /// only), or this line itself was (then nothing new is queued).
+    Coalesced(u64),
     DroppedOldest,
     /// The control lane was full: the queue is now evicted.
     Overflowed,
@@ -860,7 +1455,37 @@ struct Queue {
     /// Orders lines across the two lanes.
     next_seq: u64,
     dropped: u64,
+    /// READING lines given to this queue, dropped ones included.
+    readings_in: u64,
+    /// The place of the latest STATUS reply not yet taken: readings before
+    /// it are not dropped, so its accounting holds exactly.
+    fence: Option<u64>,
+    /// Control lines coalesce instead of overflowing (the writer).
+    coalesce: bool,
     state: QueueState,
+}
+
+/// The class of a control line, as far as coalescing cares.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Class {
+    Calibration,
+    Status,
+    /// ERROR, or anything else: may be let go for a slow writer.
+    Other,
+}
+
+fn class_of(line: &str) -> Class {
+    // The daemon writes "class" first; anything else is parsed.
+    let class = if let Some(rest) = line.strip_prefix(r#"{"class":""#) {
+        rest.split('"').next().map(str::to_owned)
+    } else {
+        serde_json::from_str::<LineHead>(line).ok().map(|h| h.class)
+    };
+    match class.as_deref() {
+        Some("CALIBRATION") => Class::Calibration,
+        Some("STATUS") => Class::Status,
+        _ => Class::Other,
+    }
 }
 
 impl Queue {
@@ -872,6 +1497,9 @@ impl Queue {
             control_cap: control_cap.max(1),
             next_seq: 0,
             dropped: 0,
+            readings_in: 0,
+            fence: None,
+            coalesce: false,
             state: QueueState::Open,
         }
     }
@@ -884,18 +1512,31 @@ impl Queue {
         self.next_seq += 1;
         match lane {
             Lane::Reading => {
-                let full = self.readings.len() >= self.reading_cap;
-                if full {
-                    self.readings.pop_front();
-                    self.dropped += 1;
+                self.readings_in += 1;
+                if self.readings.len() < self.reading_cap {
+                    self.readings.push_back((seq, line));
+                    return Pushed::Queued;
                 }
-                self.readings.push_back((seq, line));
-                if full {
-                    Pushed::DroppedOldest
-                } else {
-                    Pushed::Queued
+                self.dropped += 1;
+                match self.fence {
+                    // The oldest readings are before a queued reply, whose
+                    // accounting counts them as delivered: drop the oldest
+                    // one after it, or this one.
+                    Some(fence) if self.readings.front().is_some_and(|(s, _)| *s < fence) => {
+                        let i = self.readings.partition_point(|(s, _)| *s < fence);
+                        if i < self.readings.len() {
+                            self.readings.remove(i);
+                            self.readings.push_back((seq, line));
+                        }
+                    }
+                    _ => {
+                        self.readings.pop_front();
+                        self.readings.push_back((seq, line));
+                    }
                 }
+                Pushed::DroppedOldest
             }
+            Lane::Control if self.coalesce => self.push_coalesced(seq, line),
             Lane::Control => {
                 if self.control.len() >= self.control_cap {
                     self.evict();
@@ -905,6 +1546,84 @@ impl Queue {
                     Pushed::Queued
                 }
             }
+        }
+    }
+
+    /// The writer's control lane: a newer STATUS replaces a queued one;
+    /// when full, the oldest ERROR goes (or this one, if it is an ERROR and
+    /// none is queued); a CALIBRATION, and the one STATUS, are always
+    /// queued, beyond the bound if need be (they are few: see the module).
+    fn push_coalesced(&mut self, seq: u64, line: Arc<str>) -> Pushed {
+        let class = class_of(&line);
+        let mut let_go = 0;
+        if class == Class::Status
+            && let Some(i) = self
+                .control
+                .iter()
+                .position(|(_, l)| class_of(l) == Class::Status)
+        {
+            self.control.remove(i);
+            let_go += 1;
+        }
+        if self.control.len() >= self.control_cap {
+            match self
+                .control
+                .iter()
+                .position(|(_, l)| class_of(l) == Class::Other)
+            {
+                Some(i) => {
+                    self.control.remove(i);
+                    let_go += 1;
+                }
+                None if class == Class::Other => return Pushed::Coalesced(let_go + 1),
+                // A STATUS (at most one is queued) or a CALIBRATION.
+                None => {}
+            }
+        }
+        self.control.push_back((seq, line));
+        if let_go > 0 {
+            Pushed::Coalesced(let_go)
+        } else {
+            Pushed::Queued
+        }
+    }
+
+    /// Queues a STATUS reply with this queue's accounting (see
+    /// [`ReplyTo::send_status`]) and fences the readings ahead of it.
+    fn push_status_reply(&mut self, status: &str, id: u64, peer: &str) -> Pushed {
+        if self.state != QueueState::Open {
+            return Pushed::Refused;
+        }
+        let accounting = serde_json::json!({
+            "id": id,
+            "peer": peer,
+            "readings": self.readings_in,
+            "dropped": self.dropped,
+            "queued": self.readings.len(),
+        });
+        let status = status.trim_end();
+        let line = match status.strip_suffix('}') {
+            Some(head) if head.trim_end().ends_with('{') => {
+                format!(r#"{head}"subscriber":{accounting}}}"#)
+            }
+            Some(head) => format!(r#"{head},"subscriber":{accounting}}}"#),
+            None => status.to_owned(),
+        };
+        let seq = self.next_seq;
+        let pushed = self.push(Lane::Control, Arc::from(line));
+        if matches!(pushed, Pushed::Queued | Pushed::Coalesced(_)) {
+            self.fence = Some(seq);
+        }
+        pushed
+    }
+
+    /// Gives back the memory of lanes that grew in a burst, once empty.
+    fn shrink_idle(&mut self) {
+        if self.readings.is_empty() && self.readings.capacity() > SHRINK_LANE_ABOVE {
+            self.readings = VecDeque::new();
+        }
+        if self.control.is_empty() && self.control.capacity() > SHRINK_LANE_ABOVE {
+            self.control = VecDeque::new();
         }
     }
 
@@ -920,7 +1639,11 @@ impl Queue {
         } else {
             &mut self.readings
         };
-        lane.pop_front().map(|(_, line)| line)
+        let (seq, line) = lane.pop_front()?;
+        if control_first && self.fence.is_some_and(|f| seq >= f) {
+            self.fence = None;
+        }
+        Some(line)
     }
 
     fn len(&self) -> usize {
@@ -980,12 +1703,18 @@ async fn write_loop<W: AsyncWrite + Unpin>(
                 buf.extend_from_slice(line.as_bytes());
                 buf.push(b'\n');
             }
+            if buf.is_empty() {
+                q.shrink_idle();
+            }
             q.state
         };
         if state == QueueState::Evicted {
             return Err(SessionEnd::Evicted);
         }
         if buf.is_empty() {
+            if buf.capacity() > SHRINK_BUF_ABOVE {
+                buf = Vec::new();
+            }
             if state == QueueState::Closing {
                 by_deadline(&mut deadline, out.shutdown()).await??;
                 return Ok(());
@@ -1002,10 +1731,18 @@ async fn write_loop<W: AsyncWrite + Unpin>(
 }
 
 /// Reads command lines and forwards them until the client hangs up.
+///
+/// Every line (a bad one too) takes a token from `bucket`; when it is empty
+/// nothing more is read until one is there, so a flood is held back by TCP
+/// itself. A `recalibrate` not allowed by `access` from `origin` is
+/// answered with an ERROR.
 async fn read_loop<R: AsyncRead + Unpin>(
     sub: &Arc<Subscriber>,
     rd: &mut R,
     commands: &mpsc::Sender<(ClientCommand, ReplyTo)>,
+    origin: Origin,
+    access: &Access,
+    bucket: &mut Bucket,
 ) -> Result<(), SessionEnd> {
     let mut lines = LineSplitter::new(MAX_COMMAND_LEN);
     let mut chunk = vec![0u8; 4096];
@@ -1017,9 +1754,16 @@ async fn read_loop<R: AsyncRead + Unpin>(
         }
         lines.feed(&chunk[..n]);
         while let Some(line) = lines.next_line() {
+            bucket.wait().await;
             let parsed = match line {
                 Ok(line) if line.iter().all(u8::is_ascii_whitespace) => continue,
-                Ok(line) => parse_command(&line),
+                Ok(line) => parse_request(&line).and_then(|r| match &r.command {
+                    ClientCommand::Recalibrate { .. } => access
+                        .check_recalibrate(origin, r.token.as_deref())
+                        .map(|()| r.command)
+                        .map_err(CommandError::Refused),
+                    ClientCommand::Status => Ok(r.command),
+                }),
                 Err(LineTooLong { limit }) => Err(CommandError::TooLong { limit }),
             };
             match parsed {
@@ -1186,6 +1930,52 @@ mod tests {
         q.close();
         assert_eq!(q.push(Lane::Reading, line("r1")), Pushed::Refused);
         assert_eq!(drain(&mut q), ["r0"]);
+    }
+
+    #[test]
+    fn readings_ahead_of_a_status_reply_are_kept_so_its_accounting_holds() {
+        let mut q = Queue::new(3, 10);
+        for i in 0..5 {
+            q.push(Lane::Reading, line(&format!("r{i}")));
+        }
+        q.push_status_reply(r#"{"class":"STATUS"}"#, 7, "p");
+        // More readings while the reply waits: those after it are dropped,
+        // never the three before it.
+        for i in 5..9 {
+            q.push(Lane::Reading, line(&format!("r{i}")));
+        }
+        let out = drain(&mut q);
+        assert_eq!(out[..3], ["r2", "r3", "r4"]);
+        let reply: Value = serde_json::from_str(&out[3]).unwrap_or_default();
+        let sub = &reply["subscriber"];
+        assert_eq!(
+            (sub["readings"].as_u64(), sub["dropped"].as_u64()),
+            (Some(5), Some(2))
+        );
+        assert_eq!(sub["queued"], 3);
+        assert_eq!(out.len(), 4, "{out:?}");
+        assert_eq!(q.readings_in, 9);
+    }
+
+    #[test]
+    fn the_writers_control_lines_coalesce_and_keep_every_calibration() {
+        let mut q = Queue::new(3, 2);
+        q.coalesce = true;
+        q.push(Lane::Control, line(r#"{"class":"STATUS","n":1}"#));
+        q.push(Lane::Control, line(r#"{"class":"ERROR","n":2}"#));
+        q.push(Lane::Control, line(r#"{"class":"STATUS","n":3}"#));
+        q.push(Lane::Control, line(r#"{"class":"CALIBRATION","n":4}"#));
+        q.push(Lane::Control, line(r#"{"class":"CALIBRATION","n":5}"#));
+        q.push(Lane::Control, line(r#"{"class":"ERROR","n":6}"#));
+        assert_eq!(q.state, QueueState::Open);
+        assert_eq!(
+            drain(&mut q),
+            [
+                r#"{"class":"STATUS","n":3}"#,
+                r#"{"class":"CALIBRATION","n":4}"#,
+                r#"{"class":"CALIBRATION","n":5}"#,
+            ]
+        );
     }
 
     #[test]

@@ -95,6 +95,9 @@ pub enum DaemonError {
     NoSuchSource(String),
     #[error("cannot write the output: {0}")]
     Output(#[source] std::io::Error),
+    /// `[outputs] max_subscribers` does not fit the descriptor limit.
+    #[error("{0}")]
+    Limits(String),
 }
 
 /// A running source, as the loop sees it.
@@ -272,7 +275,11 @@ pub async fn run_with(
         failures_tx,
     )
     .map_err(DaemonError::StateWriter)?;
-    let hub = Hub::new(config.outputs.queue);
+    let hub = Hub::with_policy(
+        config.outputs.queue,
+        super::publish::CONTROL_QUEUE_LEN,
+        subscriber_policy(&config)?,
+    );
     // Sources stop first; outputs only once the last line is published.
     let (stop_tx, stop_rx) = watch::channel(false);
     let (outputs_stop_tx, outputs_stop_rx) = watch::channel(false);
@@ -287,6 +294,8 @@ pub async fn run_with(
                 address: address.to_string(),
                 source,
             })?;
+        // The port bound, not 0 when the configuration let the system pick.
+        let address = listener.local_addr().unwrap_or(*address);
         tracing::info!(%address, "listening on TCP");
         tokio::spawn({
             let hub = hub.clone();
@@ -295,10 +304,12 @@ pub async fn run_with(
         });
     }
     if let Some(path) = &config.outputs.unix {
-        let (listener, bound) =
-            super::unix_socket::bind(path, super::unix_socket::SOCKET_MODE, |p| {
-                tokio::net::UnixListener::bind(p)
-            })?;
+        let (listener, bound) = super::unix_socket::bind_owned(
+            path,
+            config.outputs.unix_mode,
+            config.outputs.unix_group,
+            |p| tokio::net::UnixListener::bind(p),
+        )?;
         tracing::info!(path = %path.display(), "listening on a Unix socket");
         unix_path = Some(bound);
         tokio::spawn({
@@ -504,11 +515,20 @@ pub async fn run_with(
     // Sources, outputs and [daemon] as started; sensors as last reloaded.
     let mut running = config;
 
+    // Sensor events come before commands and status ticks (biased), so no
+    // client can take the time the sensors need; after EVENT_BURST events
+    // in a row the other branches get one look, so a saturated source
+    // does not starve STATUS and the watchdog.
+    let mut events_in_a_row = 0u32;
     loop {
+        let handled_before = events_in_a_row;
         tokio::select! {
+            biased;
             _ = shutdown.changed() => break,
-            event = events.recv() => {
+            _ = watchdog_tick.tick(), if watchdog.is_some() => notifier.ping(),
+            event = events.recv(), if events_in_a_row < EVENT_BURST => {
                 let Some((index, event)) = event else { break };
+                events_in_a_row += 1;
                 handle_event(index, event, &mut sources, &mut sensors, &mut emit, &mut save);
             }
             Some(failure) = save_failures.recv() => report_save_failure(&hub, failure),
@@ -526,7 +546,7 @@ pub async fn run_with(
                     }
                     ClientCommand::Status => {}
                 }
-                reply.send(Arc::from(sensors.status_line(unix_now(), &source_statuses(&sources), Some(&hub))));
+                reply.send_status(&sensors.status_line(unix_now(), &source_statuses(&sources), Some(&hub)));
             }
             _ = status_tick.tick() => {
                 let line = sensors.status_line(unix_now(), &source_statuses(&sources), Some(&hub));
@@ -560,12 +580,16 @@ pub async fn run_with(
                     reloader.done(&notifier, &status_text(&sensors));
                 }
             },
-            _ = watchdog_tick.tick(), if watchdog.is_some() => notifier.ping(),
             _ = progress_tick.tick(), if progress.is_some() => {
                 if let Some(progress) = &progress {
                     progress.update(sensors.sensors.iter().map(|(_, s)| s));
                 }
             }
+            () = std::future::ready(()), if events_in_a_row >= EVENT_BURST => {}
+        }
+        if events_in_a_row == handled_before {
+            // Something else had its turn.
+            events_in_a_row = 0;
         }
     }
 
@@ -625,6 +649,37 @@ pub async fn run_with(
         bound.remove_if_ours();
     }
     Ok(())
+}
+
+/// Events the loop handles in a row before it looks at commands, failures
+/// and ticks once: one queue's worth of a 1 kHz source is 0.25 s, well
+/// inside a STATUS interval and the watchdog's half period.
+const EVENT_BURST: u32 = 256;
+
+/// The hub's limits and rights from `[outputs]`: the subscriber maximum
+/// checked against the descriptor limit (or derived from it), the command
+/// and accept rates, who may recalibrate.
+fn subscriber_policy(config: &Config) -> Result<super::publish::Policy, DaemonError> {
+    use super::publish::{
+        Policy, check_max_subscribers, default_max_subscribers, descriptor_limit,
+    };
+    let nofile = descriptor_limit();
+    let max_subscribers = match config.outputs.max_subscribers {
+        Some(n) => check_max_subscribers(n, nofile).map_err(DaemonError::Limits)?,
+        None => default_max_subscribers(nofile),
+    };
+    tracing::info!(
+        max_subscribers,
+        descriptor_limit = nofile,
+        recalibrate_from = ?config.outputs.access.recalibrate_from,
+        token = config.outputs.access.token.is_some(),
+        "subscriber limits"
+    );
+    Ok(Policy {
+        max_subscribers,
+        access: config.outputs.access.clone(),
+        ..Policy::default()
+    })
 }
 
 /// Binds the live page's listener and serves it; the log names the bound

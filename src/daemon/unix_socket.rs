@@ -5,9 +5,10 @@
 //!   and bound again. Anything else at the path (a regular file, a
 //!   directory, a live daemon's socket) stops the start with a message
 //!   naming what is there.
-//! - The socket's mode is set explicitly after the bind ([`SOCKET_MODE`]),
-//!   so who may connect (and send commands) does not follow the umask the
-//!   daemon happened to start with.
+//! - The socket's mode is set explicitly after the bind ([`SOCKET_MODE`],
+//!   or `[outputs] unix_mode`), and its group when `[outputs] unix_group`
+//!   names one, so who may connect (and send commands) does not follow the
+//!   umask or group the daemon happened to start with.
 //! - At shutdown the path is removed only if it still names the socket
 //!   bound at start (same device and inode): a file someone put there
 //!   since, or another daemon's socket, is left alone.
@@ -48,6 +49,17 @@ pub enum UnixSocketError {
         source: io::Error,
     },
     #[error(
+        "cannot give the Unix socket {} to group {gid}: {source}; the daemon's user must be \
+         a member of the group of [outputs] unix_group (or run with Group= of it)",
+        path.display()
+    )]
+    Group {
+        path: PathBuf,
+        gid: u32,
+        #[source]
+        source: io::Error,
+    },
+    #[error(
         "cannot set the mode of the Unix socket {} to {mode:o}: {source}",
         path.display()
     )]
@@ -75,11 +87,31 @@ pub fn bind<L>(
     mode: u32,
     bind: impl FnOnce(&Path) -> io::Result<L>,
 ) -> Result<(L, BoundSocket), UnixSocketError> {
+    bind_owned(path, mode, None, bind)
+}
+
+/// [`bind`], giving the socket to group `group` (when Some) before its mode
+/// is set.
+pub fn bind_owned<L>(
+    path: &Path,
+    mode: u32,
+    group: Option<u32>,
+    bind: impl FnOnce(&Path) -> io::Result<L>,
+) -> Result<(L, BoundSocket), UnixSocketError> {
     clear_path(path)?;
     let listener = bind(path).map_err(|source| UnixSocketError::Bind {
         path: path.to_path_buf(),
         source,
     })?;
+    if let Some(gid) = group {
+        std::os::unix::fs::chown(path, None, Some(gid)).map_err(|source| {
+            UnixSocketError::Group {
+                path: path.to_path_buf(),
+                gid,
+                source,
+            }
+        })?;
+    }
     let mode_error = |source| UnixSocketError::Mode {
         path: path.to_path_buf(),
         mode,
