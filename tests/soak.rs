@@ -1172,7 +1172,11 @@ fn soak_under_faults_keeps_its_accounts() {
     if exited.is_none() && !daemon.is_running() {
         exited = Some(shared.secs());
     }
-    if exited.is_none() {
+    if let Some(at) = exited {
+        shared.fail(format!(
+            "the daemon exited during the soak, at {at:.1} s; the last fault: {last_fault:?}"
+        ));
+    } else {
         let asked = Instant::now();
         let status = daemon.terminate();
         exit_after = Some(asked.elapsed());
@@ -1181,11 +1185,6 @@ fn soak_under_faults_keeps_its_accounts() {
         } else if asked.elapsed() > Duration::from_secs(5) {
             shared.fail(format!("SIGTERM: took {:?} to exit", asked.elapsed()));
         }
-    } else {
-        shared.fail(format!(
-            "the daemon exited during the soak, at {:.1} s; the last fault: {last_fault:?}",
-            exited.unwrap()
-        ));
     }
     let stored_end = stored(&state_file);
     let duration = t0.elapsed();
@@ -1344,7 +1343,9 @@ fn soak_under_faults_keeps_its_accounts() {
         t,
         "\n| subscribers (left in order) | n | readings given | dropped | received |\n|---|---|---|---|---|"
     );
-    let mut groups: BTreeMap<(Role, bool), (u64, u64, u64, u64, bool)> = BTreeMap::new();
+    // (n, given, dropped, received, every reply had the field) per kind.
+    type Sums = (u64, u64, u64, u64, bool);
+    let mut groups: BTreeMap<(Role, bool), Sums> = BTreeMap::new();
     for r in &reports {
         let g = groups.entry((r.role, r.tcp)).or_insert((0, 0, 0, 0, true));
         g.0 += 1;
