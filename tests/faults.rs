@@ -16,7 +16,8 @@ use std::time::{Duration, Instant};
 
 use common::daemon::{Daemon, is_class, replay_config};
 use common::faults::{
-    XorShift, connect_tcp, free_port, long_capture, send_unix_command, temp_files, vm_rss_kb,
+    TmpfsMount, XorShift, connect_tcp, free_port, long_capture, send_unix_command, temp_files,
+    vm_rss_kb,
 };
 use fieldcal::daemon::Calibration;
 use fieldcal::daemon::state::StateStore;
@@ -210,65 +211,6 @@ fn a_full_disk_keeps_the_old_file_and_readings_go_on() {
     assert_eq!(std::fs::read(state.join("compass.json")).unwrap(), before);
     assert!(temp_files(&state).is_empty(), "{:?}", temp_files(&state));
     assert!(daemon.terminate().success(), "{}", daemon.stderr());
-}
-
-/// A small tmpfs mounted over a directory for the life of the guard.
-struct TmpfsMount(std::path::PathBuf);
-
-impl TmpfsMount {
-    /// Mounts a tmpfs of `size` bytes at `at` (created), or says why not.
-    fn mount(at: &Path, size: usize) -> Result<TmpfsMount, std::io::Error> {
-        use std::ffi::CString;
-        std::fs::create_dir_all(at)?;
-        let target = CString::new(at.as_os_str().as_encoded_bytes()).unwrap();
-        let options = CString::new(format!("size={size},mode=0755")).unwrap();
-        // SAFETY: mount(2) with NUL-terminated strings that outlive the call.
-        let rc = unsafe {
-            libc::mount(
-                c"tmpfs".as_ptr(),
-                target.as_ptr(),
-                c"tmpfs".as_ptr(),
-                0,
-                options.as_ptr().cast(),
-            )
-        };
-        if rc == 0 {
-            Ok(TmpfsMount(at.to_path_buf()))
-        } else {
-            Err(std::io::Error::last_os_error())
-        }
-    }
-}
-
-impl Drop for TmpfsMount {
-    fn drop(&mut self) {
-        let target = std::ffi::CString::new(self.0.as_os_str().as_encoded_bytes()).unwrap();
-        // SAFETY: umount2(2) on the path this guard mounted; a lazy detach,
-        // so a daemon still holding it open cannot keep the mount.
-        unsafe { libc::umount2(target.as_ptr(), libc::MNT_DETACH) };
-    }
-}
-
-impl TmpfsMount {
-    /// Makes the mounted tmpfs read-only (MS_REMOUNT | MS_RDONLY).
-    fn remount_read_only(&self) -> Result<(), std::io::Error> {
-        let target = std::ffi::CString::new(self.0.as_os_str().as_encoded_bytes()).unwrap();
-        // SAFETY: mount(2) with NUL-terminated strings that outlive the call.
-        let rc = unsafe {
-            libc::mount(
-                c"tmpfs".as_ptr(),
-                target.as_ptr(),
-                c"tmpfs".as_ptr(),
-                libc::MS_REMOUNT | libc::MS_RDONLY,
-                std::ptr::null(),
-            )
-        };
-        if rc == 0 {
-            Ok(())
-        } else {
-            Err(std::io::Error::last_os_error())
-        }
-    }
 }
 
 /// A read-only state directory (a tmpfs remounted read-only: refused even

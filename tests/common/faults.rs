@@ -1,5 +1,6 @@
-//! Helpers for the fault tests (tests/faults.rs): long captures, free ports,
-//! subscribers, resident memory and leftover temporaries. The daemon child
+//! Helpers for the fault tests (tests/faults.rs, tests/soak.rs): long
+//! captures, free ports, subscribers, resident memory and descriptors,
+//! leftover temporaries, a small tmpfs to fill. The daemon child
 //! itself is [`super::daemon::Daemon`].
 
 use std::path::{Path, PathBuf};
@@ -64,12 +65,14 @@ pub fn send_unix_command(socket: &Path, command: &str) {
 
 /// The resident set of a process in kB, from /proc/<pid>/status.
 pub fn vm_rss_kb(pid: u32) -> u64 {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
-    let line = status
-        .lines()
-        .find(|l| l.starts_with("VmRSS:"))
-        .unwrap_or_else(|| panic!("no VmRSS in /proc/{pid}/status"));
-    line.split_whitespace().nth(1).unwrap().parse().unwrap()
+    try_vm_rss_kb(pid).unwrap_or_else(|| panic!("no VmRSS in /proc/{pid}/status"))
+}
+
+/// [`vm_rss_kb`], or None when the process is gone.
+pub fn try_vm_rss_kb(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
 }
 
 /// Names of the AtomicFile temporaries (`.<name>.tmp.<pid>.<n>`) in `dir`.
@@ -105,4 +108,69 @@ impl XorShift {
     pub fn below(&mut self, n: u64) -> u64 {
         self.next() % n
     }
+}
+
+/// A small tmpfs mounted over a directory for the life of the guard.
+pub struct TmpfsMount(PathBuf);
+
+impl TmpfsMount {
+    /// Mounts a tmpfs of `size` bytes at `at` (created), or says why not.
+    pub fn mount(at: &Path, size: usize) -> Result<TmpfsMount, std::io::Error> {
+        use std::ffi::CString;
+        std::fs::create_dir_all(at)?;
+        let target = CString::new(at.as_os_str().as_encoded_bytes()).unwrap();
+        let options = CString::new(format!("size={size},mode=0755")).unwrap();
+        // SAFETY: mount(2) with NUL-terminated strings that outlive the call.
+        let rc = unsafe {
+            libc::mount(
+                c"tmpfs".as_ptr(),
+                target.as_ptr(),
+                c"tmpfs".as_ptr(),
+                0,
+                options.as_ptr().cast(),
+            )
+        };
+        if rc == 0 {
+            Ok(TmpfsMount(at.to_path_buf()))
+        } else {
+            Err(std::io::Error::last_os_error())
+        }
+    }
+}
+
+impl Drop for TmpfsMount {
+    fn drop(&mut self) {
+        let target = std::ffi::CString::new(self.0.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: umount2(2) on the path this guard mounted; a lazy detach,
+        // so a daemon still holding it open cannot keep the mount.
+        unsafe { libc::umount2(target.as_ptr(), libc::MNT_DETACH) };
+    }
+}
+
+impl TmpfsMount {
+    /// Makes the mounted tmpfs read-only (MS_REMOUNT | MS_RDONLY).
+    pub fn remount_read_only(&self) -> Result<(), std::io::Error> {
+        let target = std::ffi::CString::new(self.0.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: mount(2) with NUL-terminated strings that outlive the call.
+        let rc = unsafe {
+            libc::mount(
+                c"tmpfs".as_ptr(),
+                target.as_ptr(),
+                c"tmpfs".as_ptr(),
+                libc::MS_REMOUNT | libc::MS_RDONLY,
+                std::ptr::null(),
+            )
+        };
+        if rc == 0 {
+            Ok(())
+        } else {
+            Err(std::io::Error::last_os_error())
+        }
+    }
+}
+
+/// How many descriptors a process has open (the entries of
+/// /proc/<pid>/fd), or None when the process is gone.
+pub fn fd_count(pid: u32) -> Option<usize> {
+    Some(std::fs::read_dir(format!("/proc/{pid}/fd")).ok()?.count())
 }

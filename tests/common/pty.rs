@@ -1,7 +1,9 @@
 //! A mock Falcon-GX-style device on a real pseudo-terminal pair. The port
 //! the code under test opens is a symlink to the pty's slave, so the device
 //! can be unplugged (the pty closed, the path gone) and plugged back (a new
-//! pty behind the same path), as a USB adapter does.
+//! pty behind the same path), as a USB adapter does. A looped device
+//! ([`FalconPty::plug_in_looped`]) starts its chunks over when they run
+//! out, so it can stream for hours.
 
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
@@ -21,13 +23,30 @@ pub struct FalconPty {
     sent_at: Arc<Mutex<Vec<Instant>>>,
     period: Duration,
     running: Option<(Arc<AtomicBool>, JoinHandle<()>)>,
+    /// The chunks again, for a looped device.
+    looped: Option<Arc<Vec<Vec<u8>>>>,
+    /// Chunks sent and start and stop commands seen by the devices before
+    /// the current one, which a loop replaced.
+    carried: Arc<Mutex<(usize, u32, u32)>>,
 }
 
 impl FalconPty {
     /// Plugs in a device that sends one chunk per `period` once started.
     pub fn plug_in(chunks: Vec<Vec<u8>>, period: Duration) -> Self {
+        Self::plug_in_with(chunks, period, false)
+    }
+
+    /// A device that, once it has sent its last chunk, starts over from the
+    /// first (still streaming), for as long as it stays plugged in. Give it
+    /// whole turns, so the heading runs on smoothly.
+    pub fn plug_in_looped(chunks: Vec<Vec<u8>>, period: Duration) -> Self {
+        Self::plug_in_with(chunks, period, true)
+    }
+
+    fn plug_in_with(chunks: Vec<Vec<u8>>, period: Duration, looped: bool) -> Self {
         let dir = tempfile::tempdir().expect("tempdir");
         let link = dir.path().join("ttyFALCON");
+        let looped = looped.then(|| Arc::new(chunks.clone()));
         let mut pty = FalconPty {
             _dir: dir,
             link,
@@ -35,9 +54,16 @@ impl FalconPty {
             sent_at: Arc::new(Mutex::new(Vec::new())),
             period,
             running: None,
+            looped,
+            carried: Arc::new(Mutex::new((0, 0, 0))),
         };
         pty.plug();
         pty
+    }
+
+    /// True while the device is plugged in.
+    pub fn is_plugged(&self) -> bool {
+        self.running.is_some()
     }
 
     /// The port path the code under test opens.
@@ -72,6 +98,8 @@ impl FalconPty {
         let device = self.device.clone();
         let sent_at = self.sent_at.clone();
         let period = self.period;
+        let looped = self.looped.clone();
+        let carried = self.carried.clone();
         let thread = {
             let run = run.clone();
             std::thread::spawn(move || {
@@ -87,10 +115,31 @@ impl FalconPty {
                     }
                     if Instant::now() >= next {
                         next += period;
-                        let chunk = device.lock().unwrap().tick().map(<[u8]>::to_vec);
+                        let mut device = device.lock().unwrap();
+                        if let Some(chunks) = &looped
+                            && device.is_streaming()
+                            && device.remaining() == 0
+                        {
+                            // Start over, still streaming: the new device
+                            // is told to start, a command the host never
+                            // sent, so it is not carried.
+                            let (starts, stops) = device.commands_seen();
+                            let mut carried = carried.lock().unwrap();
+                            carried.0 += device.sent();
+                            carried.1 += starts - 1;
+                            carried.2 += stops;
+                            *device = MockFalcon::new(chunks.to_vec());
+                            device.receive(&fieldcal::protocol::falcon::START_CONTINUOUS);
+                        }
+                        let chunk = device.tick().map(<[u8]>::to_vec);
+                        drop(device);
                         if let Some(chunk) = chunk {
                             let _ = master.write_all(&chunk);
-                            sent_at.lock().unwrap().push(Instant::now());
+                            // A looped device may stream for hours: its
+                            // times are not kept.
+                            if looped.is_none() {
+                                sent_at.lock().unwrap().push(Instant::now());
+                            }
                         }
                     }
                 }
@@ -100,7 +149,8 @@ impl FalconPty {
     }
 
     pub fn sent(&self) -> usize {
-        self.device.lock().unwrap().sent()
+        let device = self.device.lock().unwrap();
+        self.carried.lock().unwrap().0 + device.sent()
     }
 
     /// When chunk `index` was sent, if it has been.
@@ -109,7 +159,10 @@ impl FalconPty {
     }
 
     pub fn commands_seen(&self) -> (u32, u32) {
-        self.device.lock().unwrap().commands_seen()
+        let device = self.device.lock().unwrap();
+        let (starts, stops) = device.commands_seen();
+        let carried = self.carried.lock().unwrap();
+        (carried.1 + starts, carried.2 + stops)
     }
 
     /// Waits until the device has sent `n` chunks in all.
