@@ -426,7 +426,11 @@ impl Client {
                         if v.get("subscriber").is_some() {
                             return Ok((v, self.received));
                         }
-                        if candidate.is_none() {
+                        // A periodic STATUS (no `subscriber`) stands in
+                        // for the reply only in lax mode; strict, the
+                        // reply itself is awaited (up to LONG): a busy
+                        // machine may take seconds to answer.
+                        if shared.lax && candidate.is_none() {
                             candidate = Some((v, self.received, Instant::now()));
                         }
                     } else if let Some(v) = self.take_error(&line) {
