@@ -916,6 +916,18 @@ mod tests {
         let gauss = sim.simulate().unwrap();
         let counts: Vec<[f64; 3]> = gauss.iter().map(|p| p.map(|v| v * 1e4 + 3e4)).collect();
         for model in Ellipsoid3Model::ALL {
+            // The closed form alone, before any refinement.
+            let (oa, aa) = closed_form(&gauss, model).unwrap();
+            let (ob, ab) = closed_form(&counts, model).unwrap();
+            for i in 0..3 {
+                assert!(
+                    close(ob[i], oa[i] * 1e4 + 3e4, 1e-7 * 1e4),
+                    "{model}: {ob:?} {oa:?}"
+                );
+                for j in 0..3 {
+                    assert!(close(ab[i][j] * 1e4, aa[i][j], 1e-7 * aa[0][0]), "{model}");
+                }
+            }
             let a = fit(&gauss, model).unwrap();
             let b = fit(&counts, model).unwrap();
             for i in 0..3 {
