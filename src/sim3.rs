@@ -148,7 +148,10 @@ impl SimSensor3 {
                 let tilt = tilt_deg.to_radians();
                 // The wobble: tilt about x and y at incommensurate rates.
                 let (fa, fb) = (1.7, 2.9);
-                let (pa, pb) = (rng.random::<f64>() * 6.28, rng.random::<f64>() * 6.28);
+                let (pa, pb) = (
+                    std::f64::consts::TAU * rng.random::<f64>(),
+                    std::f64::consts::TAU * rng.random::<f64>(),
+                );
                 for i in 0..n {
                     let s = i as f64 / n.max(1) as f64;
                     let phi = std::f64::consts::TAU * turns * s;

@@ -233,11 +233,11 @@ struct Ellipsoid {
     a: Matrix3<f64>,
 }
 
+/// Points centred and scaled, with the mean m and the scale s.
+type Normalised = (Vec<Vector3<f64>>, Vector3<f64>, f64);
+
 /// Checks the points and returns them centred and scaled: p = (raw − m)/s.
-fn normalise(
-    points: &[[f64; 3]],
-    model: Ellipsoid3Model,
-) -> Result<(Vec<Vector3<f64>>, Vector3<f64>, f64), Ellipsoid3Error> {
+fn normalise(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Normalised, Ellipsoid3Error> {
     for (index, p) in points.iter().enumerate() {
         for (value, axis) in p.iter().zip(["x", "y", "z"]) {
             if !value.is_finite() {
@@ -322,8 +322,8 @@ fn least_squares(
 
 /// Li & Griffiths' ellipsoid-specific fit. `full` selects the general
 /// quadric (quadratic part a, b, c, d, e, f for x², y², z², 2yz, 2xz, 2xy)
-/// or the axis-aligned one (a, b, c only). Linear part 2g x + 2h y + 2i z
-/// + j. Minimises |Dv|² subject to kJ − I² = 1 (I = a + b + c,
+/// or the axis-aligned one (a, b, c only); linear part 2gx, 2hy, 2iz and
+/// the constant j. Minimises |Dv|² subject to kJ − I² = 1 (I = a + b + c,
 /// J = ab + bc + ca − d² − e² − f²): the generalised eigenproblem
 /// S̃ v1 = λ C1 v1 with S̃ = S11 − S12 S22⁻¹ S21 has exactly one positive
 /// eigenvalue, whose eigenvector is the ellipsoid.
@@ -866,6 +866,7 @@ fn not_covered(model: Ellipsoid3Model, dirs: &[[f64; 3]]) -> Ellipsoid3Error {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)] // indices pair fit, truth and se
 mod tests {
     use super::*;
     use crate::sim3::{Motion3, SimSensor3};

@@ -254,7 +254,7 @@ fn merge(missing: &[usize]) -> Vec<MissingDirections> {
             describe(&members)
         })
         .collect();
-    out.sort_by(|a, b| b.regions.cmp(&a.regions));
+    out.sort_by_key(|m| std::cmp::Reverse(m.regions));
     out
 }
 
