@@ -1115,6 +1115,64 @@ mod tests {
         assert!(missing.starts_with("missing: -z"), "{err}");
     }
 
+    /// Six static poses, each sensor axis up and down in turn (the
+    /// six-position calibration of accelerometers), with noise.
+    fn six_poses(seed: u64) -> Vec<[f64; 3]> {
+        let mut raw = Vec::new();
+        for (k, axis) in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+            .iter()
+            .enumerate()
+        {
+            for sign in [1.0, -1.0] {
+                let sim = SimSensor3 {
+                    motion: Motion3::Cap {
+                        half_angle_deg: 1e-3,
+                    },
+                    ..tumble(
+                        SOFT_IRON,
+                        0.002,
+                        100,
+                        seed + 2 * k as u64 + (sign > 0.0) as u64,
+                    )
+                };
+                let w = Matrix3::from_fn(|i, j| sim.matrix[i][j])
+                    .try_inverse()
+                    .unwrap();
+                let points = sim.simulate().unwrap();
+                let along = Vector3::from(*axis) * sign * sim.r;
+                let z = w * Vector3::new(0.0, 0.0, sim.r);
+                let target = w * along;
+                // The same noise, about this pose instead of +z.
+                raw.extend(
+                    points
+                        .iter()
+                        .map(|p| [0, 1, 2].map(|i| p[i] - z[i] + target[i])),
+                );
+            }
+        }
+        raw
+    }
+
+    #[test]
+    fn six_static_poses_support_offset_scale_only() {
+        let raw = six_poses(40);
+        let err = fit(&raw, Ellipsoid3Model::Full).unwrap_err();
+        let Ellipsoid3Error::NotCovered { supported, .. } = &err else {
+            panic!("{err}");
+        };
+        assert_eq!(*supported, Some(Ellipsoid3Model::OffsetScale), "{err}");
+        assert!(
+            err.to_string()
+                .contains("still support the offset+scale model"),
+            "{err}"
+        );
+        let f = fit(&raw, Ellipsoid3Model::OffsetScale).unwrap();
+        assert!(f.coverage.fraction <= 0.1, "{}", f.coverage.fraction);
+        // The offset is found although W's cross terms are ignored.
+        assert!(f.rms < 0.1, "{}", f.rms);
+        assert!(fit(&raw, Ellipsoid3Model::Offset).is_ok());
+    }
+
     #[test]
     fn a_well_covered_tumble_is_accepted() {
         let raw = tumble(SOFT_IRON, 0.005, 600, 5).simulate().unwrap();
