@@ -14,7 +14,8 @@
 //! - [`daemon`]: rotation buffer, live fit, publishing, state, systemd;
 //! - [`record`]: writing a source's raw bytes to a capture;
 //! - [`mock`]: simulated devices that answer like real ones, for tests;
-//! - [`sim`]: a simulated sensor, for trying fieldcal with no hardware.
+//! - [`sim`]: a simulated sensor, for trying fieldcal with no hardware;
+//! - [`sim3`]: a simulated 3-axis sensor, tumbled through the sphere.
 
 // `!(x > 0.0)` is how this crate says "not positive, or NaN": the NaN case
 // matters for input checks, so clippy's preferred rewrite would be wrong.
@@ -31,4 +32,5 @@ pub mod record;
 pub mod report;
 pub mod sample;
 pub mod sim;
+pub mod sim3;
 pub mod source;

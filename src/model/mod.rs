@@ -13,16 +13,20 @@
 //! - [`diagnose`]: which effect the data supports, step by step.
 //! - [`check`]: whether a stored calibration holds on another recording.
 //! - [`turn`]: whether the readings show a turn at all, before any fit.
+//! - [`ellipsoid`]: the 3-D model (offset, gains, soft iron) and its fit.
+//! - [`sphere`]: coverage of the sphere of directions, for 3-axis sensors.
 
 pub mod check;
 pub mod diagnose;
 pub mod effects;
+pub mod ellipsoid;
 pub mod fit;
 pub mod gyro;
 pub mod heading;
 pub mod nonlinear;
 pub mod paper;
 pub mod residuals;
+pub mod sphere;
 pub mod turn;
 
 use crate::report::significant;

@@ -1,0 +1,430 @@
+//! Coverage of the sphere of directions: which directions a 3-axis sensor's
+//! field (or gravity) took in the sensor frame during a recording.
+//!
+//! The sphere is cut into [`REGIONS`] regions of equal area (a zonal
+//! partition: a cap at each pole and eight collars between them), after the
+//! recursive zonal equal-area partition of Leopardi ("A partition of the
+//! unit sphere into regions of equal area and small diameter", ETNA 25,
+//! 2006), which PJRC MotionCal also follows for its 100 regions (its
+//! `quality.c`, "surface gap error"). The counts per collar are derived
+//! here, not copied (see [`BANDS`]). ArduPilot's CompassCalibrator shows the
+//! same idea as an 80-triangle geodesic mask.
+//!
+//! A direction is named in the sensor frame by its elevation (angle above
+//! the sensor's x–y plane, toward +z) and its azimuth (angle from +x toward
+//! +y in that plane). Missing regions that touch are merged into a few
+//! ranges a person can act on ("−z: elevation −90° to −60°, every
+//! azimuth"): turn the sensor so that this axis points along the field (for
+//! an accelerometer at rest: so that it points up).
+
+use std::f64::consts::{PI, TAU};
+use std::fmt;
+
+use serde::Serialize;
+
+/// Number of equal-area regions (as PJRC MotionCal's 100).
+pub const REGIONS: usize = 100;
+
+/// Regions per band, from +z (north) to −z. Derived from Leopardi's
+/// recursive zonal construction for N = 100: a polar cap of area 4π/N
+/// (colatitude acos(1 − 2/N) = 11.5°), round((π − 2·11.5°)/sqrt(4π/N)) = 8
+/// collars of equal height (19.6°), each given round(its area / (4π/N))
+/// regions with the rounding remainder carried to the next collar. The
+/// collar boundaries are then moved so that every region has exactly the
+/// area 4π/N: sin(elevation) = 1 − 2·(regions above)/N, which gives bands
+/// at ±78.5°, ±59.3°, ±39.8°, ±19.9° and 0°.
+pub const BANDS: [usize; 10] = [1, 6, 11, 15, 17, 17, 15, 11, 6, 1];
+
+/// Two missing regions belong to one named range when their centres are
+/// within this angle: 1.5 × the side of a region, sqrt(4π/N) = 20.3° for
+/// N = 100, so that regions sharing an edge or a corner are joined and
+/// regions one covered region apart are not. Geometry of the partition,
+/// not a tuned value.
+pub const NEIGHBOUR_DEG: f64 = 1.5 * 20.3;
+
+/// The band a region lies in and its index within the band.
+fn band_bounds() -> [(f64, f64, usize, usize); 10] {
+    // (elevation low, elevation high, first region, count), radians.
+    let mut out = [(0.0, 0.0, 0, 0); 10];
+    let mut above = 0usize;
+    for (k, &count) in BANDS.iter().enumerate() {
+        let top = (1.0 - 2.0 * above as f64 / REGIONS as f64).clamp(-1.0, 1.0);
+        let bottom = (1.0 - 2.0 * (above + count) as f64 / REGIONS as f64).clamp(-1.0, 1.0);
+        out[k] = (bottom.asin(), top.asin(), above, count);
+        above += count;
+    }
+    out
+}
+
+/// The region (0..REGIONS) of a direction, or `None` for a zero or
+/// non-finite vector.
+pub fn region_of(v: [f64; 3]) -> Option<usize> {
+    let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if !(norm > 0.0) || !norm.is_finite() {
+        return None;
+    }
+    let elevation = (v[2] / norm).clamp(-1.0, 1.0).asin();
+    let azimuth = v[1].atan2(v[0]).rem_euclid(TAU);
+    let bands = band_bounds();
+    let (_, _, first, count) = bands
+        .iter()
+        .copied()
+        .find(|&(low, _, _, _)| elevation >= low)
+        .unwrap_or(bands[bands.len() - 1]);
+    let index = ((azimuth / TAU * count as f64) as usize).min(count - 1);
+    Some(first + index)
+}
+
+/// Where a region lies: elevation range, azimuth range, and its centre, in
+/// degrees (azimuth in [0, 360)).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Region {
+    pub elevation_deg: (f64, f64),
+    pub azimuth_deg: (f64, f64),
+    pub centre: [f64; 3],
+}
+
+/// The geometry of region `index` (< REGIONS).
+pub fn region(index: usize) -> Region {
+    let bands = band_bounds();
+    let (low, high, first, count) = bands
+        .iter()
+        .copied()
+        .find(|&(_, _, first, count)| index < first + count)
+        .unwrap_or(bands[bands.len() - 1]);
+    let j = index.saturating_sub(first).min(count - 1);
+    let width = TAU / count as f64;
+    let (az0, az1) = (j as f64 * width, (j + 1) as f64 * width);
+    // Centre: mid-azimuth, and the elevation that halves the band's area.
+    let elevation = if count == 1 {
+        if high > 0.0 { PI / 2.0 } else { -PI / 2.0 }
+    } else {
+        ((low.sin() + high.sin()) / 2.0).asin()
+    };
+    let azimuth = (az0 + az1) / 2.0;
+    Region {
+        elevation_deg: (low.to_degrees(), high.to_degrees()),
+        azimuth_deg: (az0.to_degrees(), az1.to_degrees()),
+        centre: [
+            elevation.cos() * azimuth.cos(),
+            elevation.cos() * azimuth.sin(),
+            elevation.sin(),
+        ],
+    }
+}
+
+/// A connected range of missing directions, in words and numbers.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MissingDirections {
+    /// The sensor axis, or combination of axes, the range is centred on:
+    /// "+z", "-x+y", "+x-y-z".
+    pub toward: String,
+    /// Unit vector of the range's mean direction, in the sensor frame.
+    pub direction: [f64; 3],
+    /// How many regions of the partition are missing in this range.
+    pub regions: usize,
+    /// Elevation range, degrees, low to high.
+    pub elevation_deg: (f64, f64),
+    /// Azimuth range, degrees, from the first to the last going
+    /// counter-clockwise (from +x toward +y); `None` when the range goes all
+    /// the way round (or is a polar cap).
+    pub azimuth_deg: Option<(f64, f64)>,
+}
+
+impl fmt::Display for MissingDirections {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let (lo, hi) = self.elevation_deg;
+        write!(
+            f,
+            "{} (elevation {:.0}° to {:.0}°, ",
+            self.toward,
+            lo.round(),
+            hi.round()
+        )?;
+        match self.azimuth_deg {
+            Some((a, b)) => write!(f, "azimuth {:.0}° to {:.0}°)", a.round(), b.round()),
+            None => write!(f, "every azimuth)"),
+        }
+    }
+}
+
+/// The share of the sphere a set of directions reaches.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SphereCoverage {
+    /// Regions of the partition ([`REGIONS`]).
+    pub regions: usize,
+    /// Regions holding at least one direction.
+    pub covered: usize,
+    /// `covered / regions`.
+    pub fraction: f64,
+    /// Points per region, by region index.
+    #[serde(skip)]
+    pub counts: Vec<usize>,
+    /// The missing regions merged into ranges, largest first.
+    pub missing: Vec<MissingDirections>,
+}
+
+impl SphereCoverage {
+    /// "missing: -z (elevation -90° to -59°, every azimuth); +x+y (...)", or
+    /// "nothing missing".
+    pub fn missing_text(&self) -> String {
+        if self.missing.is_empty() {
+            return "nothing missing".to_string();
+        }
+        let parts: Vec<String> = self.missing.iter().map(|m| m.to_string()).collect();
+        format!("missing: {}", parts.join("; "))
+    }
+}
+
+/// Coverage of the sphere by a set of direction vectors (need not be unit;
+/// zero or non-finite ones are skipped).
+pub fn coverage(directions: impl IntoIterator<Item = [f64; 3]>) -> SphereCoverage {
+    let mut counts = vec![0usize; REGIONS];
+    for v in directions {
+        if let Some(k) = region_of(v) {
+            counts[k] += 1;
+        }
+    }
+    let covered = counts.iter().filter(|&&c| c > 0).count();
+    let missing_regions: Vec<usize> = (0..REGIONS).filter(|&k| counts[k] == 0).collect();
+    SphereCoverage {
+        regions: REGIONS,
+        covered,
+        fraction: covered as f64 / REGIONS as f64,
+        counts,
+        missing: merge(&missing_regions),
+    }
+}
+
+/// Coverage of the directions of `points` from `centre`, mapped by the
+/// symmetric `matrix` (an ellipsoid's calibration, so that the directions
+/// are those of the calibrated field).
+pub fn coverage_about(
+    points: &[[f64; 3]],
+    centre: [f64; 3],
+    matrix: [[f64; 3]; 3],
+) -> SphereCoverage {
+    coverage(points.iter().map(|p| {
+        let d = [p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]];
+        let mut v = [0.0; 3];
+        for (i, vi) in v.iter_mut().enumerate() {
+            *vi = matrix[i][0] * d[0] + matrix[i][1] * d[1] + matrix[i][2] * d[2];
+        }
+        v
+    }))
+}
+
+fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    dot.clamp(-1.0, 1.0).acos().to_degrees()
+}
+
+/// Joins missing regions whose centres are within [`NEIGHBOUR_DEG`] into
+/// connected ranges and names each.
+fn merge(missing: &[usize]) -> Vec<MissingDirections> {
+    let geometry: Vec<Region> = missing.iter().map(|&k| region(k)).collect();
+    let mut group = vec![usize::MAX; missing.len()];
+    let mut groups = 0;
+    for start in 0..missing.len() {
+        if group[start] != usize::MAX {
+            continue;
+        }
+        group[start] = groups;
+        let mut stack = vec![start];
+        while let Some(i) = stack.pop() {
+            for j in 0..missing.len() {
+                if group[j] == usize::MAX
+                    && angle_deg(geometry[i].centre, geometry[j].centre) <= NEIGHBOUR_DEG
+                {
+                    group[j] = groups;
+                    stack.push(j);
+                }
+            }
+        }
+        groups += 1;
+    }
+    let mut out: Vec<MissingDirections> = (0..groups)
+        .map(|g| {
+            let members: Vec<&Region> = geometry
+                .iter()
+                .zip(&group)
+                .filter(|&(_, &gi)| gi == g)
+                .map(|(r, _)| r)
+                .collect();
+            describe(&members)
+        })
+        .collect();
+    out.sort_by_key(|m| std::cmp::Reverse(m.regions));
+    out
+}
+
+fn describe(members: &[&Region]) -> MissingDirections {
+    let mut sum = [0.0; 3];
+    for r in members {
+        for (s, c) in sum.iter_mut().zip(r.centre) {
+            *s += c;
+        }
+    }
+    let norm = (sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]).sqrt();
+    let direction = if norm > 1e-9 {
+        [sum[0] / norm, sum[1] / norm, sum[2] / norm]
+    } else {
+        members.first().map_or([0.0, 0.0, 1.0], |r| r.centre)
+    };
+    let low = members
+        .iter()
+        .map(|r| r.elevation_deg.0)
+        .fold(f64::INFINITY, f64::min);
+    let high = members
+        .iter()
+        .map(|r| r.elevation_deg.1)
+        .fold(f64::NEG_INFINITY, f64::max);
+    MissingDirections {
+        toward: axis_name(direction),
+        direction,
+        regions: members.len(),
+        elevation_deg: (low, high),
+        azimuth_deg: azimuth_span(members),
+    }
+}
+
+/// The smallest arc holding every member's azimuth range, or `None` when
+/// the members go all the way round or include a polar cap.
+fn azimuth_span(members: &[&Region]) -> Option<(f64, f64)> {
+    if members
+        .iter()
+        .any(|r| r.azimuth_deg.1 - r.azimuth_deg.0 >= 359.0)
+    {
+        return None;
+    }
+    // Mark 1° steps covered by any member, then find the largest free gap.
+    let mut taken = [false; 360];
+    for r in members {
+        let (a, b) = r.azimuth_deg;
+        let mut d = a.floor() as i64;
+        while (d as f64) < b && d < a.floor() as i64 + 360 {
+            taken[d.rem_euclid(360) as usize] = true;
+            d += 1;
+        }
+    }
+    let free = taken.iter().filter(|t| !**t).count();
+    if free == 0 {
+        return None;
+    }
+    // The largest run of free degrees (circular): the span is its complement.
+    let (mut best_start, mut best_len) = (0usize, 0usize);
+    for start in 0..360 {
+        if taken[start] || !taken[(start + 359) % 360] {
+            continue;
+        }
+        let mut len = 0;
+        while len < 360 && !taken[(start + len) % 360] {
+            len += 1;
+        }
+        if len > best_len {
+            best_len = len;
+            best_start = start;
+        }
+    }
+    let from = (best_start + best_len) % 360;
+    let to = (best_start + 360 - 1) % 360 + 1;
+    Some((from as f64, to as f64))
+}
+
+/// "+x", "-x+y", "+x-y-z": the axes a unit vector leans toward, keeping a
+/// component when it is at least half the largest (so 26.6° off an axis
+/// still names the axis alone, 45° names the pair).
+fn axis_name(d: [f64; 3]) -> String {
+    let largest = d.iter().map(|c| c.abs()).fold(0.0, f64::max);
+    let mut name = String::new();
+    for (c, axis) in d.iter().zip(["x", "y", "z"]) {
+        if c.abs() >= 0.5 * largest && largest > 0.0 {
+            name.push(if *c >= 0.0 { '+' } else { '-' });
+            name.push_str(axis);
+        }
+    }
+    name
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fibonacci(n: usize) -> Vec<[f64; 3]> {
+        let golden = PI * (3.0 - 5f64.sqrt());
+        (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+                let rho = (1.0 - z * z).sqrt();
+                let phi = golden * i as f64;
+                [rho * phi.cos(), rho * phi.sin(), z]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn regions_have_equal_area() {
+        // Uniform points fall evenly into the regions: each holds 1/N of
+        // them within the lattice's discreteness.
+        let points = fibonacci(100_000);
+        let cov = coverage(points.iter().copied());
+        assert_eq!(cov.covered, REGIONS);
+        for (k, &c) in cov.counts.iter().enumerate() {
+            assert!((c as f64 - 1000.0).abs() < 30.0, "region {k} holds {c}");
+        }
+        assert_eq!(BANDS.iter().sum::<usize>(), REGIONS);
+    }
+
+    #[test]
+    fn region_centres_lie_in_their_region() {
+        for k in 0..REGIONS {
+            assert_eq!(region_of(region(k).centre), Some(k), "region {k}");
+        }
+    }
+
+    #[test]
+    fn upper_half_names_the_lower_half_missing() {
+        let points: Vec<[f64; 3]> = fibonacci(5000).into_iter().filter(|p| p[2] > 0.0).collect();
+        let cov = coverage(points);
+        assert_eq!(cov.covered, 50);
+        assert_eq!(cov.missing.len(), 1, "{}", cov.missing_text());
+        let m = &cov.missing[0];
+        assert_eq!(m.toward, "-z");
+        assert_eq!(m.regions, 50);
+        assert_eq!(m.azimuth_deg, None);
+        assert!((m.elevation_deg.0 + 90.0).abs() < 1e-9 && m.elevation_deg.1.abs() < 1e-9);
+        assert!(
+            cov.missing_text()
+                .contains("-z (elevation -90° to 0°, every azimuth)")
+        );
+    }
+
+    #[test]
+    fn ring_names_both_poles() {
+        let points: Vec<[f64; 3]> = (0..360)
+            .map(|d| {
+                let a = (d as f64).to_radians();
+                [a.cos(), a.sin(), 0.0]
+            })
+            .collect();
+        let cov = coverage(points);
+        assert_eq!(cov.covered, 17);
+        let names: Vec<&str> = cov.missing.iter().map(|m| m.toward.as_str()).collect();
+        assert_eq!(cov.missing.len(), 2, "{}", cov.missing_text());
+        assert!(names.contains(&"+z") && names.contains(&"-z"), "{names:?}");
+    }
+
+    #[test]
+    fn a_missing_octant_is_named_by_its_axes() {
+        let points: Vec<[f64; 3]> = fibonacci(20_000)
+            .into_iter()
+            .filter(|p| !(p[0] > 0.0 && p[1] > 0.0 && p[2] < 0.0))
+            .collect();
+        let cov = coverage(points);
+        assert_eq!(cov.missing.len(), 1, "{}", cov.missing_text());
+        let m = &cov.missing[0];
+        assert_eq!(m.toward, "+x+y-z");
+        let (a, b) = m.azimuth_deg.expect("an octant spans a quarter turn");
+        assert!(a >= 0.0 && b <= 90.0 && b > a, "{a}..{b}");
+    }
+}
