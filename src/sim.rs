@@ -593,6 +593,23 @@ pub enum WireError {
 }
 
 impl SimSensor {
+    /// Checks, before anything is simulated or allocated, that a capture of
+    /// this sensor on `wire` can be made: the garbage fraction, the
+    /// sensor's settings, and the size (frames of 23 bytes and on average
+    /// f/(1 − f) garbage bytes for each frame byte) within
+    /// [`MAX_CAPTURE_BYTES`].
+    pub fn check_capture(&self, wire: &FalconWire) -> Result<(), WireError> {
+        if !(0.0..=MAX_GARBAGE).contains(&wire.garbage) {
+            return Err(WireError::Garbage(wire.garbage));
+        }
+        let samples = self.validate()? as f64;
+        let bytes = samples * crate::protocol::falcon::FRAME_LEN as f64 / (1.0 - wire.garbage);
+        if !(bytes <= MAX_CAPTURE_BYTES) {
+            return Err(WireError::TooLarge { bytes });
+        }
+        Ok(())
+    }
+
     /// Simulates a Falcon-GX-style IMU whose magnetometer x, y are this
     /// sensor (turning about z, so mag z and gravity stay constant), one
     /// frame per `period`, as a capture: header and chunks.
@@ -603,16 +620,7 @@ impl SimSensor {
         use crate::capture::{CaptureHeader, Chunk, StreamInfo, StreamKind};
         use crate::protocol::falcon::{BAUD, FalconFrame};
 
-        if !(0.0..=MAX_GARBAGE).contains(&wire.garbage) {
-            return Err(WireError::Garbage(wire.garbage));
-        }
-        // Checked before anything is allocated: frames of 23 bytes, and
-        // on average f/(1 - f) garbage bytes for each frame byte.
-        let samples = self.validate()? as f64;
-        let bytes = samples * crate::protocol::falcon::FRAME_LEN as f64 / (1.0 - wire.garbage);
-        if !(bytes <= MAX_CAPTURE_BYTES) {
-            return Err(WireError::TooLarge { bytes });
-        }
+        self.check_capture(wire)?;
         let data = self.simulate()?;
         let to_counts = |index: usize, value: f64| -> Result<i16, WireError> {
             let rounded = value.round();

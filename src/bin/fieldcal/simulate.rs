@@ -40,6 +40,14 @@ pub fn simulate(args: SimulateArgs) -> Result<()> {
     {
         bail!("{}", exists_message(path));
     }
+    let wire = FalconWire {
+        garbage: args.garbage,
+        ..Default::default()
+    };
+    if args.format != SimFormat::Csv {
+        // A capture too large is refused before the samples are simulated.
+        sensor.check_capture(&wire)?;
+    }
     let (data, model_truth) = sensor.simulate_with_truth()?;
     let n = match args.format {
         SimFormat::Csv => {
@@ -56,10 +64,6 @@ pub fn simulate(args: SimulateArgs) -> Result<()> {
         SimFormat::Falcon | SimFormat::FalconRaw => {
             let Some(path) = &args.output else {
                 bail!("Falcon-GX frames are binary: write them to a file with --output FILE");
-            };
-            let wire = FalconWire {
-                garbage: args.garbage,
-                ..Default::default()
             };
             let (header, chunks) = sensor.falcon_capture(&wire)?;
             if args.format == SimFormat::Falcon {
