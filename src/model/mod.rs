@@ -15,6 +15,8 @@
 //! - [`turn`]: whether the readings show a turn at all, before any fit.
 //! - [`ellipsoid`]: the 3-D model (offset, gains, soft iron) and its fit.
 //! - [`sphere`]: coverage of the sphere of directions, for 3-axis sensors.
+//! - [`tilt`]: the tilt-compensated heading from a magnetometer and an
+//!   accelerometer on one board.
 
 pub mod check;
 pub mod diagnose;
@@ -27,6 +29,7 @@ pub mod nonlinear;
 pub mod paper;
 pub mod residuals;
 pub mod sphere;
+pub mod tilt;
 pub mod turn;
 
 use crate::report::significant;
