@@ -178,6 +178,63 @@ impl Dataset {
     }
 }
 
+/// A recording of a 3-axis sensor: the points `[x, y, z]` with the same
+/// times and covariates as a [`Dataset`] (same invariant: equal lengths,
+/// finite values).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dataset3 {
+    pub x_name: String,
+    pub y_name: String,
+    pub z_name: String,
+    pub t: Option<Vec<f64>>,
+    pub points: Vec<[f64; 3]>,
+    pub covariates: Vec<Covariate>,
+}
+
+impl Dataset3 {
+    /// The 3-axis recording whose z is the covariate `z_name` of a
+    /// 2-axis one; `None` when it has no such covariate.
+    pub fn from_dataset(dataset: Dataset, z_name: &str) -> Option<Self> {
+        let Dataset {
+            x_name,
+            y_name,
+            t,
+            x,
+            y,
+            mut covariates,
+        } = dataset;
+        let k = covariates.iter().position(|c| c.name == z_name)?;
+        let z = covariates.remove(k);
+        let points = x
+            .iter()
+            .zip(&y)
+            .zip(&z.values)
+            .map(|((&x, &y), &z)| [x, y, z])
+            .collect();
+        Some(Dataset3 {
+            x_name,
+            y_name,
+            z_name: z.name,
+            t,
+            points,
+            covariates,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The covariate column of that name, if the recording has one.
+    pub fn covariate(&self, name: &str) -> Option<&Covariate> {
+        self.covariates.iter().find(|c| c.name == name)
+    }
+}
+
 /// What a device reported in one frame or one poll, in raw counts, stamped
 /// with the host's receive time. Devices fill the fields they have.
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use crate::io::atomic::AtomicFile;
 use crate::io::regular::{not_regular_kind, open_regular};
-use crate::sample::{Covariate, Dataset};
+use crate::sample::{Covariate, Dataset, Dataset3};
 
 /// Time columns looked for, in order, when the user names none.
 pub const DEFAULT_TIME_COLUMNS: [&str; 4] = ["t", "t_s", "time", "time_s"];
@@ -306,6 +306,65 @@ pub fn parse_dataset<R: Read>(
         line: 0,
         message: e.to_string(),
     })
+}
+
+/// Reads a 3-axis recording: `spec`'s x and y, and `z` (a numeric
+/// column, neither x, y nor time).
+pub fn read_dataset3(path: &Path, spec: &ColumnSpec, z: &str) -> Result<Dataset3, CsvError> {
+    let file = open_regular(path).map_err(|source| CsvError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    parse_dataset3(io::BufReader::with_capacity(1 << 16, file), path, spec, z)
+}
+
+/// Reads a 3-axis recording from any reader; `path` is used in messages.
+pub fn parse_dataset3<R: Read>(
+    reader: R,
+    path: &Path,
+    spec: &ColumnSpec,
+    z: &str,
+) -> Result<Dataset3, CsvError> {
+    if z == spec.x || z == spec.y || spec.t.as_deref() == Some(z) {
+        let other = if z == spec.x {
+            &spec.x
+        } else if z == spec.y {
+            &spec.y
+        } else {
+            z
+        };
+        return Err(CsvError::SameAxis {
+            path: path.to_path_buf(),
+            x: format!("'{}' (z)", super::excerpt(z)),
+            y: format!("'{}'", super::excerpt(other)),
+        });
+    }
+    let dataset = parse_dataset(reader, path, spec)?;
+    let names: Vec<String> = dataset.covariates.iter().map(|c| c.name.clone()).collect();
+    let time_name = dataset.t.as_ref().and(spec.t.clone());
+    Dataset3::from_dataset(dataset, z).ok_or_else(|| {
+        let mut available = vec![spec.x.clone(), spec.y.clone()];
+        available.extend(time_name);
+        available.extend(names);
+        CsvError::MissingColumn {
+            path: path.to_path_buf(),
+            name: z.to_string(),
+            role: "the z axis (a numeric column)",
+            flag: "--z",
+            available: super::name_list(&available),
+        }
+    })
+}
+
+/// The column names of a file's header (for choosing defaults, such as a
+/// third axis when the file has a `z` column).
+pub fn header(path: &Path) -> Result<Vec<String>, CsvError> {
+    let file = open_regular(path).map_err(|source| CsvError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let (_, names) = open_with_header(io::BufReader::new(file), path)?;
+    Ok(names)
 }
 
 /// One column of a file against that file's own time column: a gyro axis
@@ -1073,6 +1132,30 @@ pub fn scan_rows<R: io::BufRead>(rows: &mut CsvRows<R>, path: &Path) -> Result<C
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_third_axis_is_read_and_named_when_missing() {
+        let text = "t,mx,my,mz,temp\n0,1,2,3,20\n1,4,5,6,21\n";
+        let spec = ColumnSpec {
+            x: "mx".into(),
+            y: "my".into(),
+            t: None,
+        };
+        let d = parse_dataset3(text.as_bytes(), Path::new("a.csv"), &spec, "mz").unwrap();
+        assert_eq!(d.points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+        assert_eq!(d.t, Some(vec![0.0, 1.0]));
+        assert_eq!(d.z_name, "mz");
+        assert_eq!(d.covariates.len(), 1);
+        assert_eq!(d.covariates[0].name, "temp");
+        let e = parse_dataset3(text.as_bytes(), Path::new("a.csv"), &spec, "z").unwrap_err();
+        let m = e.to_string();
+        assert!(
+            m.contains("'z'") && m.contains("--z") && m.contains("mz"),
+            "{m}"
+        );
+        let e = parse_dataset3(text.as_bytes(), Path::new("a.csv"), &spec, "mx").unwrap_err();
+        assert!(matches!(e, CsvError::SameAxis { .. }), "{e}");
+    }
+
     use super::*;
 
     fn parse(text: &str) -> Result<Dataset, CsvError> {

@@ -131,6 +131,9 @@ struct CsvInput {
     /// Column holding the y axis.
     #[arg(long, default_value = "y", value_name = "COL")]
     y: String,
+    /// Column holding the z axis: fit in 3-D [default: z, when the file has a `z` column and --x, --y are not given]
+    #[arg(long, value_name = "COL")]
+    z: Option<String>,
     /// Column holding time in seconds [default: the first of t, t_s, time, time_s]
     #[arg(long, value_name = "COL")]
     t: Option<String>,
@@ -143,6 +146,30 @@ struct CsvInput {
 }
 
 impl CsvInput {
+    /// The z column of a 3-axis analysis: --z, or `z` when the file has a
+    /// `z` column and --x and --y were left at their defaults. `None`: the
+    /// analysis is the 2-axis one.
+    fn z_column(&self) -> anyhow::Result<Option<String>> {
+        if let Some(z) = &self.z {
+            return Ok(Some(z.clone()));
+        }
+        if self.x != "x" || self.y != "y" {
+            return Ok(None);
+        }
+        let header = fieldcal::io::csv::header(&self.file)?;
+        Ok(header.iter().any(|h| h == "z").then(|| "z".to_string()))
+    }
+
+    /// The 3-axis recording, with its z column from [`Self::z_column`].
+    fn read3(&self, z: &str) -> anyhow::Result<fieldcal::sample::Dataset3> {
+        let spec = fieldcal::io::csv::ColumnSpec {
+            x: self.x.clone(),
+            y: self.y.clone(),
+            t: self.t.clone(),
+        };
+        Ok(fieldcal::io::csv::read_dataset3(&self.file, &spec, z)?)
+    }
+
     fn read(&self) -> anyhow::Result<fieldcal::sample::Dataset> {
         let spec = fieldcal::io::csv::ColumnSpec {
             x: self.x.clone(),
