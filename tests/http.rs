@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use common::daemon::{Daemon, replay_config};
 use common::http::{Events, live_address, request};
 use fieldcal::daemon::config::{Config, parse};
-use fieldcal::daemon::http::{PAGE, router, serve};
+use fieldcal::daemon::http::{ConnectionLimits, PAGE, router, serve, serve_with};
 use fieldcal::daemon::publish::{ClientCommand, Hub, Lane, ReplyTo, error_line};
 use serde_json::{Value, json};
 use tokio::sync::{mpsc, watch};
@@ -40,6 +40,96 @@ async fn start(hub: &Hub) -> (String, mpsc::Receiver<(ClientCommand, ReplyTo)>) 
         serve(listener, app, stop).await
     });
     (addr, rx)
+}
+
+/// [`start`] with chosen connection limits.
+async fn start_with(hub: &Hub, limits: ConnectionLimits) -> String {
+    let (tx, rx) = mpsc::channel(64);
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let (stop_tx, stop) = watch::channel(false);
+    let app = router(hub.clone(), tx, &config());
+    tokio::spawn(async move {
+        let _keep = (stop_tx, rx);
+        serve_with(listener, app, stop, limits).await
+    });
+    addr
+}
+
+/// Seconds until the server closes a connection on which the client sends
+/// nothing (EOF or reset), or `None` after `within`.
+fn closed_after(stream: &mut std::net::TcpStream, within: Duration) -> Option<f64> {
+    use std::io::Read as _;
+    let start = Instant::now();
+    stream.set_read_timeout(Some(within)).unwrap();
+    let mut buf = [0u8; 256];
+    match stream.read(&mut buf) {
+        Ok(0) => Some(start.elapsed().as_secs_f64()),
+        Ok(_) => panic!("the server sent bytes on a connection that asked nothing"),
+        Err(e)
+            if matches!(
+                e.kind(),
+                std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+            ) =>
+        {
+            None
+        }
+        Err(_) => Some(start.elapsed().as_secs_f64()),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_connections_are_bounded_and_closed_so_they_cannot_use_up_descriptors() {
+    let hub = Hub::new(8);
+    let idle = Duration::from_millis(400);
+    let addr = start_with(&hub, ConnectionLimits { requests: 2, idle }).await;
+    let (times, answer) = blocking(move || {
+        // Four clients connect and send nothing: two are served, two wait in
+        // the kernel's backlog (no descriptor of the daemon's).
+        let mut idle_clients: Vec<_> = (0..4)
+            .map(|_| std::net::TcpStream::connect(&addr).unwrap())
+            .collect();
+        let times: Vec<Option<f64>> = idle_clients
+            .iter_mut()
+            .map(|c| closed_after(c, Duration::from_secs(10)))
+            .collect();
+        // A real request afterwards is answered.
+        let answer = request(&addr, "GET", "/api/config", None, Duration::from_secs(20));
+        (times, answer)
+    })
+    .await;
+    for (i, t) in times.iter().enumerate() {
+        let t = t.unwrap_or_else(|| panic!("idle connection {i} was still open after 10 s"));
+        assert!(t < 5.0, "idle connection {i} closed after {t} s");
+    }
+    assert_eq!(answer.status, 200, "{}", answer.text());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_event_stream_gives_its_connection_permit_back_to_the_page_requests() {
+    let hub = Hub::new(8);
+    let addr = start_with(
+        &hub,
+        ConnectionLimits {
+            requests: 1,
+            idle: Duration::from_secs(60),
+        },
+    )
+    .await;
+    let (streaming, elapsed, answer) = blocking(move || {
+        let events = Events::connect(&addr, "/api/events");
+        let start = Instant::now();
+        // The only permit went to the event stream; the hub counts it now.
+        let answer = request(&addr, "GET", "/api/config", None, Duration::from_secs(20));
+        (events, start.elapsed(), answer)
+    })
+    .await;
+    assert_eq!(answer.status, 200, "{}", answer.text());
+    assert!(
+        elapsed < Duration::from_secs(10),
+        "answered after {elapsed:?}"
+    );
+    drop(streaming);
 }
 
 async fn blocking<R: Send + 'static>(f: impl FnOnce() -> R + Send + 'static) -> R {

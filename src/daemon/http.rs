@@ -26,9 +26,12 @@
 //!   no commands, 504 when it did not answer in time. `/api/config` says
 //!   whether the button works (`"recalibrate": {"allowed", "token",
 //!   "reason"}`), and the page disables it with the reason otherwise.
+//!
+//! Connections are bounded ([`super::http_conn`]): at most
+//! [`super::http_conn::PAGE_REQUESTS`] that are not event streams, each
+//! closed after [`super::http_conn::IDLE`] with nothing read or written.
 
 use std::convert::Infallible;
-use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -43,6 +46,8 @@ use serde_json::{Value, json};
 use tokio::sync::{mpsc, watch};
 
 use super::config::Config;
+pub use super::http_conn::ConnectionLimits;
+use super::http_conn::{BoundedListener, Peer};
 use super::publish::{
     Access, ClientCommand, Hub, MAX_COMMAND_LEN, Origin, ReplyTo, SubscribeError,
 };
@@ -136,14 +141,25 @@ pub fn router(
         .with_state(app)
 }
 
-/// Serves `router` on `listener` until `shutdown` turns true. Event streams
-/// end when the hub closes.
+/// Serves `router` on `listener` until `shutdown` turns true, with the
+/// default [`ConnectionLimits`]. Event streams end when the hub closes.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     router: Router,
-    mut shutdown: watch::Receiver<bool>,
+    shutdown: watch::Receiver<bool>,
 ) {
-    let service = router.into_make_service_with_connect_info::<SocketAddr>();
+    serve_with(listener, router, shutdown, ConnectionLimits::default()).await
+}
+
+/// [`serve`] with chosen connection limits.
+pub async fn serve_with(
+    listener: tokio::net::TcpListener,
+    router: Router,
+    mut shutdown: watch::Receiver<bool>,
+    limits: ConnectionLimits,
+) {
+    let listener = BoundedListener::new(listener, limits);
+    let service = router.into_make_service_with_connect_info::<Peer>();
     let stop = async move {
         while !*shutdown.borrow_and_update() {
             if shutdown.changed().await.is_err() {
@@ -181,12 +197,17 @@ async fn not_found() -> Response {
     )
 }
 
-async fn events(State(app): State<App>, ConnectInfo(peer): ConnectInfo<SocketAddr>) -> Response {
+async fn events(State(app): State<App>, ConnectInfo(conn): ConnectInfo<Peer>) -> Response {
+    let peer = conn.addr;
     let sub = match app
         .hub
         .try_subscribe(format!("http {peer}"), Origin::Http, true)
     {
-        Ok(sub) => sub,
+        Ok(sub) => {
+            // The hub counts it now, among the subscribers.
+            conn.release();
+            sub
+        }
         Err(e @ (SubscribeError::Closed | SubscribeError::Full { .. })) => {
             return error(StatusCode::SERVICE_UNAVAILABLE, &e.to_string());
         }

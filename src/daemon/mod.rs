@@ -10,6 +10,7 @@
 pub mod acceptance;
 pub mod config;
 pub mod http;
+pub mod http_conn;
 pub mod messages;
 pub mod notify;
 pub mod progress;
