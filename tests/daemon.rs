@@ -421,8 +421,11 @@ fn a_subscriber_that_never_reads_slows_nobody_and_its_drops_are_counted() {
         f(&last_status["dropped"]) > 0.0,
         "the stuck subscriber's drops are counted: {last_status}"
     );
-    // 1.5 s of replay: a stuck subscriber did not hold the sensor path back.
-    assert!(elapsed < Duration::from_secs(8), "took {elapsed:?}");
+    // 1.5 s of replay. A stuck subscriber that held the sensor path back
+    // would stop it for good (it never reads), so the bound is loose: it
+    // only has to hold on a machine loaded 10 deep (2 cores, CI beside
+    // builds), where 8 s was once too tight.
+    assert!(elapsed < Duration::from_secs(20), "took {elapsed:?}");
 }
 
 #[test]
