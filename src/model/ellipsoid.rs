@@ -207,10 +207,14 @@ pub enum Ellipsoid3Error {
     )]
     Degenerate,
     #[error(
-        "the readings cover {percent:.0} % of the sphere of directions, too little to determine the {model} model; {missing}; {}",
+        "the readings cover {percent:.0} % of the sphere of directions, too little to determine the {model} model; {missing}; {}{}",
         match supported {
             Some(m) => format!("the data still support the {m} model (choose it, or tumble the sensor through the missing directions)"),
-            None => "the data support no 3-D model: tumble the sensor through the missing directions (for a turn in one plane, fit two axes)".to_string(),
+            None => "the data support no 3-D model: tumble the sensor through the missing directions".to_string(),
+        },
+        match plane {
+            Some(p) => format!(" ({p})"),
+            None => String::new(),
         }
     )]
     NotCovered {
@@ -218,6 +222,9 @@ pub enum Ellipsoid3Error {
         percent: f64,
         missing: String,
         supported: Option<Ellipsoid3Model>,
+        /// When the directions lie near one plane (a turn, not a tumble):
+        /// which, and what to do.
+        plane: Option<String>,
     },
     #[error(
         "the fit did not converge within {iterations} iterations; the readings may not be a sensor turning in a constant field"
@@ -795,14 +802,14 @@ pub fn fit(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Ellipsoid3Fit,
             });
             let dirs = directions_about(&p, &about);
             if !supports(model, &dirs) {
-                return Err(not_covered(model, &dirs));
+                return Err(not_covered(model, &dirs, &p));
             }
             return Err(error);
         }
     };
     let dirs = directions_about(&p, &start);
     if !supports(model, &dirs) {
-        return Err(not_covered(model, &dirs));
+        return Err(not_covered(model, &dirs, &p));
     }
     let mut v = pack(model, &start);
     let (iterations, jtj, rss) = levenberg_marquardt(model, &mut v, &p)?;
@@ -855,14 +862,78 @@ pub fn fit(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Ellipsoid3Fit,
     })
 }
 
-fn not_covered(model: Ellipsoid3Model, dirs: &[[f64; 3]]) -> Ellipsoid3Error {
+fn not_covered(model: Ellipsoid3Model, dirs: &[[f64; 3]], p: &[Vector3<f64>]) -> Ellipsoid3Error {
     let coverage = sphere::coverage(dirs.iter().copied());
     Ellipsoid3Error::NotCovered {
         model,
         percent: coverage.fraction * 100.0,
         missing: coverage.missing_text(),
         supported: best_supported(dirs),
+        plane: plane_of(p),
     }
+}
+
+/// Points within this rms fraction of their spread from one plane are a
+/// turn: sin²(13°) of the field, as a hand-held turn wobbles by about ±10°
+/// (the sunsided set's turns); a tumble spreads its points evenly (1/3 of
+/// the spread along every axis).
+const PLANE_MAX_OUT: f64 = 0.05;
+/// ... spread within the plane (an ellipse, not a line): at least half of
+/// an even ring's 1/2 along each in-plane axis.
+const PLANE_MIN_IN: f64 = 0.25;
+/// ... and round it, not filling it: at most this fraction of the points
+/// within half the rms radius of their centre. A ring has none there (an
+/// ellipse whose axes differ by up to 2×, a gain error far beyond any
+/// sensor's, keeps every point beyond 0.63 of its rms radius); a cap of
+/// directions seen flat is a disc, with 12.5 % there if evenly filled.
+const PLANE_MAX_INSIDE: f64 = 0.05;
+
+/// When the points (centred on their mean) lie near one plane round its
+/// centre, as a turn does: the plane's normal axis and the advice (fit the
+/// two axes of the plane in 2-D, or tumble).
+fn plane_of(p: &[Vector3<f64>]) -> Option<String> {
+    if p.is_empty() {
+        return None;
+    }
+    let mean = p.iter().sum::<Vector3<f64>>() / p.len() as f64;
+    let mut s = Matrix3::<f64>::zeros();
+    for v in p {
+        let d = v - mean;
+        s += d * d.transpose();
+    }
+    let trace = s.trace();
+    if !(trace > 0.0 && trace.is_finite()) {
+        return None;
+    }
+    s /= trace;
+    let eig = nalgebra::SymmetricEigen::new(s);
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let (low, mid) = (eig.eigenvalues[order[0]], eig.eigenvalues[order[1]]);
+    if !(low < PLANE_MAX_OUT && mid > PLANE_MIN_IN) {
+        return None;
+    }
+    let normal = eig.eigenvectors.column(order[0]).into_owned();
+    let radius2: Vec<f64> = p
+        .iter()
+        .map(|v| {
+            let d = v - mean;
+            (d - normal * normal.dot(&d)).norm_squared()
+        })
+        .collect();
+    let rms2 = radius2.iter().sum::<f64>() / radius2.len() as f64;
+    let inside = radius2.iter().filter(|&&r2| r2 < 0.25 * rms2).count();
+    if inside as f64 > PLANE_MAX_INSIDE * radius2.len() as f64 {
+        return None;
+    }
+    let k = normal.iamax();
+    let names = ["x", "y", "z"];
+    let others: Vec<&str> = (0..3).filter(|&i| i != k).map(|i| names[i]).collect();
+    let out_deg = low.sqrt().asin().to_degrees();
+    Some(format!(
+        "the readings lie within {out_deg:.0}° rms of one plane, about the {} axis: a turn, not a tumble; to calibrate a turn fit the two axes that turned in 2-D (--x and --y, e.g. the {} and {} columns), or tumble the sensor",
+        names[k], others[0], others[1]
+    ))
 }
 
 #[cfg(test)]
@@ -1067,8 +1138,14 @@ mod tests {
             };
             // 11.7 % of the sphere's area; regions count when a point touches them.
             assert!(*percent < 35.0, "{err}");
+            // A cap is no turn: no advice to fit two axes.
+            assert!(!err.to_string().contains("two axes"), "{err}");
             assert_eq!(*supported, None, "{err}");
-            assert!(missing.contains("-z"), "{err}");
+            // Less than half covered: the text names what is covered.
+            assert!(
+                missing.contains("covered only") && missing.contains("+z (elevation"),
+                "{err}"
+            );
         }
     }
 
@@ -1087,16 +1164,26 @@ mod tests {
         for model in Ellipsoid3Model::ALL {
             let err = fit(&raw, model).unwrap_err();
             let Ellipsoid3Error::NotCovered {
-                missing, supported, ..
+                missing,
+                supported,
+                plane,
+                ..
             } = &err
             else {
                 panic!("{model}: {err}");
             };
             assert_eq!(*supported, None, "{err}");
-            assert!(err.to_string().contains("fit two axes"), "{err}");
-            // The ring's plane is tilted by W; the poles of the sensor
-            // frame stay the missing directions.
-            assert!(missing.contains("+z") && missing.contains("-z"), "{err}");
+            let plane = plane
+                .as_deref()
+                .unwrap_or_else(|| panic!("no plane named: {err}"));
+            assert!(plane.contains("about the z axis"), "{err}");
+            assert!(err.to_string().contains("fit the two axes"), "{err}");
+            // Less than half covered: the text names what is covered (about
+            // a closed-form centre off the ring's plane, a cone of it).
+            assert!(
+                missing.contains("covered only") && missing.contains("every other direction"),
+                "{err}"
+            );
         }
     }
 

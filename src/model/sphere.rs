@@ -167,9 +167,27 @@ pub struct SphereCoverage {
 impl SphereCoverage {
     /// "missing: -z (elevation -90° to -59°, every azimuth); +x+y (...)", or
     /// "nothing missing".
+    ///
+    /// When less than half the sphere is covered, the missing ranges are
+    /// most of it and would be named coarsely: the text names what is
+    /// covered instead, "covered only 10 of 100 regions: the band round the
+    /// y axis (...); every other direction is missing".
     pub fn missing_text(&self) -> String {
         if self.missing.is_empty() {
             return "nothing missing".to_string();
+        }
+        if self.covered * 2 < self.regions && self.counts.len() == REGIONS {
+            let covered: Vec<usize> = (0..REGIONS).filter(|&k| self.counts[k] > 0).collect();
+            if covered.is_empty() {
+                return "no direction covered".to_string();
+            }
+            let parts: Vec<String> = merge(&covered).iter().map(|m| m.to_string()).collect();
+            return format!(
+                "covered only {} of {} regions: {}; every other direction is missing",
+                self.covered,
+                self.regions,
+                parts.join("; ")
+            );
         }
         let parts: Vec<String> = self.missing.iter().map(|m| m.to_string()).collect();
         format!("missing: {}", parts.join("; "))
@@ -266,11 +284,43 @@ fn describe(members: &[&Region]) -> MissingDirections {
         }
     }
     let norm = (sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]).sqrt();
+    // Regions all round an axis (a band, a ring) have no direction they
+    // lean toward: name the band by its axis.
+    if members.len() >= 6 && norm < WRAPS * members.len() as f64 {
+        let axis = band_axis(members);
+        let name = axis_name(axis);
+        let name = name.strip_prefix(['+', '-']).unwrap_or(&name).to_string();
+        let (low, high) = elevation_range(members);
+        return MissingDirections {
+            toward: format!("the band round the {name} axis"),
+            direction: axis,
+            regions: members.len(),
+            elevation_deg: (low, high),
+            azimuth_deg: azimuth_span(members),
+        };
+    }
     let direction = if norm > 1e-9 {
         [sum[0] / norm, sum[1] / norm, sum[2] / norm]
     } else {
         members.first().map_or([0.0, 0.0, 1.0], |r| r.centre)
     };
+    let (low, high) = elevation_range(members);
+    MissingDirections {
+        toward: axis_name(direction),
+        direction,
+        regions: members.len(),
+        elevation_deg: (low, high),
+        azimuth_deg: azimuth_span(members),
+    }
+}
+
+/// A group whose mean direction is shorter than this fraction of a unit
+/// vector goes all round: the centres of an even band about any axis
+/// average to almost nothing, those of a cap of up to a hemisphere to at
+/// least half a unit vector.
+const WRAPS: f64 = 0.3;
+
+fn elevation_range(members: &[&Region]) -> (f64, f64) {
     let low = members
         .iter()
         .map(|r| r.elevation_deg.0)
@@ -279,13 +329,23 @@ fn describe(members: &[&Region]) -> MissingDirections {
         .iter()
         .map(|r| r.elevation_deg.1)
         .fold(f64::NEG_INFINITY, f64::max);
-    MissingDirections {
-        toward: axis_name(direction),
-        direction,
-        regions: members.len(),
-        elevation_deg: (low, high),
-        azimuth_deg: azimuth_span(members),
+    (low, high)
+}
+
+/// The axis a band of regions goes round: the direction of least spread
+/// of their centres.
+fn band_axis(members: &[&Region]) -> [f64; 3] {
+    let mut s = nalgebra::Matrix3::<f64>::zeros();
+    for r in members {
+        let c = nalgebra::Vector3::from(r.centre);
+        s += c * c.transpose();
     }
+    let eig = nalgebra::SymmetricEigen::new(s);
+    let k = eig.eigenvalues.imin();
+    let v = eig.eigenvectors.column(k);
+    // Point it toward the positive side of its largest component.
+    let sign = if v[v.iamax()] < 0.0 { -1.0 } else { 1.0 };
+    [v[0] * sign, v[1] * sign, v[2] * sign]
 }
 
 /// The smallest arc holding every member's azimuth range, or `None` when
@@ -360,6 +420,33 @@ mod tests {
                 [rho * phi.cos(), rho * phi.sin(), z]
             })
             .collect()
+    }
+
+    #[test]
+    fn a_band_is_named_by_what_it_covers() {
+        // A ring round y (a turn in the x-z plane), within 10° of the plane.
+        let ring: Vec<[f64; 3]> = (0..720)
+            .map(|i| {
+                let a = (i as f64).to_radians() * 0.5 * 2.0;
+                let tilt = (10.0f64).to_radians() * (3.0 * a).sin();
+                [a.cos() * tilt.cos(), tilt.sin(), a.sin() * tilt.cos()]
+            })
+            .collect();
+        let c = coverage(ring);
+        assert!(c.covered * 2 < c.regions, "{}", c.covered);
+        let text = c.missing_text();
+        assert!(
+            text.starts_with("covered only") && text.contains("the band round the y axis"),
+            "{text}"
+        );
+        // Most of the sphere covered: the missing ranges are named.
+        let mut most: Vec<[f64; 3]> = fibonacci(2000)
+            .into_iter()
+            .filter(|v| v[2] > -0.5)
+            .collect();
+        most.push([0.0, 0.0, 1.0]);
+        let text = coverage(most).missing_text();
+        assert!(text.starts_with("missing: -z"), "{text}");
     }
 
     #[test]
