@@ -408,6 +408,40 @@ fn real_magnetometer_tumble_fits_in_3d() {
     assert!(mg(2) > 16.0, "offset: {} mG", mg(2));
     assert!(mg(0) < mg(1) && mg(1) < mg(2));
     assert!(f(&v["coverage"]["fraction"]) >= 0.85);
+    // --output: the calibrated samples lie on the sphere of radius r, with
+    // the reported rms.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("mag3.csv");
+    run_ok(&[
+        "fit",
+        &file,
+        "--x",
+        "mag_x",
+        "--y",
+        "mag_y",
+        "--z",
+        "mag_z",
+        "--output",
+        out.to_str().unwrap(),
+    ]);
+    let text = fs::read_to_string(&out).unwrap();
+    assert!(text.starts_with("t,x,y,z\n"));
+    let magnitudes: Vec<f64> = text
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let c: Vec<f64> = l.split(',').map(|c| c.parse().unwrap()).collect();
+            (c[1] * c[1] + c[2] * c[2] + c[3] * c[3]).sqrt()
+        })
+        .collect();
+    assert_eq!(magnitudes.len(), 4322);
+    let rms = (magnitudes
+        .iter()
+        .map(|m| (m / r - 1.0).powi(2))
+        .sum::<f64>()
+        / 4322.0)
+        .sqrt();
+    assert!((rms - f(&v["rms"])).abs() < 1e-9, "{rms} vs {}", v["rms"]);
     // The text report names the units as unknown and every model's rms.
     let text = run_ok(&[
         "fit", &file, "--x", "mag_x", "--y", "mag_y", "--z", "mag_z", "--units", "G",

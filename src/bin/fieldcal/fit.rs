@@ -1,4 +1,5 @@
-//! `fieldcal fit`: read a CSV, fit, report.
+//! `fieldcal fit`: read a CSV, fit, report. Two columns: the paper's model
+//! (or --effects) on a turn; three (--z, or a `z` column): the ellipsoid.
 
 use std::io::IsTerminal;
 
@@ -284,13 +285,12 @@ fn fit_model3(
     }
 }
 
+/// The gyro's three column names and its rates (deg/s), one per sample.
+type GyroColumns = ([String; 3], Vec<[f64; 3]>);
+
 /// The gyro's three columns for `--still`: `--still-gyro X,Y,Z`, or
 /// gyro_x, gyro_y, gyro_z when the recording has them; `none`: no gyro.
-fn still_gyro(
-    args: &FitArgs,
-    data: &Dataset3,
-    file: &str,
-) -> Result<Option<([String; 3], Vec<[f64; 3]>)>> {
+fn still_gyro(args: &FitArgs, data: &Dataset3, file: &str) -> Result<Option<GyroColumns>> {
     let names: [String; 3] = match args.still_gyro.as_deref() {
         Some("none") => return Ok(None),
         Some(text) => {
