@@ -499,3 +499,47 @@ fn two_axes_of_a_tumble_are_refused_pointing_to_the_third() {
         );
     }
 }
+
+#[test]
+fn bad_readings_and_2d_options_are_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let real = fs::read_to_string(tilt_sphere("hmc5883l_mag.csv")).unwrap();
+    let lines: Vec<&str> = real.lines().take(400).collect();
+    for (value, needle) in [
+        ("nan", "is not a finite number"),
+        ("1e200", "too large to square"),
+    ] {
+        let mut bad = lines.clone();
+        let row = format!("1.0,0.1,0.2,{value}");
+        bad[49] = &row;
+        let path = dir.path().join("bad.csv");
+        fs::write(&path, bad.join("\n") + "\n").unwrap();
+        let path = path.to_str().unwrap();
+        let message = run_err(&["fit", path, "--x", "mag_x", "--y", "mag_y", "--z", "mag_z"]);
+        assert!(
+            message.contains("bad.csv:50: column 'mag_z'") && message.contains(needle),
+            "{message}"
+        );
+    }
+    let file = tilt_sphere("hmc5883l_mag.csv");
+    let axes = ["fit", &file, "--x", "mag_x", "--y", "mag_y", "--z", "mag_z"];
+    for (extra, needle) in [
+        (&["--gyro", "gyro_z"][..], "--gyro checks a 2-axis heading"),
+        (
+            &["--solver", "paper-gd"][..],
+            "--solver paper-gd fits the paper's 2-axis model",
+        ),
+        (&["--min-coverage", "200"][..], "sphere's coverage rule"),
+    ] {
+        let mut args = axes.to_vec();
+        args.extend(extra);
+        let message = run_err(&args);
+        assert!(message.contains(needle), "{message}");
+    }
+    // --units and --still need a third axis.
+    let message = run_err(&["fit", &file, "--x", "mag_x", "--y", "mag_y", "--units", "G"]);
+    assert!(
+        message.contains("name the third axis with --z"),
+        "{message}"
+    );
+}
