@@ -543,3 +543,21 @@ fn bad_readings_and_2d_options_are_refused_by_name() {
         "{message}"
     );
 }
+
+#[test]
+fn two_axes_of_simulated_tumbles_are_refused_for_every_seed() {
+    // Any two axes of a tumble fill a disc: the 2-D fit refuses (the turn
+    // gate's hole test) and points to the third axis, for every seed.
+    let dir = tempfile::tempdir().unwrap();
+    for seed in 0..20 {
+        let raw = tumble(0.005, 1500, 100 + seed).simulate().unwrap();
+        let file = write_csv(&dir, "tumble.csv", ["mx", "my", "mz"], &raw);
+        for (x, y, z) in [("mx", "my", "mz"), ("my", "mz", "mx"), ("mx", "mz", "my")] {
+            let message = run_err(&["fit", &file, "--x", x, "--y", y]);
+            assert!(
+                message.contains(&format!("--x {x} --y {y} --z {z}")),
+                "seed {seed}: {message}"
+            );
+        }
+    }
+}
