@@ -535,6 +535,31 @@ pub fn write_calibrated_to<W: Write>(
     Ok(())
 }
 
+/// Writes calibrated 3-axis samples as CSV (`t,x,y,z` or `x,y,z`), in
+/// input order, atomically as [`write_calibrated`].
+pub fn write_calibrated3(path: &Path, t: Option<&[f64]>, points: &[[f64; 3]]) -> io::Result<()> {
+    let mut file = AtomicFile::create(path)?;
+    {
+        let mut out = BufWriter::with_capacity(1 << 16, file.as_file_mut());
+        match t {
+            Some(t) => {
+                writeln!(out, "t,x,y,z")?;
+                for (t, p) in t.iter().zip(points) {
+                    writeln!(out, "{t},{},{},{}", p[0], p[1], p[2])?;
+                }
+            }
+            None => {
+                writeln!(out, "x,y,z")?;
+                for p in points {
+                    writeln!(out, "{},{},{}", p[0], p[1], p[2])?;
+                }
+            }
+        }
+        out.flush()?;
+    }
+    file.commit()
+}
+
 /// Writes a recording as CSV (`t,x,y` then its covariate columns by name),
 /// atomically, so a simulated sensor's covariates travel with its readings.
 /// With no covariates the bytes are those of [`write_calibrated`].

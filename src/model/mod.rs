@@ -15,6 +15,7 @@
 //! - [`turn`]: whether the readings show a turn at all, before any fit.
 //! - [`ellipsoid`]: the 3-D model (offset, gains, soft iron) and its fit.
 //! - [`sphere`]: coverage of the sphere of directions, for 3-axis sensors.
+//! - [`still`]: still segments (poses at rest) of a 3-axis recording.
 //! - [`tilt`]: the tilt-compensated heading from a magnetometer and an
 //!   accelerometer on one board.
 
@@ -29,6 +30,7 @@ pub mod nonlinear;
 pub mod paper;
 pub mod residuals;
 pub mod sphere;
+pub mod still;
 pub mod tilt;
 pub mod turn;
 

@@ -2,6 +2,7 @@
 
 pub mod diagnosis;
 pub mod fit;
+pub mod fit3;
 pub mod html;
 pub mod plots;
 mod scale;

@@ -276,9 +276,20 @@ struct FitArgs {
     solver: Solver,
     /// Fit the paper's model plus these effects by Levenberg-Marquardt
     /// (comma- or plus-separated: cross-axis, drift, covariate:<column>,
-    /// cubic, cubic-centred, outliers; `paper` is offset+scale).
+    /// cubic, cubic-centred, outliers; `paper` is offset+scale). With three
+    /// axes: the model, offset, offset+scale (paper) or
+    /// offset+scale+cross-axis (full, the default).
     #[arg(long, value_name = "LIST", value_parser = parse_effect_list)]
     effects: Option<EffectList>,
+    /// Three axes: the unit of the readings, printed with r and the offsets [default: g when the three columns' names start with `acc`, else unknown]
+    #[arg(long, value_name = "UNIT")]
+    units: Option<String>,
+    /// Three axes: fit on the still poses only (an accelerometer at rest in several poses, or the pauses of a tumble), found automatically.
+    #[arg(long)]
+    still: bool,
+    /// With --still: the gyroscope's three rate columns of the recording, as X,Y,Z (in --gyro-units), whose rate must stay under a hand's 5 °/s [default: gyro_x,gyro_y,gyro_z when the recording has them; `none`: the readings alone]
+    #[arg(long, value_name = "X,Y,Z", requires = "still")]
+    still_gyro: Option<String>,
     /// Print one JSON object on stdout instead of the text report.
     #[arg(long)]
     json: bool,
@@ -406,12 +417,25 @@ enum SimFormat {
     FalconRaw,
 }
 
-/// The model of `fit --effects` (a newtype: clap treats a bare Vec as repeats).
+/// The model of `fit --effects`: the 2-axis effects, or why the list is
+/// none (it names a 3-D model, `full`), and the text for the 3-axis fit.
 #[derive(Debug, Clone)]
-struct EffectList(Vec<fieldcal::model::effects::Effect>);
+struct EffectList {
+    effects: Result<Vec<fieldcal::model::effects::Effect>, String>,
+    text: String,
+}
 
 fn parse_effect_list(text: &str) -> Result<EffectList, String> {
-    fieldcal::model::effects::parse_list(text).map(EffectList)
+    let effects = fieldcal::model::effects::parse_list(text);
+    if let Err(e) = &effects
+        && fit::parse_effects3(text).is_err()
+    {
+        return Err(e.clone());
+    }
+    Ok(EffectList {
+        effects,
+        text: text.to_string(),
+    })
 }
 
 fn parse_speed(text: &str) -> Result<Speed, String> {
