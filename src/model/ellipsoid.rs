@@ -1141,7 +1141,7 @@ mod tests {
             // A cap is no turn: no advice to fit two axes.
             assert!(!err.to_string().contains("two axes"), "{err}");
             assert_eq!(*supported, None, "{err}");
-            // Less than half covered: the text names what is covered.
+            // Less than a third covered: the text names what is covered.
             assert!(
                 missing.contains("covered only") && missing.contains("+z (elevation"),
                 "{err}"
@@ -1178,7 +1178,7 @@ mod tests {
                 .unwrap_or_else(|| panic!("no plane named: {err}"));
             assert!(plane.contains("about the z axis"), "{err}");
             assert!(err.to_string().contains("fit the two axes"), "{err}");
-            // Less than half covered: the text names what is covered (about
+            // Less than a third covered: the text names what is covered (about
             // a closed-form centre off the ring's plane, a cone of it).
             assert!(
                 missing.contains("covered only") && missing.contains("every other direction"),

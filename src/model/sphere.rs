@@ -168,15 +168,15 @@ impl SphereCoverage {
     /// "missing: -z (elevation -90° to -59°, every azimuth); +x+y (...)", or
     /// "nothing missing".
     ///
-    /// When less than half the sphere is covered, the missing ranges are
-    /// most of it and would be named coarsely: the text names what is
+    /// When less than a third of the sphere is covered, the missing ranges
+    /// are most of it and would be named coarsely: the text names what is
     /// covered instead, "covered only 10 of 100 regions: the band round the
     /// y axis (...); every other direction is missing".
     pub fn missing_text(&self) -> String {
         if self.missing.is_empty() {
             return "nothing missing".to_string();
         }
-        if self.covered * 2 < self.regions && self.counts.len() == REGIONS {
+        if self.covered * 3 < self.regions && self.counts.len() == REGIONS {
             let covered: Vec<usize> = (0..REGIONS).filter(|&k| self.counts[k] > 0).collect();
             if covered.is_empty() {
                 return "no direction covered".to_string();
@@ -433,7 +433,7 @@ mod tests {
             })
             .collect();
         let c = coverage(ring);
-        assert!(c.covered * 2 < c.regions, "{}", c.covered);
+        assert!(c.covered * 3 < c.regions, "{}", c.covered);
         let text = c.missing_text();
         assert!(
             text.starts_with("covered only") && text.contains("the band round the y axis"),
