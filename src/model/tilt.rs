@@ -494,11 +494,17 @@ pub fn choose_axis_map(
     })
 }
 
-/// A gap in a time column longer than this many of its median sample
-/// periods is not bridged by interpolation: up to two dropped samples
-/// in a row (a host's or a bus's hiccup) are; a longer gap (the ~0.25 s
-/// stalls of a USB host) can hold a turn of the board that a straight line
-/// between its ends would not follow.
+/// A gap in a time column longer than this many of its sample periods is
+/// not bridged by interpolation: up to two dropped samples in a row (a
+/// host's or a bus's hiccup) are; a longer gap (the ~0.25 s stalls of a
+/// USB host) can hold a turn of the board that a straight line between
+/// its ends would not follow. The period is the 90th percentile of the
+/// intervals between time stamps: on a regular clock the sample period;
+/// on host receive times, which come in bursts (a USB serial adapter
+/// hands over its buffer in packets, so stamps bunch a few milliseconds
+/// apart and then pause), the interval between bursts, the resolution the
+/// stamps actually have (the median would be the spacing within a burst,
+/// and every pause would count as a gap).
 pub const MAX_GAP_PERIODS: f64 = 3.0;
 
 /// A second sensor's readings, interpolated at the first's sample times.
@@ -510,7 +516,7 @@ pub struct Resampled {
     pub outside: usize,
     /// Target times inside a gap longer than [`MAX_GAP_PERIODS`].
     pub in_gaps: usize,
-    /// The source's median sample period, seconds.
+    /// The source's sample period (90th percentile of its intervals), s.
     pub period: f64,
 }
 
@@ -540,8 +546,8 @@ pub enum ResampleError {
 }
 
 /// Interpolates `values` (at `times`, increasing) linearly at each of
-/// `at`, never across a gap longer than [`MAX_GAP_PERIODS`] median
-/// periods nor outside the span. `what` names the source in messages.
+/// `at`, never across a gap longer than [`MAX_GAP_PERIODS`] periods nor
+/// outside the span. `what` names the source in messages.
 pub fn resample(
     what: &str,
     times: &[f64],
@@ -582,7 +588,8 @@ pub fn resample(
         return Err(no_overlap());
     }
     let mut dt: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
-    let period = median_of(&mut dt);
+    dt.sort_by(|a, b| a.total_cmp(b));
+    let period = dt[(dt.len() - 1) * 9 / 10];
     let max_gap = MAX_GAP_PERIODS * period;
     let (mut outside, mut in_gaps) = (0, 0);
     let values = at
@@ -642,6 +649,196 @@ pub fn board_reading(
     let w2b = body_to_world.transpose();
     let (m, a) = (w2b * field, w2b * up);
     ([m.x, m.y, m.z], [a.x, a.y, a.z])
+}
+
+/// A stored 3-D calibration, as `fieldcal fit --json` writes it for
+/// three axes: calibrated = W·(raw − o), |calibrated| = r.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Calibration3 {
+    /// The columns it was fitted to: x, y, z.
+    pub columns: [String; 3],
+    pub offset: [f64; 3],
+    /// W, row-major.
+    pub matrix: [[f64; 3]; 3],
+    pub r: f64,
+    /// The raw readings' units, when known.
+    pub units: Option<String>,
+}
+
+/// Why a stored calibration was not understood.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Calibration3Error {
+    #[error("not JSON ({message}): give the output of `fieldcal fit --json` on a 3-axis recording")]
+    NotJson { message: String },
+    #[error(
+        "a calibration of {axes} axes: the heading needs a 3-D one; fit the three axes (`fieldcal fit FILE --x X --y Y --z Z --json`)"
+    )]
+    NotThreeAxes { axes: String },
+    #[error(
+        "no {field} (a {what}): give the output of `fieldcal fit --json` on a 3-axis recording"
+    )]
+    Missing {
+        field: &'static str,
+        what: &'static str,
+    },
+}
+
+impl Calibration3 {
+    /// Parses the JSON of `fieldcal fit --json` in 3-D (`"axes": 3`,
+    /// `"x_column"`, `"y_column"`, `"z_column"`, `"params": {"offset":
+    /// [3], "matrix": [[3]; 3], "r"}`, `"units"`).
+    pub fn from_json(text: &str) -> Result<Calibration3, Calibration3Error> {
+        let v: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| Calibration3Error::NotJson {
+                message: e.to_string(),
+            })?;
+        match v.get("axes").and_then(|a| a.as_u64()) {
+            Some(3) => {}
+            Some(n) => {
+                return Err(Calibration3Error::NotThreeAxes {
+                    axes: n.to_string(),
+                });
+            }
+            None => {
+                return Err(Calibration3Error::NotThreeAxes {
+                    axes: "two (no \"axes\": 3)".to_string(),
+                });
+            }
+        }
+        let column = |field: &'static str| {
+            v.get(field)
+                .and_then(|c| c.as_str())
+                .map(str::to_string)
+                .ok_or(Calibration3Error::Missing {
+                    field,
+                    what: "column name",
+                })
+        };
+        let columns = [
+            column("x_column")?,
+            column("y_column")?,
+            column("z_column")?,
+        ];
+        let params = v.get("params").ok_or(Calibration3Error::Missing {
+            field: "params",
+            what: "object of offset, matrix and r",
+        })?;
+        let triple = |value: Option<&serde_json::Value>, field: &'static str| {
+            let missing = Calibration3Error::Missing {
+                field,
+                what: "list of three finite numbers",
+            };
+            let list = value.and_then(|l| l.as_array()).ok_or(missing.clone())?;
+            if list.len() != 3 {
+                return Err(missing);
+            }
+            let mut out = [0.0; 3];
+            for (o, x) in out.iter_mut().zip(list) {
+                *o = x
+                    .as_f64()
+                    .filter(|x| x.is_finite())
+                    .ok_or(missing.clone())?;
+            }
+            Ok(out)
+        };
+        let offset = triple(params.get("offset"), "params.offset")?;
+        let rows = params
+            .get("matrix")
+            .and_then(|m| m.as_array())
+            .filter(|m| m.len() == 3)
+            .ok_or(Calibration3Error::Missing {
+                field: "params.matrix",
+                what: "3 × 3 list of rows",
+            })?;
+        let matrix = [
+            triple(rows.first(), "params.matrix")?,
+            triple(rows.get(1), "params.matrix")?,
+            triple(rows.get(2), "params.matrix")?,
+        ];
+        let r = params
+            .get("r")
+            .and_then(|r| r.as_f64())
+            .filter(|r| *r > 0.0 && r.is_finite())
+            .ok_or(Calibration3Error::Missing {
+                field: "params.r",
+                what: "positive number",
+            })?;
+        let units = v.get("units").and_then(|u| u.as_str()).map(str::to_string);
+        Ok(Calibration3 {
+            columns,
+            offset,
+            matrix,
+            r,
+            units,
+        })
+    }
+
+    /// W·(raw − o).
+    pub fn apply(&self, raw: [f64; 3]) -> [f64; 3] {
+        let d = [0, 1, 2].map(|i| raw[i] - self.offset[i]);
+        let w = &self.matrix;
+        [0, 1, 2].map(|i| w[i][0] * d[0] + w[i][1] * d[1] + w[i][2] * d[2])
+    }
+}
+
+/// Every sample's heading and the field's geometry (NaN where a sample
+/// has none: no accelerometer reading, a field too near the vertical).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct HeadingSeries {
+    /// Tilt-compensated, clockwise from north (true north when a
+    /// declination was added), degrees in [0, 360).
+    pub heading_deg: Vec<f64>,
+    /// What a level compass reads (no tilt compensation), same north.
+    pub level_deg: Vec<f64>,
+    pub tilt_deg: Vec<f64>,
+    pub pitch_deg: Vec<f64>,
+    pub inclination_deg: Vec<f64>,
+}
+
+/// Why the board's axes cannot give a heading.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error(
+    "the forward axis ({forward:?}) and the up axis ({up:?}) must be two different axes of the board, at right angles (for example --forward x --up z)"
+)]
+pub struct BoardAxesError {
+    pub forward: [f64; 3],
+    pub up: [f64; 3],
+}
+
+/// The heading of every sample from calibrated fields `mag` and specific
+/// forces `accel` in the body frame, paired sample by sample (NaN: none),
+/// for a board whose `forward` and `up` axes are given; `declination_deg`
+/// (east positive) is added to give true north.
+pub fn heading_series(
+    mag: &[[f64; 3]],
+    accel: &[[f64; 3]],
+    forward: [f64; 3],
+    up: [f64; 3],
+    declination_deg: f64,
+) -> Result<HeadingSeries, BoardAxesError> {
+    let (f, u) = (Vector3::from(forward), Vector3::from(up));
+    if !(f.norm() > 0.0 && u.norm() > 0.0) || f.dot(&u).abs() > 1e-9 * f.norm() * u.norm() {
+        return Err(BoardAxesError { forward, up });
+    }
+    let right = f.cross(&u);
+    let right = [right.x, right.y, right.z];
+    let turn = |h: f64| {
+        let t = (h + declination_deg).rem_euclid(360.0);
+        if t >= 360.0 { 0.0 } else { t }
+    };
+    let mut out = HeadingSeries::default();
+    for (m, a) in mag.iter().zip(accel) {
+        let t = tilt_heading(*m, *a, forward, up);
+        out.heading_deg
+            .push(t.map_or(f64::NAN, |t| turn(t.heading_deg)));
+        out.tilt_deg.push(t.map_or(f64::NAN, |t| t.tilt_deg));
+        out.pitch_deg.push(t.map_or(f64::NAN, |t| t.pitch_deg));
+        out.inclination_deg
+            .push(t.map_or(f64::NAN, |t| t.inclination_deg));
+        out.level_deg
+            .push(level_heading(*m, forward, right).map_or(f64::NAN, turn));
+    }
+    Ok(out)
 }
 
 #[cfg(test)]
