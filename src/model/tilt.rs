@@ -365,7 +365,7 @@ pub enum AxisChoiceError {
     )]
     TooFew { found: usize, needed: usize },
     #[error(
-        "the recording cannot tell the magnetometer's axes apart: the best mapping ({best}) keeps the dip within {best_spread:.2}° (robust SD) and another ({runner_up}) within {runner_up_spread:.2}°, and a choice needs the others at least {ratio}× worse. The board's vertical moved only {tilt_range_deg:.1}°: a turn about one axis (a flat turn) keeps that axis vertical, and mappings that differ by a swap or a sign about it give the same dip. Tumble the board through many tilts, or give the mapping with --mag-axes (e.g. x,-z,y)"
+        "the recording cannot tell the magnetometer's axes apart: the best mapping ({best}) keeps the dip within {best_spread:.2}° (robust SD) and another ({runner_up}) within {runner_up_spread:.2}°, and a choice needs the others at least {ratio}× worse. The board's vertical moved up to {tilt_range_deg:.1}°: a turn about one axis (a flat turn) keeps that axis vertical, and mappings that differ by a swap or a sign about it give the same dip; an uncalibrated magnetometer, or an accelerometer that sees the hand's motion, blurs the dip of every mapping alike. Calibrate both (--mag-calibration, --accel-calibration), tumble the board through many tilts, or give the mapping with --mag-axes (e.g. x,-z,y)"
     )]
     Ambiguous {
         best: AxisMap,
