@@ -370,11 +370,11 @@ fn write_series(path: &Path, t: &[f64], s: &HeadingSeries) -> std::io::Result<()
                 String::new()
             }
         };
-        for i in 0..t.len() {
+        for (i, t) in t.iter().enumerate() {
             writeln!(
                 out,
                 "{},{},{},{},{},{}",
-                t[i],
+                t,
                 f(s.heading_deg[i]),
                 f(s.level_deg[i]),
                 f(s.tilt_deg[i]),
