@@ -1111,4 +1111,41 @@ mod tests {
         assert!((s2.spread - s.spread).abs() < 0.01, "{s2:?}");
         assert!(robust_spread(&[f64::NAN]).is_none());
     }
+
+    #[test]
+    fn a_stored_3d_calibration_is_read_and_others_are_refused() {
+        let json = r#"{"axes": 3, "x_column": "mx", "y_column": "my", "z_column": "mz",
+            "params": {"offset": [1, 2, 3], "matrix": [[2, 0, 0], [0, 1, 0], [0, 0, 0.5]], "r": 0.5},
+            "units": "gauss"}"#;
+        let c = Calibration3::from_json(json).unwrap();
+        assert_eq!(c.columns, ["mx", "my", "mz"].map(String::from));
+        assert_eq!(c.apply([2.0, 3.0, 5.0]), [2.0, 1.0, 1.0]);
+        assert_eq!(c.units.as_deref(), Some("gauss"));
+        let two_d = r#"{"params": {"a": 1, "b": 0, "d": 0, "r": 1}}"#;
+        assert!(matches!(
+            Calibration3::from_json(two_d),
+            Err(Calibration3Error::NotThreeAxes { .. })
+        ));
+        let short = json.replace("[1, 2, 3]", "[1, 2]");
+        let err = Calibration3::from_json(&short).unwrap_err();
+        assert!(err.to_string().contains("params.offset"), "{err}");
+        let bad_r = json.replace("\"r\": 0.5", "\"r\": -1");
+        assert!(Calibration3::from_json(&bad_r).is_err());
+        assert!(matches!(
+            Calibration3::from_json("not json"),
+            Err(Calibration3Error::NotJson { .. })
+        ));
+    }
+
+    #[test]
+    fn the_series_adds_the_declination_and_refuses_parallel_axes() {
+        let (m, a) = board_reading(100.0, 10.0, -20.0, 60.0);
+        let s = heading_series(&[m, [f64::NAN; 3]], &[a, a], FORWARD, UP, -7.5).unwrap();
+        assert!((s.heading_deg[0] - 92.5).abs() < 1e-9, "{s:?}");
+        assert!((s.pitch_deg[0] - 10.0).abs() < 1e-9);
+        assert!((s.inclination_deg[0] - 60.0).abs() < 1e-9);
+        assert!(s.heading_deg[1].is_nan() && s.level_deg[1].is_nan());
+        assert!(heading_series(&[m], &[a], UP, UP, 0.0).is_err());
+        assert!(heading_series(&[m], &[a], FORWARD, [1.0, 0.0, 1.0], 0.0).is_err());
+    }
 }

@@ -72,7 +72,7 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
     let mag_file = args.input.file.clone();
     let main = mag_file.display().to_string();
     let z = args.input.z_column()?.unwrap_or_else(|| "z".to_string());
-    let mut data = args.input.read3(&z)?;
+    let data = args.input.read3(&z)?;
     let Some(mag_t) = data.t.clone() else {
         bail!(
             "{main}: the magnetometer's recording has no time column (t, t_s, time or time_s, or choose one with --t): the accelerometer and the gyro are joined to it by time"
@@ -270,7 +270,6 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
             })
         }
     };
-    data.covariates.clear();
 
     if let Some(output) = &args.output {
         write_series(output, &mag_t, &series)
