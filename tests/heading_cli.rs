@@ -658,6 +658,11 @@ fn the_real_z_turn_with_and_without_tilt_compensation_against_the_gyro() {
     let d = Path::new(SET).join(z_run);
     let accel = format!("{}:acc_x,acc_y,acc_z", d.join("mpu6050.csv").display());
     let gyro = format!("{}:gyro_z", d.join("mpu6050.csv").display());
+    // The mirror of the mapping (all axes negated; given with a leading
+    // hyphen) reads the same turn 180° round, and the dip with its sign
+    // flipped.
+    let mirror = axes.parse::<AxisMap>().unwrap().mirrored().to_string();
+    assert!(mirror.starts_with('-') || axes.starts_with('-'), "{mirror}");
     let raw = ok_json(&fieldcal(&[
         "heading",
         s(&d.join("hmc5883l_mag.csv")),
@@ -672,7 +677,7 @@ fn the_real_z_turn_with_and_without_tilt_compensation_against_the_gyro() {
         "--accel",
         &accel,
         "--mag-axes",
-        &axes,
+        &mirror,
         "--gyro",
         &gyro,
         "--json",
@@ -682,4 +687,9 @@ fn the_real_z_turn_with_and_without_tilt_compensation_against_the_gyro() {
         "z turn, accelerometer raw: compensated rms {rms_t:.2}°, level rms {rms_l:.2}°, level worse by {worse:+.2}° ± {se:.2}°"
     );
     assert!(worse > -3.0 * se, "{}", raw["gyro"]);
+    let dip_raw = raw["inclination_deg"]["median"].as_f64().unwrap();
+    assert!(
+        dip_raw * dip_z < 0.0 && (dip_raw + dip_z).abs() < spread,
+        "{dip_raw} vs {dip_z}"
+    );
 }

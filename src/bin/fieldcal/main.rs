@@ -314,13 +314,28 @@ struct HeadingArgs {
     #[arg(long, value_name = "FILE")]
     accel_calibration: Option<PathBuf>,
     /// How the magnetometer lies on the board (the accelerometer's frame): body x,y,z as signed magnetometer axes (e.g. x,-z,y), or auto: the mapping that keeps the dip most constant while the board tilts.
-    #[arg(long, value_name = "MAP|auto", default_value = "x,y,z")]
+    #[arg(
+        long,
+        value_name = "MAP|auto",
+        default_value = "x,y,z",
+        allow_hyphen_values = true
+    )]
     mag_axes: String,
     /// The board's axis whose heading is reported (x, -y, ...).
-    #[arg(long, value_name = "AXIS", default_value = "x")]
+    #[arg(
+        long,
+        value_name = "AXIS",
+        default_value = "x",
+        allow_hyphen_values = true
+    )]
     forward: String,
     /// The board's axis that points up when it lies level.
-    #[arg(long, value_name = "AXIS", default_value = "z")]
+    #[arg(
+        long,
+        value_name = "AXIS",
+        default_value = "z",
+        allow_hyphen_values = true
+    )]
     up: String,
     /// Magnetic declination, degrees east of true north: heading is then from true north.
     #[arg(
