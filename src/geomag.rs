@@ -298,8 +298,16 @@ pub fn compare_field(
                     intensity_allowed
                 ));
             }
+            let mirrored = !i
+                && inclination.median * model.inclination_deg < 0.0
+                && (inclination.median + model.inclination_deg).abs() <= inclination_allowed;
+            let cause = if mirrored {
+                "the measured dip has the model's size and the opposite sign: the magnetometer's axes are mirrored against the accelerometer's (negate all three in --mag-axes, or one axis of a chip whose sign is flipped)"
+            } else {
+                "the site's field is disturbed (iron, steel, currents nearby), the calibration is off, or the place or date is wrong"
+            };
             format!(
-                "the measured field disagrees with the model's beyond what the sensors' accuracy allows ({}): the site's field is disturbed (iron, steel, currents nearby), the calibration is off, or the place or date is wrong",
+                "the measured field disagrees with the model's beyond what the sensors' accuracy allows ({}): {cause}",
                 what.join("; ")
             )
         }
@@ -427,6 +435,13 @@ mod tests {
             &model,
         );
         assert_eq!(c.intensity_agrees, Some(false), "{c:?}");
+        let c = compare_field(
+            &incl(-model.inclination_deg),
+            Some(model.total_intensity_nt),
+            &model,
+        );
+        assert!(!c.inclination_agrees, "{c:?}");
+        assert!(c.verdict.contains("mirrored"), "{}", c.verdict);
         let c = compare_field(&incl(model.inclination_deg), None, &model);
         assert_eq!(c.intensity_agrees, None);
         assert!(c.verdict.contains("--mag-units"));
