@@ -23,6 +23,7 @@
 
 pub mod capture;
 pub mod daemon;
+pub mod geomag;
 pub mod i2c;
 pub mod io;
 pub mod mock;

@@ -4,6 +4,7 @@
 mod check;
 mod diagnose;
 mod fit;
+mod heading;
 mod output;
 mod record;
 mod replay;
@@ -43,6 +44,8 @@ enum Command {
     Fit(FitArgs),
     /// Apply a stored calibration to another recording: does it hold, and which parameter moved?
     Check(CheckArgs),
+    /// The tilt-compensated heading of every sample, from a 3-axis magnetometer and accelerometer on one board (true north with a declination or a place).
+    Heading(HeadingArgs),
     /// Rank the effects the data supports, add them one by one down to the noise floor.
     Diagnose(DiagnoseArgs),
     /// Write a simulated sensor turned in a constant field: a CSV, or a Falcon-GX capture.
@@ -308,6 +311,91 @@ struct FitArgs {
 }
 
 #[derive(Debug, Args)]
+struct HeadingArgs {
+    /// The magnetometer: its CSV (the file), its three columns (--x, --y, --z), time (--t), and --gyro as in `fit`.
+    #[command(flatten)]
+    input: CsvInput,
+    /// The magnetometer's 3-D calibration: the JSON of `fieldcal fit --json` on its three columns [default: none, the raw readings]
+    #[arg(long, value_name = "FILE")]
+    mag_calibration: Option<PathBuf>,
+    /// The accelerometer's three columns, X,Y,Z of the magnetometer's CSV, or FILE:X,Y,Z of a second CSV on the same clock (interpolated to the magnetometer's times).
+    #[arg(long, value_name = "[FILE:]X,Y,Z")]
+    accel: String,
+    /// The accelerometer's 3-D calibration (`fieldcal fit --json`) [default: none, the raw readings]
+    #[arg(long, value_name = "FILE")]
+    accel_calibration: Option<PathBuf>,
+    /// How the magnetometer lies on the board (the accelerometer's frame): body x,y,z as signed magnetometer axes (e.g. x,-z,y), or auto: the mapping that keeps the dip most constant while the board tilts.
+    #[arg(
+        long,
+        value_name = "MAP|auto",
+        default_value = "x,y,z",
+        allow_hyphen_values = true
+    )]
+    mag_axes: String,
+    /// The board's axis whose heading is reported (x, -y, ...).
+    #[arg(
+        long,
+        value_name = "AXIS",
+        default_value = "x",
+        allow_hyphen_values = true
+    )]
+    forward: String,
+    /// The board's axis that points up when it lies level.
+    #[arg(
+        long,
+        value_name = "AXIS",
+        default_value = "z",
+        allow_hyphen_values = true
+    )]
+    up: String,
+    /// Magnetic declination, degrees east of true north: heading is then from true north.
+    #[arg(
+        long,
+        value_name = "DEG",
+        allow_negative_numbers = true,
+        conflicts_with = "latitude"
+    )]
+    declination: Option<f64>,
+    /// Latitude of the recording (WGS 84, degrees north): the World Magnetic Model gives the declination and the field to compare.
+    #[arg(
+        long,
+        value_name = "DEG",
+        allow_negative_numbers = true,
+        requires = "longitude"
+    )]
+    latitude: Option<f64>,
+    /// Longitude of the recording (WGS 84, degrees east).
+    #[arg(
+        long,
+        value_name = "DEG",
+        allow_negative_numbers = true,
+        requires = "latitude"
+    )]
+    longitude: Option<f64>,
+    /// Height above the WGS 84 ellipsoid, metres.
+    #[arg(
+        long,
+        value_name = "M",
+        default_value_t = 0.0,
+        allow_negative_numbers = true,
+        requires = "latitude"
+    )]
+    altitude: f64,
+    /// Date of the recording, YYYY-MM-DD [default: today]
+    #[arg(long, value_name = "DATE", requires = "latitude")]
+    date: Option<String>,
+    /// Units of the magnetometer's readings, to compare the field's magnitude with the model's [default: the calibration's units]
+    #[arg(long, value_enum, value_name = "UNITS")]
+    mag_units: Option<fieldcal::geomag::MagUnits>,
+    /// Write every sample's t, heading, level heading, tilt, pitch and inclination to this CSV.
+    #[arg(long, value_name = "FILE")]
+    output: Option<PathBuf>,
+    /// Print one JSON object on stdout instead of the text report.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Debug, Args)]
 struct CheckArgs {
     #[command(flatten)]
     input: CsvInput,
@@ -536,6 +624,7 @@ fn main() -> ExitCode {
         Command::Fit(args) => fit::fit(args),
         Command::Diagnose(args) => diagnose::diagnose(args),
         Command::Check(args) => check::check(args),
+        Command::Heading(args) => heading::heading(args),
         Command::Simulate(args) => simulate::simulate(args),
         Command::Record(args) => record::record(args),
         Command::Replay(args) => replay::replay(args),
