@@ -317,6 +317,10 @@ fn a_simulated_board_gives_its_heading_within_the_noise_at_tilts_up_to_30_degree
         level["error"].is_string() || level["rms_deg"].as_f64().unwrap() > 10.0 * rms_t,
         "{g}"
     );
+    if level["rms_deg"].is_f64() {
+        let verdict = g["verdict"].as_str().unwrap_or_default();
+        assert!(verdict.starts_with("tilt compensation removed"), "{g}");
+    }
 }
 
 /// The magnetometer's mounting is found from a tumble of the board (up
@@ -636,6 +640,19 @@ fn the_real_z_turn_with_and_without_tilt_compensation_against_the_gyro() {
         (rms_t, rms_l, worse, se)
     };
     let (rms_t, rms_l, worse, se) = figures(g);
+    // The output says what the comparison means for the physical board:
+    // worse beyond three standard errors is said in words, with its cause.
+    let verdict = g["verdict"].as_str().unwrap_or_default();
+    if worse < -3.0 * se {
+        assert!(
+            verdict.contains("WORSE") && verdict.contains("still poses"),
+            "{g}"
+        );
+    } else if worse > 3.0 * se {
+        assert!(verdict.starts_with("tilt compensation removed"), "{g}");
+    } else {
+        assert!(verdict.contains("no difference"), "{g}");
+    }
     // The board was held within 19° of level, median 6°: both headings
     // follow the two turns within a few degrees.
     assert!(rms_t < 10.0 && rms_l < 10.0, "{g}");

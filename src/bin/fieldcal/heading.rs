@@ -533,6 +533,7 @@ impl Report<'_> {
                     "level": check(&g.level),
                     "level_worse_by_deg": delta.map(|d| finite(d.delta_rms_deg)),
                     "level_worse_by_se_deg": delta.map(|d| finite(d.se_deg)),
+                    "verdict": delta.map(|d| compensation_verdict(d, self.accel.calibration.is_some())),
                 })
             }),
         })
@@ -672,8 +673,46 @@ impl Report<'_> {
                     "  the level heading is worse by {:+.2}° ± {:.2}° rms (on the samples both have)\n",
                     d.delta_rms_deg, d.se_deg
                 );
+                s += &format!(
+                    "  {}\n",
+                    compensation_verdict(d, self.accel.calibration.is_some())
+                );
             }
         }
         s
+    }
+}
+
+/// Standard errors a difference of rms heading errors must exceed to be
+/// called a difference (as `diagnose` calls a model's heading worse).
+const VERDICT_SES: f64 = 3.0;
+
+/// What the comparison with the gyro says about tilt compensation, in
+/// words a person acts on: it helped, it made no difference, or it made the
+/// heading worse, and then the physical reason to look at first.
+fn compensation_verdict(d: fieldcal::model::gyro::HeadingDelta, accel_calibrated: bool) -> String {
+    let (delta, se) = (d.delta_rms_deg, d.se_deg);
+    if !(delta.is_finite() && se.is_finite()) {
+        return "too few samples to compare the two headings".to_string();
+    }
+    if delta > VERDICT_SES * se {
+        format!("tilt compensation removed {delta:.2}° rms of heading error")
+    } else if delta < -VERDICT_SES * se {
+        let cause = if accel_calibrated {
+            "the accelerometer's vertical is less accurate than the board was level: its calibration \
+             may hold the hand's accelerations (calibrate it from still poses: fit --still), or the \
+             board accelerated during the turn"
+        } else {
+            "the raw accelerometer's vertical is less accurate than the board was level: calibrate \
+             it (fit --z on a tumble, or --still on still poses), and check --mag-axes"
+        };
+        format!(
+            "tilt compensation made the heading WORSE by {:.2}° rms: {cause}",
+            -delta
+        )
+    } else {
+        format!(
+            "tilt compensation made no difference beyond the noise ({delta:+.2}° ± {se:.2}°): the board stayed near level"
+        )
     }
 }
