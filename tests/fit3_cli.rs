@@ -561,3 +561,29 @@ fn two_axes_of_simulated_tumbles_are_refused_for_every_seed() {
         }
     }
 }
+
+/// A file with a `z` column fits in 3-D by default; naming the two axes
+/// (even as `--x x --y y`) asks for the 2-D fit of a turn.
+#[test]
+fn naming_two_axes_asks_for_the_2d_fit_even_when_the_file_has_z() {
+    let dir = tempfile::tempdir().unwrap();
+    let raw = SimSensor3 {
+        motion: fieldcal::sim3::Motion3::WobblingTurn {
+            turns: 2.0,
+            inclination_deg: 0.0,
+            tilt_deg: 0.0,
+        },
+        ..tumble(0.002, 800, 5)
+    }
+    .simulate()
+    .unwrap();
+    let file = write_csv(&dir, "turn.csv", ["x", "y", "z"], &raw);
+    // Default: three axes, and a turn is refused in 3-D.
+    let message = run_err(&["fit", &file]);
+    assert!(message.contains("no 3-D calibration"), "{message}");
+    // Named axes: the paper's 2-D model.
+    let v: Value =
+        serde_json::from_str(&run_ok(&["fit", &file, "--x", "x", "--y", "y", "--json"])).unwrap();
+    assert!(v["axes"].is_null(), "{v}");
+    assert!(v["params"]["a"].is_f64(), "{v}");
+}

@@ -128,13 +128,13 @@ struct ReplayArgs {
 struct CsvInput {
     /// CSV file: a header line, then one sample per line.
     file: PathBuf,
-    /// Column holding the x axis.
-    #[arg(long, default_value = "x", value_name = "COL")]
-    x: String,
-    /// Column holding the y axis.
-    #[arg(long, default_value = "y", value_name = "COL")]
-    y: String,
-    /// Column holding the z axis: fit in 3-D [default: z, when the file has a `z` column and --x, --y are not given]
+    /// Column holding the x axis [default: x]
+    #[arg(long, value_name = "COL")]
+    x: Option<String>,
+    /// Column holding the y axis [default: y]
+    #[arg(long, value_name = "COL")]
+    y: Option<String>,
+    /// Column holding the z axis: fit in 3-D [default: z, when the file has a `z` column and neither --x nor --y is given]
     #[arg(long, value_name = "COL")]
     z: Option<String>,
     /// Column holding time in seconds [default: the first of t, t_s, time, time_s]
@@ -149,6 +149,14 @@ struct CsvInput {
 }
 
 impl CsvInput {
+    fn x_column(&self) -> &str {
+        self.x.as_deref().unwrap_or("x")
+    }
+
+    fn y_column(&self) -> &str {
+        self.y.as_deref().unwrap_or("y")
+    }
+
     /// The z column of a 3-axis analysis: --z, or `z` when the file has a
     /// `z` column and --x and --y were left at their defaults. `None`: the
     /// analysis is the 2-axis one.
@@ -156,7 +164,9 @@ impl CsvInput {
         if let Some(z) = &self.z {
             return Ok(Some(z.clone()));
         }
-        if self.x != "x" || self.y != "y" {
+        // Axes named on the command line choose the 2-axis analysis
+        // unless --z is given too.
+        if self.x.is_some() || self.y.is_some() {
             return Ok(None);
         }
         let header = fieldcal::io::csv::header(&self.file)?;
@@ -166,8 +176,8 @@ impl CsvInput {
     /// The 3-axis recording, with its z column from [`Self::z_column`].
     fn read3(&self, z: &str) -> anyhow::Result<fieldcal::sample::Dataset3> {
         let spec = fieldcal::io::csv::ColumnSpec {
-            x: self.x.clone(),
-            y: self.y.clone(),
+            x: self.x_column().to_string(),
+            y: self.y_column().to_string(),
             t: self.t.clone(),
         };
         Ok(fieldcal::io::csv::read_dataset3(&self.file, &spec, z)?)
@@ -175,8 +185,8 @@ impl CsvInput {
 
     fn read(&self) -> anyhow::Result<fieldcal::sample::Dataset> {
         let spec = fieldcal::io::csv::ColumnSpec {
-            x: self.x.clone(),
-            y: self.y.clone(),
+            x: self.x_column().to_string(),
+            y: self.y_column().to_string(),
             t: self.t.clone(),
         };
         Ok(fieldcal::io::csv::read_dataset(&self.file, &spec)?)
