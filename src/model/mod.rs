@@ -22,6 +22,7 @@ pub mod check;
 pub mod diagnose;
 pub mod effects;
 pub mod ellipsoid;
+pub mod ellipsoid_effects;
 pub mod fit;
 pub mod gyro;
 pub mod heading;
