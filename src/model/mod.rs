@@ -20,6 +20,7 @@
 
 pub mod check;
 pub mod diagnose;
+pub mod diagnose3;
 pub mod effects;
 pub mod ellipsoid;
 pub mod ellipsoid_effects;
