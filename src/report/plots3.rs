@@ -361,7 +361,7 @@ fn sphere_map(area: &Svg, title: &str, data: &Report3Data, e: &[f64]) -> Result<
             .map(|&(p, v)| Circle::new(p, size, diverging(v / limit).filled())),
     )?;
     // The colour key.
-    let (w, h) = key.dim_in_pixel();
+    let (_, h) = key.dim_in_pixel();
     let top = 40i32;
     let bottom = h as i32 - 60;
     let steps = 40;
@@ -371,7 +371,7 @@ fn sphere_map(area: &Svg, title: &str, data: &Report3Data, e: &[f64]) -> Result<
         let y1 = top + (bottom - top) * (s + 1) / steps;
         key.draw(&Rectangle::new([(10, y0), (35, y1)], diverging(v).filled()))?;
     }
-    let label = |v: f64| format!("{}%", tick_label(v * 100.0));
+    let label = |v: f64| format!("{} %", super::significant(v * 100.0, 2));
     let style = (FAMILY, 12).into_font().color(&BLACK);
     key.draw(&Text::new(label(limit), (40, top - 6), style.clone()))?;
     key.draw(&Text::new(
@@ -389,7 +389,6 @@ fn sphere_map(area: &Svg, title: &str, data: &Report3Data, e: &[f64]) -> Result<
         (10, bottom + 34),
         style,
     ))?;
-    let _ = w;
     Ok(())
 }
 
