@@ -729,11 +729,11 @@ pub fn fit_effects(
     let mut residuals = Vec::with_capacity(n);
     let mut calibrated = Vec::with_capacity(n);
     let mut directions = Vec::with_capacity(used);
-    for i in 0..n {
+    for (i, weight) in weights.iter().enumerate() {
         let (_, av) = layout.point(&v, &a, i);
         residuals.push(av.norm() - 1.0);
         calibrated.push([av[0] * r, av[1] * r, av[2] * r]);
-        if weights[i] > 0.0 {
+        if *weight > 0.0 {
             directions.push([av[0], av[1], av[2]]);
         }
     }
@@ -917,7 +917,8 @@ mod tests {
                 .rms;
             let sim = sensor(600, 500 + seed);
             let (o, w, r) = sim.truth();
-            let fit = fit_effects(&data, Ellipsoid3Model::Full, &[effect.clone()]).unwrap();
+            let fit =
+                fit_effects(&data, Ellipsoid3Model::Full, std::slice::from_ref(&effect)).unwrap();
             let base = ellipsoid::fit(&data.points, Ellipsoid3Model::Full).unwrap();
             worst_with = worst_with.max(fit.rms / noise_rms);
             best_without = best_without.min(base.rms / noise_rms);
