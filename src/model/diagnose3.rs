@@ -913,3 +913,113 @@ pub fn verdict(rms: f64, res: &Residuals3, floor: &NoiseFloor, n: usize) -> Stri
         percent(floor.rms)
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sample::Covariate;
+    use crate::sim3::{Motion3, SimSensor3};
+
+    /// A tumble with gains only (the baseline is the right model), 1 %
+    /// noise, times at 50 Hz and a temperature that wanders independently.
+    fn clean(seed: u64, timed: bool) -> Dataset3 {
+        let n = 800;
+        let points = SimSensor3 {
+            matrix: [[1.1, 0.0, 0.0], [0.0, 0.92, 0.0], [0.0, 0.0, 1.0]],
+            offset: [0.3, -0.2, 0.1],
+            r: 0.5,
+            noise: 0.005,
+            n,
+            motion: Motion3::Tumble {
+                turns: 20.0,
+                axis_path_rad: 10.0,
+            },
+            seed,
+        }
+        .simulate()
+        .unwrap();
+        let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.02).collect();
+        let temp = t.iter().map(|s| 20.0 + 3.0 * (s * 0.37).sin()).collect();
+        Dataset3 {
+            x_name: "x".into(),
+            y_name: "y".into(),
+            z_name: "z".into(),
+            t: timed.then_some(t),
+            points,
+            covariates: vec![Covariate {
+                name: "temp".into(),
+                values: temp,
+            }],
+        }
+    }
+
+    #[test]
+    fn clean_tumbles_suggest_nothing() {
+        let mut fired = Vec::new();
+        for seed in 1..=20 {
+            let d = diagnose3(&clean(seed, true), &[]).unwrap();
+            assert!(d.noise_floor.rms > 0.0);
+            if let Some(e) = &d.suggested {
+                fired.push((seed, e.to_string()));
+            } else {
+                assert!(
+                    d.verdict.starts_with("what remains is noise"),
+                    "{}",
+                    d.verdict
+                );
+            }
+        }
+        assert!(fired.len() <= 1, "clean tumbles got suggestions: {fired:?}");
+    }
+
+    #[test]
+    fn drift_without_times_is_not_determined() {
+        let d = diagnose3(&clean(3, false), &[]).unwrap();
+        let drift = d
+            .not_determined
+            .iter()
+            .find(|n| n.effect == Effect::Drift)
+            .expect("drift is not determined without times");
+        assert!(drift.reason.contains("no time column"), "{}", drift.reason);
+        assert!(d.candidates.iter().all(|c| c.effect != Effect::Drift));
+        assert!(
+            d.candidates
+                .iter()
+                .any(|c| c.effect == Effect::Covariate("temp".into()))
+        );
+    }
+
+    #[test]
+    fn six_static_poses_do_not_offer_cross_axis() {
+        // Six static poses (each axis up, then down) support offset+scale,
+        // not the full W (ellipsoid.rs's rule).
+        let mut data = clean(4, true);
+        let n = data.points.len();
+        for (i, p) in data.points.iter_mut().enumerate() {
+            let pose = i * 6 / n;
+            let axis = pose / 2;
+            let sign = if pose % 2 == 0 { 1.0 } else { -1.0 };
+            let mut v = [0.0; 3];
+            v[axis] = sign * 0.5;
+            let gains = [1.1, 0.92, 1.0];
+            let offset = [0.3, -0.2, 0.1];
+            for j in 0..3 {
+                // Scatter within a pose: 1 % of the tumble's excursion.
+                let noise = (p[j] - offset[j]) * 1e-2;
+                p[j] = offset[j] + v[j] / gains[j] + noise;
+            }
+        }
+        let d = diagnose3(&data, &[]).unwrap();
+        let cross = d
+            .not_determined
+            .iter()
+            .find(|n| n.effect == Effect::CrossAxis)
+            .unwrap_or_else(|| panic!("{:?}", d.not_determined));
+        assert!(
+            cross.reason.contains("too little to determine"),
+            "{}",
+            cross.reason
+        );
+        assert!(d.candidates.iter().all(|c| c.effect != Effect::CrossAxis));
+    }
+}
