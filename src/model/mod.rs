@@ -21,8 +21,10 @@
 
 pub mod check;
 pub mod diagnose;
+pub mod diagnose3;
 pub mod effects;
 pub mod ellipsoid;
+pub mod ellipsoid_effects;
 pub mod fit;
 pub mod gyro;
 pub mod heading;

@@ -1,10 +1,12 @@
 //! What fieldcal tells a person (text) or a program (JSON) about its work.
 
 pub mod diagnosis;
+pub mod diagnosis3;
 pub mod fit;
 pub mod fit3;
 pub mod html;
 pub mod plots;
+pub mod plots3;
 mod scale;
 
 /// Formats a number with `digits` significant digits, without exponent for

@@ -6,6 +6,9 @@ use serde::Serialize;
 
 use fieldcal::model::diagnose::params_text;
 use fieldcal::model::diagnose::{Candidate, Diagnosis, Step, diagnose as run_diagnosis};
+use fieldcal::model::diagnose3::{
+    Candidate3, Diagnosis3, NotDetermined, Residuals3, Step3, diagnose3 as diagnose_3d,
+};
 use fieldcal::model::effects::{Effect, parse_list};
 use fieldcal::model::residuals::{Residuals, SetAside};
 
@@ -13,6 +16,9 @@ use crate::DiagnoseArgs;
 use crate::output::write_stdout;
 
 pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
+    if let Some(z) = args.input.z_column()? {
+        return diagnose3(args, &z);
+    }
     let (data, reference) = args.input.read_with_reference()?;
     let baseline = parse_list(args.effects.as_deref().unwrap_or("paper"))
         .map_err(anyhow::Error::msg)
@@ -187,6 +193,206 @@ fn render_text(d: &Diagnosis, file: &str) -> String {
     }
     out.push_str(&format!("  noise floor {}\n\n", pct(d.noise_floor.rms)));
     out.push_str(&format!("{}\n", d.heading));
+    out.push_str(&format!("verdict: {}\n", d.verdict));
+    out.push_str(&format!("criterion: {}\n", d.criterion));
+    out
+}
+
+/// `diagnose` on three axes: the 3-D model's ladder (model::diagnose3).
+fn diagnose3(args: DiagnoseArgs, z: &str) -> Result<()> {
+    let file = args.input.file.display().to_string();
+    if args.input.gyro.is_some() {
+        anyhow::bail!(
+            "{file}: --gyro checks the heading of a turn in one plane and has no 3-D form; drop --gyro, or choose two axes with --x and --y"
+        );
+    }
+    let data = args.input.read3(z)?;
+    let baseline = parse_list(args.effects.as_deref().unwrap_or("paper"))
+        .map_err(anyhow::Error::msg)
+        .context("--effects")?;
+    for effect in &baseline {
+        if let Effect::Covariate(column) = effect
+            && data.covariate(column).is_none()
+        {
+            anyhow::bail!("--effects: {file}: the recording has no column '{column}'");
+        }
+    }
+    let diagnosis =
+        diagnose_3d(&data, &baseline).with_context(|| format!("{file}: no diagnosis"))?;
+    let summary = render_text3(&diagnosis, &file, &data);
+    if let Some(dir) = &args.report {
+        let title = format!(
+            "{file}: x = {}, y = {}, z = {}",
+            data.x_name, data.y_name, data.z_name
+        );
+        let report =
+            fieldcal::report::diagnosis3::report3_data(&data, &diagnosis, &title, &summary)
+                .with_context(|| format!("{file}: cannot refit the models for the report"))?;
+        let written = fieldcal::report::plots3::write_report3(dir, &report)?;
+        eprintln!(
+            "report: {} files in {}; open {}",
+            written.len(),
+            dir.display(),
+            dir.join(fieldcal::report::plots::INDEX_FILE).display()
+        );
+    }
+    let text = if args.json {
+        serde_json::to_string(&Diagnosis3Json::new(&diagnosis, &file, &data))? + "\n"
+    } else {
+        summary
+    };
+    write_stdout(text.as_bytes())
+}
+
+/// The 3-D JSON surface: the 2-D keys (`baseline`, `candidates`,
+/// `suggested`, `close_second`, `ladder`, `noise_floor`, `verdict`,
+/// `criterion`), plus `axes`, the columns, `coverage` and `not_determined`.
+#[derive(Debug, Serialize)]
+struct Diagnosis3Json<'a> {
+    file: &'a str,
+    axes: u8,
+    x_column: &'a str,
+    y_column: &'a str,
+    z_column: &'a str,
+    baseline: &'a Step3,
+    baseline_note: Option<&'a str>,
+    set_aside: &'a [SetAside],
+    candidates: &'a [Candidate3],
+    not_determined: &'a [NotDetermined],
+    suggested: Option<&'a Effect>,
+    close_second: Option<&'a Effect>,
+    ladder: &'a [Step3],
+    noise_floor: f64,
+    noise_floor_method: &'a str,
+    coverage: CoverageJson<'a>,
+    verdict: &'a str,
+    criterion: &'a str,
+    baseline_residuals: &'a Residuals3,
+    final_residuals: &'a Residuals3,
+}
+
+#[derive(Debug, Serialize)]
+struct CoverageJson<'a> {
+    fraction: f64,
+    regions: usize,
+    covered: usize,
+    missing: &'a [fieldcal::model::sphere::MissingDirections],
+}
+
+impl<'a> Diagnosis3Json<'a> {
+    fn new(d: &'a Diagnosis3, file: &'a str, data: &'a fieldcal::sample::Dataset3) -> Self {
+        Diagnosis3Json {
+            file,
+            axes: 3,
+            x_column: &data.x_name,
+            y_column: &data.y_name,
+            z_column: &data.z_name,
+            baseline: &d.baseline,
+            baseline_note: d.baseline_note.as_deref(),
+            set_aside: &d.set_aside,
+            candidates: &d.candidates,
+            not_determined: &d.not_determined,
+            suggested: d.suggested.as_ref(),
+            close_second: d.close_second.as_ref(),
+            ladder: &d.ladder,
+            noise_floor: d.noise_floor.rms,
+            noise_floor_method: &d.noise_floor.method,
+            coverage: CoverageJson {
+                fraction: d.coverage.fraction,
+                regions: d.coverage.regions,
+                covered: d.coverage.covered,
+                missing: &d.coverage.missing,
+            },
+            verdict: &d.verdict,
+            criterion: &d.criterion,
+            baseline_residuals: &d.baseline_residuals,
+            final_residuals: &d.final_residuals,
+        }
+    }
+}
+
+fn render_text3(d: &Diagnosis3, file: &str, data: &fieldcal::sample::Dataset3) -> String {
+    let mut out = format!(
+        "{file}\naxes  x = {}, y = {}, z = {} (3-D)\n",
+        data.x_name, data.y_name, data.z_name
+    );
+    out.push_str(&format!(
+        "baseline  {}: rms {} of the field ({} unknowns)\n",
+        d.baseline.model,
+        pct(d.baseline.rms),
+        d.baseline.unknowns
+    ));
+    if let Some(note) = &d.baseline_note {
+        out.push_str(&format!("           {note}\n"));
+    }
+    out.push_str(&format!(
+        "coverage  {:.0} % of the sphere ({} of {} regions); {}\n",
+        d.coverage.fraction * 100.0,
+        d.coverage.covered,
+        d.coverage.regions,
+        d.coverage.missing_text()
+    ));
+    out.push_str(&format!(
+        "noise floor  {} ({})\n\n",
+        pct(d.noise_floor.rms),
+        d.noise_floor.method
+    ));
+    for aside in &d.set_aside {
+        out.push_str(&format!("set aside  {}: {}\n", aside.column, aside.reason));
+    }
+    for n in &d.not_determined {
+        out.push_str(&format!("not determined  {}: {}\n", n.effect, n.reason));
+    }
+    if !d.set_aside.is_empty() || !d.not_determined.is_empty() {
+        out.push('\n');
+    }
+    if d.candidates.is_empty() {
+        out.push_str("candidates: none could be fitted\n");
+    } else {
+        out.push_str("candidates, best first:\n");
+        for c in &d.candidates {
+            out.push_str(&format!(
+                "  {:<22} rms {:>9}  ΔBIC {:>9.1}  {}  {}\n",
+                c.effect.to_string(),
+                pct(c.rms),
+                c.delta_bic,
+                if c.supported {
+                    "supported    "
+                } else {
+                    "not supported"
+                },
+                c.evidence
+            ));
+        }
+    }
+    match (&d.suggested, &d.close_second) {
+        (Some(effect), Some(second)) => out.push_str(&format!(
+            "suggested: {effect}, though {second} explains the residual about as well (BIC within {margin}): this recording cannot tell them apart\n\n",
+            margin = fieldcal::model::diagnose::BIC_MARGIN
+        )),
+        (Some(effect), None) => out.push_str(&format!("suggested: {effect}\n\n")),
+        (None, _) => out.push_str("suggested: none (the model is enough)\n\n"),
+    }
+    out.push_str("ladder:\n");
+    for (i, step) in d.ladder.iter().enumerate() {
+        let ratio = if d.noise_floor.rms > 0.0 {
+            format!("{:.2}× the noise floor", step.rms / d.noise_floor.rms)
+        } else {
+            String::from("no noise floor")
+        };
+        let flagged = if step.flagged > 0 {
+            format!(", {} flagged", step.flagged)
+        } else {
+            String::new()
+        };
+        out.push_str(&format!(
+            "  {i}. {:<40} rms {:>9}  ({ratio}{flagged})\n",
+            step.model,
+            pct(step.rms)
+        ));
+        out.push_str(&format!("     {}\n", params_text(&step.params)));
+    }
+    out.push_str(&format!("  noise floor {}\n\n", pct(d.noise_floor.rms)));
     out.push_str(&format!("verdict: {}\n", d.verdict));
     out.push_str(&format!("criterion: {}\n", d.criterion));
     out

@@ -1,0 +1,1025 @@
+//! Which effect a 3-axis recording supports: the 2-D diagnosis
+//! ([`super::diagnose`]) on the 3-D model ([`super::ellipsoid_effects`]).
+//!
+//! The same rules, constants and wording: start from the paper's model
+//! (`offset+scale`, W diagonal, the 3-D form of the 2-D default), fit every
+//! candidate effect the model lacks, rank them by BIC (supported ones
+//! first), add the best supported one, and repeat until none is supported
+//! (at most [`MAX_STEPS`]); then compare the rms with the noise floor and
+//! say whether what remains is noise or where structure remains.
+//!
+//! A candidate is supported only when it passes every test of the 2-D
+//! judgement, in the same order: it must not fold the sphere (the
+//! calibrated directions must not shrink onto a cap), its fitted size must
+//! be physical ([`MAX_CUBIC`], [`MAX_CROSS_AXIS_SHEAR`],
+//! [`MAX_OFFSET_SWING`], [`MAX_GAIN_CHANGE`]), its parameters resolved
+//! above their standard errors, ΔBIC below −[`BIC_MARGIN`], the tail gate
+//! for `outliers`, material ([`MIN_RMS_DROP`], [`MIN_EXPLAINED_NOISE`]) and
+//! out of the structure rather than the noise floor
+//! ([`MIN_STRUCTURE_SHARE`]).
+//!
+//! Physics before statistics: an effect the recording cannot determine is
+//! not a candidate at all, and the diagnosis says why (`not_determined`):
+//! `drift` needs sample times; `scale` and `cross-axis` need the sphere's
+//! coverage to determine the richer W ([`ellipsoid::supports`]); a
+//! covariate needs a logged column that varies and is not a copy of the
+//! axes.
+//!
+//! What the 3-D residual is analysed for: in place of the harmonics of
+//! heading, the residual's pattern over the sphere of directions (its
+//! least-squares fit on the real spherical harmonics of degree 1 and 2, as
+//! an rms over the samples); slow wander in time; links to logged columns;
+//! heavy tails. The noise floor is the 2-D estimator: 1.4826·MAD of the
+//! differences of consecutive residuals in time order, over √2.
+
+use nalgebra::{DMatrix, DVector};
+use serde::Serialize;
+
+use super::diagnose::{
+    BIC_MARGIN, FOLD_DEG, MAX_CROSS_AXIS_SHEAR, MAX_CUBIC, MAX_GAIN_CHANGE, MAX_OFFSET_SWING,
+    MAX_STEPS, MIN_EXPLAINED_NOISE, MIN_RMS_DROP, MIN_STRUCTURE_SHARE, NOISE_TOLERANCE,
+    params_text, tail_threshold,
+};
+use super::effects::{Effect, model_name};
+use super::ellipsoid::{self, Ellipsoid3Error, Ellipsoid3Model};
+use super::ellipsoid_effects::{Effects3Error, Ellipsoid3EffectsFit, base_effects, fit_effects};
+use super::nonlinear::{MAD_TO_SD, Param};
+use super::residuals::{
+    COPY_R2, CovariateLink, GAUSSIAN_TAIL_4SD, NoiseFloor, SetAside, TAIL_SDS, is_time_like, line,
+    median, robust_sd, slow_structure,
+};
+use super::sphere::{self, SphereCoverage};
+use crate::sample::Dataset3;
+
+pub use super::diagnose::EXTREME_SDS;
+
+/// A pattern over direction (or a wander in time) counts as structure in
+/// the verdict when it exceeds this many times what Gaussian noise gives
+/// (as the 2-D verdict's 5 standard errors of a harmonic).
+const STRUCTURE_SES: f64 = 5.0;
+/// An rms below this is rounding, not noise or structure.
+const NUMERICAL_RMS: f64 = 1e-12;
+/// The 2-D fold rule ([`FOLD_DEG`] of a 360° turn) as a share of the
+/// sphere: a candidate whose calibrated samples cover this share of the
+/// sphere's regions less than the model without it folded the sphere onto
+/// a cap of a larger one rather than found an effect.
+pub const FOLD_SHARE: f64 = FOLD_DEG / 360.0;
+
+/// The residual of a 3-D fit: what it still holds, and its noise.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Residuals3 {
+    /// Rms over the samples of the residual's least-squares part on the
+    /// real spherical harmonics of degree 1 (x, y, z: a leftover offset)
+    /// and degree 2 (xy, yz, xz, x² − y², 3z² − 1: leftover gains and
+    /// coupling), as a fraction of the field; fitted jointly.
+    pub direction_degree1: f64,
+    pub direction_degree2: f64,
+    /// Slope of e against time, per second (None without times).
+    pub time_trend: Option<f64>,
+    /// Share of the variance a moving average over ~1/10 of the run
+    /// explains, in time order.
+    pub time_structure: Option<f64>,
+    pub covariates: Vec<CovariateLink>,
+    /// Samples beyond 4 robust SD of the median.
+    pub tail_count: usize,
+    /// What Gaussian noise would give: n · P(|Z| > 4).
+    pub tail_expected: f64,
+    pub tail_max_sd: f64,
+    pub robust_sd: f64,
+    pub noise_floor: NoiseFloor,
+}
+
+/// One effect the model could add, as judged on the current model.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Candidate3 {
+    pub effect: Effect,
+    /// Rms the model reaches with this effect (over the used samples).
+    pub rms: f64,
+    pub rms_before: f64,
+    /// 1 − rms²/rms_before².
+    pub explained: f64,
+    /// The effect's own fitted parameters, with standard errors.
+    pub params: Vec<Param>,
+    /// Unknowns added; for `outliers`, the flagged samples.
+    pub unknowns_added: usize,
+    pub delta_bic: f64,
+    pub supported: bool,
+    pub evidence: String,
+}
+
+/// An effect of the catalogue this recording cannot determine, and why.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct NotDetermined {
+    pub effect: Effect,
+    pub reason: String,
+}
+
+/// One model of the ladder.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Step3 {
+    pub effects: Vec<Effect>,
+    pub model: String,
+    pub rms: f64,
+    pub unknowns: usize,
+    pub bic: f64,
+    /// Samples flagged as outliers (the `outliers` effect).
+    pub flagged: usize,
+    pub params: Vec<Param>,
+}
+
+/// The whole answer of `fieldcal diagnose` on three axes.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Diagnosis3 {
+    pub baseline: Step3,
+    /// Why the baseline is not the model asked for (the coverage supports
+    /// only a simpler W), if so.
+    pub baseline_note: Option<String>,
+    pub set_aside: Vec<SetAside>,
+    pub baseline_residuals: Residuals3,
+    /// Ranked best first: supported ones first, then by ΔBIC.
+    pub candidates: Vec<Candidate3>,
+    /// Effects of the catalogue the recording cannot determine.
+    pub not_determined: Vec<NotDetermined>,
+    pub suggested: Option<Effect>,
+    /// A supported effect within [`BIC_MARGIN`] of the suggested one.
+    pub close_second: Option<Effect>,
+    pub ladder: Vec<Step3>,
+    pub final_residuals: Residuals3,
+    pub noise_floor: NoiseFloor,
+    /// The baseline fit's coverage of the sphere.
+    pub coverage: SphereCoverage,
+    pub verdict: String,
+    pub criterion: String,
+}
+
+/// The criterion, as the report states it.
+pub fn criterion() -> String {
+    format!(
+        "BIC: n·ln(RSS/n) + p·ln(n), with n all samples and p the unknowns; an effect is supported when it lowers BIC by more than {BIC_MARGIN}. outliers counts one unknown per flagged sample and must also find more samples beyond 4 robust SD than Gaussian noise gives (Poisson tail), or one beyond {EXTREME_SDS} robust SD. It must also matter: lower the rms by {:.0} % or more and explain an amplitude of at least {MIN_EXPLAINED_NOISE} of the noise floor, mostly out of the residual's structure; and be physical: a cubic within {:.0} % at full scale, a cross-axis coupling within tan⁻¹ {MAX_CROSS_AXIS_SHEAR}, a moving offset within {:.0} % of the field over the run, gains moved by less than ×{MAX_GAIN_CHANGE}, the sphere not folded onto a cap, each effect's parameters resolved above their standard errors. An effect the recording cannot determine (drift without times, a richer W without the coverage) is not a candidate",
+        MIN_RMS_DROP * 100.0,
+        MAX_CUBIC * 100.0,
+        MAX_OFFSET_SWING * 100.0
+    )
+}
+
+fn bic(fit: &Ellipsoid3EffectsFit) -> f64 {
+    let n = fit.n.max(1) as f64;
+    let p = (fit.unknowns + fit.flagged.len()) as f64;
+    let rss = fit.rss.max(n * 1e-30);
+    n * (rss / n).ln() + p * n.ln()
+}
+
+fn step_of(fit: &Ellipsoid3EffectsFit) -> Step3 {
+    Step3 {
+        effects: fit.effects.clone(),
+        model: model_name(&fit.effects),
+        rms: fit.rms,
+        unknowns: fit.unknowns,
+        bic: bic(fit),
+        flagged: fit.flagged.len(),
+        params: fit.params.clone(),
+    }
+}
+
+fn percent(fraction: f64) -> String {
+    format!("{:.2} %", fraction * 100.0)
+}
+
+/// R² of `u` on `[1, x, y, z]`; None when `u` is constant.
+fn r2_on_axes(u: &[f64], points: &[[f64; 3]]) -> Option<f64> {
+    let n = u.len().min(points.len());
+    if n < 5 {
+        return None;
+    }
+    let mean = u[..n].iter().sum::<f64>() / n as f64;
+    let total: f64 = u[..n].iter().map(|v| (v - mean).powi(2)).sum();
+    if !(total > 0.0) || !total.is_finite() {
+        return None;
+    }
+    let design = DMatrix::from_fn(n, 4, |i, j| if j == 0 { 1.0 } else { points[i][j - 1] });
+    let target = DVector::from_column_slice(&u[..n]);
+    let svd = design.clone().try_svd(true, true, f64::EPSILON, 1000)?;
+    let coef = svd.solve(&target, 1e-12).ok()?;
+    let left = (&design * coef - target).norm_squared();
+    Some((1.0 - left / total).clamp(0.0, 1.0))
+}
+
+/// Logged columns not offered as covariates: time-like names (drift's
+/// business), constants, and copies of the axes (R² above [`COPY_R2`] on
+/// x, y, z, as the 2-D rule).
+pub fn set_aside(data: &Dataset3) -> Vec<SetAside> {
+    data.covariates
+        .iter()
+        .filter_map(|c| {
+            let reason = if is_time_like(&c.name) {
+                "looks like time: the drift effect's business, not a covariate".to_string()
+            } else {
+                match r2_on_axes(&c.values, &data.points) {
+                    None => "constant: nothing to follow".to_string(),
+                    Some(r2) if r2 > COPY_R2 => format!(
+                        "a linear copy of the axes (R² {r2:.4} on {}, {}, {}): scale and cross-axis's business",
+                        data.x_name, data.y_name, data.z_name
+                    ),
+                    Some(_) => return None,
+                }
+            };
+            Some(SetAside {
+                column: c.name.clone(),
+                reason,
+            })
+        })
+        .collect()
+}
+
+/// Indices of the used (not flagged) samples, in time order.
+fn used_in_time_order(data: &Dataset3, fit: &Ellipsoid3EffectsFit) -> Vec<usize> {
+    let mut used: Vec<usize> = (0..fit.residuals.len())
+        .filter(|i| fit.flagged.binary_search(i).is_err())
+        .collect();
+    if let Some(t) = data.t.as_deref().filter(|t| t.len() == fit.residuals.len()) {
+        used.sort_by(|&a, &b| t[a].total_cmp(&t[b]));
+    }
+    used
+}
+
+/// The 2-D noise floor estimator on residuals in time order.
+pub fn noise_floor_of(e: &[f64], timed: bool) -> NoiseFloor {
+    let order = if timed { "time" } else { "input" };
+    if e.len() < 3 {
+        return NoiseFloor {
+            rms: 0.0,
+            method: "too few samples to estimate the noise".to_string(),
+        };
+    }
+    let abs: Vec<f64> = e.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+    let rms = MAD_TO_SD * median(&abs) / std::f64::consts::SQRT_2;
+    NoiseFloor {
+        rms: if rms.is_finite() { rms } else { 0.0 },
+        method: format!(
+            "1.4826·MAD of the differences of consecutive residuals in {order} order, divided by √2 ({} differences): slow structure cancels between neighbours, noise does not, and the MAD ignores spikes",
+            abs.len()
+        ),
+    }
+}
+
+/// Rms over the samples of the residual's parts of degree 1 and 2 on the
+/// sphere of directions `u` (unit vectors).
+fn direction_structure(e: &[f64], u: &[[f64; 3]]) -> (f64, f64) {
+    let n = e.len().min(u.len());
+    let columns = 9;
+    if n <= 2 * columns {
+        return (0.0, 0.0);
+    }
+    let basis = |d: &[f64; 3]| -> [f64; 9] {
+        let [x, y, z] = *d;
+        [
+            1.0,
+            x,
+            y,
+            z,
+            x * y,
+            y * z,
+            x * z,
+            x * x - y * y,
+            3.0 * z * z - 1.0,
+        ]
+    };
+    let design = DMatrix::from_fn(n, columns, |i, j| basis(&u[i])[j]);
+    let target = DVector::from_column_slice(&e[..n]);
+    let Some(svd) = design.try_svd(true, true, f64::EPSILON, 1000) else {
+        return (0.0, 0.0);
+    };
+    let Ok(coef) = svd.solve(&target, 1e-12) else {
+        return (0.0, 0.0);
+    };
+    let part = |range: std::ops::Range<usize>| {
+        let sum: f64 = u[..n]
+            .iter()
+            .map(|d| {
+                let b = basis(d);
+                range.clone().map(|j| coef[j] * b[j]).sum::<f64>().powi(2)
+            })
+            .sum();
+        let v = (sum / n as f64).sqrt();
+        if v.is_finite() { v } else { 0.0 }
+    };
+    (part(1..4), part(4..9))
+}
+
+/// Every residual statistic of a fit; flagged samples left out.
+pub fn analyse(data: &Dataset3, fit: &Ellipsoid3EffectsFit, aside: &[SetAside]) -> Residuals3 {
+    let order = used_in_time_order(data, fit);
+    let e: Vec<f64> = order.iter().map(|&i| fit.residuals[i]).collect();
+    let u: Vec<[f64; 3]> = order
+        .iter()
+        .map(|&i| {
+            let c = fit.calibrated[i];
+            let m = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
+                .sqrt()
+                .max(f64::MIN_POSITIVE);
+            c.map(|v| v / m)
+        })
+        .collect();
+    let n_all = fit.residuals.len();
+    let column = |values: &[f64]| -> Option<Vec<f64>> {
+        (values.len() == n_all).then(|| order.iter().map(|&i| values[i]).collect())
+    };
+    let time_trend = data
+        .t
+        .as_deref()
+        .and_then(column)
+        .and_then(|t| line(&t, &e))
+        .map(|(slope, _)| slope);
+    let covariates = data
+        .covariates
+        .iter()
+        .filter(|c| !aside.iter().any(|a| a.column == c.name))
+        .filter_map(|c| {
+            let values = column(&c.values)?;
+            let (slope, correlation) = line(&values, &e)?;
+            Some(CovariateLink {
+                column: c.name.clone(),
+                slope,
+                correlation,
+                explained: correlation * correlation,
+            })
+        })
+        .collect();
+    let m = median(&e);
+    let sd = robust_sd(&e);
+    let z: Vec<f64> = if sd > 0.0 {
+        e.iter().map(|v| (v - m) / sd).collect()
+    } else {
+        vec![0.0; e.len()]
+    };
+    let (d1, d2) = direction_structure(&e, &u);
+    Residuals3 {
+        direction_degree1: d1,
+        direction_degree2: d2,
+        time_trend,
+        time_structure: slow_structure(&e),
+        covariates,
+        tail_count: z.iter().filter(|v| v.abs() > TAIL_SDS).count(),
+        tail_expected: e.len() as f64 * GAUSSIAN_TAIL_4SD,
+        tail_max_sd: z.iter().map(|v| v.abs()).fold(0.0, f64::max),
+        robust_sd: sd,
+        noise_floor: noise_floor_of(&e, data.t.is_some()),
+    }
+}
+
+fn tails_heavy(res: &Residuals3) -> bool {
+    let n = res.tail_expected / GAUSSIAN_TAIL_4SD;
+    res.tail_count >= tail_threshold(res.tail_expected)
+        || (res.tail_count >= 1 && res.tail_max_sd > EXTREME_SDS && n < 100_000.0)
+}
+
+fn with_effect(model: &[Effect], effect: &Effect) -> Vec<Effect> {
+    let mut effects = model.to_vec();
+    if !effects.contains(effect) {
+        effects.push(effect.clone());
+    }
+    effects.sort();
+    effects
+}
+
+fn fit_list(data: &Dataset3, effects: &[Effect]) -> Result<Ellipsoid3EffectsFit, Effects3Error> {
+    fit_effects(data, Ellipsoid3Model::Offset, effects)
+}
+
+fn range(values: &[f64]) -> f64 {
+    let (lo, hi) = values
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(*v), hi.max(*v))
+        });
+    if hi >= lo { hi - lo } else { 0.0 }
+}
+
+/// The candidates of the catalogue for a model, and those the recording
+/// cannot determine (with why).
+fn candidate_effects(
+    data: &Dataset3,
+    model: &[Effect],
+    current: &Ellipsoid3EffectsFit,
+    aside: &[SetAside],
+) -> (Vec<Effect>, Vec<NotDetermined>) {
+    let mut offered = Vec::new();
+    let mut refused = Vec::new();
+    let directions: Vec<[f64; 3]> = current
+        .calibrated
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| current.flagged.binary_search(i).is_err())
+        .map(|(_, c)| *c)
+        .collect();
+    let cov = sphere::coverage(directions.iter().copied());
+    for (effect, needs) in [
+        (Effect::Scale, Ellipsoid3Model::OffsetScale),
+        (Effect::CrossAxis, Ellipsoid3Model::Full),
+    ] {
+        if model.contains(&effect) {
+            continue;
+        }
+        if ellipsoid::supports(needs, &directions) {
+            offered.push(effect);
+        } else {
+            refused.push(NotDetermined {
+                effect,
+                reason: format!(
+                    "the samples cover {:.0} % of the sphere, too little to determine the {needs} model ({})",
+                    cov.fraction * 100.0,
+                    cov.missing_text()
+                ),
+            });
+        }
+    }
+    if !model.contains(&Effect::Drift) {
+        match data.t.as_deref() {
+            Some(t) if range(t) > 0.0 => offered.push(Effect::Drift),
+            Some(_) => refused.push(NotDetermined {
+                effect: Effect::Drift,
+                reason: "every sample has the same time".into(),
+            }),
+            None => refused.push(NotDetermined {
+                effect: Effect::Drift,
+                reason: "the recording has no time column (t, t_s, time or time_s, or --t)".into(),
+            }),
+        }
+    }
+    for c in &data.covariates {
+        let effect = Effect::Covariate(c.name.clone());
+        if model.contains(&effect) || aside.iter().any(|a| a.column == c.name) {
+            continue;
+        }
+        offered.push(effect);
+    }
+    for effect in [Effect::Cubic, Effect::Outliers] {
+        if !model.contains(&effect) {
+            offered.push(effect);
+        }
+    }
+    (offered, refused)
+}
+
+/// Everything a candidate is judged on.
+struct Trial<'a> {
+    data: &'a Dataset3,
+    effect: &'a Effect,
+    fit: &'a Ellipsoid3EffectsFit,
+    current: &'a Ellipsoid3EffectsFit,
+    res: &'a Residuals3,
+    params: &'a [Param],
+    delta_bic: f64,
+}
+
+struct Judgement {
+    supported: bool,
+    evidence: String,
+}
+
+fn explained(rms_before: f64, rms_after: f64) -> (f64, f64) {
+    let (before, after) = (rms_before * rms_before, rms_after * rms_after);
+    let share = if before > 0.0 {
+        1.0 - after / before
+    } else {
+        0.0
+    };
+    (share, (before - after).max(0.0).sqrt())
+}
+
+/// The largest swing of a moving offset over the recording, in calibrated
+/// units over the field: |W·g|·span/r.
+fn offset_swing(t: &Trial<'_>) -> Option<(f64, String)> {
+    let (span, over, prefix) = match t.effect {
+        Effect::Drift => {
+            let span = range(t.data.t.as_deref()?);
+            (span, format!("the run's {span:.1} s"), "drift".to_string())
+        }
+        Effect::Covariate(column) => {
+            let span = range(&t.data.covariate(column)?.values);
+            (
+                span,
+                format!(
+                    "{column}'s range of {}",
+                    crate::report::significant(span, 3)
+                ),
+                column.clone(),
+            )
+        }
+        _ => return None,
+    };
+    let g: Vec<f64> = ["x", "y", "z"]
+        .iter()
+        .map(|a| t.fit.value(&format!("{prefix}_{a}")))
+        .collect();
+    let w = &t.fit.matrix;
+    let moved: f64 = (0..3)
+        .map(|i| (0..3).map(|j| w[i][j] * g[j]).sum::<f64>().powi(2))
+        .sum::<f64>()
+        .sqrt();
+    (t.fit.r > 0.0).then(|| (moved * span / t.fit.r, over))
+}
+
+fn judge(t: &Trial<'_>) -> Judgement {
+    let (rms0, rms1) = (t.current.rms, t.fit.rms);
+    let (share, amplitude) = explained(rms0, rms1);
+    let numbers = format!(
+        "rms {} → {}, {:.1} % of the residual variance, ΔBIC {:.1}",
+        percent(rms0),
+        percent(rms1),
+        share * 100.0,
+        t.delta_bic
+    );
+    let with_params = if t.params.is_empty() {
+        numbers.clone()
+    } else {
+        format!("{numbers}; {}", params_text(t.params))
+    };
+    let refuse = |evidence: String| Judgement {
+        supported: false,
+        evidence,
+    };
+    let (before, after) = (t.current.coverage.covered, t.fit.coverage.covered);
+    let fold = (FOLD_SHARE * sphere::REGIONS as f64).round() as usize;
+    if after + fold < before {
+        return refuse(format!(
+            "not an effect: the fit folds the sphere onto {after} of its {} regions (the model without it covers {before}), a larger sphere through a cap of the samples",
+            sphere::REGIONS
+        ));
+    }
+    if *t.effect == Effect::Cubic
+        && let Some(p) = t.params.iter().find(|p| p.value.abs() > MAX_CUBIC)
+    {
+        return refuse(format!(
+            "not a physical cubic: {} = {} ± {} bends the reading by {:.1} % at full scale, beyond what any sensor does (limit {:.0} %; datasheets give 0.1–0.5 %: HMC5883L, MPU-6050, ADXL345); {numbers}",
+            p.name,
+            crate::report::significant(p.value, 3),
+            crate::report::significant(p.se, 2),
+            p.value.abs() * 100.0,
+            MAX_CUBIC * 100.0
+        ));
+    }
+    if *t.effect == Effect::CrossAxis {
+        let w = &t.fit.matrix;
+        for (i, j) in [(0, 1), (0, 2), (1, 2)] {
+            let shear = w[i][j] / (w[i][i] * w[j][j]).sqrt();
+            if shear.abs() > MAX_CROSS_AXIS_SHEAR {
+                return refuse(format!(
+                    "not a physical cross-axis: W couples axes {i} and {j} by {:.1}°, beyond the 20° limit (datasheets give ±2 % cross-axis sensitivity, ≈ 1°); {numbers}",
+                    shear.atan().to_degrees().abs()
+                ));
+            }
+        }
+    }
+    if let Some((fraction, over)) = offset_swing(t)
+        && fraction > MAX_OFFSET_SWING
+    {
+        return refuse(format!(
+            "not a physical {}: it moves the offset by {:.0} % of the field over {over}, more than the {:.0} % ArduPilot's CompassMot accepts for motor interference; {with_params}",
+            t.effect,
+            fraction * 100.0,
+            MAX_OFFSET_SWING * 100.0
+        ));
+    }
+    if *t.effect != Effect::Scale {
+        let (w0, w1) = (&t.current.matrix, &t.fit.matrix);
+        let factor = (0..3)
+            .map(|i| {
+                let (a, b) = (w0[i][i], w1[i][i]);
+                if a > 0.0 && b > 0.0 {
+                    (a / b).max(b / a)
+                } else {
+                    f64::INFINITY
+                }
+            })
+            .fold(1.0, f64::max);
+        if factor > MAX_GAIN_CHANGE {
+            return refuse(format!(
+                "not a physical {}: it moves a gain of W by ×{factor:.2}, more than any effect of the catalogue at its limit (×{MAX_GAIN_CHANGE}); {with_params}",
+                t.effect
+            ));
+        }
+    }
+    if !t.params.is_empty() && t.params.iter().all(|p| !(p.value.abs() > p.se)) {
+        return refuse(format!(
+            "not resolved: no parameter of {} stands above its standard error ({}); {numbers}",
+            t.effect,
+            params_text(t.params)
+        ));
+    }
+    if !(t.delta_bic < -BIC_MARGIN) {
+        return refuse(format!(
+            "not detectable: ΔBIC {:.1} does not reach -{BIC_MARGIN}; {with_params}",
+            t.delta_bic
+        ));
+    }
+    if *t.effect == Effect::Outliers && !tails_heavy(t.res) {
+        return refuse(format!(
+            "no outliers: {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}; {numbers}",
+            crate::sample::count(t.res.tail_count as u64, "sample"),
+            t.res.tail_max_sd,
+            t.res.tail_expected
+        ));
+    }
+    let drop = if rms0 > 0.0 { 1.0 - rms1 / rms0 } else { 0.0 };
+    if drop < MIN_RMS_DROP {
+        return refuse(format!(
+            "too small to matter: it lowers the rms by {:.2} % (under {:.0} %); {with_params}",
+            drop * 100.0,
+            MIN_RMS_DROP * 100.0
+        ));
+    }
+    let floor = t.res.noise_floor.rms;
+    if amplitude < MIN_EXPLAINED_NOISE * floor {
+        return refuse(format!(
+            "too small to matter: it explains {} of the field, under a quarter of the noise floor {}; {with_params}",
+            percent(amplitude),
+            percent(floor)
+        ));
+    }
+    if *t.effect != Effect::Outliers {
+        let order = used_in_time_order(t.data, t.fit);
+        let e: Vec<f64> = order.iter().map(|&i| t.fit.residuals[i]).collect();
+        let floor1 = noise_floor_of(&e, t.data.t.is_some()).rms;
+        let total = rms0 * rms0 - rms1 * rms1;
+        let from_noise = floor * floor - floor1 * floor1;
+        if total > 0.0 && total - from_noise < MIN_STRUCTURE_SHARE * total {
+            return refuse(format!(
+                "not an effect: it lowers the rms by squeezing the noise, not by removing structure ({:.0} % of what it explains comes out of the noise floor, {} → {}); {with_params}",
+                (from_noise / total * 100.0).min(100.0),
+                percent(floor),
+                percent(floor1)
+            ));
+        }
+    }
+    let extra = if *t.effect == Effect::Outliers {
+        format!(
+            "; {} flagged, {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}",
+            crate::sample::count(t.fit.flagged.len() as u64, "sample"),
+            t.res.tail_count,
+            t.res.tail_max_sd,
+            t.res.tail_expected
+        )
+    } else {
+        String::new()
+    };
+    Judgement {
+        supported: true,
+        evidence: format!(
+            "explains {} of the field: {with_params}{extra}",
+            percent(amplitude)
+        ),
+    }
+}
+
+/// The parameters `fit` has that `current` lacks: the added effect's own.
+fn own_params(fit: &Ellipsoid3EffectsFit, current: &Ellipsoid3EffectsFit) -> Vec<Param> {
+    fit.params
+        .iter()
+        .filter(|p| current.param(&p.name).is_none())
+        .cloned()
+        .collect()
+}
+
+fn rank(
+    data: &Dataset3,
+    model: &[Effect],
+    current: &Ellipsoid3EffectsFit,
+    res: &Residuals3,
+    aside: &[SetAside],
+) -> (Vec<Candidate3>, Vec<NotDetermined>) {
+    let base_bic = bic(current);
+    let (offered, mut refused) = candidate_effects(data, model, current, aside);
+    let mut candidates: Vec<Candidate3> = Vec::new();
+    for effect in offered {
+        let fit = match fit_list(data, &with_effect(model, &effect)) {
+            Ok(fit) if fit.rms.is_finite() && fit.rss.is_finite() => fit,
+            Ok(_) => continue,
+            Err(err) => {
+                refused.push(NotDetermined {
+                    effect,
+                    reason: format!("no fit: {err}"),
+                });
+                continue;
+            }
+        };
+        let delta_bic = bic(&fit) - base_bic;
+        let params = own_params(&fit, current);
+        let judged = judge(&Trial {
+            data,
+            effect: &effect,
+            fit: &fit,
+            current,
+            res,
+            params: &params,
+            delta_bic,
+        });
+        candidates.push(Candidate3 {
+            rms: fit.rms,
+            rms_before: current.rms,
+            explained: explained(current.rms, fit.rms).0,
+            unknowns_added: (fit.unknowns + fit.flagged.len())
+                .saturating_sub(current.unknowns + current.flagged.len()),
+            params,
+            effect,
+            delta_bic,
+            supported: judged.supported,
+            evidence: judged.evidence,
+        });
+    }
+    candidates.sort_by(|a, b| {
+        b.supported
+            .cmp(&a.supported)
+            .then(a.delta_bic.total_cmp(&b.delta_bic))
+    });
+    (candidates, refused)
+}
+
+/// The model a list of effects asks for, always with the paper's
+/// `offset+scale`.
+fn starting_list(baseline: &[Effect]) -> Vec<Effect> {
+    let mut model = super::effects::PAPER.to_vec();
+    for e in baseline {
+        if !model.contains(e) {
+            model.push(e.clone());
+        }
+    }
+    model.sort();
+    model
+}
+
+/// Diagnoses a 3-axis recording, starting from `baseline` (the paper's
+/// `offset+scale` is always in). When the coverage does not determine that
+/// W, the diagnosis starts from the richest W it does determine and says so.
+pub fn diagnose3(data: &Dataset3, baseline: &[Effect]) -> Result<Diagnosis3, Effects3Error> {
+    let aside = set_aside(data);
+    let mut model = starting_list(baseline);
+    let mut baseline_note = None;
+    let base_fit = match fit_list(data, &model) {
+        Ok(fit) => fit,
+        Err(Effects3Error::Fit(Ellipsoid3Error::NotCovered {
+            model: asked,
+            supported: Some(simpler),
+            percent,
+            missing,
+        })) if simpler.unknowns() < asked.unknowns() => {
+            model.retain(|e| !matches!(e, Effect::Offset | Effect::Scale | Effect::CrossAxis));
+            model.extend(base_effects(simpler));
+            model.sort();
+            baseline_note = Some(format!(
+                "the samples cover {percent:.0} % of the sphere, too little to determine the {asked} model ({missing}); the diagnosis starts from {simpler}, the richest W they determine"
+            ));
+            fit_list(data, &model)?
+        }
+        Err(err) => return Err(err),
+    };
+    let baseline_residuals = analyse(data, &base_fit, &aside);
+    let baseline_step = step_of(&base_fit);
+    let coverage = base_fit.coverage.clone();
+    let (candidates, not_determined) = rank(data, &model, &base_fit, &baseline_residuals, &aside);
+    let suggested = candidates
+        .first()
+        .filter(|c| c.supported)
+        .map(|c| c.effect.clone());
+    let close_second = match candidates.as_slice() {
+        [first, second, ..] if first.supported && second.supported => {
+            (second.delta_bic - first.delta_bic < BIC_MARGIN).then(|| second.effect.clone())
+        }
+        _ => None,
+    };
+
+    let mut ladder = vec![baseline_step.clone()];
+    let mut current = base_fit;
+    let mut current_res = baseline_residuals.clone();
+    let mut next = suggested.clone();
+    while let Some(effect) = next.take() {
+        if ladder.len() > MAX_STEPS {
+            break;
+        }
+        let effects = with_effect(&model, &effect);
+        let Ok(fit) = fit_list(data, &effects) else {
+            break;
+        };
+        model = effects;
+        current_res = analyse(data, &fit, &aside);
+        next = rank(data, &model, &fit, &current_res, &aside)
+            .0
+            .into_iter()
+            .find(|c| c.supported)
+            .map(|c| c.effect);
+        ladder.push(step_of(&fit));
+        current = fit;
+    }
+    let noise_floor = current_res.noise_floor.clone();
+    let used = current.n - current.flagged.len();
+    let verdict = verdict(current.rms, &current_res, &noise_floor, used);
+    Ok(Diagnosis3 {
+        baseline: baseline_step,
+        baseline_note,
+        set_aside: aside,
+        baseline_residuals,
+        candidates,
+        not_determined,
+        suggested,
+        close_second,
+        ladder,
+        final_residuals: current_res,
+        noise_floor,
+        coverage,
+        verdict,
+        criterion: criterion(),
+    })
+}
+
+/// Noise, or where structure remains (the 2-D verdict's rule and words).
+pub fn verdict(rms: f64, res: &Residuals3, floor: &NoiseFloor, n: usize) -> String {
+    if rms < NUMERICAL_RMS {
+        return format!(
+            "what remains is noise: the rms {rms:.1e} is at the level of rounding; the data has no measurable noise"
+        );
+    }
+    let excess = if floor.rms > 0.0 {
+        rms / floor.rms - 1.0
+    } else {
+        f64::INFINITY
+    };
+    if excess <= NOISE_TOLERANCE {
+        let relation = if excess <= 0.0 {
+            "at or below".to_string()
+        } else {
+            format!("within {:.0} % of", excess * 100.0)
+        };
+        return format!(
+            "what remains is noise: the rms {} is {relation} the noise floor {}",
+            percent(rms),
+            percent(floor.rms)
+        );
+    }
+    // Under noise σ, the rms of a fitted part of k functions is about
+    // σ·√(k/n). σ is the residual's own rms, not the floor: the residual
+    // of a moving sensor is correlated from sample to sample, and a
+    // pattern over direction must stand out of all of it, as the BIC of
+    // the candidates that would remove it (offset, W) judges it. Degree 1
+    // and 2 are what o and W absorb: the candidates above say whether a
+    // richer W does; here the pattern is only named.
+    let noise_part = |k: f64| rms * (k / n.max(1) as f64).sqrt();
+    let mut places = Vec::new();
+    for (amplitude, k, what) in [
+        (
+            res.direction_degree1,
+            3.0,
+            "a pattern of degree 1 over direction",
+        ),
+        (
+            res.direction_degree2,
+            5.0,
+            "a pattern of degree 2 over direction",
+        ),
+    ] {
+        if amplitude > STRUCTURE_SES * noise_part(k) {
+            places.push(format!("{what}, {} of the field", percent(amplitude)));
+        }
+    }
+    if let Some(s) = res.time_structure.filter(|s| *s > 0.3) {
+        places.push(format!(
+            "slow wander in time ({:.0} % of the variance)",
+            s * 100.0
+        ));
+    }
+    for c in res.covariates.iter().filter(|c| c.correlation.abs() > 0.5) {
+        places.push(format!("{} (correlation {:.2})", c.column, c.correlation));
+    }
+    if tails_heavy(res) {
+        places.push(format!(
+            "{} beyond 4 robust SD",
+            crate::sample::count(res.tail_count as u64, "sample")
+        ));
+    }
+    // The rest of what the floor does not explain: a residual correlated
+    // from sample to sample (the noise floor comes from neighbours'
+    // differences, so it leaves this out).
+    let smooth = "the residual moves smoothly from one sample to the next, slower than white noise, as the sensor's own motion does (the linear acceleration of a hand-held accelerometer, a magnetometer carried through a field that is not uniform), which no calibration removes";
+    let where_ = match (places.is_empty(), excess > 1.0) {
+        (true, _) => {
+            format!("no pattern over direction, trend, covariate or tail to blame: {smooth}")
+        }
+        (false, true) => format!("{}; beyond these, {smooth}", places.join(", ")),
+        (false, false) => places.join(", "),
+    };
+    format!(
+        "structure remains that no effect in the catalogue explains: {where_} (rms {} is {:.0} % above the noise floor {})",
+        percent(rms),
+        excess * 100.0,
+        percent(floor.rms)
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sample::Covariate;
+    use crate::sim3::{Motion3, SimSensor3};
+
+    /// A tumble with gains only (the baseline is the right model), 1 %
+    /// noise, times at 50 Hz and a temperature that wanders independently.
+    fn clean(seed: u64, timed: bool) -> Dataset3 {
+        let n = 800;
+        let points = SimSensor3 {
+            matrix: [[1.1, 0.0, 0.0], [0.0, 0.92, 0.0], [0.0, 0.0, 1.0]],
+            offset: [0.3, -0.2, 0.1],
+            r: 0.5,
+            noise: 0.005,
+            n,
+            motion: Motion3::Tumble {
+                turns: 20.0,
+                axis_path_rad: 10.0,
+            },
+            seed,
+        }
+        .simulate()
+        .unwrap();
+        let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.02).collect();
+        let temp = t.iter().map(|s| 20.0 + 3.0 * (s * 0.37).sin()).collect();
+        Dataset3 {
+            x_name: "x".into(),
+            y_name: "y".into(),
+            z_name: "z".into(),
+            t: timed.then_some(t),
+            points,
+            covariates: vec![Covariate {
+                name: "temp".into(),
+                values: temp,
+            }],
+        }
+    }
+
+    #[test]
+    fn clean_tumbles_suggest_nothing() {
+        let mut fired = Vec::new();
+        for seed in 1..=20 {
+            let d = diagnose3(&clean(seed, true), &[]).unwrap();
+            assert!(d.noise_floor.rms > 0.0);
+            if let Some(e) = &d.suggested {
+                fired.push((seed, e.to_string()));
+            } else {
+                assert!(
+                    d.verdict.starts_with("what remains is noise"),
+                    "{}",
+                    d.verdict
+                );
+            }
+        }
+        assert!(fired.len() <= 1, "clean tumbles got suggestions: {fired:?}");
+    }
+
+    #[test]
+    fn drift_without_times_is_not_determined() {
+        let d = diagnose3(&clean(3, false), &[]).unwrap();
+        let drift = d
+            .not_determined
+            .iter()
+            .find(|n| n.effect == Effect::Drift)
+            .expect("drift is not determined without times");
+        assert!(drift.reason.contains("no time column"), "{}", drift.reason);
+        assert!(d.candidates.iter().all(|c| c.effect != Effect::Drift));
+        assert!(
+            d.candidates
+                .iter()
+                .any(|c| c.effect == Effect::Covariate("temp".into()))
+        );
+    }
+
+    #[test]
+    fn six_static_poses_do_not_offer_cross_axis() {
+        // Six static poses (each axis up, then down) support offset+scale,
+        // not the full W (ellipsoid.rs's rule).
+        let mut data = clean(4, true);
+        let n = data.points.len();
+        for (i, p) in data.points.iter_mut().enumerate() {
+            let pose = i * 6 / n;
+            let axis = pose / 2;
+            let sign = if pose % 2 == 0 { 1.0 } else { -1.0 };
+            let mut v = [0.0; 3];
+            v[axis] = sign * 0.5;
+            let gains = [1.1, 0.92, 1.0];
+            let offset = [0.3, -0.2, 0.1];
+            for j in 0..3 {
+                // Scatter within a pose: 1 % of the tumble's excursion.
+                let noise = (p[j] - offset[j]) * 1e-2;
+                p[j] = offset[j] + v[j] / gains[j] + noise;
+            }
+        }
+        let d = diagnose3(&data, &[]).unwrap();
+        let cross = d
+            .not_determined
+            .iter()
+            .find(|n| n.effect == Effect::CrossAxis)
+            .unwrap_or_else(|| panic!("{:?}", d.not_determined));
+        assert!(
+            cross.reason.contains("too little to determine"),
+            "{}",
+            cross.reason
+        );
+        assert!(d.candidates.iter().all(|c| c.effect != Effect::CrossAxis));
+    }
+}
