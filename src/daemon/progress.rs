@@ -157,7 +157,18 @@ impl SensorSnapshot {
         let status = sensor.status();
         SensorSnapshot {
             sensor: sensor.name().to_string(),
-            rotation: status.rotation.as_ref().map(RotationView::from),
+            rotation: status
+                .rotation
+                .as_ref()
+                .map(RotationView::from)
+                .or_else(|| {
+                    // A 3-axis sensor: the bar shows its sphere's coverage.
+                    status.sphere.as_ref().map(|p| RotationView {
+                        coverage_pct: p.coverage_pct,
+                        missing: Vec::new(),
+                        samples: p.samples,
+                    })
+                }),
             calibration: sensor.calibration().map(|c| (c.id, c.rms)),
         }
     }

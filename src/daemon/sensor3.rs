@@ -1,0 +1,857 @@
+//! A 3-axis sensor of the daemon (`axes = ["x", "y", "z"]`): readings are
+//! collected until their directions cover enough of the sphere for the
+//! configured 3-D model ([`ellipsoid::supports`]), then fitted
+//! ([`ellipsoid::fit`]), checked against ArduPilot's acceptance limits
+//! ([`Limits3`]), and from then on every reading carries the corrected x,
+//! y, z. A magnetometer may name the accelerometer sensor of its source
+//! (`tilt`): its readings then carry the tilt-compensated heading
+//! ([`crate::model::tilt::tilt_heading`]).
+//!
+//! A plain state machine as [`super::sensor::Sensor`] (which holds one of
+//! these for a 3-axis section and hands it every call): readings in, lines
+//! to publish and calibrations to store out, no I/O, no clock.
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use super::config::{Axis, Field, SensorConfig};
+use super::messages::{SensorState, to_line};
+use super::publish::Lane;
+use super::sensor::Emit;
+use super::{Calibration, Ellipsoid3Params};
+use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
+use crate::model::paper::PaperCalibration;
+use crate::model::sphere::{self, MissingDirections, SphereCoverage};
+use crate::model::tilt::tilt_heading;
+use crate::sample::Reading;
+
+/// ArduPilot's compass calibrator collects `COMPASS_CAL_NUM_SAMPLES` = 300
+/// samples before it fits (AP_Compass/CompassCalibrator.h): the default
+/// fewest samples a 3-D fit is tried on.
+pub const DEFAULT_MIN_SAMPLES: usize = 300;
+
+/// Default cap on the samples held while collecting: ten times
+/// [`DEFAULT_MIN_SAMPLES`]. When full, the most crowded direction region
+/// gives up its older half, so a hand that dwells on some directions
+/// cannot crowd out the rest and memory stays bounded (ArduPilot thins its
+/// buffer likewise, `thin_samples`).
+pub const DEFAULT_MAX_SAMPLES: usize = 3000;
+
+/// Hard bounds of the two settings above.
+pub const SAMPLES_RANGE: (usize, usize) = (20, 1_000_000);
+
+/// The coverage is judged (a closed-form fit for the directions, then
+/// [`ellipsoid::supports`]) once every this many samples: at 20 Hz four
+/// times a second, and the cost of a judgement (linear in the samples
+/// held) stays a small share of the readings' path.
+pub const CHECK_EVERY: usize = 5;
+
+/// ArduPilot's field radius bounds, milligauss: `FIELD_RADIUS_MIN` 150 and
+/// `FIELD_RADIUS_MAX` 950 (CompassCalibrator.cpp, "Earth's magnetic field
+/// strength range: 250-850mG").
+pub const FIELD_RADIUS_MGAUSS: (f64, f64) = (150.0, 950.0);
+/// ArduPilot's largest offset per axis, milligauss: `COMPASS_OFFS_MAX`,
+/// default 1800 (AP_Compass.cpp).
+pub const MAX_OFFSET_MGAUSS: f64 = 1800.0;
+/// ArduPilot's fitness tolerance: the rms residual in milligauss,
+/// `COMPASS_CAL_FIT` default 16 (`AP_COMPASS_CALIBRATION_FITNESS_DEFAULT`).
+pub const MAX_FITNESS_MGAUSS: f64 = 16.0;
+/// ArduPilot's bounds of the soft-iron matrix's diagonal, 0.2 to 5, and of
+/// its off-diagonal entries, |·| < 1 (CompassCalibrator::fit_acceptable).
+pub const MAG_DIAGONAL: (f64, f64) = (0.2, 5.0);
+pub const MAG_MAX_OFF_DIAGONAL: f64 = 1.0;
+/// ArduPilot's accelerometer bounds (AccelCalibrator::accept_result): each
+/// offset at most 1 g (`GRAVITY_MSS`), each diagonal scale 0.8 to 1.2.
+pub const ACCEL_MAX_OFFSET_G: f64 = 1.0;
+pub const ACCEL_DIAGONAL: (f64, f64) = (0.8, 1.2);
+/// When the sensor's units are not configured, the limits are relative to
+/// the fitted radius: offsets at most 5 radii (the 2-D daemon's
+/// `max_offset_ratio`, from the same COMPASS_OFFS_MAX beside the Earth's
+/// 250-850 mG) and an rms of at most 5 % of the field (the 2-D `max_rms`;
+/// ArduPilot's 16 mG is 2-6 % of the Earth's field).
+pub const RELATIVE_MAX_OFFSET: f64 = 5.0;
+pub const RELATIVE_MAX_RMS: f64 = 0.05;
+
+/// `[sensor.sphere]`: how a 3-axis sensor collects, and its rms limit.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SphereSettings {
+    /// Fewest samples a fit is tried on.
+    pub min_samples: usize,
+    /// Most samples held (see [`DEFAULT_MAX_SAMPLES`]).
+    pub max_samples: usize,
+    /// Largest rms of |calibrated|/r − 1, a fraction of the field; when
+    /// absent, ArduPilot's 16 mG for a magnetometer whose units are known,
+    /// 5 % otherwise.
+    pub max_rms: Option<f64>,
+}
+
+impl Default for SphereSettings {
+    fn default() -> Self {
+        SphereSettings {
+            min_samples: DEFAULT_MIN_SAMPLES,
+            max_samples: DEFAULT_MAX_SAMPLES,
+            max_rms: None,
+        }
+    }
+}
+
+impl SphereSettings {
+    /// Checks the settings; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        let (lo, hi) = SAMPLES_RANGE;
+        if !(lo..=hi).contains(&self.min_samples) {
+            return Err(format!(
+                "min_samples must be between {lo} and {hi}, got {}",
+                self.min_samples
+            ));
+        }
+        if !(self.min_samples..=hi).contains(&self.max_samples) {
+            return Err(format!(
+                "max_samples must be between min_samples ({}) and {hi}, got {}",
+                self.min_samples, self.max_samples
+            ));
+        }
+        if let Some(v) = self.max_rms
+            && !(v.is_finite() && v > 0.0 && v <= 1.0)
+        {
+            return Err(format!(
+                "max_rms must be a fraction of the field above 0 and at most 1 (0.05 = 5 %), got {v}"
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The accelerometer a magnetometer's heading is tilt-compensated with:
+/// another 3-axis sensor of the same source (`tilt = "<name>"`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TiltSource {
+    pub sensor: String,
+    pub stream: u8,
+    pub axes: [Axis; 3],
+}
+
+/// What a `[[sensor]]` with three axes adds to [`SensorConfig`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sensor3Config {
+    /// The three axes, in the order of the sensor's x, y, z.
+    pub axes: [Axis; 3],
+    pub model: Ellipsoid3Model,
+    /// Raw counts per gauss (a magnetometer, `lsb_per_gauss`) or per g (an
+    /// accelerometer, `lsb_per_g`), when configured.
+    pub lsb_per_unit: Option<f64>,
+    pub tilt: Option<TiltSource>,
+    pub sphere: SphereSettings,
+}
+
+impl Sensor3Config {
+    fn unit(field: Field) -> &'static str {
+        match field {
+            Field::Mag => "gauss",
+            Field::Accel => "g",
+            Field::Gyro => "deg/s",
+        }
+    }
+}
+
+/// Why a 3-D fit is refused: every failed limit, named with its value and
+/// its source, joined by "; ". `field` and `lsb_per_unit` give the units.
+pub fn check_limits(
+    fit: &Ellipsoid3Fit,
+    field: Field,
+    lsb_per_unit: Option<f64>,
+    max_rms: Option<f64>,
+) -> Result<(), String> {
+    let extra = [fit.r, fit.rms];
+    let mut numbers = fit
+        .offset
+        .iter()
+        .chain(fit.matrix.iter().flatten())
+        .chain(extra.iter());
+    if numbers.any(|v| !v.is_finite()) || !(fit.r > 0.0) {
+        return Err("the fit produced a non-finite or non-positive parameter".into());
+    }
+    let mut failures = Vec::new();
+    let w = &fit.matrix;
+    let diagonal = [w[0][0], w[1][1], w[2][2]];
+    let off_diagonal = [w[0][1], w[0][2], w[1][2]];
+    match (field, lsb_per_unit) {
+        (Field::Mag, Some(u)) => {
+            let to_mg = |counts: f64| counts / u * 1000.0;
+            let r_mg = to_mg(fit.r);
+            let (lo, hi) = FIELD_RADIUS_MGAUSS;
+            if !(r_mg > lo && r_mg < hi) {
+                failures.push(format!(
+                    "field radius {r_mg:.0} mG is outside ArduPilot's {lo:.0}-{hi:.0} mG (FIELD_RADIUS_MIN/MAX; {:.1} counts at lsb_per_gauss {u})",
+                    fit.r
+                ));
+            }
+            for (axis, o) in ["x", "y", "z"].iter().zip(fit.offset) {
+                if to_mg(o).abs() >= MAX_OFFSET_MGAUSS {
+                    failures.push(format!(
+                        "offset {axis} {:.0} mG exceeds ArduPilot's {MAX_OFFSET_MGAUSS:.0} mG (COMPASS_OFFS_MAX)",
+                        to_mg(o)
+                    ));
+                }
+            }
+            let fitness = to_mg(fit.rms * fit.r);
+            let limit_mg = max_rms.map_or(MAX_FITNESS_MGAUSS, |f| to_mg(f * fit.r));
+            if fitness > limit_mg {
+                failures.push(format!(
+                    "rms {fitness:.1} mG ({:.2} % of the field) exceeds {limit_mg:.1} mG ({})",
+                    fit.rms * 100.0,
+                    if max_rms.is_some() {
+                        "sphere.max_rms"
+                    } else {
+                        "ArduPilot's COMPASS_CAL_FIT"
+                    }
+                ));
+            }
+        }
+        (Field::Accel, Some(u)) => {
+            for (axis, o) in ["x", "y", "z"].iter().zip(fit.offset) {
+                if (o / u).abs() > ACCEL_MAX_OFFSET_G {
+                    failures.push(format!(
+                        "offset {axis} {:.3} g exceeds ArduPilot's {ACCEL_MAX_OFFSET_G} g (AccelCalibrator)",
+                        o / u
+                    ));
+                }
+            }
+            let (lo, hi) = ACCEL_DIAGONAL;
+            let g = fit.r / u;
+            if !(lo..=hi).contains(&g) {
+                failures.push(format!(
+                    "gravity reads {g:.3} g at lsb_per_g {u}: the overall scale is outside ArduPilot's {lo}-{hi} (AccelCalibrator)"
+                ));
+            }
+        }
+        _ => {
+            for (axis, o) in ["x", "y", "z"].iter().zip(fit.offset) {
+                if o.abs() > RELATIVE_MAX_OFFSET * fit.r {
+                    failures.push(format!(
+                        "offset {axis} {o:.1} counts is more than {RELATIVE_MAX_OFFSET} field radii ({:.1} counts)",
+                        fit.r
+                    ));
+                }
+            }
+        }
+    }
+    if !(field == Field::Mag && lsb_per_unit.is_some()) {
+        let limit = max_rms.unwrap_or(RELATIVE_MAX_RMS);
+        if fit.rms > limit {
+            failures.push(format!(
+                "rms {:.2} % of the field exceeds {:.2} % ({})",
+                fit.rms * 100.0,
+                limit * 100.0,
+                if max_rms.is_some() {
+                    "sphere.max_rms"
+                } else {
+                    "the default"
+                }
+            ));
+        }
+    }
+    let (lo, hi, off) = match field {
+        Field::Accel => (ACCEL_DIAGONAL.0, ACCEL_DIAGONAL.1, MAG_MAX_OFF_DIAGONAL),
+        _ => (MAG_DIAGONAL.0, MAG_DIAGONAL.1, MAG_MAX_OFF_DIAGONAL),
+    };
+    for (axis, d) in ["xx", "yy", "zz"].iter().zip(diagonal) {
+        if !(d > lo && d < hi) {
+            failures.push(format!(
+                "matrix {axis} {d:.3} is outside ArduPilot's {lo}-{hi} (diagonal bound)"
+            ));
+        }
+    }
+    for (axis, d) in ["xy", "xz", "yz"].iter().zip(off_diagonal) {
+        if d.abs() >= off {
+            failures.push(format!(
+                "matrix {axis} {d:.3} is beyond ArduPilot's ±{off} (off-diagonal bound)"
+            ));
+        }
+    }
+    if failures.is_empty() {
+        Ok(())
+    } else {
+        Err(failures.join("; "))
+    }
+}
+
+/// A 3-axis sensor's progress in `STATUS`, while collecting.
+#[derive(Debug, Clone, Serialize)]
+pub struct SphereProgress {
+    /// Samples held.
+    pub samples: usize,
+    /// The share of the sphere's 100 equal-area regions reached, percent,
+    /// about the current closed-form estimate.
+    pub coverage_pct: f64,
+    pub regions: usize,
+    pub covered: usize,
+    /// The missing directions, in words ("missing: -z (...)").
+    pub missing_text: String,
+    /// The missing directions, largest first.
+    pub missing: Vec<MissingDirections>,
+    /// The model being collected for.
+    pub model: &'static str,
+    /// The richest model the directions so far support, if any.
+    pub supported: Option<&'static str>,
+}
+
+#[derive(Serialize)]
+struct TiltFields<'a> {
+    /// The accelerometer sensor.
+    sensor: &'a str,
+    /// Its calibration that corrected the accelerometer, or none: the
+    /// accelerometer's raw readings were used.
+    calibration: Option<u64>,
+    calibrated: bool,
+    tilt_deg: f64,
+    pitch_deg: f64,
+    inclination_deg: f64,
+}
+
+#[derive(Serialize)]
+struct Reading3Message<'a> {
+    class: &'static str,
+    sensor: &'a str,
+    time: f64,
+    axes: u8,
+    raw: [f64; 3],
+    #[serde(skip_serializing_if = "Option::is_none")]
+    corrected: Option<[f64; 3]>,
+    /// |corrected|: the field's magnitude, ≈ r.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    magnitude: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    calibration: Option<u64>,
+    calibrated: bool,
+    /// Tilt-compensated, clockwise from magnetic north to the sensor's +x.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    heading_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    tilt: Option<TiltFields<'a>>,
+}
+
+#[derive(Serialize)]
+struct Calibration3Message<'a> {
+    class: &'static str,
+    sensor: &'a str,
+    accepted: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    id: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    reason: Option<String>,
+    axes: u8,
+    model: &'a str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    offset: Option<[f64; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    matrix: Option<[[f64; 3]; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    r: Option<f64>,
+    /// r in gauss or g, when the units are configured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    r_units: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    units: Option<&'static str>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    se: Option<Ellipsoid3Se>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    rms: Option<f64>,
+    n: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    coverage: Option<SphereCoverage>,
+    fit_ms: f64,
+    time: f64,
+    origin: &'static str,
+}
+
+/// One 3-axis sensor: its buffer, its calibration and its counts.
+pub struct Sensor3 {
+    name: String,
+    stream: u8,
+    field: Field,
+    config: Sensor3Config,
+    points: Vec<[f64; 3]>,
+    /// The closed-form estimate the directions are judged about: (o, A),
+    /// A(raw − o) on the unit sphere.
+    estimate: Option<([f64; 3], [[f64; 3]; 3])>,
+    since_check: usize,
+    coverage: SphereCoverage,
+    supported: Option<Ellipsoid3Model>,
+    /// After a fit refused for coverage, samples to take before the next
+    /// try (so a refusal is not repeated every check).
+    wait: usize,
+    state: SensorState,
+    current: Option<Calibration>,
+    next_id: u64,
+    readings: u64,
+    fits_accepted: u64,
+    fits_rejected: u64,
+    last_rejection: Option<String>,
+    /// The tilt source's current calibration, as [`Sensor3::set_tilt`] gave it.
+    tilt_calibration: Option<Calibration>,
+    /// The tilt source's last raw reading.
+    last_accel: Option<[f64; 3]>,
+}
+
+fn pick(triad: [i16; 3], axes: [Axis; 3]) -> [f64; 3] {
+    axes.map(|a| f64::from(triad[a.index()]))
+}
+
+fn field_of(reading: &Reading, field: Field) -> Option<[i16; 3]> {
+    match field {
+        Field::Mag => reading.mag,
+        Field::Accel => reading.accel,
+        Field::Gyro => reading.gyro,
+    }
+}
+
+/// W·(raw − o) of a stored 3-D calibration.
+pub fn apply3(p: &Ellipsoid3Params, raw: [f64; 3]) -> [f64; 3] {
+    let d = [0, 1, 2].map(|i| raw[i] - p.offset[i]);
+    let w = &p.matrix;
+    [0, 1, 2].map(|i| w[i][0] * d[0] + w[i][1] * d[1] + w[i][2] * d[2])
+}
+
+impl Sensor3 {
+    /// A 3-axis sensor of `config` (whose `three` is set), starting from
+    /// its stored calibration if that is a 3-D one.
+    pub fn new(config: &SensorConfig, three: Sensor3Config, stored: Option<Calibration>) -> Self {
+        let stored = stored.filter(|c| c.ellipsoid.is_some());
+        Sensor3 {
+            name: config.name.clone(),
+            stream: config.stream,
+            field: config.field,
+            points: Vec::new(),
+            estimate: None,
+            since_check: 0,
+            coverage: sphere::coverage(std::iter::empty()),
+            supported: None,
+            wait: 0,
+            state: if stored.is_some() {
+                SensorState::Calibrated
+            } else {
+                SensorState::Collecting
+            },
+            next_id: stored.as_ref().map_or(1, |c| c.id + 1),
+            current: stored,
+            readings: 0,
+            fits_accepted: 0,
+            fits_rejected: 0,
+            last_rejection: None,
+            tilt_calibration: None,
+            last_accel: None,
+            config: three,
+        }
+    }
+
+    pub fn calibration(&self) -> Option<&Calibration> {
+        self.current.as_ref()
+    }
+
+    /// The name of the accelerometer sensor this one takes its tilt from.
+    pub fn tilt_sensor(&self) -> Option<&str> {
+        self.config.tilt.as_ref().map(|t| t.sensor.as_str())
+    }
+
+    /// The tilt source's current calibration (a 3-D one, or none).
+    pub fn set_tilt(&mut self, calibration: Option<&Calibration>) {
+        self.tilt_calibration = calibration.filter(|c| c.ellipsoid.is_some()).cloned();
+    }
+
+    pub fn wants(&self, stream: u8) -> bool {
+        self.stream == stream
+            || self
+                .config
+                .tilt
+                .as_ref()
+                .is_some_and(|t| t.stream == stream)
+    }
+
+    /// Takes over what the same sensor earned under the settings before a
+    /// reload: its calibration (when a 3-D one), next id and counts.
+    pub fn carry_over(&mut self, old: Sensor3) {
+        if old.current.is_some() {
+            self.current = old.current;
+        }
+        self.next_id = self.next_id.max(old.next_id);
+        self.readings = old.readings;
+        self.fits_accepted = old.fits_accepted;
+        self.fits_rejected = old.fits_rejected;
+        self.last_rejection = old.last_rejection;
+        self.tilt_calibration = old.tilt_calibration;
+        self.recalibrate();
+    }
+
+    pub fn recalibrate(&mut self) {
+        self.points.clear();
+        self.estimate = None;
+        self.since_check = 0;
+        self.wait = 0;
+        self.coverage = sphere::coverage(std::iter::empty());
+        self.supported = None;
+        self.state = if self.current.is_some() {
+            SensorState::Recalibrating
+        } else {
+            SensorState::Collecting
+        };
+    }
+
+    pub fn state(&self) -> SensorState {
+        self.state
+    }
+
+    pub fn counts(&self) -> (u64, u64, u64, Option<&str>) {
+        (
+            self.readings,
+            self.fits_accepted,
+            self.fits_rejected,
+            self.last_rejection.as_deref(),
+        )
+    }
+
+    /// Progress while collecting.
+    pub fn progress(&self) -> Option<SphereProgress> {
+        (self.state != SensorState::Calibrated).then(|| SphereProgress {
+            samples: self.points.len(),
+            coverage_pct: self.coverage.fraction * 100.0,
+            regions: self.coverage.regions,
+            covered: self.coverage.covered,
+            missing_text: self.coverage.missing_text(),
+            missing: self.coverage.missing.clone(),
+            model: self.config.model.name(),
+            supported: self.supported.map(Ellipsoid3Model::name),
+        })
+    }
+
+    /// Handles one reading: keeps the tilt source's accelerometer, and for
+    /// the sensor's own stream publishes the reading (corrected when
+    /// calibrated, with the tilt-compensated heading when it has a tilt
+    /// source) and collects. Returns a newly accepted calibration.
+    pub fn on_reading(&mut self, reading: &Reading, emit: &mut Emit<'_>) -> Option<Calibration> {
+        if let Some(tilt) = &self.config.tilt
+            && reading.stream == tilt.stream
+            && let Some(triad) = reading.accel
+        {
+            self.last_accel = Some(pick(triad, tilt.axes));
+        }
+        if reading.stream != self.stream {
+            return None;
+        }
+        let raw = pick(field_of(reading, self.field)?, self.config.axes);
+        self.readings += 1;
+        emit(Lane::Reading, self.reading_line(reading.time, raw));
+        self.collect(reading.time, raw, emit)
+    }
+
+    fn reading_line(&self, time: f64, raw: [f64; 3]) -> String {
+        let corrected = self
+            .current
+            .as_ref()
+            .and_then(|c| Some((c.id, apply3(c.ellipsoid.as_ref()?, raw))));
+        let tilt = match (&self.config.tilt, corrected, self.last_accel) {
+            (Some(source), Some((_, mag)), Some(accel_raw)) => {
+                let cal = self.tilt_calibration.as_ref();
+                let accel = match cal.and_then(|c| c.ellipsoid.as_ref()) {
+                    Some(p) => apply3(p, accel_raw),
+                    None => accel_raw,
+                };
+                tilt_heading(mag, accel, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]).map(|h| {
+                    (
+                        h.heading_deg,
+                        TiltFields {
+                            sensor: &source.sensor,
+                            calibration: cal.map(|c| c.id),
+                            calibrated: cal.is_some(),
+                            tilt_deg: h.tilt_deg,
+                            pitch_deg: h.pitch_deg,
+                            inclination_deg: h.inclination_deg,
+                        },
+                    )
+                })
+            }
+            _ => None,
+        };
+        let (heading_deg, tilt) = match tilt {
+            Some((h, t)) => (Some(h), Some(t)),
+            None => (None, None),
+        };
+        to_line(&Reading3Message {
+            class: "READING",
+            sensor: &self.name,
+            time,
+            axes: 3,
+            raw,
+            corrected: corrected.map(|c| c.1),
+            magnitude: corrected.map(|(_, c)| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt()),
+            calibration: corrected.map(|c| c.0),
+            calibrated: corrected.is_some(),
+            heading_deg,
+            tilt,
+        })
+    }
+
+    /// Keeps a sample while collecting, thinning the most crowded region
+    /// when the buffer is full, and fits once the coverage supports the
+    /// model.
+    fn collect(&mut self, time: f64, raw: [f64; 3], emit: &mut Emit<'_>) -> Option<Calibration> {
+        if self.state == SensorState::Calibrated || raw.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        if self.points.len() >= self.config.sphere.max_samples {
+            self.thin();
+        }
+        self.points.push(raw);
+        self.wait = self.wait.saturating_sub(1);
+        self.since_check += 1;
+        if self.since_check < CHECK_EVERY {
+            return None;
+        }
+        self.since_check = 0;
+        self.judge();
+        let n = self.points.len();
+        if n < self.config.sphere.min_samples
+            || self.wait > 0
+            || !self
+                .supported
+                .is_some_and(|m| m.unknowns() >= self.config.model.unknowns())
+        {
+            return None;
+        }
+        self.fit(time, emit)
+    }
+
+    /// The directions of the points about the current estimate.
+    fn directions(&self) -> Vec<[f64; 3]> {
+        let (o, a) = self.estimate.unwrap_or_else(|| {
+            // Before a closed form: the centre of the readings' box.
+            let mut lo = [f64::INFINITY; 3];
+            let mut hi = [f64::NEG_INFINITY; 3];
+            for p in &self.points {
+                for i in 0..3 {
+                    lo[i] = lo[i].min(p[i]);
+                    hi[i] = hi[i].max(p[i]);
+                }
+            }
+            let o = [0, 1, 2].map(|i| (lo[i] + hi[i]) / 2.0);
+            (o, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        });
+        self.points
+            .iter()
+            .map(|p| {
+                let d = [0, 1, 2].map(|i| p[i] - o[i]);
+                [0, 1, 2].map(|i| a[i][0] * d[0] + a[i][1] * d[1] + a[i][2] * d[2])
+            })
+            .collect()
+    }
+
+    /// Updates the estimate, the coverage and the supported model.
+    fn judge(&mut self) {
+        if self.points.len() >= 4 * self.config.model.unknowns()
+            && let Ok(estimate) = ellipsoid::closed_form(&self.points, self.config.model)
+            && estimate
+                .0
+                .iter()
+                .chain(estimate.1.iter().flatten())
+                .all(|v| v.is_finite())
+        {
+            self.estimate = Some(estimate);
+        }
+        let dirs = self.directions();
+        self.coverage = sphere::coverage(dirs.iter().copied());
+        self.supported = if self.estimate.is_some() {
+            ellipsoid::best_supported(&dirs)
+        } else {
+            None
+        };
+    }
+
+    /// Drops the older half of the most crowded region's samples.
+    fn thin(&mut self) {
+        let regions: Vec<Option<usize>> = self
+            .directions()
+            .into_iter()
+            .map(sphere::region_of)
+            .collect();
+        let mut counts = [0usize; sphere::REGIONS];
+        for k in regions.iter().flatten() {
+            if let Some(c) = counts.get_mut(*k) {
+                *c += 1;
+            }
+        }
+        let Some((crowded, &most)) = counts.iter().enumerate().max_by_key(|(_, c)| **c) else {
+            return;
+        };
+        let mut drop = (most / 2).max(1);
+        let mut i = 0;
+        self.points.retain(|_| {
+            let keep = !(drop > 0 && regions.get(i).copied().flatten() == Some(crowded));
+            if !keep {
+                drop -= 1;
+            }
+            i += 1;
+            keep
+        });
+        if self.points.len() >= self.config.sphere.max_samples {
+            // No direction (a degenerate estimate): drop the oldest.
+            self.points.remove(0);
+        }
+    }
+
+    fn fit(&mut self, time: f64, emit: &mut Emit<'_>) -> Option<Calibration> {
+        let started = Instant::now();
+        let fitted = ellipsoid::fit(&self.points, self.config.model);
+        let fit_ms = started.elapsed().as_secs_f64() * 1e3;
+        let n = self.points.len();
+        let fit = match fitted {
+            Ok(fit) => fit,
+            Err(e @ ellipsoid::Ellipsoid3Error::NotCovered { .. }) => {
+                // The estimate's directions looked complete, the fit's did
+                // not: collect on, and try again a quarter (at least
+                // min_samples / 4) further on.
+                tracing::info!(sensor = %self.name, "not yet: {e}");
+                self.wait = (n / 4).max(self.config.sphere.min_samples / 4);
+                return None;
+            }
+            Err(e) => {
+                self.reject(time, format!("no fit: {e}"), n, fit_ms, None, emit);
+                return None;
+            }
+        };
+        let max_rms = self.config.sphere.max_rms;
+        if let Err(reason) = check_limits(&fit, self.field, self.config.lsb_per_unit, max_rms) {
+            self.reject(time, reason, n, fit_ms, Some(&fit), emit);
+            return None;
+        }
+        let calibration = Calibration {
+            sensor: self.name.clone(),
+            id: self.next_id,
+            model: fit.model.name().to_string(),
+            // The 2-D parameters of a 3-D calibration: the identity, r.
+            params: PaperCalibration {
+                a: 1.0,
+                b: 0.0,
+                d: 0.0,
+                r: fit.r,
+            },
+            rms: fit.rms,
+            coverage_deg: 0.0,
+            n: fit.n,
+            time,
+            terms: Default::default(),
+            ellipsoid: Some(Ellipsoid3Params {
+                offset: fit.offset,
+                matrix: fit.matrix,
+                r: fit.r,
+                coverage: fit.coverage.fraction,
+            }),
+        };
+        emit(
+            Lane::Control,
+            to_line(&self.message(&calibration, Some(&fit), fit_ms, "sphere")),
+        );
+        tracing::info!(
+            sensor = %self.name,
+            id = calibration.id,
+            rms = calibration.rms,
+            "3-D calibration accepted ({}, {} samples, {:.0} % of the sphere)",
+            fit.model,
+            fit.n,
+            fit.coverage.fraction * 100.0
+        );
+        self.next_id += 1;
+        self.fits_accepted += 1;
+        self.state = SensorState::Calibrated;
+        self.points = Vec::new();
+        self.current = Some(calibration.clone());
+        Some(calibration)
+    }
+
+    fn message<'a>(
+        &'a self,
+        c: &'a Calibration,
+        fit: Option<&Ellipsoid3Fit>,
+        fit_ms: f64,
+        origin: &'static str,
+    ) -> Calibration3Message<'a> {
+        let p = c.ellipsoid.as_ref();
+        Calibration3Message {
+            class: "CALIBRATION",
+            sensor: &self.name,
+            accepted: true,
+            id: Some(c.id),
+            reason: None,
+            axes: 3,
+            model: &c.model,
+            offset: p.map(|p| p.offset),
+            matrix: p.map(|p| p.matrix),
+            r: p.map(|p| p.r),
+            r_units: p.and_then(|p| self.config.lsb_per_unit.map(|u| p.r / u)),
+            units: self
+                .config
+                .lsb_per_unit
+                .map(|_| Sensor3Config::unit(self.field)),
+            se: fit.map(|f| f.se),
+            rms: Some(c.rms),
+            n: c.n,
+            coverage: fit.map(|f| f.coverage.clone()),
+            fit_ms,
+            time: c.time,
+            origin,
+        }
+    }
+
+    /// The `CALIBRATION` line of a calibration loaded from the state
+    /// directory.
+    pub fn loaded_line(&self) -> Option<String> {
+        let c = self.current.as_ref()?;
+        Some(to_line(&self.message(c, None, 0.0, "state")))
+    }
+
+    fn reject(
+        &mut self,
+        time: f64,
+        reason: String,
+        n: usize,
+        fit_ms: f64,
+        fit: Option<&Ellipsoid3Fit>,
+        emit: &mut Emit<'_>,
+    ) {
+        let message = Calibration3Message {
+            class: "CALIBRATION",
+            sensor: &self.name,
+            accepted: false,
+            id: None,
+            reason: Some(reason.clone()),
+            axes: 3,
+            model: self.config.model.name(),
+            offset: fit.map(|f| f.offset),
+            matrix: fit.map(|f| f.matrix),
+            r: fit.map(|f| f.r),
+            r_units: fit.and_then(|f| self.config.lsb_per_unit.map(|u| f.r / u)),
+            units: self
+                .config
+                .lsb_per_unit
+                .map(|_| Sensor3Config::unit(self.field)),
+            se: fit.map(|f| f.se),
+            rms: fit.map(|f| f.rms),
+            n,
+            coverage: fit.map(|f| f.coverage.clone()),
+            fit_ms,
+            time,
+            origin: "sphere",
+        };
+        emit(Lane::Control, to_line(&message));
+        tracing::warn!(sensor = %self.name, "3-D calibration rejected: {reason}");
+        self.fits_rejected += 1;
+        self.last_rejection = Some(reason);
+        // Collect anew; the previous calibration (if any) keeps correcting.
+        self.points.clear();
+        self.estimate = None;
+        self.wait = 0;
+        self.coverage = sphere::coverage(std::iter::empty());
+        self.supported = None;
+    }
+}
