@@ -855,3 +855,219 @@ impl Sensor3 {
         self.supported = None;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::daemon::config::parse;
+    use crate::daemon::reload::{RunningSource, apply};
+    use crate::daemon::sensor::Sensor;
+    use crate::sim3::{ImuMotion, Motion3, SimAxes3, SimImu3, SimSensor3};
+
+    const TEXT: &str = "[[source]]\nname = \"imu\"\nkind = \"falcon\"\nport = \"/dev/null\"\n\
+        [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\", \"z\"]\ntilt = \"level\"\n\
+        [[sensor]]\nname = \"level\"\nsource = \"imu\"\nfield = \"accel\"\naxes = [\"x\", \"y\", \"z\"]\n";
+
+    const SOURCES: [RunningSource<'static>; 1] = [RunningSource {
+        name: "imu",
+        layout: None,
+    }];
+
+    fn config(text: &str) -> crate::daemon::config::Config {
+        parse(text, std::path::Path::new("t.toml")).unwrap()
+    }
+
+    /// The shipped capture's IMU (tests/data/README.md), as readings.
+    fn tumble() -> Vec<Reading> {
+        let imu = SimImu3 {
+            field: 1000.0,
+            inclination_deg: 60.0,
+            gravity: 4096.0,
+            mag: SimAxes3 {
+                matrix: [[1.08, 0.04, -0.02], [0.04, 0.95, 0.03], [-0.02, 0.03, 1.0]],
+                offset: [150.0, -80.0, 60.0],
+                noise: 3.0,
+            },
+            accel: SimAxes3 {
+                matrix: [[1.01, 0.0, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.0]],
+                offset: [40.0, -25.0, 60.0],
+                noise: 8.0,
+            },
+            gyro_noise: 0.0,
+            period: 0.05,
+            n: 2880,
+            motion: ImuMotion::Tumble {
+                turns: 24.0,
+                axis_path_rad: 12.0,
+            },
+            seed: 7,
+        };
+        let round = |v: [f64; 3]| v.map(|x| x.round() as i16);
+        imu.simulate()
+            .unwrap()
+            .into_iter()
+            .map(|s| Reading {
+                time: s.t,
+                mag: Some(round(s.mag)),
+                accel: Some(round(s.accel)),
+                ..Reading::default()
+            })
+            .collect()
+    }
+
+    fn feed(sensors: &mut [(usize, Sensor)], readings: &[Reading]) -> Vec<String> {
+        let mut lines = Vec::new();
+        for r in readings {
+            for (_, s) in sensors.iter_mut() {
+                if s.wants(r.stream) {
+                    s.on_reading(r, &mut |_, l| lines.push(l));
+                }
+            }
+            // As the daemon's Sensors::link_tilts does on an acceptance.
+            let level = sensors[1].1.calibration().cloned();
+            if let Some(three) = sensors[0].1.three_mut() {
+                three.set_tilt(level.as_ref());
+            }
+        }
+        lines
+    }
+
+    #[test]
+    fn a_reload_keeps_an_unchanged_3_axis_sensor_and_carries_a_changed_ones_calibration() {
+        let mut running = config(TEXT);
+        let mut sensors: Vec<(usize, Sensor)> = running
+            .sensors
+            .iter()
+            .map(|s| (0, Sensor::new(s.clone(), None)))
+            .collect();
+        let readings = tumble();
+        let lines = feed(&mut sensors, &readings);
+        assert_eq!(
+            lines
+                .iter()
+                .filter(|l| l.contains("\"CALIBRATION\"") && l.contains("\"accepted\":true"))
+                .count(),
+            2
+        );
+        assert!(lines.iter().any(|l| l.contains("\"heading_deg\"")));
+        sensors[0].1.recalibrate();
+        feed(&mut sensors, &readings[..100]);
+        let sphere = |s: &Sensor| s.status().sphere.map(|p| p.samples);
+        assert_eq!(sphere(&sensors[0].1), Some(100));
+
+        // The same file: both sensors as they were.
+        let out = apply(Ok(config(TEXT)), &mut running, &mut sensors, &SOURCES, None);
+        assert!(out.lines[0].contains("no change"), "{:?}", out.lines);
+        assert_eq!(sphere(&sensors[0].1), Some(100));
+        assert_eq!(sensors[0].1.status().state, SensorState::Recalibrating);
+        assert_eq!(sensors[0].1.calibration().map(|c| c.id), Some(1));
+        assert_eq!(sensors[1].1.calibration().map(|c| c.id), Some(1));
+
+        // compass's model changes: it keeps correcting with #1, collects
+        // afresh, and its next calibration is #2.
+        let new = TEXT.replace(
+            "tilt = \"level\"\n",
+            "tilt = \"level\"\nmodel = \"offset+scale\"\n",
+        );
+        let out = apply(Ok(config(&new)), &mut running, &mut sensors, &SOURCES, None);
+        assert!(
+            out.lines.iter().any(|l| l.contains("compass")),
+            "{:?}",
+            out.lines
+        );
+        assert_eq!(sphere(&sensors[0].1), Some(0));
+        assert_eq!(sensors[0].1.calibration().map(|c| c.id), Some(1));
+        assert_eq!(sensors[1].1.calibration().map(|c| c.id), Some(1));
+        let lines = feed(&mut sensors, &readings);
+        let accepted: Vec<&String> = lines
+            .iter()
+            .filter(|l| l.contains("\"CALIBRATION\"") && l.contains("\"sensor\":\"compass\""))
+            .collect();
+        assert!(
+            accepted[0].contains("\"id\":2") && accepted[0].contains("\"model\":\"offset+scale\"")
+        );
+
+        // Back to two axes: a 2-axis sensor never corrects with a 3-D
+        // calibration; it collects a rotation.
+        let two = new.replace(
+            "axes = [\"x\", \"y\", \"z\"]\ntilt = \"level\"\nmodel = \"offset+scale\"\n",
+            "axes = [\"x\", \"y\"]\n",
+        );
+        apply(Ok(config(&two)), &mut running, &mut sensors, &SOURCES, None);
+        assert!(sensors[0].1.three().is_none());
+        assert!(sensors[0].1.calibration().is_none());
+        assert!(sensors[0].1.status().rotation.is_some());
+    }
+
+    /// ArduPilot's limits in its units: an offset beyond COMPASS_OFFS_MAX
+    /// (1800 mG) or a field outside 150-950 mG is refused, naming it.
+    #[test]
+    fn the_limits_are_ardupilots_in_milligauss() {
+        let fit_of = |offset: [f64; 3], r: f64| {
+            let sim = SimSensor3 {
+                matrix: [[1.05, 0.02, 0.0], [0.02, 0.97, 0.0], [0.0, 0.0, 1.0]],
+                offset,
+                r,
+                noise: 1.0,
+                n: 1500,
+                motion: Motion3::Tumble {
+                    turns: 12.0,
+                    axis_path_rad: 6.0,
+                },
+                seed: 5,
+            };
+            ellipsoid::fit(&sim.simulate().unwrap(), Ellipsoid3Model::Full).unwrap()
+        };
+        // 2000 counts per gauss: 1000 counts = 500 mG.
+        let good = fit_of([1000.0, -500.0, 200.0], 1000.0);
+        assert_eq!(check_limits(&good, Field::Mag, Some(2000.0), None), Ok(()));
+        let far = fit_of([3700.0, 0.0, 0.0], 1000.0);
+        let e = check_limits(&far, Field::Mag, Some(2000.0), None).unwrap_err();
+        assert!(
+            e.contains("offset x 18") && e.contains("COMPASS_OFFS_MAX"),
+            "{e}"
+        );
+        // Without units the offset is judged against the field: 3.7 r is fine.
+        assert_eq!(check_limits(&far, Field::Mag, None, None), Ok(()));
+        let strong = fit_of([0.0; 3], 2000.0);
+        let e = check_limits(&strong, Field::Mag, Some(2000.0), None).unwrap_err();
+        assert!(e.contains("FIELD_RADIUS"), "{e}");
+        // The fitness: 1 count of noise on 1000 is 0.5 mG; a tighter max_rms
+        // than the fit's rms refuses it.
+        let e = check_limits(&good, Field::Mag, Some(2000.0), Some(good.rms / 2.0)).unwrap_err();
+        assert!(e.contains("sphere.max_rms"), "{e}");
+        // An accelerometer: gravity must read 0.8-1.2 g.
+        let e = check_limits(&good, Field::Accel, Some(4096.0), None).unwrap_err();
+        assert!(e.contains("gravity reads 0.24"), "{e}");
+    }
+
+    /// A sensor that never moves fills no more than max_samples, however
+    /// long it collects.
+    #[test]
+    fn the_buffer_stays_bounded() {
+        let text = "[[source]]\nname = \"imu\"\nkind = \"falcon\"\nport = \"/dev/null\"\n\
+            [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\", \"z\"]\n\
+            [sensor.sphere]\nmin_samples = 100\nmax_samples = 400\n";
+        let c = config(text);
+        let mut sensor = Sensor::new(c.sensors[0].clone(), None);
+        let readings = tumble();
+        for i in 0..20_000usize {
+            // A still sensor, then the first 500 samples of the tumble.
+            let r = if i < 19_500 {
+                Reading {
+                    time: i as f64 * 0.05,
+                    mag: Some([500 + (i % 7) as i16, -300, 200]),
+                    ..Reading::default()
+                }
+            } else {
+                Reading {
+                    time: i as f64 * 0.05,
+                    ..readings[i - 19_500].clone()
+                }
+            };
+            sensor.on_reading(&r, &mut |_, _| {});
+            let held = sensor.three().unwrap().points.len();
+            assert!(held <= 400, "{held} at {i}");
+        }
+    }
+}
