@@ -528,7 +528,13 @@ impl Board {
                 suggested: c.suggested.clone(),
             },
         };
-        if !stored && c.n > 0 {
+        if !stored && c.n > 0 && line.contains("\"axes\":3") {
+            logs.push(format!(
+                "{}: sphere covered, {}",
+                c.sensor,
+                crate::sample::count(c.n as u64, "sample")
+            ));
+        } else if !stored && c.n > 0 {
             logs.push(format!(
                 "{}: rotation complete, {} over {:.0}°",
                 c.sensor,

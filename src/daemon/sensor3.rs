@@ -614,9 +614,9 @@ impl Sensor3 {
         let n = self.points.len();
         if n < self.config.sphere.min_samples
             || self.wait > 0
-            || !self
+            || self
                 .supported
-                .is_some_and(|m| m.unknowns() >= self.config.model.unknowns())
+                .is_none_or(|m| m.unknowns() < self.config.model.unknowns())
         {
             return None;
         }
@@ -1062,7 +1062,7 @@ mod tests {
             } else {
                 Reading {
                     time: i as f64 * 0.05,
-                    ..readings[i - 19_500].clone()
+                    ..readings[i - 19_500]
                 }
             };
             sensor.on_reading(&r, &mut |_, _| {});

@@ -368,8 +368,10 @@ fn imu_of(args: &SimulateArgs) -> Result<SimImu3> {
             bail!("{name} must be a positive number, got {value}");
         }
     }
+    // Finite: the three are positive and finite (checked above), so only
+    // a too large count is refused here.
     let samples = (args.turns * args.turn_seconds / args.period).round();
-    if !(samples <= fieldcal::sim3::MAX_SAMPLES as f64) {
+    if samples.is_nan() || samples > fieldcal::sim3::MAX_SAMPLES as f64 {
         bail!(
             "--turns × --turn-seconds / --period gives {samples:.0} samples, more than the {} a simulation makes; lower --turns or raise --period",
             fieldcal::sim3::MAX_SAMPLES
