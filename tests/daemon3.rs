@@ -486,3 +486,45 @@ port = "/dev/null"
     );
     assert!(config.sensors[1].three.as_ref().unwrap().tilt.is_none());
 }
+
+#[test]
+fn simulate_axes_3_refuses_bad_values_before_simulating() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.fcap");
+    let out = out.to_str().unwrap();
+    let cases: [(&[&str], &str); 5] = [
+        (
+            &["--effect", "drift=1"],
+            "--effect is for the 2-axis simulator",
+        ),
+        (&["--gain-x", "1.2"], "diagonal of --matrix"),
+        (
+            &["--matrix", "1,2,0,2,1,0,0,0,1"],
+            "not symmetric positive definite",
+        ),
+        (&["--inclination", "95"], "inclination"),
+        (
+            &["--format", "falcon", "--turns", "1e6", "--garbage", "0.9"],
+            "more than the",
+        ),
+    ];
+    for (extra, words) in cases {
+        let mut args = vec!["simulate", "--axes", "3", "-o", out];
+        args.extend_from_slice(extra);
+        let started = std::time::Instant::now();
+        let r = run(&args);
+        assert_eq!(r.code, Some(1), "{args:?}: {}", r.stderr);
+        assert!(r.stderr.contains(words), "{args:?}: {}", r.stderr);
+        assert!(started.elapsed().as_secs() < 5, "{args:?} took long");
+        assert!(!Path::new(out).exists());
+    }
+    // Columns: the magnetometer as x, y, z, then the accelerometer, the
+    // gyro and the truth.
+    let r = run(&["simulate", "--axes", "3", "--turns", "0.1"]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    assert_eq!(
+        r.stdout.lines().next(),
+        Some("t,x,y,z,ax,ay,az,gx,gy,gz,heading,tilt")
+    );
+    assert_eq!(r.stdout.lines().count(), 21);
+}
