@@ -384,12 +384,13 @@ fn equal_or_too_many_axes_are_refused() {
         Some(line_of(&text, "axes")),
         &["both axes are \"x\"", "two different"],
     );
-    let text = sensor("chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\", \"z\"]");
+    // Three axes make a 3-axis sensor (tests/daemon3.rs); four are refused.
+    let text = sensor("chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\", \"z\", \"x\"]");
     assert_refused(
         &text,
         "sensor[0].axes",
         Some(line_of(&text, "axes")),
-        &["3 axes"],
+        &["4 axes"],
     );
     let text = sensor("chip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"w\"]");
     assert_refused(

@@ -341,6 +341,7 @@ fn calibration(id: u64) -> Calibration {
         n: id as usize,
         time: 1.7e9 + k,
         terms: Default::default(),
+        ellipsoid: None,
     }
 }
 

@@ -223,7 +223,7 @@ fn simulate_reproduces_the_shipped_files_byte_for_byte() {
         );
         checked += 1;
     }
-    assert_eq!(checked, 5);
+    assert_eq!(checked, 6);
 }
 
 #[test]

@@ -34,6 +34,7 @@ fn calibration(sensor: &str, id: u64) -> Calibration {
         n: 412,
         time: 1_700_000_000.5,
         terms: Default::default(),
+        ellipsoid: None,
     }
 }
 

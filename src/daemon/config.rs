@@ -367,6 +367,10 @@ pub struct SensorConfig {
     /// y, in that order); then `stream`, `field` and `axes` are unused
     /// (0, mag, x and y).
     pub columns: Option<[String; 2]>,
+    /// A 3-axis sensor (`axes = ["x", "y", "z"]`): its model, units, tilt
+    /// source and collection; then `axes` holds its first two axes, and
+    /// `effects`, `gyro`, `rotation` and `limits` are unused.
+    pub three: Option<crate::daemon::sensor3::Sensor3Config>,
 }
 
 /// The gyro a sensor's heading is checked against (`gyro`, `gyro_chip`,
@@ -614,6 +618,15 @@ struct RawSensor {
     rotation: RotationSettings,
     #[serde(default)]
     limits: LimitSettings,
+    /// A 3-axis sensor: the accelerometer sensor of the same source whose
+    /// readings tilt-compensate its heading.
+    tilt: Option<String>,
+    /// A 3-axis magnetometer's counts per gauss.
+    lsb_per_gauss: Option<f64>,
+    /// A 3-axis accelerometer's counts per g.
+    lsb_per_g: Option<f64>,
+    /// A 3-axis sensor's collection and rms limit.
+    sphere: Option<crate::daemon::sensor3::SphereSettings>,
 }
 
 /// One byte stream of a source: its id and, for a chip, which one.
@@ -787,6 +800,7 @@ impl Checker<'_> {
         }
         let mut sensors = Vec::with_capacity(raw.sensor.len());
         let mut sensor_index: HashMap<String, usize> = HashMap::new();
+        let mut pending_tilts: Vec<(usize, String)> = Vec::new();
         for (i, s) in raw.sensor.into_iter().enumerate() {
             let key = format!("sensor[{i}]");
             self.check_name(&format!("{key}.name"), &s.name)?;
@@ -879,6 +893,31 @@ impl Checker<'_> {
                     }
                 });
             }
+            if parsed.len() == 3 {
+                let (sensor, tilt) =
+                    self.check_sensor3(&key, s, field, stream.id, &parsed, src_name)?;
+                if let Some(tilt) = tilt {
+                    pending_tilts.push((i, tilt));
+                }
+                sensors.push(sensor);
+                continue;
+            }
+            for (name, given) in [
+                ("tilt", s.tilt.is_some()),
+                ("lsb_per_gauss", s.lsb_per_gauss.is_some()),
+                ("lsb_per_g", s.lsb_per_g.is_some()),
+                ("sphere", s.sphere.is_some()),
+            ] {
+                if given {
+                    return Err(self.error(
+                        &format!("{key}.{name}"),
+                        format!(
+                            "`{name}` is for a 3-axis sensor: give axes = [\"x\", \"y\", \"z\"], \
+                             or leave `{name}` out of this 2-axis sensor"
+                        ),
+                    ));
+                }
+            }
             let axes = match parsed.as_slice() {
                 [a, b] if a == b => {
                     return Err(self.error(
@@ -896,7 +935,7 @@ impl Checker<'_> {
                         &format!("{key}.axes"),
                         format!(
                             "{} axes given: give exactly two different of \"x\", \"y\", \"z\" \
-                             (the two that turn)",
+                             (the two that turn), or all three for a 3-D calibration",
                             other.len()
                         ),
                     ));
@@ -921,8 +960,10 @@ impl Checker<'_> {
                 limits: s.limits,
                 gyro,
                 columns: None,
+                three: None,
             });
         }
+        self.link_tilts(&mut sensors, &pending_tilts)?;
 
         Ok(Config {
             daemon,
@@ -1392,6 +1433,10 @@ impl Checker<'_> {
         for (name, given) in [
             ("field", s.field.is_some()),
             ("chip", s.chip.is_some()),
+            ("tilt", s.tilt.is_some()),
+            ("lsb_per_gauss", s.lsb_per_gauss.is_some()),
+            ("lsb_per_g", s.lsb_per_g.is_some()),
+            ("sphere", s.sphere.is_some()),
             ("gyro_chip", s.gyro_chip.is_some()),
             ("gyro_lsb_per_deg_s", s.gyro_lsb_per_deg_s.is_some()),
         ] {
@@ -1523,6 +1568,7 @@ impl Checker<'_> {
             limits: s.limits,
             gyro,
             columns: Some(columns),
+            three: None,
         })
     }
 
@@ -1721,6 +1767,204 @@ impl Checker<'_> {
                 ),
             )),
         }
+    }
+
+    /// A `[[sensor]]` with three axes: its 3-D settings, and the name its
+    /// `tilt` gives (resolved by [`Checker::link_tilts`] once every sensor
+    /// is read).
+    fn check_sensor3(
+        &self,
+        key: &str,
+        s: RawSensor,
+        field: Field,
+        stream: u8,
+        parsed: &[Axis],
+        src_name: &str,
+    ) -> Result<(SensorConfig, Option<String>), ConfigError> {
+        use crate::daemon::sensor3::Sensor3Config;
+        use crate::model::ellipsoid::Ellipsoid3Model;
+        let axes = [parsed[0], parsed[1], parsed[2]];
+        if axes[0] == axes[1] || axes[0] == axes[2] || axes[1] == axes[2] {
+            return Err(self.error(
+                &format!("{key}.axes"),
+                "an axis is given twice: a 3-axis sensor gives \"x\", \"y\", \"z\", each once \
+                 (in the order of its x, y, z)",
+            ));
+        }
+        if field == Field::Gyro {
+            return Err(self.error(
+                &format!("{key}.field"),
+                "a gyro measures no constant field: a 3-axis sensor is \"mag\" or \"accel\"",
+            ));
+        }
+        for (name, given) in [
+            ("gyro", s.gyro.is_some()),
+            ("gyro_chip", s.gyro_chip.is_some()),
+            ("gyro_lsb_per_deg_s", s.gyro_lsb_per_deg_s.is_some()),
+            ("rotation", s.rotation != RotationSettings::default()),
+            ("limits", s.limits != LimitSettings::default()),
+        ] {
+            if given {
+                return Err(self.error(
+                    &format!("{key}.{name}"),
+                    format!(
+                        "`{name}` is for a 2-axis sensor's rotation: a 3-axis sensor collects \
+                         until its directions cover the sphere, set in [sensor.sphere] \
+                         (min_samples, max_samples, max_rms)"
+                    ),
+                ));
+            }
+        }
+        let model = match &s.model {
+            None => Ellipsoid3Model::Full,
+            Some(toml::Value::String(text)) => text
+                .trim()
+                .parse::<Ellipsoid3Model>()
+                .map_err(|e| self.error(&format!("{key}.model"), e))?,
+            Some(other) => {
+                return Err(self.error(
+                    &format!("{key}.model"),
+                    format!(
+                        "found {}: a 3-axis sensor's model is a string, \"offset\", \
+                         \"offset+scale\" or \"offset+scale+cross-axis\" (the default)",
+                        type_name(other)
+                    ),
+                ));
+            }
+        };
+        let (unit_key, wrong_key, unit) = match field {
+            Field::Accel => ("lsb_per_g", "lsb_per_gauss", s.lsb_per_g),
+            _ => ("lsb_per_gauss", "lsb_per_g", s.lsb_per_gauss),
+        };
+        let wrong = match field {
+            Field::Accel => s.lsb_per_gauss,
+            _ => s.lsb_per_g,
+        };
+        if wrong.is_some() {
+            return Err(self.error(
+                &format!("{key}.{wrong_key}"),
+                format!(
+                    "a {} sensor's units are `{unit_key}`, not `{wrong_key}`",
+                    field.name()
+                ),
+            ));
+        }
+        if let Some(u) = unit
+            && !(u.is_finite() && u > 0.0 && u <= 1e9)
+        {
+            return Err(self.error(
+                &format!("{key}.{unit_key}"),
+                format!("must be a positive number of counts (at most 1e9), got {u}"),
+            ));
+        }
+        let sphere = s.sphere.unwrap_or_default();
+        if let Err(problem) = sphere.validate() {
+            return Err(self.error(&format!("{key}.sphere"), problem));
+        }
+        let _ = src_name;
+        let three = Sensor3Config {
+            axes,
+            model,
+            lsb_per_unit: unit,
+            // Resolved by link_tilts.
+            tilt: None,
+            sphere,
+        };
+        Ok((
+            SensorConfig {
+                name: s.name,
+                source: s.source,
+                stream,
+                field,
+                axes: [axes[0], axes[1]],
+                effects: model.name().split('+').map(String::from).collect(),
+                rotation: RotationSettings::default(),
+                limits: LimitSettings::default(),
+                gyro: GyroChoice::Off(
+                    "a 3-axis sensor: its fit is judged by the sphere's coverage, not a gyro"
+                        .into(),
+                ),
+                columns: None,
+                three: Some(three),
+            },
+            s.tilt,
+        ))
+    }
+
+    /// Resolves each 3-axis sensor's `tilt`: another 3-axis accelerometer
+    /// sensor of the same source.
+    fn link_tilts(
+        &self,
+        sensors: &mut [SensorConfig],
+        pending: &[(usize, String)],
+    ) -> Result<(), ConfigError> {
+        use crate::daemon::sensor3::TiltSource;
+        for (i, name) in pending {
+            let key = format!("sensor[{i}].tilt");
+            let Some(me) = sensors.get(*i) else { continue };
+            let found = sensors.iter().position(|s| &s.name == name);
+            let Some(j) = found else {
+                let names: Vec<&str> = sensors
+                    .iter()
+                    .filter(|s| s.three.is_some() && s.field == Field::Accel)
+                    .map(|s| s.name.as_str())
+                    .collect();
+                return Err(self.error(
+                    &key,
+                    format!(
+                        "no sensor named '{name}': give the 3-axis accelerometer sensor of source \
+                         '{}' ({})",
+                        me.source,
+                        if names.is_empty() {
+                            "the file has none: add one with field = \"accel\" and axes = \
+                             [\"x\", \"y\", \"z\"]"
+                                .to_string()
+                        } else {
+                            format!("the file has {}", names.join(", "))
+                        }
+                    ),
+                ));
+            };
+            let other = &sensors[j];
+            let problem = if j == *i {
+                Some("a sensor cannot be its own tilt source".to_string())
+            } else if other.three.is_none() {
+                Some(format!(
+                    "'{name}' is a 2-axis sensor: the tilt source must be a 3-axis accelerometer \
+                     (axes = [\"x\", \"y\", \"z\"], field = \"accel\")"
+                ))
+            } else if other.field != Field::Accel {
+                Some(format!(
+                    "'{name}' measures {}: the tilt source must be an accelerometer (field = \"accel\")",
+                    other.field.name()
+                ))
+            } else if other.source != me.source {
+                Some(format!(
+                    "'{name}' is a sensor of source '{}', not of '{}': the tilt source must be on \
+                     the same board, read by the same source",
+                    other.source, me.source
+                ))
+            } else if me.field != Field::Mag {
+                Some(format!(
+                    "a tilt-compensated heading is a magnetometer's: this sensor measures {}",
+                    me.field.name()
+                ))
+            } else {
+                None
+            };
+            if let Some(problem) = problem {
+                return Err(self.error(&key, problem));
+            }
+            let tilt = other.three.as_ref().map(|t| TiltSource {
+                sensor: name.clone(),
+                stream: other.stream,
+                axes: t.axes,
+            });
+            if let Some(three) = sensors.get_mut(*i).and_then(|s| s.three.as_mut()) {
+                three.tilt = tilt;
+            }
+        }
+        Ok(())
     }
 
     fn check_model(

@@ -218,6 +218,9 @@ pub struct SensorStatus<'a> {
     /// Rotation progress, while collecting.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rotation: Option<Progress>,
+    /// A 3-axis sensor's sphere coverage, while collecting.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sphere: Option<super::sensor3::SphereProgress>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub calibration: Option<u64>,
     pub readings: u64,

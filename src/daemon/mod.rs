@@ -19,6 +19,7 @@ pub mod reload;
 pub mod rotation;
 pub mod run;
 pub mod sensor;
+pub mod sensor3;
 pub mod state;
 pub mod state_writer;
 pub mod unix_socket;
@@ -52,6 +53,25 @@ pub struct Calibration {
     /// left out of the JSON, so files of the paper's model stay as they were).
     #[serde(default, skip_serializing_if = "Terms::is_none")]
     pub terms: Terms,
+    /// A 3-axis sensor's calibration (then `params` is the identity with
+    /// the field's r, and `coverage_deg` 0); absent for a 2-axis one, so its
+    /// files stay as they were.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ellipsoid: Option<Ellipsoid3Params>,
+}
+
+/// The 3-D model of a 3-axis sensor: calibrated = W·(raw − o), with
+/// |calibrated| = r (see [`crate::model::ellipsoid`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Ellipsoid3Params {
+    /// o, raw units.
+    pub offset: [f64; 3],
+    /// W, row-major, symmetric, det W = 1.
+    pub matrix: [[f64; 3]; 3],
+    /// The field's magnitude, raw units.
+    pub r: f64,
+    /// The share of the sphere's regions the fitted samples reached.
+    pub coverage: f64,
 }
 
 /// The live-correctable effects' terms: cross-axis coupling `c`, the odd

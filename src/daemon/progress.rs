@@ -157,7 +157,18 @@ impl SensorSnapshot {
         let status = sensor.status();
         SensorSnapshot {
             sensor: sensor.name().to_string(),
-            rotation: status.rotation.as_ref().map(RotationView::from),
+            rotation: status
+                .rotation
+                .as_ref()
+                .map(RotationView::from)
+                .or_else(|| {
+                    // A 3-axis sensor: the bar shows its sphere's coverage.
+                    status.sphere.as_ref().map(|p| RotationView {
+                        coverage_pct: p.coverage_pct,
+                        missing: Vec::new(),
+                        samples: p.samples,
+                    })
+                }),
             calibration: sensor.calibration().map(|c| (c.id, c.rms)),
         }
     }
@@ -517,7 +528,13 @@ impl Board {
                 suggested: c.suggested.clone(),
             },
         };
-        if !stored && c.n > 0 {
+        if !stored && c.n > 0 && line.contains("\"axes\":3") {
+            logs.push(format!(
+                "{}: sphere covered, {}",
+                c.sensor,
+                crate::sample::count(c.n as u64, "sample")
+            ));
+        } else if !stored && c.n > 0 {
             logs.push(format!(
                 "{}: rotation complete, {} over {:.0}°",
                 c.sensor,

@@ -40,7 +40,6 @@ use std::time::Duration;
 use tokio::sync::mpsc;
 
 use super::config::{self, Config, ConfigError, SensorConfig, SourceConfig, SourceKind};
-use super::messages::{CalibrationMessage, to_line};
 use super::notify::Notifier;
 use super::sensor::Sensor;
 use super::state::StateStore;
@@ -222,6 +221,9 @@ fn changed_keys(old: &SensorConfig, new: &SensorConfig) -> Vec<&'static str> {
     }
     if old.limits != new.limits {
         keys.push("limits");
+    }
+    if old.three != new.three {
+        keys.push("axes, model, tilt, units or sphere");
     }
     if keys.is_empty() && old != new {
         keys.push("settings");
@@ -621,7 +623,7 @@ fn apply_plan(
                 };
                 let how = match sensor.calibration() {
                     Some(c) => {
-                        lines.push(to_line(&CalibrationMessage::loaded(c)));
+                        lines.extend(sensor.loaded_line());
                         format!(
                             "corrects with calibration #{} from the state directory and waits for a recalibrate",
                             c.id

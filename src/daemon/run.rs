@@ -24,7 +24,7 @@ use tokio::sync::{mpsc, watch};
 
 use super::Calibration;
 use super::config::{Config, SourceKind};
-use super::messages::{CalibrationMessage, SourceStatus, StatusMessage, to_line};
+use super::messages::{SourceStatus, StatusMessage, to_line};
 use super::notify::Notifier;
 use super::progress::{ProgressFeed, REDRAW};
 use super::publish::{ClientCommand, Hub, Lane, ReplyTo};
@@ -137,7 +137,9 @@ impl Sensors {
                 Some((source, Sensor::new(s.clone(), stored)))
             })
             .collect();
-        Sensors { sensors }
+        let mut built = Sensors { sensors };
+        built.link_tilts();
+        built
     }
 
     /// Feeds a reading to the sensors of its source and stream.
@@ -148,12 +150,36 @@ impl Sensors {
         emit: &mut dyn FnMut(Lane, String),
         store: &mut dyn FnMut(&Calibration),
     ) {
+        let mut accepted_any = false;
         for (src, sensor) in &mut self.sensors {
             if *src == source
                 && sensor.wants(reading.stream)
                 && let Some(accepted) = sensor.on_reading(reading, emit)
             {
                 store(&accepted);
+                accepted_any = true;
+            }
+        }
+        if accepted_any {
+            self.link_tilts();
+        }
+    }
+
+    /// Gives each 3-axis sensor with a `tilt` source that sensor's current
+    /// calibration: at start, after a reload, and when a calibration is
+    /// accepted (rare: no cost on the readings' path).
+    fn link_tilts(&mut self) {
+        let calibrations: Vec<(String, Option<Calibration>)> = self
+            .sensors
+            .iter()
+            .map(|(_, s)| (s.name().to_string(), s.calibration().cloned()))
+            .collect();
+        for (_, sensor) in &mut self.sensors {
+            if let Some(three) = sensor.three_mut()
+                && let Some(name) = three.tilt_sensor().map(str::to_string)
+            {
+                let found = calibrations.iter().find(|(n, _)| *n == name);
+                three.set_tilt(found.and_then(|(_, c)| c.as_ref()));
             }
         }
     }
@@ -343,10 +369,9 @@ pub async fn run_with(
                 id = c.id,
                 "loaded the stored calibration"
             );
-            hub.publish(
-                Lane::Control,
-                Arc::from(to_line(&CalibrationMessage::loaded(c))),
-            );
+            if let Some(line) = sensor.loaded_line() {
+                hub.publish(Lane::Control, Arc::from(line));
+            }
         }
     }
 
@@ -570,6 +595,7 @@ pub async fn run_with(
                         &running_sources,
                         Some(&reload_store),
                     );
+                    sensors.link_tilts();
                     for line in outcome.lines {
                         emit(Lane::Control, line);
                     }
@@ -763,7 +789,14 @@ fn status_text(sensors: &Sensors) -> String {
             match (status.calibration, status.rotation) {
                 (Some(id), None) => format!("{}: calibrated (#{id})", s.name()),
                 (_, Some(p)) => format!("{}: collecting {:.0}%", s.name(), p.coverage_pct),
-                (None, None) => format!("{}: waiting", s.name()),
+                (None, None) => match status.sphere {
+                    Some(p) => format!(
+                        "{}: collecting {:.0}% of the sphere",
+                        s.name(),
+                        p.coverage_pct
+                    ),
+                    None => format!("{}: waiting", s.name()),
+                },
             }
         })
         .collect();

@@ -47,6 +47,8 @@ pub struct Sensor {
     /// A sensor of a csv source: its columns, resolved once against the
     /// file's header by [`Sensor::bind_csv`].
     csv: Option<CsvBinding>,
+    /// A 3-axis sensor (`axes = ["x", "y", "z"]`): every call goes to it.
+    three: Option<Box<super::sensor3::Sensor3>>,
 }
 
 /// Where a csv sensor's values are in each row: indices into
@@ -201,6 +203,13 @@ impl Sensor {
     /// A sensor starting from the calibration stored for it, if any: it
     /// corrects at once and collects no rotation until asked to.
     pub fn new(config: SensorConfig, stored: Option<Calibration>) -> Self {
+        let three = config
+            .three
+            .clone()
+            .map(|t| Box::new(super::sensor3::Sensor3::new(&config, t, stored.clone())));
+        // A 2-axis sensor never starts from a 3-D calibration (its axes
+        // were changed from three to two), nor a 3-axis one from a 2-D one.
+        let stored = stored.filter(|c| c.ellipsoid.is_none() || three.is_some());
         let limits = config.limits.clone();
         let buffer = RotationBuffer::new(config.rotation.clone());
         let gyro = GyroTrack::new(&config.gyro, buffer.config().max_samples);
@@ -227,6 +236,29 @@ impl Sensor {
             last_rejection: None,
             gyro,
             csv: None,
+            three,
+        }
+    }
+
+    /// The 3-axis sensor this is, if it is one.
+    pub fn three(&self) -> Option<&super::sensor3::Sensor3> {
+        self.three.as_deref()
+    }
+
+    /// The 3-axis sensor this is, if it is one.
+    pub fn three_mut(&mut self) -> Option<&mut super::sensor3::Sensor3> {
+        self.three.as_deref_mut()
+    }
+
+    /// The `CALIBRATION` line of the calibration loaded from the state
+    /// directory, if any.
+    pub fn loaded_line(&self) -> Option<String> {
+        match &self.three {
+            Some(three) => three.loaded_line(),
+            None => self
+                .current
+                .as_ref()
+                .map(|c| to_line(&CalibrationMessage::loaded(c))),
         }
     }
 
@@ -310,6 +342,10 @@ impl Sensor {
     /// under the new settings, so a sensor built by [`Sensor::new`] with
     /// the new section (and bound to its csv file) collects at once.
     pub fn carry_over(&mut self, old: Sensor) {
+        if let (Some(three), Some(old_three)) = (&mut self.three, old.three) {
+            three.carry_over(*old_three);
+            return;
+        }
         self.current = old.current;
         self.next_id = self.next_id.max(old.next_id);
         self.readings = old.readings;
@@ -328,12 +364,18 @@ impl Sensor {
     }
 
     pub fn calibration(&self) -> Option<&Calibration> {
+        if let Some(three) = &self.three {
+            return three.calibration();
+        }
         self.current.as_ref()
     }
 
     /// Whether a reading from `stream` of the sensor's source belongs to it
     /// (its own stream, or the stream of the gyro its heading is checked by).
     pub fn wants(&self, stream: u8) -> bool {
+        if let Some(three) = &self.three {
+            return three.wants(stream);
+        }
         self.config.stream == stream || self.gyro.as_ref().is_some_and(|g| g.stream == stream)
     }
 
@@ -357,6 +399,10 @@ impl Sensor {
     /// Starts a new rotation; the current calibration keeps correcting
     /// until a new one is accepted.
     pub fn recalibrate(&mut self) {
+        if let Some(three) = &mut self.three {
+            three.recalibrate();
+            return;
+        }
         self.buffer.reset();
         if let Some(gyro) = &mut self.gyro {
             gyro.clear();
@@ -372,6 +418,9 @@ impl Sensor {
     /// exists), feeds the rotation buffer while collecting, and fits when the
     /// rotation is complete. Returns a newly accepted calibration, to store.
     pub fn on_reading(&mut self, reading: &Reading, emit: &mut Emit<'_>) -> Option<Calibration> {
+        if let Some(three) = &mut self.three {
+            return three.on_reading(reading, emit);
+        }
         if self.state != SensorState::Calibrated
             && let Some(gyro) = &mut self.gyro
         {
@@ -484,6 +533,7 @@ impl Sensor {
             n: report.n,
             time,
             terms,
+            ellipsoid: None,
         };
         let message = CalibrationMessage {
             fit_ms,
@@ -678,11 +728,27 @@ impl Sensor {
     }
 
     pub fn status(&self) -> SensorStatus<'_> {
+        if let Some(three) = &self.three {
+            let (readings, fits_accepted, fits_rejected, last_rejection) = three.counts();
+            return SensorStatus {
+                sensor: &self.config.name,
+                source: &self.config.source,
+                state: three.state(),
+                rotation: None,
+                sphere: three.progress(),
+                calibration: three.calibration().map(|c| c.id),
+                readings,
+                fits_accepted,
+                fits_rejected,
+                last_rejection,
+            };
+        }
         SensorStatus {
             sensor: &self.config.name,
             source: &self.config.source,
             state: self.state,
             rotation: (self.state != SensorState::Calibrated).then(|| self.buffer.progress()),
+            sphere: None,
             calibration: self.current.as_ref().map(|c| c.id),
             readings: self.readings,
             fits_accepted: self.fits_accepted,

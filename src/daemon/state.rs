@@ -498,6 +498,18 @@ fn calibration_problem(c: &Calibration) -> Option<String> {
     if c.rms < 0.0 {
         return Some(format!("rms is {}, it cannot be negative", c.rms));
     }
+    if let Some(e) = &c.ellipsoid {
+        let values = e.offset.iter().chain(e.matrix.iter().flatten());
+        if values.clone().any(|v| !v.is_finite()) || !(e.r > 0.0 && e.r.is_finite()) {
+            return Some("ellipsoid holds a non-finite number or a radius not above zero".into());
+        }
+        if !(0.0..=1.0).contains(&e.coverage) {
+            return Some(format!(
+                "ellipsoid.coverage is {}, not a fraction",
+                e.coverage
+            ));
+        }
+    }
     if !(0.0..=360.0).contains(&c.coverage_deg) {
         return Some(format!(
             "coverage_deg is {}, not between 0 and 360",

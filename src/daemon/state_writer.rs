@@ -111,6 +111,7 @@ mod tests {
             n: 100,
             time: 1.0,
             terms: Default::default(),
+            ellipsoid: None,
         }
     }
 

@@ -503,6 +503,8 @@ struct SimulateArgs {
         allow_negative_numbers = true
     )]
     temp_rise: f64,
+    #[command(flatten)]
+    three: simulate::Sim3Args,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]

@@ -1,0 +1,1154 @@
+//! A 3-axis sensor of the daemon (`axes = ["x", "y", "z"]`): readings are
+//! collected until their directions cover enough of the sphere for the
+//! configured 3-D model ([`ellipsoid::supports`]), then fitted
+//! ([`ellipsoid::fit`]), checked against ArduPilot's acceptance limits
+//! ([`Limits3`]), and from then on every reading carries the corrected x,
+//! y, z. A magnetometer may name the accelerometer sensor of its source
+//! (`tilt`): its readings then carry the tilt-compensated heading
+//! ([`crate::model::tilt::tilt_heading`]).
+//!
+//! A plain state machine as [`super::sensor::Sensor`] (which holds one of
+//! these for a 3-axis section and hands it every call): readings in, lines
+//! to publish and calibrations to store out, no I/O, no clock.
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use super::config::{Axis, Field, SensorConfig};
+use super::messages::{SensorState, to_line};
+use super::publish::Lane;
+use super::sensor::Emit;
+use super::{Calibration, Ellipsoid3Params};
+use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
+use crate::model::paper::PaperCalibration;
+use crate::model::sphere::{self, MissingDirections, SphereCoverage};
+use crate::model::tilt::tilt_heading;
+use crate::sample::Reading;
+
+/// ArduPilot's compass calibrator collects `COMPASS_CAL_NUM_SAMPLES` = 300
+/// samples before it fits (AP_Compass/CompassCalibrator.h): the default
+/// fewest samples a 3-D fit is tried on.
+pub const DEFAULT_MIN_SAMPLES: usize = 300;
+
+/// Default cap on the samples held while collecting: ten times
+/// [`DEFAULT_MIN_SAMPLES`]. When full, the most crowded direction region
+/// gives up its older half, so a hand that dwells on some directions
+/// cannot crowd out the rest and memory stays bounded (ArduPilot thins its
+/// buffer likewise, `thin_samples`).
+pub const DEFAULT_MAX_SAMPLES: usize = 3000;
+
+/// Hard bounds of the two settings above.
+pub const SAMPLES_RANGE: (usize, usize) = (20, 1_000_000);
+
+/// The coverage is judged (a closed-form fit for the directions, then
+/// [`ellipsoid::supports`]) once every this many samples: at 20 Hz four
+/// times a second, and the cost of a judgement (linear in the samples
+/// held) stays a small share of the readings' path.
+pub const CHECK_EVERY: usize = 5;
+
+/// ArduPilot's field radius bounds, milligauss: `FIELD_RADIUS_MIN` 150 and
+/// `FIELD_RADIUS_MAX` 950 (CompassCalibrator.cpp, "Earth's magnetic field
+/// strength range: 250-850mG").
+pub const FIELD_RADIUS_MGAUSS: (f64, f64) = (150.0, 950.0);
+/// ArduPilot's largest offset per axis, milligauss: `COMPASS_OFFS_MAX`,
+/// default 1800 (AP_Compass.cpp).
+pub const MAX_OFFSET_MGAUSS: f64 = 1800.0;
+/// ArduPilot's fitness tolerance: the rms residual in milligauss,
+/// `COMPASS_CAL_FIT` default 16 (`AP_COMPASS_CALIBRATION_FITNESS_DEFAULT`).
+pub const MAX_FITNESS_MGAUSS: f64 = 16.0;
+/// ArduPilot's bounds of the soft-iron matrix's diagonal, 0.2 to 5, and of
+/// its off-diagonal entries, |·| < 1 (CompassCalibrator::fit_acceptable).
+pub const MAG_DIAGONAL: (f64, f64) = (0.2, 5.0);
+pub const MAG_MAX_OFF_DIAGONAL: f64 = 1.0;
+/// ArduPilot's accelerometer bounds (AccelCalibrator::accept_result): each
+/// offset at most 1 g (`GRAVITY_MSS`), each diagonal scale 0.8 to 1.2.
+pub const ACCEL_MAX_OFFSET_G: f64 = 1.0;
+pub const ACCEL_DIAGONAL: (f64, f64) = (0.8, 1.2);
+/// When the sensor's units are not configured, the limits are relative to
+/// the fitted radius: offsets at most 5 radii (the 2-D daemon's
+/// `max_offset_ratio`, from the same COMPASS_OFFS_MAX beside the Earth's
+/// 250-850 mG) and an rms of at most 5 % of the field (the 2-D `max_rms`;
+/// ArduPilot's 16 mG is 2-6 % of the Earth's field).
+pub const RELATIVE_MAX_OFFSET: f64 = 5.0;
+pub const RELATIVE_MAX_RMS: f64 = 0.05;
+
+/// `[sensor.sphere]`: how a 3-axis sensor collects, and its rms limit.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SphereSettings {
+    /// Fewest samples a fit is tried on.
+    pub min_samples: usize,
+    /// Most samples held (see [`DEFAULT_MAX_SAMPLES`]).
+    pub max_samples: usize,
+    /// Largest rms of |calibrated|/r − 1, a fraction of the field; when
+    /// absent, ArduPilot's 16 mG for a magnetometer whose units are known,
+    /// 5 % otherwise.
+    pub max_rms: Option<f64>,
+}
+
+impl Default for SphereSettings {
+    fn default() -> Self {
+        SphereSettings {
+            min_samples: DEFAULT_MIN_SAMPLES,
+            max_samples: DEFAULT_MAX_SAMPLES,
+            max_rms: None,
+        }
+    }
+}
+
+impl SphereSettings {
+    /// Checks the settings; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        let (lo, hi) = SAMPLES_RANGE;
+        if !(lo..=hi).contains(&self.min_samples) {
+            return Err(format!(
+                "min_samples must be between {lo} and {hi}, got {}",
+                self.min_samples
+            ));
+        }
+        if !(self.min_samples..=hi).contains(&self.max_samples) {
+            return Err(format!(
+                "max_samples must be between min_samples ({}) and {hi}, got {}",
+                self.min_samples, self.max_samples
+            ));
+        }
+        if let Some(v) = self.max_rms
+            && !(v.is_finite() && v > 0.0 && v <= 1.0)
+        {
+            return Err(format!(
+                "max_rms must be a fraction of the field above 0 and at most 1 (0.05 = 5 %), got {v}"
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The accelerometer a magnetometer's heading is tilt-compensated with:
+/// another 3-axis sensor of the same source (`tilt = "<name>"`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TiltSource {
+    pub sensor: String,
+    pub stream: u8,
+    pub axes: [Axis; 3],
+}
+
+/// What a `[[sensor]]` with three axes adds to [`SensorConfig`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sensor3Config {
+    /// The three axes, in the order of the sensor's x, y, z.
+    pub axes: [Axis; 3],
+    pub model: Ellipsoid3Model,
+    /// Raw counts per gauss (a magnetometer, `lsb_per_gauss`) or per g (an
+    /// accelerometer, `lsb_per_g`), when configured.
+    pub lsb_per_unit: Option<f64>,
+    pub tilt: Option<TiltSource>,
+    pub sphere: SphereSettings,
+}
+
+impl Sensor3Config {
+    fn unit(field: Field) -> &'static str {
+        match field {
+            Field::Mag => "gauss",
+            Field::Accel => "g",
+            Field::Gyro => "deg/s",
+        }
+    }
+}
+
+/// Why a 3-D fit is refused: every failed limit, named with its value and
+/// its source, joined by "; ". `field` and `lsb_per_unit` give the units.
+pub fn check_limits(
+    fit: &Ellipsoid3Fit,
+    field: Field,
+    lsb_per_unit: Option<f64>,
+    max_rms: Option<f64>,
+) -> Result<(), String> {
+    let extra = [fit.r, fit.rms];
+    let mut numbers = fit
+        .offset
+        .iter()
+        .chain(fit.matrix.iter().flatten())
+        .chain(extra.iter());
+    if numbers.any(|v| !v.is_finite()) || !(fit.r > 0.0) {
+        return Err("the fit produced a non-finite or non-positive parameter".into());
+    }
+    let mut failures = Vec::new();
+    let w = &fit.matrix;
+    let diagonal = [w[0][0], w[1][1], w[2][2]];
+    let off_diagonal = [w[0][1], w[0][2], w[1][2]];
+    match (field, lsb_per_unit) {
+        (Field::Mag, Some(u)) => {
+            let to_mg = |counts: f64| counts / u * 1000.0;
+            let r_mg = to_mg(fit.r);
+            let (lo, hi) = FIELD_RADIUS_MGAUSS;
+            if !(r_mg > lo && r_mg < hi) {
+                failures.push(format!(
+                    "field radius {r_mg:.0} mG is outside ArduPilot's {lo:.0}-{hi:.0} mG (FIELD_RADIUS_MIN/MAX; {:.1} counts at lsb_per_gauss {u})",
+                    fit.r
+                ));
+            }
+            for (axis, o) in ["x", "y", "z"].iter().zip(fit.offset) {
+                if to_mg(o).abs() >= MAX_OFFSET_MGAUSS {
+                    failures.push(format!(
+                        "offset {axis} {:.0} mG exceeds ArduPilot's {MAX_OFFSET_MGAUSS:.0} mG (COMPASS_OFFS_MAX)",
+                        to_mg(o)
+                    ));
+                }
+            }
+            let fitness = to_mg(fit.rms * fit.r);
+            let limit_mg = max_rms.map_or(MAX_FITNESS_MGAUSS, |f| to_mg(f * fit.r));
+            if fitness > limit_mg {
+                failures.push(format!(
+                    "rms {fitness:.1} mG ({:.2} % of the field) exceeds {limit_mg:.1} mG ({})",
+                    fit.rms * 100.0,
+                    if max_rms.is_some() {
+                        "sphere.max_rms"
+                    } else {
+                        "ArduPilot's COMPASS_CAL_FIT"
+                    }
+                ));
+            }
+        }
+        (Field::Accel, Some(u)) => {
+            for (axis, o) in ["x", "y", "z"].iter().zip(fit.offset) {
+                if (o / u).abs() > ACCEL_MAX_OFFSET_G {
+                    failures.push(format!(
+                        "offset {axis} {:.3} g exceeds ArduPilot's {ACCEL_MAX_OFFSET_G} g (AccelCalibrator)",
+                        o / u
+                    ));
+                }
+            }
+            let (lo, hi) = ACCEL_DIAGONAL;
+            let g = fit.r / u;
+            if !(lo..=hi).contains(&g) {
+                failures.push(format!(
+                    "gravity reads {g:.3} g at lsb_per_g {u}: the overall scale is outside ArduPilot's {lo}-{hi} (AccelCalibrator)"
+                ));
+            }
+        }
+        _ => {
+            for (axis, o) in ["x", "y", "z"].iter().zip(fit.offset) {
+                if o.abs() > RELATIVE_MAX_OFFSET * fit.r {
+                    failures.push(format!(
+                        "offset {axis} {o:.1} counts is more than {RELATIVE_MAX_OFFSET} field radii ({:.1} counts)",
+                        fit.r
+                    ));
+                }
+            }
+        }
+    }
+    if !(field == Field::Mag && lsb_per_unit.is_some()) {
+        let limit = max_rms.unwrap_or(RELATIVE_MAX_RMS);
+        if fit.rms > limit {
+            failures.push(format!(
+                "rms {:.2} % of the field exceeds {:.2} % ({})",
+                fit.rms * 100.0,
+                limit * 100.0,
+                if max_rms.is_some() {
+                    "sphere.max_rms"
+                } else {
+                    "the default"
+                }
+            ));
+        }
+    }
+    let (lo, hi, off) = match field {
+        Field::Accel => (ACCEL_DIAGONAL.0, ACCEL_DIAGONAL.1, MAG_MAX_OFF_DIAGONAL),
+        _ => (MAG_DIAGONAL.0, MAG_DIAGONAL.1, MAG_MAX_OFF_DIAGONAL),
+    };
+    for (axis, d) in ["xx", "yy", "zz"].iter().zip(diagonal) {
+        if !(d > lo && d < hi) {
+            failures.push(format!(
+                "matrix {axis} {d:.3} is outside ArduPilot's {lo}-{hi} (diagonal bound)"
+            ));
+        }
+    }
+    for (axis, d) in ["xy", "xz", "yz"].iter().zip(off_diagonal) {
+        if d.abs() >= off {
+            failures.push(format!(
+                "matrix {axis} {d:.3} is beyond ArduPilot's ±{off} (off-diagonal bound)"
+            ));
+        }
+    }
+    if failures.is_empty() {
+        Ok(())
+    } else {
+        Err(failures.join("; "))
+    }
+}
+
+/// A 3-axis sensor's progress in `STATUS`, while collecting.
+#[derive(Debug, Clone, Serialize)]
+pub struct SphereProgress {
+    /// Samples held.
+    pub samples: usize,
+    /// The share of the sphere's 100 equal-area regions reached, percent,
+    /// about the current closed-form estimate.
+    pub coverage_pct: f64,
+    pub regions: usize,
+    pub covered: usize,
+    /// The missing directions, in words ("missing: -z (...)").
+    pub missing_text: String,
+    /// The missing directions, largest first.
+    pub missing: Vec<MissingDirections>,
+    /// The model being collected for.
+    pub model: &'static str,
+    /// The richest model the directions so far support, if any.
+    pub supported: Option<&'static str>,
+}
+
+#[derive(Serialize)]
+struct TiltFields<'a> {
+    /// The accelerometer sensor.
+    sensor: &'a str,
+    /// Its calibration that corrected the accelerometer, or none: the
+    /// accelerometer's raw readings were used.
+    calibration: Option<u64>,
+    calibrated: bool,
+    tilt_deg: f64,
+    pitch_deg: f64,
+    inclination_deg: f64,
+}
+
+#[derive(Serialize)]
+struct Reading3Message<'a> {
+    class: &'static str,
+    sensor: &'a str,
+    time: f64,
+    axes: u8,
+    raw: [f64; 3],
+    #[serde(skip_serializing_if = "Option::is_none")]
+    corrected: Option<[f64; 3]>,
+    /// |corrected|: the field's magnitude, ≈ r.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    magnitude: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    calibration: Option<u64>,
+    calibrated: bool,
+    /// Tilt-compensated, clockwise from magnetic north to the sensor's +x.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    heading_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    tilt: Option<TiltFields<'a>>,
+}
+
+#[derive(Serialize)]
+struct Calibration3Message<'a> {
+    class: &'static str,
+    sensor: &'a str,
+    accepted: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    id: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    reason: Option<String>,
+    axes: u8,
+    model: &'a str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    offset: Option<[f64; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    matrix: Option<[[f64; 3]; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    r: Option<f64>,
+    /// r in gauss or g, when the units are configured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    r_units: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    units: Option<&'static str>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    se: Option<Ellipsoid3Se>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    rms: Option<f64>,
+    n: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    coverage: Option<SphereCoverage>,
+    fit_ms: f64,
+    time: f64,
+    origin: &'static str,
+}
+
+/// One 3-axis sensor: its buffer, its calibration and its counts.
+pub struct Sensor3 {
+    name: String,
+    stream: u8,
+    field: Field,
+    config: Sensor3Config,
+    points: Vec<[f64; 3]>,
+    /// The closed-form estimate the directions are judged about: (o, A),
+    /// A(raw − o) on the unit sphere.
+    estimate: Option<([f64; 3], [[f64; 3]; 3])>,
+    since_check: usize,
+    coverage: SphereCoverage,
+    supported: Option<Ellipsoid3Model>,
+    /// After a fit refused for coverage, samples to take before the next
+    /// try (so a refusal is not repeated every check).
+    wait: usize,
+    state: SensorState,
+    current: Option<Calibration>,
+    next_id: u64,
+    readings: u64,
+    fits_accepted: u64,
+    fits_rejected: u64,
+    last_rejection: Option<String>,
+    /// The tilt source's current calibration, as [`Sensor3::set_tilt`] gave it.
+    tilt_calibration: Option<Calibration>,
+    /// The tilt source's last raw reading.
+    last_accel: Option<[f64; 3]>,
+}
+
+fn pick(triad: [i16; 3], axes: [Axis; 3]) -> [f64; 3] {
+    axes.map(|a| f64::from(triad[a.index()]))
+}
+
+fn field_of(reading: &Reading, field: Field) -> Option<[i16; 3]> {
+    match field {
+        Field::Mag => reading.mag,
+        Field::Accel => reading.accel,
+        Field::Gyro => reading.gyro,
+    }
+}
+
+/// W·(raw − o) of a stored 3-D calibration.
+pub fn apply3(p: &Ellipsoid3Params, raw: [f64; 3]) -> [f64; 3] {
+    let d = [0, 1, 2].map(|i| raw[i] - p.offset[i]);
+    let w = &p.matrix;
+    [0, 1, 2].map(|i| w[i][0] * d[0] + w[i][1] * d[1] + w[i][2] * d[2])
+}
+
+impl Sensor3 {
+    /// A 3-axis sensor of `config` (whose `three` is set), starting from
+    /// its stored calibration if that is a 3-D one.
+    pub fn new(config: &SensorConfig, three: Sensor3Config, stored: Option<Calibration>) -> Self {
+        let stored = stored.filter(|c| c.ellipsoid.is_some());
+        Sensor3 {
+            name: config.name.clone(),
+            stream: config.stream,
+            field: config.field,
+            points: Vec::new(),
+            estimate: None,
+            since_check: 0,
+            coverage: sphere::coverage(std::iter::empty()),
+            supported: None,
+            wait: 0,
+            state: if stored.is_some() {
+                SensorState::Calibrated
+            } else {
+                SensorState::Collecting
+            },
+            next_id: stored.as_ref().map_or(1, |c| c.id + 1),
+            current: stored,
+            readings: 0,
+            fits_accepted: 0,
+            fits_rejected: 0,
+            last_rejection: None,
+            tilt_calibration: None,
+            last_accel: None,
+            config: three,
+        }
+    }
+
+    pub fn calibration(&self) -> Option<&Calibration> {
+        self.current.as_ref()
+    }
+
+    /// The name of the accelerometer sensor this one takes its tilt from.
+    pub fn tilt_sensor(&self) -> Option<&str> {
+        self.config.tilt.as_ref().map(|t| t.sensor.as_str())
+    }
+
+    /// The tilt source's current calibration (a 3-D one, or none).
+    pub fn set_tilt(&mut self, calibration: Option<&Calibration>) {
+        self.tilt_calibration = calibration.filter(|c| c.ellipsoid.is_some()).cloned();
+    }
+
+    pub fn wants(&self, stream: u8) -> bool {
+        self.stream == stream
+            || self
+                .config
+                .tilt
+                .as_ref()
+                .is_some_and(|t| t.stream == stream)
+    }
+
+    /// Takes over what the same sensor earned under the settings before a
+    /// reload: its calibration (when a 3-D one), next id and counts.
+    pub fn carry_over(&mut self, old: Sensor3) {
+        if old.current.is_some() {
+            self.current = old.current;
+        }
+        self.next_id = self.next_id.max(old.next_id);
+        self.readings = old.readings;
+        self.fits_accepted = old.fits_accepted;
+        self.fits_rejected = old.fits_rejected;
+        self.last_rejection = old.last_rejection;
+        self.tilt_calibration = old.tilt_calibration;
+        self.recalibrate();
+    }
+
+    pub fn recalibrate(&mut self) {
+        self.points.clear();
+        self.estimate = None;
+        self.since_check = 0;
+        self.wait = 0;
+        self.coverage = sphere::coverage(std::iter::empty());
+        self.supported = None;
+        self.state = if self.current.is_some() {
+            SensorState::Recalibrating
+        } else {
+            SensorState::Collecting
+        };
+    }
+
+    pub fn state(&self) -> SensorState {
+        self.state
+    }
+
+    pub fn counts(&self) -> (u64, u64, u64, Option<&str>) {
+        (
+            self.readings,
+            self.fits_accepted,
+            self.fits_rejected,
+            self.last_rejection.as_deref(),
+        )
+    }
+
+    /// Progress while collecting.
+    pub fn progress(&self) -> Option<SphereProgress> {
+        (self.state != SensorState::Calibrated).then(|| SphereProgress {
+            samples: self.points.len(),
+            coverage_pct: self.coverage.fraction * 100.0,
+            regions: self.coverage.regions,
+            covered: self.coverage.covered,
+            missing_text: self.coverage.missing_text(),
+            missing: self.coverage.missing.clone(),
+            model: self.config.model.name(),
+            supported: self.supported.map(Ellipsoid3Model::name),
+        })
+    }
+
+    /// Handles one reading: keeps the tilt source's accelerometer, and for
+    /// the sensor's own stream publishes the reading (corrected when
+    /// calibrated, with the tilt-compensated heading when it has a tilt
+    /// source) and collects. Returns a newly accepted calibration.
+    pub fn on_reading(&mut self, reading: &Reading, emit: &mut Emit<'_>) -> Option<Calibration> {
+        if let Some(tilt) = &self.config.tilt
+            && reading.stream == tilt.stream
+            && let Some(triad) = reading.accel
+        {
+            self.last_accel = Some(pick(triad, tilt.axes));
+        }
+        if reading.stream != self.stream {
+            return None;
+        }
+        let raw = pick(field_of(reading, self.field)?, self.config.axes);
+        self.readings += 1;
+        emit(Lane::Reading, self.reading_line(reading.time, raw));
+        self.collect(reading.time, raw, emit)
+    }
+
+    fn reading_line(&self, time: f64, raw: [f64; 3]) -> String {
+        let corrected = self
+            .current
+            .as_ref()
+            .and_then(|c| Some((c.id, apply3(c.ellipsoid.as_ref()?, raw))));
+        let tilt = match (&self.config.tilt, corrected, self.last_accel) {
+            (Some(source), Some((_, mag)), Some(accel_raw)) => {
+                let cal = self.tilt_calibration.as_ref();
+                let accel = match cal.and_then(|c| c.ellipsoid.as_ref()) {
+                    Some(p) => apply3(p, accel_raw),
+                    None => accel_raw,
+                };
+                tilt_heading(mag, accel, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]).map(|h| {
+                    (
+                        h.heading_deg,
+                        TiltFields {
+                            sensor: &source.sensor,
+                            calibration: cal.map(|c| c.id),
+                            calibrated: cal.is_some(),
+                            tilt_deg: h.tilt_deg,
+                            pitch_deg: h.pitch_deg,
+                            inclination_deg: h.inclination_deg,
+                        },
+                    )
+                })
+            }
+            _ => None,
+        };
+        let (heading_deg, tilt) = match tilt {
+            Some((h, t)) => (Some(h), Some(t)),
+            None => (None, None),
+        };
+        to_line(&Reading3Message {
+            class: "READING",
+            sensor: &self.name,
+            time,
+            axes: 3,
+            raw,
+            corrected: corrected.map(|c| c.1),
+            magnitude: corrected.map(|(_, c)| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt()),
+            calibration: corrected.map(|c| c.0),
+            calibrated: corrected.is_some(),
+            heading_deg,
+            tilt,
+        })
+    }
+
+    /// Keeps a sample while collecting, thinning the most crowded region
+    /// when the buffer is full, and fits once the coverage supports the
+    /// model.
+    fn collect(&mut self, time: f64, raw: [f64; 3], emit: &mut Emit<'_>) -> Option<Calibration> {
+        if self.state == SensorState::Calibrated || raw.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        if self.points.len() >= self.config.sphere.max_samples {
+            self.thin();
+        }
+        self.points.push(raw);
+        self.wait = self.wait.saturating_sub(1);
+        self.since_check += 1;
+        if self.since_check < CHECK_EVERY {
+            return None;
+        }
+        self.since_check = 0;
+        self.judge();
+        let n = self.points.len();
+        if n < self.config.sphere.min_samples
+            || self.wait > 0
+            || self
+                .supported
+                .is_none_or(|m| m.unknowns() < self.config.model.unknowns())
+        {
+            return None;
+        }
+        self.fit(time, emit)
+    }
+
+    /// The directions of the points about the current estimate.
+    fn directions(&self) -> Vec<[f64; 3]> {
+        let (o, a) = self.estimate.unwrap_or_else(|| {
+            // Before a closed form: the centre of the readings' box.
+            let mut lo = [f64::INFINITY; 3];
+            let mut hi = [f64::NEG_INFINITY; 3];
+            for p in &self.points {
+                for i in 0..3 {
+                    lo[i] = lo[i].min(p[i]);
+                    hi[i] = hi[i].max(p[i]);
+                }
+            }
+            let o = [0, 1, 2].map(|i| (lo[i] + hi[i]) / 2.0);
+            (o, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        });
+        self.points
+            .iter()
+            .map(|p| {
+                let d = [0, 1, 2].map(|i| p[i] - o[i]);
+                [0, 1, 2].map(|i| a[i][0] * d[0] + a[i][1] * d[1] + a[i][2] * d[2])
+            })
+            .collect()
+    }
+
+    /// Updates the estimate, the coverage and the supported model.
+    fn judge(&mut self) {
+        if self.points.len() >= 4 * self.config.model.unknowns()
+            && let Ok(estimate) = ellipsoid::closed_form(&self.points, self.config.model)
+            && estimate
+                .0
+                .iter()
+                .chain(estimate.1.iter().flatten())
+                .all(|v| v.is_finite())
+        {
+            self.estimate = Some(estimate);
+        }
+        let dirs = self.directions();
+        self.coverage = sphere::coverage(dirs.iter().copied());
+        self.supported = if self.estimate.is_some() {
+            ellipsoid::best_supported(&dirs)
+        } else {
+            None
+        };
+    }
+
+    /// Drops the older half of the most crowded region's samples.
+    fn thin(&mut self) {
+        let regions: Vec<Option<usize>> = self
+            .directions()
+            .into_iter()
+            .map(sphere::region_of)
+            .collect();
+        let mut counts = [0usize; sphere::REGIONS];
+        for k in regions.iter().flatten() {
+            if let Some(c) = counts.get_mut(*k) {
+                *c += 1;
+            }
+        }
+        let Some((crowded, &most)) = counts.iter().enumerate().max_by_key(|(_, c)| **c) else {
+            return;
+        };
+        let mut drop = (most / 2).max(1);
+        let mut i = 0;
+        self.points.retain(|_| {
+            let keep = !(drop > 0 && regions.get(i).copied().flatten() == Some(crowded));
+            if !keep {
+                drop -= 1;
+            }
+            i += 1;
+            keep
+        });
+        if self.points.len() >= self.config.sphere.max_samples {
+            // No direction (a degenerate estimate): drop the oldest.
+            self.points.remove(0);
+        }
+    }
+
+    fn fit(&mut self, time: f64, emit: &mut Emit<'_>) -> Option<Calibration> {
+        let started = Instant::now();
+        let fitted = ellipsoid::fit(&self.points, self.config.model);
+        let fit_ms = started.elapsed().as_secs_f64() * 1e3;
+        let n = self.points.len();
+        let fit = match fitted {
+            Ok(fit) => fit,
+            Err(e @ ellipsoid::Ellipsoid3Error::NotCovered { .. }) => {
+                // The estimate's directions looked complete, the fit's did
+                // not: collect on, and try again a quarter (at least
+                // min_samples / 4) further on.
+                tracing::info!(sensor = %self.name, "not yet: {e}");
+                self.wait = (n / 4).max(self.config.sphere.min_samples / 4);
+                return None;
+            }
+            Err(e) => {
+                self.reject(time, format!("no fit: {e}"), n, fit_ms, None, emit);
+                return None;
+            }
+        };
+        let max_rms = self.config.sphere.max_rms;
+        if let Err(reason) = check_limits(&fit, self.field, self.config.lsb_per_unit, max_rms) {
+            self.reject(time, reason, n, fit_ms, Some(&fit), emit);
+            return None;
+        }
+        let calibration = Calibration {
+            sensor: self.name.clone(),
+            id: self.next_id,
+            model: fit.model.name().to_string(),
+            // The 2-D parameters of a 3-D calibration: the identity, r.
+            params: PaperCalibration {
+                a: 1.0,
+                b: 0.0,
+                d: 0.0,
+                r: fit.r,
+            },
+            rms: fit.rms,
+            coverage_deg: 0.0,
+            n: fit.n,
+            time,
+            terms: Default::default(),
+            ellipsoid: Some(Ellipsoid3Params {
+                offset: fit.offset,
+                matrix: fit.matrix,
+                r: fit.r,
+                coverage: fit.coverage.fraction,
+            }),
+        };
+        emit(
+            Lane::Control,
+            to_line(&self.message(&calibration, Some(&fit), fit_ms, "sphere")),
+        );
+        tracing::info!(
+            sensor = %self.name,
+            id = calibration.id,
+            rms = calibration.rms,
+            "3-D calibration accepted ({}, {} samples, {:.0} % of the sphere)",
+            fit.model,
+            fit.n,
+            fit.coverage.fraction * 100.0
+        );
+        self.next_id += 1;
+        self.fits_accepted += 1;
+        self.state = SensorState::Calibrated;
+        self.points = Vec::new();
+        self.current = Some(calibration.clone());
+        Some(calibration)
+    }
+
+    fn message<'a>(
+        &'a self,
+        c: &'a Calibration,
+        fit: Option<&Ellipsoid3Fit>,
+        fit_ms: f64,
+        origin: &'static str,
+    ) -> Calibration3Message<'a> {
+        let p = c.ellipsoid.as_ref();
+        Calibration3Message {
+            class: "CALIBRATION",
+            sensor: &self.name,
+            accepted: true,
+            id: Some(c.id),
+            reason: None,
+            axes: 3,
+            model: &c.model,
+            offset: p.map(|p| p.offset),
+            matrix: p.map(|p| p.matrix),
+            r: p.map(|p| p.r),
+            r_units: p.and_then(|p| self.config.lsb_per_unit.map(|u| p.r / u)),
+            units: self
+                .config
+                .lsb_per_unit
+                .map(|_| Sensor3Config::unit(self.field)),
+            se: fit.map(|f| f.se),
+            rms: Some(c.rms),
+            n: c.n,
+            coverage: fit.map(|f| f.coverage.clone()),
+            fit_ms,
+            time: c.time,
+            origin,
+        }
+    }
+
+    /// The `CALIBRATION` line of a calibration loaded from the state
+    /// directory.
+    pub fn loaded_line(&self) -> Option<String> {
+        let c = self.current.as_ref()?;
+        Some(to_line(&self.message(c, None, 0.0, "state")))
+    }
+
+    fn reject(
+        &mut self,
+        time: f64,
+        reason: String,
+        n: usize,
+        fit_ms: f64,
+        fit: Option<&Ellipsoid3Fit>,
+        emit: &mut Emit<'_>,
+    ) {
+        let message = Calibration3Message {
+            class: "CALIBRATION",
+            sensor: &self.name,
+            accepted: false,
+            id: None,
+            reason: Some(reason.clone()),
+            axes: 3,
+            model: self.config.model.name(),
+            offset: fit.map(|f| f.offset),
+            matrix: fit.map(|f| f.matrix),
+            r: fit.map(|f| f.r),
+            r_units: fit.and_then(|f| self.config.lsb_per_unit.map(|u| f.r / u)),
+            units: self
+                .config
+                .lsb_per_unit
+                .map(|_| Sensor3Config::unit(self.field)),
+            se: fit.map(|f| f.se),
+            rms: fit.map(|f| f.rms),
+            n,
+            coverage: fit.map(|f| f.coverage.clone()),
+            fit_ms,
+            time,
+            origin: "sphere",
+        };
+        emit(Lane::Control, to_line(&message));
+        tracing::warn!(sensor = %self.name, "3-D calibration rejected: {reason}");
+        self.fits_rejected += 1;
+        self.last_rejection = Some(reason);
+        // Collect anew; the previous calibration (if any) keeps correcting.
+        self.points.clear();
+        self.estimate = None;
+        self.wait = 0;
+        self.coverage = sphere::coverage(std::iter::empty());
+        self.supported = None;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::daemon::config::parse;
+    use crate::daemon::reload::{RunningSource, apply};
+    use crate::daemon::sensor::Sensor;
+    use crate::sim3::{ImuMotion, Motion3, SimAxes3, SimImu3, SimSensor3};
+
+    const TEXT: &str = "[[source]]\nname = \"imu\"\nkind = \"falcon\"\nport = \"/dev/null\"\n\
+        [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\", \"z\"]\ntilt = \"level\"\n\
+        [[sensor]]\nname = \"level\"\nsource = \"imu\"\nfield = \"accel\"\naxes = [\"x\", \"y\", \"z\"]\n";
+
+    const SOURCES: [RunningSource<'static>; 1] = [RunningSource {
+        name: "imu",
+        layout: None,
+    }];
+
+    fn config(text: &str) -> crate::daemon::config::Config {
+        parse(text, std::path::Path::new("t.toml")).unwrap()
+    }
+
+    /// The shipped capture's IMU (tests/data/README.md), as readings.
+    fn tumble() -> Vec<Reading> {
+        let imu = SimImu3 {
+            field: 1000.0,
+            inclination_deg: 60.0,
+            gravity: 4096.0,
+            mag: SimAxes3 {
+                matrix: [[1.08, 0.04, -0.02], [0.04, 0.95, 0.03], [-0.02, 0.03, 1.0]],
+                offset: [150.0, -80.0, 60.0],
+                noise: 3.0,
+            },
+            accel: SimAxes3 {
+                matrix: [[1.01, 0.0, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.0]],
+                offset: [40.0, -25.0, 60.0],
+                noise: 8.0,
+            },
+            gyro_noise: 0.0,
+            period: 0.05,
+            n: 2880,
+            motion: ImuMotion::Tumble {
+                turns: 24.0,
+                axis_path_rad: 12.0,
+            },
+            seed: 7,
+        };
+        let round = |v: [f64; 3]| v.map(|x| x.round() as i16);
+        imu.simulate()
+            .unwrap()
+            .into_iter()
+            .map(|s| Reading {
+                time: s.t,
+                mag: Some(round(s.mag)),
+                accel: Some(round(s.accel)),
+                ..Reading::default()
+            })
+            .collect()
+    }
+
+    fn feed(sensors: &mut [(usize, Sensor)], readings: &[Reading]) -> Vec<String> {
+        let mut lines = Vec::new();
+        for r in readings {
+            for (_, s) in sensors.iter_mut() {
+                if s.wants(r.stream) {
+                    s.on_reading(r, &mut |_, l| lines.push(l));
+                }
+            }
+            // As the daemon's Sensors::link_tilts does on an acceptance.
+            let level = sensors[1].1.calibration().cloned();
+            if let Some(three) = sensors[0].1.three_mut() {
+                three.set_tilt(level.as_ref());
+            }
+        }
+        lines
+    }
+
+    #[test]
+    fn a_reload_keeps_an_unchanged_3_axis_sensor_and_carries_a_changed_ones_calibration() {
+        let mut running = config(TEXT);
+        let mut sensors: Vec<(usize, Sensor)> = running
+            .sensors
+            .iter()
+            .map(|s| (0, Sensor::new(s.clone(), None)))
+            .collect();
+        let readings = tumble();
+        let lines = feed(&mut sensors, &readings);
+        assert_eq!(
+            lines
+                .iter()
+                .filter(|l| l.contains("\"CALIBRATION\"") && l.contains("\"accepted\":true"))
+                .count(),
+            2
+        );
+        assert!(lines.iter().any(|l| l.contains("\"heading_deg\"")));
+        sensors[0].1.recalibrate();
+        feed(&mut sensors, &readings[..100]);
+        let sphere = |s: &Sensor| s.status().sphere.map(|p| p.samples);
+        assert_eq!(sphere(&sensors[0].1), Some(100));
+
+        // The same file: both sensors as they were.
+        let out = apply(Ok(config(TEXT)), &mut running, &mut sensors, &SOURCES, None);
+        assert!(out.lines[0].contains("no change"), "{:?}", out.lines);
+        assert_eq!(sphere(&sensors[0].1), Some(100));
+        assert_eq!(sensors[0].1.status().state, SensorState::Recalibrating);
+        assert_eq!(sensors[0].1.calibration().map(|c| c.id), Some(1));
+        assert_eq!(sensors[1].1.calibration().map(|c| c.id), Some(1));
+
+        // compass's model changes: it keeps correcting with #1, collects
+        // afresh, and its next calibration is #2.
+        let new = TEXT.replace(
+            "tilt = \"level\"\n",
+            "tilt = \"level\"\nmodel = \"offset+scale\"\n",
+        );
+        let out = apply(Ok(config(&new)), &mut running, &mut sensors, &SOURCES, None);
+        assert!(
+            out.lines.iter().any(|l| l.contains("compass")),
+            "{:?}",
+            out.lines
+        );
+        assert_eq!(sphere(&sensors[0].1), Some(0));
+        assert_eq!(sensors[0].1.calibration().map(|c| c.id), Some(1));
+        assert_eq!(sensors[1].1.calibration().map(|c| c.id), Some(1));
+        let lines = feed(&mut sensors, &readings);
+        let accepted: Vec<&String> = lines
+            .iter()
+            .filter(|l| l.contains("\"CALIBRATION\"") && l.contains("\"sensor\":\"compass\""))
+            .collect();
+        assert!(
+            accepted[0].contains("\"id\":2") && accepted[0].contains("\"model\":\"offset+scale\"")
+        );
+
+        // Back to two axes: a 2-axis sensor never corrects with a 3-D
+        // calibration; it collects a rotation.
+        let two = new.replace(
+            "axes = [\"x\", \"y\", \"z\"]\ntilt = \"level\"\nmodel = \"offset+scale\"\n",
+            "axes = [\"x\", \"y\"]\n",
+        );
+        apply(Ok(config(&two)), &mut running, &mut sensors, &SOURCES, None);
+        assert!(sensors[0].1.three().is_none());
+        assert!(sensors[0].1.calibration().is_none());
+        assert!(sensors[0].1.status().rotation.is_some());
+    }
+
+    /// ArduPilot's limits in its units: an offset beyond COMPASS_OFFS_MAX
+    /// (1800 mG) or a field outside 150-950 mG is refused, naming it.
+    #[test]
+    fn the_limits_are_ardupilots_in_milligauss() {
+        let fit_of = |offset: [f64; 3], r: f64| {
+            let sim = SimSensor3 {
+                matrix: [[1.05, 0.02, 0.0], [0.02, 0.97, 0.0], [0.0, 0.0, 1.0]],
+                offset,
+                r,
+                noise: 1.0,
+                n: 1500,
+                motion: Motion3::Tumble {
+                    turns: 12.0,
+                    axis_path_rad: 6.0,
+                },
+                seed: 5,
+            };
+            ellipsoid::fit(&sim.simulate().unwrap(), Ellipsoid3Model::Full).unwrap()
+        };
+        // 2000 counts per gauss: 1000 counts = 500 mG.
+        let good = fit_of([1000.0, -500.0, 200.0], 1000.0);
+        assert_eq!(check_limits(&good, Field::Mag, Some(2000.0), None), Ok(()));
+        let far = fit_of([3700.0, 0.0, 0.0], 1000.0);
+        let e = check_limits(&far, Field::Mag, Some(2000.0), None).unwrap_err();
+        assert!(
+            e.contains("offset x 18") && e.contains("COMPASS_OFFS_MAX"),
+            "{e}"
+        );
+        // Without units the offset is judged against the field: 3.7 r is fine.
+        assert_eq!(check_limits(&far, Field::Mag, None, None), Ok(()));
+        let strong = fit_of([0.0; 3], 2000.0);
+        let e = check_limits(&strong, Field::Mag, Some(2000.0), None).unwrap_err();
+        assert!(e.contains("FIELD_RADIUS"), "{e}");
+        // The fitness: 1 count of noise on 1000 is 0.5 mG; a tighter max_rms
+        // than the fit's rms refuses it.
+        let e = check_limits(&good, Field::Mag, Some(2000.0), Some(good.rms / 2.0)).unwrap_err();
+        assert!(e.contains("sphere.max_rms"), "{e}");
+        // An accelerometer: gravity must read 0.8-1.2 g.
+        let e = check_limits(&good, Field::Accel, Some(4096.0), None).unwrap_err();
+        assert!(e.contains("gravity reads 0.24"), "{e}");
+    }
+
+    /// A sensor that never moves fills no more than max_samples, however
+    /// long it collects.
+    #[test]
+    fn the_buffer_stays_bounded() {
+        let text = "[[source]]\nname = \"imu\"\nkind = \"falcon\"\nport = \"/dev/null\"\n\
+            [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\", \"z\"]\n\
+            [sensor.sphere]\nmin_samples = 100\nmax_samples = 400\n";
+        let c = config(text);
+        let mut sensor = Sensor::new(c.sensors[0].clone(), None);
+        let readings = tumble();
+        for i in 0..20_000usize {
+            // A still sensor, then the first 500 samples of the tumble.
+            let r = if i < 19_500 {
+                Reading {
+                    time: i as f64 * 0.05,
+                    mag: Some([500 + (i % 7) as i16, -300, 200]),
+                    ..Reading::default()
+                }
+            } else {
+                Reading {
+                    time: i as f64 * 0.05,
+                    ..readings[i - 19_500]
+                }
+            };
+            sensor.on_reading(&r, &mut |_, _| {});
+            let held = sensor.three().unwrap().points.len();
+            assert!(held <= 400, "{held} at {i}");
+        }
+    }
+
+    /// The real tumble of sunsided-set-1 (HMC5883L in gauss = counts/1090,
+    /// MPU-6050 in g = counts/16384 at ±2 g, one clock), as the chips'
+    /// counts on two streams of one bridge: the compass calibrates with
+    /// the field within the Earth's 250-650 mG; the accelerometer, moved by
+    /// hand, reads the hand's acceleration besides gravity and is refused
+    /// for its rms (a still-pose calibration is what ArduPilot asks of an
+    /// accelerometer), so the headings use its raw readings and say so.
+    #[test]
+    fn the_real_tilt_sphere_calibrates_the_compass_and_refuses_a_moving_accelerometer() {
+        let dir = std::path::Path::new("../shared/data/real/sunsided-set-1/tilt-sphere");
+        let read = |name: &str, scale: f64| -> Vec<(f64, [i16; 3])> {
+            let text = std::fs::read_to_string(dir.join(name)).unwrap();
+            text.lines()
+                .skip(1)
+                .map(|l| {
+                    let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+                    (v[0], [1, 2, 3].map(|i| (v[i] * scale).round() as i16))
+                })
+                .collect()
+        };
+        let mut readings: Vec<Reading> = read("hmc5883l_mag.csv", 1090.0)
+            .into_iter()
+            .map(|(t, m)| Reading {
+                time: t,
+                stream: 0,
+                mag: Some(m),
+                ..Reading::default()
+            })
+            .chain(
+                read("mpu6050.csv", 16384.0)
+                    .into_iter()
+                    .map(|(t, a)| Reading {
+                        time: t,
+                        stream: 1,
+                        accel: Some(a),
+                        ..Reading::default()
+                    }),
+            )
+            .collect();
+        readings.sort_by(|a, b| a.time.total_cmp(&b.time));
+        let text = "[[source]]\nname = \"imu\"\nkind = \"usb-iss\"\nport = \"/dev/null\"\nchips = [\"lsm303dlhc-mag\", \"mpu6050\"]\n\
+            [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nchip = \"lsm303dlhc-mag\"\nfield = \"mag\"\naxes = [\"x\", \"y\", \"z\"]\nlsb_per_gauss = 1090\ntilt = \"level\"\n\
+            [[sensor]]\nname = \"level\"\nsource = \"imu\"\nchip = \"mpu6050\"\nfield = \"accel\"\naxes = [\"x\", \"y\", \"z\"]\nlsb_per_g = 16384\n";
+        let c = config(text);
+        let mut sensors: Vec<(usize, Sensor)> = c
+            .sensors
+            .iter()
+            .map(|s| (0, Sensor::new(s.clone(), None)))
+            .collect();
+        let lines = feed(&mut sensors, &readings);
+        for l in lines.iter().filter(|l| l.contains("\"CALIBRATION\"")) {
+            println!("{l}");
+        }
+        let compass = sensors[0].1.calibration().expect("the compass calibrates");
+        let gauss = compass.ellipsoid.unwrap().r / 1090.0;
+        assert!((0.25..0.65).contains(&gauss), "field {gauss} G");
+        assert!(sensors[1].1.calibration().is_none());
+        let refusals: Vec<&String> = lines
+            .iter()
+            .filter(|l| l.contains("\"sensor\":\"level\"") && l.contains("\"accepted\":false"))
+            .collect();
+        assert!(!refusals.is_empty());
+        assert!(
+            refusals
+                .iter()
+                .all(|l| l.contains("% of the field exceeds")),
+            "{refusals:?}"
+        );
+        let headings = lines
+            .iter()
+            .filter(|l| {
+                l.contains("\"heading_deg\"") && l.contains("\"calibrated\":false,\"tilt_deg\"")
+            })
+            .count();
+        println!(
+            "compass rms {:.3} %, {headings} headings from the raw accelerometer",
+            compass.rms * 100.0
+        );
+        assert!(headings > 100, "{headings}");
+    }
+}
