@@ -361,7 +361,7 @@ fn effects_not_built_in_3d_are_refused_by_name() {
     let file = write_csv(&dir, "t.csv", ["x", "y", "z"], &raw);
     let message = run_err(&["fit", &file, "--effects", "full,drift,outliers"]);
     assert!(
-        message.contains("the effects drift, outliers are not available in 3-D yet"),
+        message.contains("the effects drift, outliers are not available in `fit` in 3-D yet"),
         "{message}"
     );
     // The base models' names map onto the 3-D models.

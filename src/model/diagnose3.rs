@@ -762,6 +762,7 @@ pub fn diagnose3(data: &Dataset3, baseline: &[Effect]) -> Result<Diagnosis3, Eff
             supported: Some(simpler),
             percent,
             missing,
+            ..
         })) if simpler.unknowns() < asked.unknowns() => {
             model.retain(|e| !matches!(e, Effect::Offset | Effect::Scale | Effect::CrossAxis));
             model.extend(base_effects(simpler));

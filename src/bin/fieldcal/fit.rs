@@ -275,7 +275,7 @@ fn fit_model3(
         extra => {
             let names: Vec<String> = extra.iter().map(Effect::to_string).collect();
             anyhow::bail!(
-                "--effects: {} not available in 3-D yet; fit the {base} model alone (--effects {base})",
+                "--effects: {} not available in `fit` in 3-D yet; `fieldcal diagnose` fits them in 3-D and shows what each removes, or fit the {base} model alone (--effects {base})",
                 match names.len() {
                     1 => format!("the effect {} is", names[0]),
                     _ => format!("the effects {} are", names.join(", ")),
