@@ -286,8 +286,23 @@ fn describe(members: &[&Region]) -> MissingDirections {
     let norm = (sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]).sqrt();
     // Regions all round an axis (a band, a ring) have no direction they
     // lean toward: name the band by its axis.
-    if members.len() >= 6 && norm < WRAPS * members.len() as f64 {
-        let axis = band_axis(members);
+    let band = (members.len() >= 6 && norm < WRAPS * members.len() as f64)
+        .then(|| band_axis(members))
+        .filter(|axis| {
+            // A band hugs its plane: its centres stay within 30° of it on
+            // rms (sin 30° = 0.5); a cap larger than a hemisphere also
+            // averages to little, but spreads far from any plane.
+            let ms = members
+                .iter()
+                .map(|r| {
+                    let d = r.centre[0] * axis[0] + r.centre[1] * axis[1] + r.centre[2] * axis[2];
+                    d * d
+                })
+                .sum::<f64>()
+                / members.len() as f64;
+            ms.sqrt() < 0.5
+        });
+    if let Some(axis) = band {
         let name = axis_name(axis);
         let name = name.strip_prefix(['+', '-']).unwrap_or(&name).to_string();
         let (low, high) = elevation_range(members);
