@@ -289,9 +289,10 @@ fn describe(members: &[&Region]) -> MissingDirections {
     let band = (members.len() >= 6 && norm < WRAPS * members.len() as f64)
         .then(|| band_axis(members))
         .filter(|axis| {
-            // A band hugs its plane: its centres stay within 30° of it on
-            // rms (sin 30° = 0.5); a cap larger than a hemisphere also
-            // averages to little, but spreads far from any plane.
+            // A band hugs its plane: its centres stay within 20° of it on
+            // rms (sin 20° = 0.34); a cap larger than a hemisphere also
+            // averages to little, but spreads far from any plane (an
+            // 82 % cap: 0.5).
             let ms = members
                 .iter()
                 .map(|r| {
@@ -300,7 +301,7 @@ fn describe(members: &[&Region]) -> MissingDirections {
                 })
                 .sum::<f64>()
                 / members.len() as f64;
-            ms.sqrt() < 0.5
+            ms.sqrt() < 0.34
         });
     if let Some(axis) = band {
         let name = axis_name(axis);
