@@ -666,6 +666,81 @@ fn the_real_z_turn_with_and_without_tilt_compensation_against_the_gyro() {
     eprintln!(
         "z turn, both calibrated: compensated rms {rms_t:.2}°, level rms {rms_l:.2}°, level worse by {worse:+.2}° ± {se:.2}°"
     );
+    // The same turn with the vertical steadied by the gyro's three axes
+    // (same chip, same frame): the hand's accelerations leave the
+    // vertical, the compensated heading beats the level one and the
+    // accelerometer alone beyond three standard errors, and the dip, a
+    // constant of the place, holds steadier.
+    let rates = format!(
+        "{}:gyro_x,gyro_y,gyro_z",
+        Path::new(SET).join(z_run).join("mpu6050.csv").display()
+    );
+    let fused = ok_json(&heading(z_run, &axes, &["--rates", &rates]));
+    let fg = &fused["gyro"];
+    eprintln!("z turn, vertical steadied by the gyro: {fg}");
+    assert_eq!(fused["vertical"]["source"], "accelerometer+gyro", "{fused}");
+    let (rms_f, rms_fl, worse_f, se_f) = figures(fg);
+    assert!(worse_f > 3.0 * se_f, "{fg}");
+    assert!(
+        fg["verdict"]
+            .as_str()
+            .unwrap_or_default()
+            .starts_with("tilt compensation removed"),
+        "{fg}"
+    );
+    assert_eq!(
+        fg["tilt_compensated_accel_only"], g["tilt_compensated"],
+        "{fg}"
+    );
+    let gain = fg["accel_only_worse_by_deg"].as_f64().unwrap();
+    let gain_se = fg["accel_only_worse_by_se_deg"].as_f64().unwrap();
+    assert!(gain > 3.0 * gain_se, "{fg}");
+    assert!(
+        (rms_fl - rms_l).abs() < 1e-9,
+        "the level heading does not use the vertical"
+    );
+    let dip_spread = |j: &serde_json::Value| j["inclination_deg"]["spread"].as_f64().unwrap();
+    assert!(
+        dip_spread(&fused) < dip_spread(&z),
+        "{} vs {}",
+        fused["inclination_deg"],
+        z["inclination_deg"]
+    );
+    eprintln!(
+        "z turn, vertical steadied by the gyro: compensated rms {rms_f:.2}°, level {rms_fl:.2}°, accelerometer alone worse by {gain:+.2}° ± {gain_se:.2}°"
+    );
+    // A gyro whose axes point the other way (each named with '-') turns
+    // the vertical the wrong way: the command says so instead of using it
+    // quietly.
+    let negated = format!(
+        "{}:-gyro_x,-gyro_y,-gyro_z",
+        Path::new(SET).join(z_run).join("mpu6050.csv").display()
+    );
+    let wrong = ok_json(&heading(z_run, &axes, &["--rates", &negated]));
+    let wg = &wrong["gyro"];
+    let loss = wg["accel_only_worse_by_deg"].as_f64().unwrap();
+    let loss_se = wg["accel_only_worse_by_se_deg"].as_f64().unwrap();
+    assert!(loss < -3.0 * loss_se, "{wg}");
+    assert!(
+        wg["verdict"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("--rates"),
+        "{wg}"
+    );
+    // Without --gyro, the three rates give the rate about the vertical,
+    // which on a turn about the board's z is gyro_z's: the same figures
+    // within a tenth of a degree.
+    let about = ok_json(&heading(z_run, &axes, &["--rates", &rates, "--no-gyro"]));
+    assert_eq!(
+        about["gyro"]["column"], "rate about the vertical",
+        "{about}"
+    );
+    let rms_about = about["gyro"]["tilt_compensated"]["rms_deg"]
+        .as_f64()
+        .unwrap();
+    assert!((rms_about - rms_f).abs() < 0.1, "{rms_about} vs {rms_f}");
+
     // The accelerometer as it reads (no calibration): the tumble's fit
     // absorbed the hand's accelerations (its rms is 12× the
     // magnetometer's), and its offsets of ~0.04 g tilt the vertical by
@@ -709,4 +784,76 @@ fn the_real_z_turn_with_and_without_tilt_compensation_against_the_gyro() {
         dip_raw * dip_z < 0.0 && (dip_raw + dip_z).abs() < spread,
         "{dip_raw} vs {dip_z}"
     );
+}
+
+/// `--rates` that cannot serve is refused, naming the option and what to
+/// give; `--fusion-tau` outside its physical range likewise.
+#[test]
+fn rates_and_fusion_tau_that_cannot_serve_are_refused() {
+    let d = Path::new(SET).join("rotate-360ccw-around-z-pointing-up");
+    let imu = d.join("mpu6050.csv");
+    let accel = format!("{}:acc_x,acc_y,acc_z", imu.display());
+    let run = |rates: &str, tau: &str| {
+        fieldcal(&[
+            "heading",
+            s(&d.join("hmc5883l_mag.csv")),
+            "--x",
+            "mag_x",
+            "--y",
+            "mag_y",
+            "--z",
+            "mag_z",
+            "--accel",
+            &accel,
+            "--mag-axes",
+            "-x,-z,y",
+            "--rates",
+            rates,
+            "--fusion-tau",
+            tau,
+        ])
+    };
+    let two = format!("{}:gyro_x,gyro_y", imu.display());
+    let out = run(&two, "1");
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("--rates") && stderr(&out).contains("three columns"),
+        "{}",
+        stderr(&out)
+    );
+    let missing = format!("{}:gyro_x,gyro_y,gyro_w", imu.display());
+    let out = run(&missing, "1");
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("gyro_w"), "{}", stderr(&out));
+    let three = format!("{}:gyro_x,gyro_y,gyro_z", imu.display());
+    for tau in ["0", "1000", "NaN"] {
+        let out = run(&three, tau);
+        assert!(!out.status.success(), "--fusion-tau {tau}");
+        assert!(
+            stderr(&out).contains("time constant"),
+            "{tau}: {}",
+            stderr(&out)
+        );
+    }
+    assert!(run(&three, "0.5").status.success());
+    // An axis named with '-' is read negated.
+    let negated = format!("{}:-gyro_x,gyro_y,gyro_z", imu.display());
+    let j = ok_json(&fieldcal(&[
+        "heading",
+        s(&d.join("hmc5883l_mag.csv")),
+        "--x",
+        "mag_x",
+        "--y",
+        "mag_y",
+        "--z",
+        "mag_z",
+        "--accel",
+        &accel,
+        "--mag-axes",
+        "-x,-z,y",
+        "--rates",
+        &negated,
+        "--json",
+    ]));
+    assert_eq!(j["vertical"]["rates"]["columns"][0], "-gyro_x", "{j}");
 }

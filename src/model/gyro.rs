@@ -27,7 +27,7 @@ pub enum GyroUnits {
 
 impl GyroUnits {
     /// Degrees per second in one unit of the column.
-    fn to_deg_per_second(self) -> f64 {
+    pub fn to_deg_per_second(self) -> f64 {
         match self {
             GyroUnits::DegPerSecond => 1.0,
             GyroUnits::RadPerSecond => 180.0 / std::f64::consts::PI,

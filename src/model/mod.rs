@@ -35,6 +35,7 @@ pub mod sphere;
 pub mod still;
 pub mod tilt;
 pub mod turn;
+pub mod vertical;
 
 use crate::report::significant;
 

@@ -16,6 +16,7 @@ use fieldcal::model::tilt::{
     AxisChoice, AxisMap, Calibration3, HeadingSeries, RobustSpread, choose_axis_map,
     heading_series, parse_axis, resample, robust_spread,
 };
+use fieldcal::model::vertical::{fuse_vertical, rate_about_vertical};
 
 use crate::HeadingArgs;
 use crate::output::write_stdout;
@@ -44,8 +45,8 @@ fn read_calibration(path: &Path, columns: &[String; 3], what: &str) -> Result<Ca
     Ok(cal)
 }
 
-/// `[FILE:]X,Y,Z`.
-fn split_accel(text: &str) -> Result<(Option<PathBuf>, [String; 3])> {
+/// `[FILE:]X,Y,Z` of option `flag`, naming `what` in its message.
+fn split_columns(text: &str, flag: &str, what: &str) -> Result<(Option<PathBuf>, [String; 3])> {
     let (file, columns) = match text.rsplit_once(':') {
         Some((file, columns)) => (Some(PathBuf::from(file)), columns),
         None => (None, text),
@@ -57,9 +58,121 @@ fn split_accel(text: &str) -> Result<(Option<PathBuf>, [String; 3])> {
             [x.to_string(), y.to_string(), z.to_string()],
         )),
         _ => bail!(
-            "--accel '{text}': give the accelerometer's three columns, X,Y,Z of the magnetometer's file (--accel acc_x,acc_y,acc_z) or FILE:X,Y,Z of a second file on the same clock"
+            "{flag} '{text}': give {what}'s three columns, X,Y,Z of the magnetometer's file or FILE:X,Y,Z of a second file on the same clock"
         ),
     }
+}
+
+/// Three columns read at the magnetometer's times: from its own file, or
+/// from a second file on the same clock, interpolated.
+struct Triplet {
+    /// The file the columns came from.
+    file: PathBuf,
+    columns: [String; 3],
+    values: Vec<[f64; 3]>,
+    /// How a second file was put on the magnetometer's times.
+    interpolation: Option<fieldcal::model::tilt::Resampled>,
+}
+
+/// With `signed`, a column named with a leading `-` is read negated (an
+/// axis that points the other way).
+fn read_triplet(
+    spec: &str,
+    flag: &str,
+    what: &str,
+    signed: bool,
+    data: &fieldcal::sample::Dataset3,
+    mag_file: &Path,
+    mag_t: &[f64],
+) -> Result<Triplet> {
+    let (file, named) = split_columns(spec, flag, what)?;
+    let signs = named.clone().map(|c| {
+        if signed && c.starts_with('-') {
+            -1.0
+        } else {
+            1.0
+        }
+    });
+    let columns = named.clone().map(|c| {
+        if signed {
+            c.trim_start_matches('-').to_string()
+        } else {
+            c
+        }
+    });
+    let mut t = read_columns(file, columns, flag, what, data, mag_file, mag_t)?;
+    for v in &mut t.values {
+        for (x, s) in v.iter_mut().zip(signs) {
+            *x *= s;
+        }
+    }
+    t.columns = named;
+    Ok(t)
+}
+
+fn read_columns(
+    file: Option<PathBuf>,
+    columns: [String; 3],
+    flag: &str,
+    what: &str,
+    data: &fieldcal::sample::Dataset3,
+    mag_file: &Path,
+    mag_t: &[f64],
+) -> Result<Triplet> {
+    let main = mag_file.display().to_string();
+    let same_file = match &file {
+        None => true,
+        Some(f) => matches!(
+            (std::fs::canonicalize(f), std::fs::canonicalize(mag_file)),
+            (Ok(a), Ok(b)) if a == b
+        ),
+    };
+    if same_file {
+        let mut cols = Vec::with_capacity(3);
+        for name in &columns {
+            let Some(c) = data.covariate(name) else {
+                let names: Vec<&str> = data.covariates.iter().map(|c| c.name.as_str()).collect();
+                bail!(
+                    "{main}: no column '{name}' for {what} among the numeric columns other than the magnetometer's and time (they are: {}); name them with {flag} X,Y,Z, or {flag} FILE:X,Y,Z for a second file",
+                    if names.is_empty() {
+                        "none".to_string()
+                    } else {
+                        names.join(", ")
+                    }
+                );
+            };
+            cols.push(c.values.clone());
+        }
+        return Ok(Triplet {
+            file: mag_file.to_path_buf(),
+            columns,
+            values: (0..data.len())
+                .map(|i| [cols[0][i], cols[1][i], cols[2][i]])
+                .collect(),
+            interpolation: None,
+        });
+    }
+    let file = file.unwrap_or_default();
+    let spec = fieldcal::io::csv::ColumnSpec {
+        x: columns[0].clone(),
+        y: columns[1].clone(),
+        t: None,
+    };
+    let other = fieldcal::io::csv::read_dataset3(&file, &spec, &columns[2])?;
+    let Some(t) = other.t.as_deref() else {
+        bail!(
+            "{}: {what}'s file has no time column (t, t_s, time or time_s): it is joined to {main} by time",
+            file.display()
+        );
+    };
+    let r = resample(what, t, &other.points, mag_t)
+        .with_context(|| format!("{} against {main}", file.display()))?;
+    Ok(Triplet {
+        file,
+        columns,
+        values: r.values.clone(),
+        interpolation: Some(r),
+    })
 }
 
 fn axis(text: &str, flag: &str) -> Result<[f64; 3]> {
@@ -98,54 +211,18 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
 
     // The accelerometer: columns of this file, or of a second one on the
     // same clock, interpolated to the magnetometer's times.
-    let (accel_file, accel_columns) = split_accel(&args.accel)?;
-    let same_file = match &accel_file {
-        None => true,
-        Some(f) => matches!(
-            (std::fs::canonicalize(f), std::fs::canonicalize(&mag_file)),
-            (Ok(a), Ok(b)) if a == b
-        ),
-    };
-    let mut interpolation = None;
-    let accel_raw: Vec<[f64; 3]> = if same_file {
-        let mut cols = Vec::with_capacity(3);
-        for name in &accel_columns {
-            let Some(c) = data.covariate(name) else {
-                let names: Vec<&str> = data.covariates.iter().map(|c| c.name.as_str()).collect();
-                bail!(
-                    "{main}: no accelerometer column '{name}' among the numeric columns other than the magnetometer's and time (they are: {}); name them with --accel X,Y,Z, or --accel FILE:X,Y,Z for a second file",
-                    if names.is_empty() {
-                        "none".to_string()
-                    } else {
-                        names.join(", ")
-                    }
-                );
-            };
-            cols.push(c.values.clone());
-        }
-        (0..data.len())
-            .map(|i| [cols[0][i], cols[1][i], cols[2][i]])
-            .collect()
-    } else {
-        let file = accel_file.clone().unwrap_or_default();
-        let spec = fieldcal::io::csv::ColumnSpec {
-            x: accel_columns[0].clone(),
-            y: accel_columns[1].clone(),
-            t: None,
-        };
-        let accel = fieldcal::io::csv::read_dataset3(&file, &spec, &accel_columns[2])?;
-        let Some(t) = accel.t.as_deref() else {
-            bail!(
-                "{}: the accelerometer's file has no time column (t, t_s, time or time_s): it is joined to {main} by time",
-                file.display()
-            );
-        };
-        let r = resample("the accelerometer", t, &accel.points, &mag_t)
-            .with_context(|| format!("{} against {main}", file.display()))?;
-        let values = r.values.clone();
-        interpolation = Some(r);
-        values
-    };
+    let accel_in = read_triplet(
+        &args.accel,
+        "--accel",
+        "the accelerometer",
+        false,
+        &data,
+        &mag_file,
+        &mag_t,
+    )?;
+    let interpolation = accel_in.interpolation;
+    let accel_raw = accel_in.values;
+    let accel_columns = accel_in.columns;
     let accel_cal = match &args.accel_calibration {
         Some(p) => Some(read_calibration(p, &accel_columns, "accelerometer")?),
         None => None,
@@ -155,10 +232,7 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
         None => accel_raw,
     };
     let accel_sensor = Sensor {
-        file: accel_file
-            .clone()
-            .filter(|_| !same_file)
-            .unwrap_or_else(|| mag_file.clone()),
+        file: accel_in.file,
         columns: accel_columns,
         calibration: args.accel_calibration.clone(),
         points: accel,
@@ -212,7 +286,30 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
         )
     };
     let body: Vec<[f64; 3]> = mag_sensor.points.iter().map(|m| map.apply(*m)).collect();
-    let series = heading_series(&body, &accel_sensor.points, forward, up, declination)?;
+
+    // The board's vertical: the accelerometer's, or with --rates the
+    // accelerometer's steadied by the gyro (the hand's accelerations out).
+    let fusion = match &args.rates {
+        None => None,
+        Some(spec) => {
+            let rates = read_triplet(spec, "--rates", "the gyro", true, &data, &mag_file, &mag_t)?;
+            let to_rad = args.input.gyro_units.to_deg_per_second().to_radians();
+            let rad: Vec<[f64; 3]> = rates.values.iter().map(|w| w.map(|v| v * to_rad)).collect();
+            let up = fuse_vertical(&mag_t, &accel_sensor.points, &rad, args.fusion_tau)
+                .context("--fusion-tau")?;
+            Some(Fusion {
+                file: rates.file,
+                columns: rates.columns,
+                tau_s: args.fusion_tau,
+                up,
+                rates: rates.values,
+            })
+        }
+    };
+    let series = match &fusion {
+        Some(f) => heading_series(&body, &f.up, forward, up, declination)?,
+        None => heading_series(&body, &accel_sensor.points, forward, up, declination)?,
+    };
     let n_heading = series.heading_deg.iter().filter(|h| h.is_finite()).count();
     if n_heading == 0 {
         bail!(
@@ -255,17 +352,49 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
     // The gyro: the heading turns clockwise, a gyro about up reads a
     // counter-clockwise turn as positive, so it is checked against the
     // counter-clockwise angle (−heading): scale +1 for a gyro about up.
-    let gyro = match &args.input.gyro {
+    // Without --gyro, the three rates give the rate about the vertical.
+    let reference = match (&args.input.gyro, &fusion) {
+        (Some(spec), _) => Some(gyro_reference(&args, spec, &data, &mag_t, &main)?),
+        (None, Some(f)) => {
+            // Integrated over the samples that have a rate and a vertical
+            // (outside the gyro's or the accelerometer's span they have not).
+            let (rate_t, rate): (Vec<f64>, Vec<f64>) = mag_t
+                .iter()
+                .copied()
+                .zip(rate_about_vertical(&f.rates, &f.up))
+                .filter(|(_, r)| r.is_finite())
+                .unzip();
+            Some(
+                HeadingReference::from_rates(
+                    RATE_ABOUT_VERTICAL,
+                    &mag_t,
+                    &rate_t,
+                    &rate,
+                    args.input.gyro_units,
+                )
+                .with_context(|| format!("{main}: the gyro's rate about the vertical"))?,
+            )
+        }
+        (None, None) => None,
+    };
+    let gyro = match reference {
         None => None,
-        Some(spec) => {
-            let reference = gyro_reference(&args, spec, &data, &mag_t, &main)?;
+        Some(reference) => {
             let ccw = |h: &[f64]| -> Vec<f64> { h.iter().map(|d| -d.to_radians()).collect() };
             // A heading that does not follow the gyro (a level compass
             // tilted in a steep field) is a finding, not a failure.
             let check = |h: &[f64]| reference.check(&ccw(h), &[]).map_err(|e| e.to_string());
+            let accel_only = match &fusion {
+                Some(_) => Some(check(
+                    &heading_series(&body, &accel_sensor.points, forward, up, declination)?
+                        .heading_deg,
+                )),
+                None => None,
+            };
             Some(GyroChecks {
                 column: reference.column().to_string(),
                 tilt: check(&series.heading_deg),
+                accel_only,
                 level: check(&series.level_deg),
             })
         }
@@ -302,6 +431,7 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
         model: model.as_ref(),
         comparison: comparison.as_ref(),
         gyro: gyro.as_ref(),
+        fusion: fusion.as_ref(),
     };
     let text = if args.json {
         serde_json::to_string(&report.json())? + "\n"
@@ -390,8 +520,25 @@ fn write_series(path: &Path, t: &[f64], s: &HeadingSeries) -> std::io::Result<()
 /// says why one could not be checked.
 struct GyroChecks {
     column: String,
+    /// The tilt-compensated heading (on the fused vertical with --rates).
     tilt: std::result::Result<HeadingCheck, String>,
+    /// With --rates: the heading on the accelerometer's vertical alone.
+    accel_only: Option<std::result::Result<HeadingCheck, String>>,
     level: std::result::Result<HeadingCheck, String>,
+}
+
+/// The name of the heading reference integrated from the three rates.
+const RATE_ABOUT_VERTICAL: &str = "rate about the vertical";
+
+/// `--rates`: the gyro that steadies the vertical.
+struct Fusion {
+    file: PathBuf,
+    columns: [String; 3],
+    tau_s: f64,
+    /// The fused vertical at each magnetometer time.
+    up: Vec<[f64; 3]>,
+    /// The rates at each magnetometer time, in --gyro-units.
+    rates: Vec<[f64; 3]>,
 }
 
 struct Report<'a> {
@@ -416,6 +563,7 @@ struct Report<'a> {
     model: Option<&'a ModelField>,
     comparison: Option<&'a FieldComparison>,
     gyro: Option<&'a GyroChecks>,
+    fusion: Option<&'a Fusion>,
 }
 
 fn max_abs(check: &HeadingCheck) -> f64 {
@@ -522,18 +670,33 @@ impl Report<'_> {
             },
             "model": self.model,
             "comparison": self.comparison,
+            "vertical": match self.fusion {
+                None => json!({"source": "accelerometer"}),
+                Some(f) => json!({
+                    "source": "accelerometer+gyro",
+                    "rates": {"file": f.file.display().to_string(), "columns": f.columns},
+                    "tau_s": f.tau_s,
+                }),
+            },
             "gyro": self.gyro.map(|g| {
                 let delta = match (&g.tilt, &g.level) {
                     (Ok(t), Ok(l)) => Some(t.worse_by(l)),
                     _ => None,
                 };
+                let fusion_gain = match (&g.accel_only, &g.tilt) {
+                    (Some(Ok(a)), Ok(t)) => Some(t.worse_by(a)),
+                    _ => None,
+                };
                 json!({
                     "column": g.column,
                     "tilt_compensated": check(&g.tilt),
+                    "tilt_compensated_accel_only": g.accel_only.as_ref().map(check),
                     "level": check(&g.level),
                     "level_worse_by_deg": delta.map(|d| finite(d.delta_rms_deg)),
                     "level_worse_by_se_deg": delta.map(|d| finite(d.se_deg)),
-                    "verdict": delta.map(|d| compensation_verdict(d, self.accel.calibration.is_some())),
+                    "accel_only_worse_by_deg": fusion_gain.map(|d| finite(d.delta_rms_deg)),
+                    "accel_only_worse_by_se_deg": fusion_gain.map(|d| finite(d.se_deg)),
+                    "verdict": delta.map(|d| compensation_verdict(d, self.accel.calibration.is_some(), self.fusion.is_some())),
                 })
             }),
         })
@@ -567,6 +730,14 @@ impl Report<'_> {
             );
         }
         s += "\n";
+        if let Some(f) = self.fusion {
+            s += &format!(
+                "vertical: the accelerometer's, steadied by the gyro {} ({}) with a time constant of {:.2} s\n",
+                f.file.display(),
+                f.columns.join(", "),
+                f.tau_s
+            );
+        }
         match self.choice {
             Some(c) => {
                 s += &format!(
@@ -650,10 +821,16 @@ impl Report<'_> {
                 "against the gyro '{}' (its offset, scale and bias fitted; counter-clockwise about up is positive):\n",
                 g.column
             );
-            for (what, c) in [
-                ("tilt-compensated", &g.tilt),
-                ("level (uncompensated)", &g.level),
-            ] {
+            let mut lines = Vec::with_capacity(3);
+            match &g.accel_only {
+                Some(a) => {
+                    lines.push(("tilt-compensated (accelerometer and gyro)", &g.tilt));
+                    lines.push(("tilt-compensated (accelerometer alone)", a));
+                }
+                None => lines.push(("tilt-compensated", &g.tilt)),
+            }
+            lines.push(("level (uncompensated)", &g.level));
+            for (what, c) in lines {
                 match c {
                     Ok(c) => {
                         s += &format!(
@@ -675,7 +852,20 @@ impl Report<'_> {
                 );
                 s += &format!(
                     "  {}\n",
-                    compensation_verdict(d, self.accel.calibration.is_some())
+                    compensation_verdict(
+                        d,
+                        self.accel.calibration.is_some(),
+                        self.fusion.is_some()
+                    )
+                );
+            }
+            if let (Some(Ok(a)), Ok(t)) = (&g.accel_only, &g.tilt) {
+                let d = t.worse_by(a);
+                s += &format!(
+                    "  the accelerometer alone is worse by {:+.2}° ± {:.2}° rms: {}\n",
+                    d.delta_rms_deg,
+                    d.se_deg,
+                    fusion_verdict(d)
                 );
             }
         }
@@ -690,7 +880,11 @@ const VERDICT_SES: f64 = 3.0;
 /// What the comparison with the gyro says about tilt compensation, in
 /// words a person acts on: it helped, it made no difference, or it made the
 /// heading worse, and then the physical reason to look at first.
-fn compensation_verdict(d: fieldcal::model::gyro::HeadingDelta, accel_calibrated: bool) -> String {
+fn compensation_verdict(
+    d: fieldcal::model::gyro::HeadingDelta,
+    accel_calibrated: bool,
+    fused: bool,
+) -> String {
     let (delta, se) = (d.delta_rms_deg, d.se_deg);
     if !(delta.is_finite() && se.is_finite()) {
         return "too few samples to compare the two headings".to_string();
@@ -698,13 +892,19 @@ fn compensation_verdict(d: fieldcal::model::gyro::HeadingDelta, accel_calibrated
     if delta > VERDICT_SES * se {
         format!("tilt compensation removed {delta:.2}° rms of heading error")
     } else if delta < -VERDICT_SES * se {
-        let cause = if accel_calibrated {
-            "the accelerometer's vertical is less accurate than the board was level: its calibration \
-             may hold the hand's accelerations (calibrate it from still poses: fit --still), or the \
-             board accelerated during the turn"
+        let cause = if fused {
+            "the fused vertical is less accurate than the board was level: check that --rates names \
+             the gyro's axes in the accelerometer's frame and its units (--gyro-units), and the gyro's \
+             bias (a bias of b tilts the vertical by about b times --fusion-tau: shorten it)"
+        } else if accel_calibrated {
+            "the accelerometer's vertical is less accurate than the board was level: the board \
+             accelerated during the turn (give the gyro's three axes with --rates to steady the \
+             vertical), or the accelerometer's calibration holds the hand's accelerations \
+             (calibrate it from still poses: fit --still)"
         } else {
             "the raw accelerometer's vertical is less accurate than the board was level: calibrate \
-             it (fit --z on a tumble, or --still on still poses), and check --mag-axes"
+             it (fit --z on a tumble, or --still on still poses), steady it with the gyro (--rates), \
+             and check --mag-axes"
         };
         format!(
             "tilt compensation made the heading WORSE by {:.2}° rms: {cause}",
@@ -714,5 +914,22 @@ fn compensation_verdict(d: fieldcal::model::gyro::HeadingDelta, accel_calibrated
         format!(
             "tilt compensation made no difference beyond the noise ({delta:+.2}° ± {se:.2}°): the board stayed near level"
         )
+    }
+}
+
+/// What steadying the vertical with the gyro did, against the
+/// accelerometer alone.
+fn fusion_verdict(d: fieldcal::model::gyro::HeadingDelta) -> String {
+    let (delta, se) = (d.delta_rms_deg, d.se_deg);
+    if !(delta.is_finite() && se.is_finite()) {
+        "too few samples to compare".to_string()
+    } else if delta > VERDICT_SES * se {
+        "the gyro removed the board's accelerations from the vertical".to_string()
+    } else if delta < -VERDICT_SES * se {
+        "the gyro made the vertical worse: check the --rates columns and units, and the gyro's bias \
+         (shorten --fusion-tau)"
+            .to_string()
+    } else {
+        "no difference beyond the noise: the board's accelerations were small".to_string()
     }
 }

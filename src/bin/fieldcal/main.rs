@@ -342,6 +342,12 @@ struct HeadingArgs {
         allow_hyphen_values = true
     )]
     mag_axes: String,
+    /// The gyro's three axes in the accelerometer's frame (in --gyro-units; -COLUMN for an axis that points the other way), X,Y,Z of the magnetometer's CSV or FILE:X,Y,Z: the board's vertical is then the accelerometer's steadied by the gyro (a complementary filter), which keeps a hand's accelerations out of it; without --gyro, the heading is checked against the rate about that vertical.
+    #[arg(long, value_name = "[FILE:]X,Y,Z", allow_hyphen_values = true)]
+    rates: Option<String>,
+    /// With --rates: the seconds over which the gyro is trusted before the accelerometer (a gyro bias of b tilts the vertical by about b times this).
+    #[arg(long, value_name = "S", default_value_t = fieldcal::model::vertical::DEFAULT_TAU_S, requires = "rates")]
+    fusion_tau: f64,
     /// The board's axis whose heading is reported (x, -y, ...).
     #[arg(
         long,
