@@ -118,6 +118,23 @@ pub struct Ellipsoid3EffectsFit {
     pub iterations: usize,
     /// Directions of the calibrated samples used, on the sphere.
     pub coverage: SphereCoverage,
+    /// Where the moving offsets and the cubic are referred to, to apply the
+    /// model to other samples ([`Ellipsoid3EffectsFit::calibrate`]).
+    #[serde(skip)]
+    pub reference: Effects3Reference,
+}
+
+/// The fitted samples' means the moving offsets are centred on, and the
+/// full scale S of the cubic: with them the model applies to any sample.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Effects3Reference {
+    /// The mean time of the fitted samples (s), with `drift`.
+    pub t_mean: Option<f64>,
+    /// Each `covariate:<column>`'s mean over the fitted samples, by column.
+    pub covariate_means: Vec<(String, f64)>,
+    /// S: the largest |reading| of any axis of the fitted samples, with
+    /// `cubic` (its k is the fraction of non-linearity at S).
+    pub cubic_scale: Option<f64>,
 }
 
 impl Ellipsoid3EffectsFit {
@@ -129,6 +146,58 @@ impl Ellipsoid3EffectsFit {
     /// The value of a parameter, 0 when the model lacks it.
     pub fn value(&self, name: &str) -> f64 {
         self.param(name).map_or(0.0, |p| p.value)
+    }
+
+    /// W·(q' − o) for every sample of `data` (raw units, input order):
+    /// the drift and covariate offsets removed about the fitted samples'
+    /// means, the cubic undone about S, so samples the fit did not use (the
+    /// moving ones of a `--still` fit) are calibrated as the fitted ones.
+    pub fn calibrate(&self, data: &Dataset3) -> Result<Vec<[f64; 3]>, Effects3Error> {
+        let mut moving: Vec<(&[f64], f64, [f64; 3])> = Vec::new();
+        if let Some(t_mean) = self.reference.t_mean {
+            let t = data.t.as_deref().ok_or(Effects3Error::MissingTime)?;
+            let rate = AXES.map(|a| self.value(&format!("drift_{a}")));
+            moving.push((t, t_mean, rate));
+        }
+        for (column, mean) in &self.reference.covariate_means {
+            let found = data
+                .covariate(column)
+                .ok_or_else(|| Effects3Error::MissingCovariate {
+                    column: column.clone(),
+                    available: data
+                        .covariates
+                        .iter()
+                        .map(|c| c.name.clone())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                })?;
+            let gain = AXES.map(|a| self.value(&format!("{column}_{a}")));
+            moving.push((&found.values, *mean, gain));
+        }
+        let cubic = self.reference.cubic_scale.map(|s| {
+            let k = AXES.map(|a| self.value(&format!("k_{a}")));
+            (k, 1.0 / (s * s))
+        });
+        let w = &self.matrix;
+        Ok(data
+            .points
+            .iter()
+            .enumerate()
+            .map(|(i, raw)| {
+                let mut q = *raw;
+                for (values, mean, per_unit) in &moving {
+                    let delta = values.get(i).copied().unwrap_or(*mean) - mean;
+                    for j in 0..3 {
+                        q[j] -= per_unit[j] * delta;
+                    }
+                }
+                if let Some((k, inv_s2)) = cubic {
+                    q = [0, 1, 2].map(|j| q[j] + k[j] * q[j].powi(3) * inv_s2);
+                }
+                let d = [0, 1, 2].map(|j| q[j] - self.offset[j]);
+                [0, 1, 2].map(|i| w[i][0] * d[0] + w[i][1] * d[1] + w[i][2] * d[2])
+            })
+            .collect())
     }
 }
 
@@ -744,6 +813,23 @@ pub fn fit_effects(
         }
     }
     effects.sort();
+    let mean_of = |values: &[f64]| values.iter().sum::<f64>() / values.len().max(1) as f64;
+    let reference = Effects3Reference {
+        t_mean: extras
+            .contains(&Effect::Drift)
+            .then(|| data.t.as_deref().map(mean_of))
+            .flatten(),
+        covariate_means: effects
+            .iter()
+            .filter_map(|e| match e {
+                Effect::Covariate(column) => data
+                    .covariate(column)
+                    .map(|c| (column.clone(), mean_of(&c.values))),
+                _ => None,
+            })
+            .collect(),
+        cubic_scale: layout.cubic.map(|(_, inv_s2)| inv_s2.sqrt().recip()),
+    };
     Ok(Ellipsoid3EffectsFit {
         model,
         effects,
@@ -761,6 +847,7 @@ pub fn fit_effects(
         flagged,
         iterations,
         coverage: sphere::coverage(directions),
+        reference,
     })
 }
 
@@ -1100,5 +1187,58 @@ mod tests {
             base_of(Ellipsoid3Model::Full, &[Effect::Offset]),
             Ellipsoid3Model::Full
         );
+    }
+
+    /// `calibrate` applies the fitted model to samples as the fit did: on
+    /// the fitted recording it gives the fit's own calibrated samples, and
+    /// on a part of it (as `fit --still` writes every sample of a recording
+    /// fitted on its still ones) the same samples again.
+    #[test]
+    fn calibrate_reproduces_the_fitted_samples() {
+        // Every effect that moves the samples in one model (the covariate
+        // and cubic fitted near zero still enter each sample).
+        let data = recording(Added::Drift([0.02, -0.015, 0.01]), 600, 5);
+        let effects = [
+            Effect::Drift,
+            Effect::Covariate("temp".into()),
+            Effect::Cubic,
+        ];
+        let fit = fit_effects(&data, Ellipsoid3Model::Full, &effects).unwrap();
+        assert!(fit.reference.t_mean.is_some());
+        assert_eq!(fit.reference.covariate_means.len(), 1);
+        assert!(fit.reference.cubic_scale.is_some());
+        let all = fit.calibrate(&data).unwrap();
+        let worst = all
+            .iter()
+            .zip(&fit.calibrated)
+            .flat_map(|(a, b)| (0..3).map(move |j| (a[j] - b[j]).abs()))
+            .fold(0.0f64, f64::max);
+        assert!(worst < 1e-9 * fit.r, "worst {worst}");
+        // The last 100 samples alone: the same values.
+        let tail = Dataset3 {
+            t: data.t.as_ref().map(|t| t[500..].to_vec()),
+            points: data.points[500..].to_vec(),
+            covariates: data
+                .covariates
+                .iter()
+                .map(|c| Covariate {
+                    name: c.name.clone(),
+                    values: c.values[500..].to_vec(),
+                })
+                .collect(),
+            ..data.clone()
+        };
+        let part = fit.calibrate(&tail).unwrap();
+        for (a, b) in part.iter().zip(&all[500..]) {
+            for j in 0..3 {
+                assert!((a[j] - b[j]).abs() < 1e-9 * fit.r);
+            }
+        }
+        // Without its time column, the drift cannot be removed.
+        let no_time = Dataset3 {
+            t: None,
+            ..tail.clone()
+        };
+        assert_eq!(fit.calibrate(&no_time), Err(Effects3Error::MissingTime));
     }
 }

@@ -681,6 +681,14 @@ pub enum Calibration3Error {
         field: &'static str,
         what: &'static str,
     },
+    #[error(
+        "the calibration's model has effects the heading cannot apply ({model}: {parameters}; the heading applies the offset and W alone): give the calibration of the model without them (`fieldcal fit FILE --x X --y Y --z Z --effects {base} --json`)"
+    )]
+    WithEffects {
+        model: String,
+        parameters: String,
+        base: String,
+    },
 }
 
 impl Calibration3 {
@@ -763,6 +771,25 @@ impl Calibration3 {
                 field: "params.r",
                 what: "positive number",
             })?;
+        // `fit --effects full+drift` (covariate, cubic) adds the extras'
+        // parameters: applying o and W alone would drop them silently.
+        if let Some(extra) = params
+            .get("extra")
+            .and_then(|e| e.as_object())
+            .filter(|e| !e.is_empty())
+        {
+            let text = |field: &str, default: &str| {
+                v.get(field)
+                    .and_then(|m| m.as_str())
+                    .unwrap_or(default)
+                    .to_string()
+            };
+            return Err(Calibration3Error::WithEffects {
+                model: text("model", "a model with effects"),
+                parameters: extra.keys().cloned().collect::<Vec<_>>().join(", "),
+                base: text("base_model", "full"),
+            });
+        }
         let units = v.get("units").and_then(|u| u.as_str()).map(str::to_string);
         Ok(Calibration3 {
             columns,
@@ -1135,6 +1162,22 @@ mod tests {
             Calibration3::from_json("not json"),
             Err(Calibration3Error::NotJson { .. })
         ));
+        // A model with a drift (`fit --effects full+drift --json`): its
+        // offset moves with time, which the heading cannot apply.
+        let drift = json.replace(
+            "\"r\": 0.5}",
+            "\"r\": 0.5, \"extra\": {\"drift_x\": 1e-4, \"drift_y\": 0, \"drift_z\": 0}}, \"model\": \"offset+scale+cross-axis+drift\", \"base_model\": \"offset+scale+cross-axis\"",
+        );
+        let err = Calibration3::from_json(&drift).unwrap_err();
+        let text = err.to_string();
+        assert!(
+            text.contains("offset+scale+cross-axis+drift: drift_x, drift_y, drift_z")
+                && text.contains("--effects offset+scale+cross-axis --json"),
+            "{text}"
+        );
+        // An empty extra (the base model, or outliers alone) is read.
+        let empty = json.replace("\"r\": 0.5}", "\"r\": 0.5, \"extra\": {}}");
+        assert!(Calibration3::from_json(&empty).is_ok());
     }
 
     #[test]

@@ -1,10 +1,15 @@
 //! The report of `fieldcal fit` on three axes: the ellipsoid model
 //! (docs/three-axes.md), as text and as the JSON every 3-D reader shares.
 
+use std::collections::BTreeMap;
+
 use serde::Serialize;
 
+use super::fit::FlaggedJson;
 use super::significant;
+use crate::model::effects::{Effect, model_name};
 use crate::model::ellipsoid::{Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
+use crate::model::nonlinear::Param;
 use crate::model::sphere::SphereCoverage;
 use crate::model::still::{STILL_WINDOW_S, StillPoses};
 
@@ -108,11 +113,48 @@ impl StillSummary {
     }
 }
 
+/// The catalogue's other effects fitted with the 3-D model (`fit
+/// --effects full+drift`, `+covariate:<col>`, `+cubic`, `+outliers`):
+/// what the report adds to the base model's.
+#[derive(Debug, Clone, Default)]
+pub struct Extras3 {
+    /// The whole model by the catalogue's names, sorted: the base's
+    /// (`offset`, `scale`, `cross-axis`) and the extras.
+    pub effects: Vec<Effect>,
+    /// The extras' own parameters with their standard errors: `drift_x`..
+    /// (raw units per second), `<column>_x`.. (raw units per unit of the
+    /// column), `k_x`.. (fraction of non-linearity at full scale).
+    pub params: Vec<Param>,
+    /// With `outliers`: the samples set aside (indices into the fitted
+    /// samples, ascending).
+    pub flagged: Option<Vec<usize>>,
+    /// With `cubic`: the full scale S its k refers to (largest |reading|
+    /// of any axis of the fitted samples), raw units.
+    pub cubic_scale: Option<f64>,
+    /// Unknowns of the whole model.
+    pub unknowns: usize,
+    /// The rms of the base model alone (no extras) on the same samples.
+    pub base_rms: Option<f64>,
+    /// With `drift`: the time the fitted samples span, s.
+    pub t_span: Option<f64>,
+}
+
 #[derive(Debug, Serialize)]
 pub struct Params3 {
     pub offset: [f64; 3],
     pub matrix: [[f64; 3]; 3],
     pub r: f64,
+    /// The extras' parameters by name (empty without extras).
+    pub extra: BTreeMap<String, f64>,
+}
+
+/// The standard errors: the base model's, and the extras' by name.
+#[derive(Debug, Serialize)]
+pub struct Se3 {
+    #[serde(flatten)]
+    pub base: Ellipsoid3Se,
+    /// The extras' standard errors by name (empty without extras).
+    pub extra: BTreeMap<String, f64>,
 }
 
 /// The machine-readable report (`fieldcal fit --json` on three axes): the
@@ -124,12 +166,29 @@ pub struct Fit3Json<'a> {
     pub x_column: &'a str,
     pub y_column: &'a str,
     pub z_column: &'a str,
-    pub model: &'static str,
-    pub effects: Vec<&'static str>,
+    /// The whole model's name: the effects joined by `+` (as 2-D), e.g.
+    /// `offset+scale+cross-axis+drift`.
+    pub model: String,
+    /// The base W alone: `offset`, `offset+scale` or
+    /// `offset+scale+cross-axis` (as in `supported_models` and `models`).
+    pub base_model: &'static str,
+    pub effects: Vec<String>,
     pub params: Params3,
-    pub se: Ellipsoid3Se,
+    pub se: Se3,
+    /// Root mean square of |calibrated|/r − 1 over the samples used (the
+    /// inliers, with `outliers`).
     pub rms: f64,
+    /// With extras: the rms of the base model alone on the same samples.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub base_rms: Option<f64>,
     pub n: usize,
+    /// Unknowns of the whole model.
+    pub unknowns: usize,
+    /// The samples set aside by `outliers` (count 0 without it).
+    pub flagged: FlaggedJson<'a>,
+    /// With `cubic`: the full scale S its k refers to, raw units.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cubic_scale: Option<f64>,
     pub units: Option<&'a str>,
     pub coverage: &'a SphereCoverage,
     pub iterations: usize,
@@ -152,23 +211,51 @@ impl<'a> Fit3Json<'a> {
         supported: &[Ellipsoid3Model],
         models: &'a [ModelRms],
         still: Option<&'a StillSummary>,
+        extras: Option<&'a Extras3>,
     ) -> Self {
+        let effects: Vec<String> = match extras {
+            Some(e) => e.effects.iter().map(Effect::to_string).collect(),
+            None => model_effects(fit.model)
+                .into_iter()
+                .map(String::from)
+                .collect(),
+        };
+        let by_name = |f: fn(&Param) -> f64| -> BTreeMap<String, f64> {
+            extras
+                .map(|e| e.params.iter().map(|p| (p.name.clone(), f(p))).collect())
+                .unwrap_or_default()
+        };
         Fit3Json {
             file: source.file,
             axes: 3,
             x_column: source.x_column,
             y_column: source.y_column,
             z_column: source.z_column,
-            model: fit.model.name(),
-            effects: model_effects(fit.model),
+            model: match extras {
+                Some(e) => model_name(&e.effects),
+                None => fit.model.name().to_string(),
+            },
+            base_model: fit.model.name(),
+            effects,
             params: Params3 {
                 offset: fit.offset,
                 matrix: fit.matrix,
                 r: fit.r,
+                extra: by_name(|p| p.value),
             },
-            se: fit.se,
+            se: Se3 {
+                base: fit.se,
+                extra: by_name(|p| p.se),
+            },
             rms: fit.rms,
+            base_rms: extras.and_then(|e| e.base_rms),
             n: fit.n,
+            unknowns: extras.map_or(fit.model.unknowns(), |e| e.unknowns),
+            flagged: FlaggedJson {
+                count: extras.and_then(|e| e.flagged.as_ref()).map_or(0, Vec::len),
+                indices: extras.and_then(|e| e.flagged.as_deref()).unwrap_or(&[]),
+            },
+            cubic_scale: extras.and_then(|e| e.cubic_scale),
             units,
             coverage: &fit.coverage,
             iterations: fit.iterations,
@@ -209,6 +296,7 @@ pub fn render_text3(
     supported: &[Ellipsoid3Model],
     models: &[ModelRms],
     still: Option<&StillSummary>,
+    extras: Option<&Extras3>,
 ) -> String {
     let mut out = String::new();
     let mut line =
@@ -222,17 +310,27 @@ pub fn render_text3(
         ),
         "",
     );
-    line(
-        "model",
-        fit.model.name().to_string(),
-        "calibrated = W·(raw − o), |calibrated| = r, det W = 1",
-    );
+    match extras {
+        Some(e) => line("model", model_name(&e.effects), &model_note(e)),
+        None => line(
+            "model",
+            fit.model.name().to_string(),
+            "calibrated = W·(raw − o), |calibrated| = r, det W = 1",
+        ),
+    }
     line(
         "solver",
         format!("levenberg-marquardt, {} iterations", fit.iterations),
         "from the closed-form ellipsoid (Li & Griffiths)",
     );
-    line("samples", fit.n.to_string(), "");
+    match extras {
+        Some(e) => line(
+            "samples",
+            fit.n.to_string(),
+            &format!("{} unknowns", e.unknowns),
+        ),
+        None => line("samples", fit.n.to_string(), ""),
+    }
     if let Some(s) = still {
         let gyro = match &s.gyro_columns {
             Some(c) => format!(", gyro {} under 5 °/s", c.join("/")),
@@ -302,11 +400,35 @@ pub fn render_text3(
         };
         line(if i == 0 { "W" } else { "" }, cells.join(" "), note);
     }
+    if let Some(e) = extras {
+        for p in &e.params {
+            let (value, note) = describe_extra(p, units, e);
+            line(&p.name, value, &note);
+        }
+        if let Some(flagged) = &e.flagged {
+            line("flagged", flagged.len().to_string(), &flagged_note(flagged));
+        }
+    }
+    let used = match extras.and_then(|e| e.flagged.as_ref()) {
+        Some(flagged) => format!(", over the {} samples used", fit.n - flagged.len()),
+        None => String::new(),
+    };
     line(
         "rms",
         significant(fit.rms, 4),
-        &format!("{:.3} % of r (|calibrated|/r − 1)", fit.rms * 100.0),
+        &format!("{:.3} % of r (|calibrated|/r − 1{used})", fit.rms * 100.0),
     );
+    if let Some(base_rms) = extras.and_then(|e| e.base_rms) {
+        line(
+            "without",
+            significant(base_rms, 4),
+            &format!(
+                "{:.3} % of r: the {} model alone, no extras, on the same samples",
+                base_rms * 100.0,
+                fit.model.name()
+            ),
+        );
+    }
     let compared: Vec<String> = models
         .iter()
         .map(|m| match m.rms {
@@ -317,7 +439,11 @@ pub fn render_text3(
     line(
         "models",
         compared.join(", "),
-        "rms of each model on these samples",
+        if extras.is_some() {
+            "rms of each model on these samples, without the extras"
+        } else {
+            "rms of each model on these samples"
+        },
     );
     let supported: Vec<&str> = supported.iter().map(|m| m.name()).collect();
     line(
@@ -330,6 +456,87 @@ pub fn render_text3(
         "models the coverage determines",
     );
     out
+}
+
+/// The model line's note: what the extras take out of each reading.
+fn model_note(e: &Extras3) -> String {
+    let parts: Vec<String> = e
+        .effects
+        .iter()
+        .filter_map(|effect| match effect {
+            Effect::Drift => Some("the offset's drift in time".to_string()),
+            Effect::Covariate(column) => Some(format!("the offset following '{column}'")),
+            Effect::Cubic => Some("the cubic non-linearity".to_string()),
+            _ => None,
+        })
+        .collect();
+    let mut text = match parts.len() {
+        0 => "calibrated = W·(raw − o), |calibrated| = r, det W = 1".to_string(),
+        n => format!(
+            "calibrated = W·(q − o), |calibrated| = r, det W = 1; q: the reading with {} removed",
+            match n {
+                1 => parts[0].clone(),
+                _ => format!("{} and {}", parts[..n - 1].join(", "), parts[n - 1]),
+            }
+        ),
+    };
+    if e.flagged.is_some() {
+        text.push_str("; outliers set aside");
+    }
+    text
+}
+
+/// An extra parameter's value with its SE and units, and what it means.
+fn describe_extra(p: &Param, units: Option<&str>, e: &Extras3) -> (String, String) {
+    let unit = units.unwrap_or("raw units");
+    let value = with_se(p.value, p.se);
+    let Some((stem, axis)) = p.name.rsplit_once('_') else {
+        return (value, String::new());
+    };
+    match stem {
+        "drift" => (
+            format!("{value} {unit}/s"),
+            format!(
+                "offset drift of {axis}: {} ± {} {unit} per hour{}",
+                significant(p.value * 3600.0, 4),
+                significant(p.se * 3600.0, 2),
+                match e.t_span {
+                    Some(span) => format!(
+                        ", {} {unit} over the {} s fitted",
+                        significant(p.value * span, 2),
+                        significant(span, 3)
+                    ),
+                    None => String::new(),
+                }
+            ),
+        ),
+        "k" => (
+            value,
+            format!(
+                "cubic non-linearity of {axis}: fraction at full scale S = {} {}",
+                e.cubic_scale.map_or("?".to_string(), |s| significant(s, 4)),
+                units.unwrap_or("(raw units)")
+            ),
+        ),
+        column => (
+            format!("{value} {unit}/unit"),
+            format!("offset of {axis} per unit of the column '{column}' ({unit} per unit)"),
+        ),
+    }
+}
+
+/// The flagged samples: how many, and the first of them.
+fn flagged_note(flagged: &[usize]) -> String {
+    const SHOWN: usize = 8;
+    if flagged.is_empty() {
+        return "samples set aside as outliers: none".to_string();
+    }
+    let first: Vec<String> = flagged.iter().take(SHOWN).map(|i| i.to_string()).collect();
+    let more = if flagged.len() > SHOWN { ", ..." } else { "" };
+    format!(
+        "samples set aside as outliers (0-based: {}{more}; all in the JSON's flagged.indices)",
+        first.join(", ")
+    )
 }
 
 #[cfg(test)]

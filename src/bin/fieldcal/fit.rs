@@ -11,6 +11,7 @@ use fieldcal::io::csv::{write_calibrated, write_calibrated3};
 use fieldcal::model::FitError;
 use fieldcal::model::effects::Effect;
 use fieldcal::model::ellipsoid::{self, Ellipsoid3Error, Ellipsoid3Fit, Ellipsoid3Model};
+use fieldcal::model::ellipsoid_effects::{self, Effects3Error, Ellipsoid3EffectsFit};
 use fieldcal::model::fit::DEFAULT_MIN_COVERAGE_DEG;
 use fieldcal::model::fit::{FitOptions, fit_paper};
 use fieldcal::model::gyro::GyroUnits;
@@ -22,9 +23,9 @@ use fieldcal::model::still::find_still;
 use fieldcal::model::turn::check_turn_of;
 use fieldcal::report::fit::{FitJson, FitSource, ModelFitJson, render_model_text, render_text};
 use fieldcal::report::fit3::{
-    Fit3Json, Fit3Source, ModelRms, StillSummary, infer_units, render_text3,
+    Extras3, Fit3Json, Fit3Source, ModelRms, StillSummary, infer_units, render_text3,
 };
-use fieldcal::sample::Dataset3;
+use fieldcal::sample::{Covariate, Dataset3};
 
 use crate::FitArgs;
 use crate::output::write_stdout;
@@ -259,29 +260,57 @@ pub(crate) fn parse_effects3(text: &str) -> Result<(Ellipsoid3Model, Vec<Effect>
     Ok((base.unwrap_or(Ellipsoid3Model::Full), extra))
 }
 
-/// The 3-D fit of `base` plus the catalogue's other effects on `points`
-/// (the recording's, or its still poses'). The extra effects (drift,
-/// covariates, the cubic, outliers) are not fitted in 3-D yet: the arm
-/// `extra => ...` is where `fieldcal::model::ellipsoid_effects` plugs in.
+/// The 3-D fit of `base` plus the catalogue's other effects (drift,
+/// covariate:<col>, cubic, outliers) on `data` (the recording, or its still
+/// samples): the base model alone when there are none, else
+/// [`fieldcal::model::ellipsoid_effects::fit_effects`]. Refusals keep their
+/// types: a coverage refusal downcasts to [`Ellipsoid3Error`].
 fn fit_model3(
     data: &Dataset3,
-    points: &[[f64; 3]],
     base: Ellipsoid3Model,
     extra: &[Effect],
-) -> Result<Ellipsoid3Fit> {
-    let _ = data;
-    match extra {
-        [] => Ok(ellipsoid::fit(points, base)?),
-        extra => {
-            let names: Vec<String> = extra.iter().map(Effect::to_string).collect();
-            anyhow::bail!(
-                "--effects: {} not available in `fit` in 3-D yet; `fieldcal diagnose` fits them in 3-D and shows what each removes, or fit the {base} model alone (--effects {base})",
-                match names.len() {
-                    1 => format!("the effect {} is", names[0]),
-                    _ => format!("the effects {} are", names.join(", ")),
-                }
-            )
-        }
+) -> Result<(Ellipsoid3Fit, Option<Ellipsoid3EffectsFit>)> {
+    if extra.is_empty() {
+        return Ok((ellipsoid::fit(&data.points, base)?, None));
+    }
+    let fit = match ellipsoid_effects::fit_effects(data, base, extra) {
+        Ok(fit) => fit,
+        // The base fit's refusal as itself, so `refusal` finds the coverage
+        // rule's hint in it.
+        Err(Effects3Error::Fit(e)) => return Err(anyhow::Error::new(e)),
+        Err(e) => return Err(anyhow::Error::new(e)),
+    };
+    let view = Ellipsoid3Fit {
+        model: fit.model,
+        offset: fit.offset,
+        matrix: fit.matrix,
+        r: fit.r,
+        rms: fit.rms,
+        n: fit.n,
+        se: fit.se,
+        coverage: fit.coverage.clone(),
+        iterations: fit.iterations,
+    };
+    Ok((view, Some(fit)))
+}
+
+/// The samples `indices` of a recording, with their times and covariates.
+fn select3(data: &Dataset3, indices: &[usize]) -> Dataset3 {
+    let pick = |values: &[f64]| indices.iter().map(|&i| values[i]).collect::<Vec<f64>>();
+    Dataset3 {
+        x_name: data.x_name.clone(),
+        y_name: data.y_name.clone(),
+        z_name: data.z_name.clone(),
+        t: data.t.as_deref().map(pick),
+        points: indices.iter().map(|&i| data.points[i]).collect(),
+        covariates: data
+            .covariates
+            .iter()
+            .map(|c| Covariate {
+                name: c.name.clone(),
+                values: pick(&c.values),
+            })
+            .collect(),
     }
 }
 
@@ -365,7 +394,7 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
         .clone()
         .or_else(|| infer_units([&data.x_name, &data.y_name, &data.z_name]).map(String::from));
 
-    let (points, still) = if args.still {
+    let (still_data, still) = if args.still {
         let gyro = still_gyro(args, &data, &file)?;
         let poses = find_still(
             &data.points,
@@ -373,25 +402,28 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
             gyro.as_ref().map(|(_, r)| r.as_slice()),
         )
         .with_context(|| format!("{file}: no still poses"))?;
-        let points: Vec<[f64; 3]> = poses.indices().map(|i| data.points[i]).collect();
+        let indices: Vec<usize> = poses.indices().collect();
         let summary = StillSummary::new(&poses, data.len(), gyro.map(|(names, _)| names));
-        (points, Some(summary))
+        (Some(select3(&data, &indices)), Some(summary))
     } else {
-        (data.points.clone(), None)
+        (None, None)
     };
+    // The samples fitted: the still ones with --still, else every one.
+    let fitted: &Dataset3 = still_data.as_ref().unwrap_or(&data);
+    let points = &fitted.points;
 
     let started = Instant::now();
-    let fit =
-        fit_model3(&data, &points, base, &extra).map_err(|e| refusal(e, &file, still.as_ref()))?;
+    let (fit, effects_fit) =
+        fit_model3(fitted, base, &extra).map_err(|e| refusal(e, &file, still.as_ref(), &extra))?;
     let elapsed = started.elapsed().as_secs_f64();
 
     let models: Vec<ModelRms> = Ellipsoid3Model::ALL
         .into_iter()
         .map(|m| {
-            let result = if m == fit.model {
+            let result = if m == fit.model && effects_fit.is_none() {
                 Ok(fit.clone())
             } else {
-                ellipsoid::fit(&points, m)
+                ellipsoid::fit(points, m)
             };
             match result {
                 Ok(f) => ModelRms {
@@ -409,14 +441,59 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
             }
         })
         .collect();
-    let directions: Vec<[f64; 3]> = points.iter().map(|&p| fit.apply(p)).collect();
+    let directions: Vec<[f64; 3]> = match &effects_fit {
+        // The samples used (not the flagged ones), with the extras removed.
+        Some(e) => e
+            .calibrated
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| e.flagged.binary_search(i).is_err())
+            .map(|(_, &c)| c)
+            .collect(),
+        None => points.iter().map(|&p| fit.apply(p)).collect(),
+    };
     let supported: Vec<Ellipsoid3Model> = Ellipsoid3Model::ALL
         .into_iter()
         .filter(|&m| ellipsoid::supports(m, &directions))
         .collect();
+    let extras: Option<Extras3> = effects_fit.as_ref().map(|e| Extras3 {
+        effects: e.effects.clone(),
+        // o, W's entries and r (listed first, r last) are the base report's;
+        // the parameters after r are the extras' own.
+        params: e
+            .params
+            .iter()
+            .skip_while(|p| p.name != "r")
+            .skip(1)
+            .cloned()
+            .collect(),
+        flagged: extra.contains(&Effect::Outliers).then(|| e.flagged.clone()),
+        cubic_scale: e.reference.cubic_scale,
+        unknowns: e.unknowns,
+        base_rms: models
+            .iter()
+            .find(|m| m.model == e.model.name())
+            .and_then(|m| m.rms),
+        t_span: match (e.reference.t_mean, fitted.t.as_deref()) {
+            (Some(_), Some(t)) => {
+                let (lo, hi) = t
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                        (lo.min(v), hi.max(v))
+                    });
+                (hi > lo).then_some(hi - lo)
+            }
+            _ => None,
+        },
+    });
 
     if let Some(output) = &args.output {
-        let calibrated: Vec<[f64; 3]> = data.points.iter().map(|&p| fit.apply(p)).collect();
+        let calibrated: Vec<[f64; 3]> = match &effects_fit {
+            Some(e) => e
+                .calibrate(&data)
+                .with_context(|| format!("{file}: cannot calibrate every sample"))?,
+            None => data.points.iter().map(|&p| fit.apply(p)).collect(),
+        };
         write_calibrated3(output, data.t.as_deref(), &calibrated).with_context(|| {
             format!(
                 "cannot write the calibrated samples to {}",
@@ -439,6 +516,7 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
             &supported,
             &models,
             still.as_ref(),
+            extras.as_ref(),
         ))? + "\n"
     } else {
         render_text3(
@@ -448,6 +526,7 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
             &supported,
             &models,
             still.as_ref(),
+            extras.as_ref(),
         )
     };
     write_stdout(text.as_bytes())
@@ -455,7 +534,13 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
 
 /// A 3-D fit's refusal, naming the file and, when the coverage supports a
 /// restricted model, how to ask for it.
-fn refusal(err: anyhow::Error, file: &str, still: Option<&StillSummary>) -> anyhow::Error {
+/// The hint keeps the extra effects asked for (`--effects offset+scale+drift`).
+fn refusal(
+    err: anyhow::Error,
+    file: &str,
+    still: Option<&StillSummary>,
+    extra: &[Effect],
+) -> anyhow::Error {
     let poses = match still {
         Some(s) => format!(" (on {} still poses, {} samples)", s.poses, s.samples),
         None => String::new(),
@@ -463,7 +548,12 @@ fn refusal(err: anyhow::Error, file: &str, still: Option<&StillSummary>) -> anyh
     match err.downcast_ref::<Ellipsoid3Error>() {
         Some(Ellipsoid3Error::NotCovered {
             supported: Some(m), ..
-        }) => anyhow::anyhow!("{file}: no 3-D calibration{poses}: {err}; to fit it: --effects {m}"),
+        }) => {
+            let with: String = extra.iter().map(|e| format!("+{e}")).collect();
+            anyhow::anyhow!(
+                "{file}: no 3-D calibration{poses}: {err}; to fit it: --effects {m}{with}"
+            )
+        }
         Some(_) => anyhow::anyhow!("{file}: no 3-D calibration{poses}: {err}"),
         None => err.context(format!("{file}: no 3-D calibration")),
     }
