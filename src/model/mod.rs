@@ -12,6 +12,7 @@
 //! - [`residuals`]: what a fit's residual still holds, and its noise floor.
 //! - [`diagnose`]: which effect the data supports, step by step.
 //! - [`check`]: whether a stored calibration holds on another recording.
+//! - [`check3`]: the same for a 3-D calibration.
 //! - [`turn`]: whether the readings show a turn at all, before any fit.
 //! - [`ellipsoid`]: the 3-D model (offset, gains, soft iron) and its fit.
 //! - [`sphere`]: coverage of the sphere of directions, for 3-axis sensors.
@@ -20,6 +21,7 @@
 //!   accelerometer on one board.
 
 pub mod check;
+pub mod check3;
 pub mod diagnose;
 pub mod diagnose3;
 pub mod effects;

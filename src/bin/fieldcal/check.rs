@@ -3,6 +3,7 @@
 use anyhow::{Context, Result};
 
 use fieldcal::model::check::{CheckReport, check as check_calibration, parse_stored};
+use fieldcal::model::check3::{Check3Report, check3, is_three_axes, parse_stored3};
 use fieldcal::report::significant;
 
 use crate::CheckArgs;
@@ -22,6 +23,17 @@ pub fn check(args: CheckArgs) -> Result<()> {
             ),
             _ => anyhow::Error::new(e).context(format!("{cal_name}: cannot read the calibration file")),
         })?;
+    if let Some(root) = serde_json::from_slice::<serde_json::Value>(&bytes)
+        .ok()
+        .filter(is_three_axes)
+    {
+        return check_three(&args, &root);
+    }
+    if args.input.z.is_some() {
+        anyhow::bail!(
+            "{cal_name}: a 2-axis calibration, checked on two columns: leave out --z (or give the calibration of a 3-axis fit, `fieldcal fit FILE --z COL --json`)"
+        );
+    }
     let stored = parse_stored(&bytes).with_context(|| format!("{cal_name}"))?;
     let (data, reference) = args.input.read_with_reference()?;
     let file = args.input.file.display().to_string();
@@ -95,6 +107,147 @@ fn render(report: &CheckReport, file: &str, cal: &str, x: &str, y: &str) -> Stri
                 if p.moved { "  moved" } else { "" }
             ),
         );
+    }
+    line("verdict", report.verdict.clone());
+    out
+}
+
+/// `check` of a 3-D calibration (`fit --json` on three axes, or a daemon
+/// state file of a 3-axis sensor) on a 3-axis recording. The columns are
+/// --x/--y/--z, else those the calibration was fitted to, else x, y, z.
+fn check_three(args: &CheckArgs, root: &serde_json::Value) -> Result<()> {
+    let cal_name = args.calibration.display().to_string();
+    let stored = parse_stored3(root).with_context(|| cal_name.clone())?;
+    if args.input.gyro.is_some() {
+        anyhow::bail!(
+            "--gyro checks a 2-axis heading; a 3-D calibration's heading needs the accelerometer: `fieldcal heading FILE --mag-cal {cal_name} --accel X,Y,Z --gyro COLUMN`"
+        );
+    }
+    let stored_column = |k: usize, default: &str| {
+        stored
+            .columns
+            .as_ref()
+            .map_or_else(|| default.to_string(), |c| c[k].clone())
+    };
+    let spec = fieldcal::io::csv::ColumnSpec {
+        x: args
+            .input
+            .x
+            .clone()
+            .unwrap_or_else(|| stored_column(0, "x")),
+        y: args
+            .input
+            .y
+            .clone()
+            .unwrap_or_else(|| stored_column(1, "y")),
+        t: args.input.t.clone(),
+    };
+    let z = args
+        .input
+        .z
+        .clone()
+        .unwrap_or_else(|| stored_column(2, "z"));
+    let data = fieldcal::io::csv::read_dataset3(&args.input.file, &spec, &z)?;
+    let file = args.input.file.display().to_string();
+    let report = check3(&data.points, &stored)
+        .with_context(|| format!("{file}: cannot check {cal_name} against it"))?;
+    let text = if args.json {
+        serde_json::to_string(&report)? + "\n"
+    } else {
+        render3(
+            &report,
+            &file,
+            &cal_name,
+            [&data.x_name, &data.y_name, &data.z_name],
+        )
+    };
+    write_stdout(text.as_bytes())
+}
+
+fn render3(report: &Check3Report, file: &str, cal: &str, axes: [&str; 3]) -> String {
+    let mut out = String::new();
+    let mut line = |label: &str, value: String| {
+        out.push_str(format!("{label:<12}{value}").trim_end());
+        out.push('\n');
+    };
+    let units = report
+        .units
+        .as_deref()
+        .map(|u| format!(", {u}"))
+        .unwrap_or_default();
+    line("file", file.to_string());
+    line(
+        "axes",
+        format!(
+            "x = {}, y = {}, z = {} ({} samples)",
+            axes[0], axes[1], axes[2], report.n
+        ),
+    );
+    line(
+        "calibration",
+        format!("{cal} ({}, 3-D{units})", report.model),
+    );
+    line(
+        "rms",
+        format!(
+            "{:.3} % with the stored calibration{}; mean |calibrated|/r {:.4}",
+            report.rms * 100.0,
+            report
+                .stored_rms
+                .map(|r| format!(" ({:.3} % on its own recording)", r * 100.0))
+                .unwrap_or_default(),
+            report.magnitude_ratio
+        ),
+    );
+    line(
+        "coverage",
+        format!(
+            "{:.0} % of the sphere ({} of {} regions); {}",
+            report.coverage.fraction * 100.0,
+            report.coverage.covered,
+            report.coverage.regions,
+            report.coverage.missing_text()
+        ),
+    );
+    match &report.refit {
+        Some(refit) => {
+            line(
+                "refitted",
+                format!("{:.3} % rms on {} samples", refit.rms * 100.0, refit.n),
+            );
+            line(
+                "parameters",
+                format!(
+                    "stored → refitted here, z in standard errors (moved beyond |z| {:.2}: {:.0} % false alarm over {} parameters)",
+                    refit.z_threshold,
+                    report.family_false_alarm * 100.0,
+                    refit.parameters.len()
+                ),
+            );
+            for p in &refit.parameters {
+                let stored = match p.stored_se {
+                    Some(se) => format!("{} ± {}", significant(p.stored, 6), significant(se, 2)),
+                    None => significant(p.stored, 6),
+                };
+                line(
+                    &format!("  {}", p.name),
+                    format!(
+                        "{stored} → {} ± {}   z {:+.2}{}",
+                        significant(p.refitted, 6),
+                        significant(p.refitted_se, 2),
+                        p.z,
+                        if p.moved { "  moved" } else { "" }
+                    ),
+                );
+            }
+        }
+        None => line(
+            "refitted",
+            format!(
+                "no refit: {}",
+                report.refit_refused.as_deref().unwrap_or("not determined")
+            ),
+        ),
     }
     line("verdict", report.verdict.clone());
     out
