@@ -90,13 +90,24 @@ pub fn page_config(config: &Config) -> Value {
             let model = parse_list(&s.effects.join(","))
                 .map(|e| model_name(&e))
                 .unwrap_or_else(|_| s.effects.join("+"));
-            json!({
-                "name": s.name,
-                "source": s.source,
-                "model": model,
-                "limits": s.limits,
-                "rotation": s.rotation,
-            })
+            match &s.three {
+                Some(three) => json!({
+                    "name": s.name,
+                    "source": s.source,
+                    "axes": 3,
+                    "model": three.model.name(),
+                    "sphere": three.sphere,
+                    "tilt": three.tilt.as_ref().map(|t| t.sensor.as_str()),
+                }),
+                None => json!({
+                    "name": s.name,
+                    "source": s.source,
+                    "axes": 2,
+                    "model": model,
+                    "limits": s.limits,
+                    "rotation": s.rotation,
+                }),
+            }
         })
         .collect();
     let access = &config.outputs.access;
@@ -115,6 +126,14 @@ pub fn page_config(config: &Config) -> Value {
     json!({
         "sensors": sensors,
         "max_points": PAGE_POINTS,
+        // The equal-area regions of the sphere (elevation low, high;
+        // azimuth low, high; degrees), for the map of a 3-axis sensor.
+        "sphere_regions": (0..crate::model::sphere::REGIONS)
+            .map(|k| {
+                let r = crate::model::sphere::region(k);
+                [r.elevation_deg.0, r.elevation_deg.1, r.azimuth_deg.0, r.azimuth_deg.1]
+            })
+            .collect::<Vec<_>>(),
         "recalibrate": { "allowed": allowed, "token": token, "reason": reason },
     })
 }

@@ -292,6 +292,9 @@ pub struct SphereProgress {
     pub missing_text: String,
     /// The missing directions, largest first.
     pub missing: Vec<MissingDirections>,
+    /// The indices of the regions no direction reached yet (the regions'
+    /// geometry is `sphere_regions` of `/api/config`): the live page's map.
+    pub missing_regions: Vec<usize>,
     /// The model being collected for.
     pub model: &'static str,
     /// The richest model the directions so far support, if any.
@@ -521,6 +524,9 @@ impl Sensor3 {
             covered: self.coverage.covered,
             missing_text: self.coverage.missing_text(),
             missing: self.coverage.missing.clone(),
+            missing_regions: (0..self.coverage.counts.len())
+                .filter(|&k| self.coverage.counts[k] == 0)
+                .collect(),
             model: self.config.model.name(),
             supported: self.supported.map(Ellipsoid3Model::name),
         })
