@@ -328,6 +328,74 @@ pub struct ParamShift {
     pub moved: bool,
 }
 
+impl ParamShift {
+    /// One parameter compared: z = (refitted − stored) / sqrt(stored_se² +
+    /// refitted_se²), or over refitted_se alone when `stored_has_se` is
+    /// false; moved beyond `z_threshold`. A z that cannot be computed is
+    /// not evidence of a move.
+    pub fn compare(
+        name: String,
+        (stored, stored_se): (f64, f64),
+        (refitted, refitted_se): (f64, f64),
+        stored_has_se: bool,
+        z_threshold: f64,
+    ) -> ParamShift {
+        let var = refitted_se * refitted_se
+            + if stored_has_se {
+                stored_se * stored_se
+            } else {
+                0.0
+            };
+        let delta = refitted - stored;
+        let z = if var > 0.0 {
+            delta / var.sqrt()
+        } else if delta == 0.0 {
+            0.0
+        } else {
+            f64::NAN
+        };
+        ParamShift {
+            name,
+            stored,
+            stored_se: stored_has_se.then_some(stored_se),
+            refitted,
+            refitted_se,
+            z,
+            moved: z.abs() > z_threshold,
+        }
+    }
+}
+
+/// "o_x moved by 12.3 SE (100.0 → 130.1 ± 0.079): <meaning>; ..." for
+/// every moved parameter, `meaning` saying what each move means.
+pub fn moved_text(parameters: &[ParamShift], meaning: impl Fn(&str) -> String) -> String {
+    let parts: Vec<String> = parameters
+        .iter()
+        .filter(|p| p.moved)
+        .map(|p| {
+            format!(
+                "{} moved by {:.1} SE ({} → {} ± {}): {}",
+                p.name,
+                p.z.abs(),
+                sig(p.stored),
+                sig(p.refitted),
+                crate::report::significant(p.refitted_se, 2),
+                meaning(&p.name)
+            )
+        })
+        .collect();
+    parts.join("; ")
+}
+
+/// The verdict's note when the stored file gave no standard errors.
+pub fn se_note(stored_has_se: bool) -> &'static str {
+    if stored_has_se {
+        ""
+    } else {
+        " (the stored file has no standard errors: z uses the new fit's alone)"
+    }
+}
+
 /// What `fieldcal check` found.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CheckReport {
@@ -450,25 +518,13 @@ pub fn check(
         .iter()
         .filter_map(|s| {
             let new = refitted.iter().find(|p| p.name == s.name)?;
-            let var = new.se * new.se + if stored_has_se { s.se * s.se } else { 0.0 };
-            let delta = new.value - s.value;
-            let z = if var > 0.0 {
-                delta / var.sqrt()
-            } else if delta == 0.0 {
-                0.0
-            } else {
-                f64::NAN
-            };
-            Some(ParamShift {
-                name: s.name.clone(),
-                stored: s.value,
-                stored_se: stored_has_se.then_some(s.se),
-                refitted: new.value,
-                refitted_se: new.se,
-                z,
-                // A z that cannot be computed is not evidence of a move.
-                moved: z.abs() > z_threshold,
-            })
+            Some(ParamShift::compare(
+                s.name.clone(),
+                (s.value, s.se),
+                (new.value, new.se),
+                stored_has_se,
+                z_threshold,
+            ))
         })
         .collect();
     let moved: Vec<&ParamShift> = parameters.iter().filter(|p| p.moved).collect();
@@ -477,11 +533,7 @@ pub fn check(
         .as_ref()
         .map(|h| format!(", heading {:.1}° rms against {}", h.rms_deg, h.gyro_column))
         .unwrap_or_default();
-    let se_note = if stored_has_se {
-        ""
-    } else {
-        " (the stored file has no standard errors: z uses the new fit's alone)"
-    };
+    let se_note = se_note(stored_has_se);
     let verdict = if holds {
         format!(
             "holds: rms {:.2} % (fitted here {:.2} %){heading_text}; no parameter moved beyond {z_threshold:.1} SE{se_note}",
@@ -489,23 +541,9 @@ pub fn check(
             refitted_rms * 100.0
         )
     } else {
-        let parts: Vec<String> = moved
-            .iter()
-            .map(|p| {
-                format!(
-                    "{} moved by {:.1} SE ({} → {} ± {}): {}",
-                    p.name,
-                    p.z.abs(),
-                    sig(p.stored),
-                    sig(p.refitted),
-                    crate::report::significant(p.refitted_se, 2),
-                    meaning(&p.name)
-                )
-            })
-            .collect();
         format!(
             "{}; recalibrate (rms {:.2} % with the stored calibration, {:.2} % fitted here{heading_text}){se_note}",
-            parts.join("; "),
+            moved_text(&parameters, meaning),
             rms * 100.0,
             refitted_rms * 100.0
         )

@@ -20,7 +20,9 @@
 use serde::Serialize;
 use serde_json::Value;
 
-use super::check::{CheckError, FAMILY_FALSE_ALARM, ParamShift, StoredSource, moved_threshold};
+use super::check::{
+    CheckError, FAMILY_FALSE_ALARM, ParamShift, StoredSource, moved_text, moved_threshold, se_note,
+};
 use super::ellipsoid::{self, Ellipsoid3Error, Ellipsoid3Model, Ellipsoid3Se};
 use super::sphere::{self, SphereCoverage};
 
@@ -326,10 +328,6 @@ fn meaning(name: &str) -> &'static str {
     }
 }
 
-fn sig(v: f64) -> String {
-    crate::report::significant(v, 4)
-}
-
 /// Applies `stored` to the raw readings `points` of another recording,
 /// refits its model there when the directions determine it, and compares.
 pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, CheckError> {
@@ -369,24 +367,7 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
             let parameters = list
                 .into_iter()
                 .map(|(name, s, s_se, new, new_se)| {
-                    let var = new_se * new_se + if stored_has_se { s_se * s_se } else { 0.0 };
-                    let delta = new - s;
-                    let z = if var > 0.0 {
-                        delta / var.sqrt()
-                    } else if delta == 0.0 {
-                        0.0
-                    } else {
-                        f64::NAN
-                    };
-                    ParamShift {
-                        name,
-                        stored: s,
-                        stored_se: stored_has_se.then_some(s_se),
-                        refitted: new,
-                        refitted_se: new_se,
-                        z,
-                        moved: z.abs() > z_threshold,
-                    }
+                    ParamShift::compare(name, (s, s_se), (new, new_se), stored_has_se, z_threshold)
                 })
                 .collect();
             (
@@ -402,15 +383,10 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
         Err(e @ Ellipsoid3Error::NotCovered { .. }) => (None, Some(e.to_string())),
         Err(e) => (None, Some(e.to_string())),
     };
-    let se_note = if stored_has_se {
-        ""
-    } else {
-        " (the stored file has no standard errors: z uses the new fit's alone)"
-    };
+    let se_note = se_note(stored_has_se);
     let (holds, verdict) = match &refit {
         Some(refit) => {
-            let moved: Vec<&ParamShift> = refit.parameters.iter().filter(|p| p.moved).collect();
-            if moved.is_empty() {
+            if refit.parameters.iter().all(|p| !p.moved) {
                 (
                     Some(true),
                     format!(
@@ -420,25 +396,11 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
                     ),
                 )
             } else {
-                let parts: Vec<String> = moved
-                    .iter()
-                    .map(|p| {
-                        format!(
-                            "{} moved by {:.1} SE ({} → {} ± {}): {}",
-                            p.name,
-                            p.z.abs(),
-                            sig(p.stored),
-                            sig(p.refitted),
-                            crate::report::significant(p.refitted_se, 2),
-                            meaning(&p.name)
-                        )
-                    })
-                    .collect();
                 (
                     Some(false),
                     format!(
                         "{}; recalibrate ({rms_text}, {:.2} % fitted here){se_note}",
-                        parts.join("; "),
+                        moved_text(&refit.parameters, |name| meaning(name).to_string()),
                         refit.rms * 100.0
                     ),
                 )

@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result};
 
-use fieldcal::model::check::{CheckReport, check as check_calibration, parse_stored};
+use fieldcal::model::check::{CheckReport, ParamShift, check as check_calibration, parse_stored};
 use fieldcal::model::check3::{Check3Report, check3, is_three_axes, parse_stored3};
 use fieldcal::report::significant;
 
@@ -83,30 +83,12 @@ fn render(report: &CheckReport, file: &str, cal: &str, x: &str, y: &str) -> Stri
             ),
         );
     }
-    line(
-        "parameters",
-        format!(
-            "stored → refitted here, z in standard errors (moved beyond |z| {:.2}: {:.0} % false alarm over {} parameters)",
-            report.z_threshold,
-            report.family_false_alarm * 100.0,
-            report.parameters.len()
-        ),
-    );
-    for p in &report.parameters {
-        let stored = match p.stored_se {
-            Some(se) => format!("{} ± {}", significant(p.stored, 6), significant(se, 2)),
-            None => significant(p.stored, 6),
-        };
-        line(
-            &format!("  {}", p.name),
-            format!(
-                "{stored} → {} ± {}   z {:+.2}{}",
-                significant(p.refitted, 6),
-                significant(p.refitted_se, 2),
-                p.z,
-                if p.moved { "  moved" } else { "" }
-            ),
-        );
+    for (label, value) in parameter_rows(
+        &report.parameters,
+        report.z_threshold,
+        report.family_false_alarm,
+    ) {
+        line(&label, value);
     }
     line("verdict", report.verdict.clone());
     out
@@ -215,30 +197,12 @@ fn render3(report: &Check3Report, file: &str, cal: &str, axes: [&str; 3]) -> Str
                 "refitted",
                 format!("{:.3} % rms on {} samples", refit.rms * 100.0, refit.n),
             );
-            line(
-                "parameters",
-                format!(
-                    "stored → refitted here, z in standard errors (moved beyond |z| {:.2}: {:.0} % false alarm over {} parameters)",
-                    refit.z_threshold,
-                    report.family_false_alarm * 100.0,
-                    refit.parameters.len()
-                ),
-            );
-            for p in &refit.parameters {
-                let stored = match p.stored_se {
-                    Some(se) => format!("{} ± {}", significant(p.stored, 6), significant(se, 2)),
-                    None => significant(p.stored, 6),
-                };
-                line(
-                    &format!("  {}", p.name),
-                    format!(
-                        "{stored} → {} ± {}   z {:+.2}{}",
-                        significant(p.refitted, 6),
-                        significant(p.refitted_se, 2),
-                        p.z,
-                        if p.moved { "  moved" } else { "" }
-                    ),
-                );
+            for (label, value) in parameter_rows(
+                &refit.parameters,
+                refit.z_threshold,
+                report.family_false_alarm,
+            ) {
+                line(&label, value);
             }
         }
         None => line(
@@ -251,4 +215,38 @@ fn render3(report: &Check3Report, file: &str, cal: &str, axes: [&str; 3]) -> Str
     }
     line("verdict", report.verdict.clone());
     out
+}
+
+/// The report's rows of the parameters compared: a heading row, then each
+/// parameter stored → refitted with its z.
+fn parameter_rows(
+    parameters: &[ParamShift],
+    z_threshold: f64,
+    family_false_alarm: f64,
+) -> Vec<(String, String)> {
+    let mut rows = vec![(
+        "parameters".to_string(),
+        format!(
+            "stored → refitted here, z in standard errors (moved beyond |z| {z_threshold:.2}: {:.0} % false alarm over {} parameters)",
+            family_false_alarm * 100.0,
+            parameters.len()
+        ),
+    )];
+    for p in parameters {
+        let stored = match p.stored_se {
+            Some(se) => format!("{} ± {}", significant(p.stored, 6), significant(se, 2)),
+            None => significant(p.stored, 6),
+        };
+        rows.push((
+            format!("  {}", p.name),
+            format!(
+                "{stored} → {} ± {}   z {:+.2}{}",
+                significant(p.refitted, 6),
+                significant(p.refitted_se, 2),
+                p.z,
+                if p.moved { "  moved" } else { "" }
+            ),
+        ));
+    }
+    rows
 }
