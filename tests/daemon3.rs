@@ -43,47 +43,9 @@ fn tumble_command() -> Vec<String> {
 }
 
 /// The configuration: a 3-axis magnetometer tilt-compensated by a 3-axis
-/// accelerometer of the same replayed Falcon-GX.
-fn config(dir: &Path, capture: &Path, state: &Path) -> std::path::PathBuf {
-    let path = dir.join("tumble.toml");
-    std::fs::write(
-        &path,
-        format!(
-            r#"
-[daemon]
-state_dir = "{state}"
-status_interval_s = 0.2
-
-[outputs]
-stdout = true
-
-[[source]]
-name = "imu"
-kind = "replay"
-file = "{capture}"
-speed = "max"
-
-[[sensor]]
-name = "compass"
-source = "imu"
-field = "mag"
-axes = ["x", "y", "z"]
-lsb_per_gauss = 2000.0
-tilt = "level"
-
-[[sensor]]
-name = "level"
-source = "imu"
-field = "accel"
-axes = ["x", "y", "z"]
-lsb_per_g = 4096.0
-"#,
-            state = state.display(),
-            capture = capture.display(),
-        ),
-    )
-    .unwrap();
-    path
+/// accelerometer of the same replayed Falcon-GX, as fast as it goes.
+fn config(dir: &Path, capture: &Path) -> std::path::PathBuf {
+    common::daemon::tumble_config(dir, capture, "\"max\"", "stdout = true")
 }
 
 fn run_daemon(config: &Path) -> Vec<Value> {
@@ -123,9 +85,8 @@ fn sensor_status<'a>(status: &'a Value, name: &str) -> &'a Value {
 #[test]
 fn a_tumbled_imu_calibrates_in_3d_and_publishes_a_tilt_compensated_heading() {
     let dir = tempfile::tempdir().unwrap();
-    let state = dir.path().join("state");
     let capture = repo_path("tests/data/falcon_tumble.fcap");
-    let lines = run_daemon(&config(dir.path(), &capture, &state));
+    let lines = run_daemon(&config(dir.path(), &capture));
 
     // The truth: the same simulation as CSV (heading, tilt per sample) and
     // as JSON (the true o, W, r in the fit's convention).
@@ -315,7 +276,7 @@ fn a_tumbled_imu_calibrates_in_3d_and_publishes_a_tilt_compensated_heading() {
         cap.to_str().unwrap(),
     ]);
     assert_eq!(r.code, Some(0), "{}", r.stderr);
-    let again = run_daemon(&config(dir.path(), &cap, &state));
+    let again = run_daemon(&config(dir.path(), &cap));
     let loaded = of(&again, "CALIBRATION", "compass");
     assert_eq!(loaded.len(), 1);
     assert_eq!(loaded[0]["origin"], "state");
@@ -355,7 +316,7 @@ fn a_cap_of_directions_gives_no_calibration_and_status_names_what_is_missing() {
         cap.to_str().unwrap(),
     ]);
     assert_eq!(r.code, Some(0), "{}", r.stderr);
-    let lines = run_daemon(&config(dir.path(), &cap, &dir.path().join("state")));
+    let lines = run_daemon(&config(dir.path(), &cap));
     for sensor in ["compass", "level"] {
         assert!(
             of(&lines, "CALIBRATION", sensor).is_empty(),

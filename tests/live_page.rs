@@ -359,42 +359,11 @@ fn the_live_page_maps_the_sphere_of_a_tumbling_3_axis_sensor_in_chromium() {
     // The shipped tumble (144 s) played 8x faster: the sphere fills in
     // about 5 s, then the compass is calibrated and tilt-compensated.
     let capture = common::repo_path("tests/data/falcon_tumble.fcap");
-    let config = common::daemon::write_config(
+    let config = common::daemon::tumble_config(
         dir.path(),
-        &format!(
-            r#"
-[daemon]
-state_dir = "{state}"
-status_interval_s = 0.2
-
-[outputs]
-stdout = false
-http = "127.0.0.1:0"
-
-[[source]]
-name = "imu"
-kind = "replay"
-file = "{capture}"
-speed = 8.0
-
-[[sensor]]
-name = "compass"
-source = "imu"
-field = "mag"
-axes = ["x", "y", "z"]
-lsb_per_gauss = 2000.0
-tilt = "level"
-
-[[sensor]]
-name = "level"
-source = "imu"
-field = "accel"
-axes = ["x", "y", "z"]
-lsb_per_g = 4096.0
-"#,
-            state = dir.path().join("state").display(),
-            capture = capture.display(),
-        ),
+        &capture,
+        "8.0",
+        "stdout = false\nhttp = \"127.0.0.1:0\"",
     );
     let daemon = Daemon::start(&config, &[]);
     let addr = live_address(&daemon.wait_for_log(T, "live page at http://"));

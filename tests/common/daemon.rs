@@ -68,6 +68,50 @@ axes = ["x", "y"]
     )
 }
 
+/// A configuration replaying `capture` (a Falcon-GX capture of a tumbling
+/// IMU) at `speed` into a 3-axis magnetometer `compass` (2000 counts per
+/// gauss) tilt-compensated by a 3-axis accelerometer `level` (4096 per g),
+/// with a state directory `<dir>/state`, STATUS every 0.2 s, and the given
+/// `[outputs]` lines.
+pub fn tumble_config(dir: &Path, capture: &Path, speed: &str, outputs: &str) -> PathBuf {
+    write_config(
+        dir,
+        &format!(
+            r#"
+[daemon]
+state_dir = "{state}"
+status_interval_s = 0.2
+
+[outputs]
+{outputs}
+
+[[source]]
+name = "imu"
+kind = "replay"
+file = "{capture}"
+speed = {speed}
+
+[[sensor]]
+name = "compass"
+source = "imu"
+field = "mag"
+axes = ["x", "y", "z"]
+lsb_per_gauss = 2000.0
+tilt = "level"
+
+[[sensor]]
+name = "level"
+source = "imu"
+field = "accel"
+axes = ["x", "y", "z"]
+lsb_per_g = 4096.0
+"#,
+            state = dir.join("state").display(),
+            capture = capture.display(),
+        ),
+    )
+}
+
 impl Daemon {
     pub fn start(config: &Path, env: &[(&str, &str)]) -> Daemon {
         Daemon::start_with(config, |command| {
