@@ -238,6 +238,36 @@ pub struct Refit3 {
     pub parameters: Vec<ParamShift>,
     /// |z| beyond which a parameter is called moved.
     pub z_threshold: f64,
+    /// Lag-1 autocorrelation of the refit's residuals in time order (0
+    /// for white noise; near 1 when a slow error the model does not
+    /// explain, or the hand's motion, runs through them).
+    pub residual_autocorrelation: f64,
+    /// The factor both standard errors are multiplied by before z:
+    /// sqrt((1 + ρ)/(1 − ρ)), the variance inflation of a mean of AR(1)
+    /// errors (1 for white noise). The fits' own SEs assume independent
+    /// residuals; a tumble's smooth motion makes the parameters' sensitivities
+    /// slow too, so correlated residuals count as fewer independent ones.
+    pub se_inflation: f64,
+}
+
+/// Most the SEs are inflated: ρ is clamped to 0.9998 (10 000 samples
+/// counting as one), so a constant residual cannot divide by zero.
+const MAX_RHO: f64 = 0.9998;
+
+/// Lag-1 autocorrelation of `e` (0 when it is too short or constant),
+/// clamped to [0, MAX_RHO]: a negative one would deflate the SEs, which
+/// the fits' white-noise SEs do not warrant.
+fn lag1_autocorrelation(e: &[f64]) -> f64 {
+    if e.len() < 3 {
+        return 0.0;
+    }
+    let mean = e.iter().sum::<f64>() / e.len() as f64;
+    let var: f64 = e.iter().map(|x| (x - mean) * (x - mean)).sum();
+    if !(var > 0.0) {
+        return 0.0;
+    }
+    let cov: f64 = e.windows(2).map(|w| (w[0] - mean) * (w[1] - mean)).sum();
+    (cov / var).clamp(0.0, MAX_RHO)
 }
 
 /// What `fieldcal check` found for a 3-D calibration.
@@ -364,10 +394,23 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
         Ok(fit) => {
             let list = parameters(stored.model, stored, &fit);
             let z_threshold = moved_threshold(list.len());
+            let residuals: Vec<f64> = points.iter().map(|&p| fit.magnitude_error(p)).collect();
+            let rho = lag1_autocorrelation(&residuals);
+            let f = ((1.0 + rho) / (1.0 - rho)).sqrt();
             let parameters = list
                 .into_iter()
                 .map(|(name, s, s_se, new, new_se)| {
-                    ParamShift::compare(name, (s, s_se), (new, new_se), stored_has_se, z_threshold)
+                    let mut shift = ParamShift::compare(
+                        name,
+                        (s, s_se * f),
+                        (new, new_se * f),
+                        stored_has_se,
+                        z_threshold,
+                    );
+                    // Report the SEs as the fits gave them; z carries f.
+                    shift.stored_se = shift.stored_se.map(|_| s_se);
+                    shift.refitted_se = new_se;
+                    shift
                 })
                 .collect();
             (
@@ -376,6 +419,8 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
                     n: fit.n,
                     parameters,
                     z_threshold,
+                    residual_autocorrelation: rho,
+                    se_inflation: f,
                 }),
                 None,
             )
@@ -386,6 +431,14 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
     let se_note = se_note(stored_has_se);
     let (holds, verdict) = match &refit {
         Some(refit) => {
+            let se_note = if refit.se_inflation > 1.05 {
+                format!(
+                    "{se_note}; z uses the SEs × {:.1}, as the residuals are correlated in time (lag-1 {:.2}: fewer independent samples than points)",
+                    refit.se_inflation, refit.residual_autocorrelation
+                )
+            } else {
+                se_note.to_string()
+            };
             if refit.parameters.iter().all(|p| !p.moved) {
                 (
                     Some(true),
@@ -527,6 +580,51 @@ mod tests {
         );
         // The stored calibration still applies: the rms is the noise's.
         assert!(report.rms < 3.0 * stored.rms.unwrap(), "{}", report.rms);
+    }
+
+    /// The same sensor in a field whose magnitude wanders slowly by 2 %
+    /// (a hand carrying the board past iron): residuals correlated in time.
+    fn wandering(seed: u64, phase: f64) -> Vec<[f64; 3]> {
+        let points = tumble(seed, OFFSET_X);
+        let o = [OFFSET_X, -0.2, 0.45];
+        let n = points.len() as f64;
+        points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let k = 1.0 + 0.02 * (std::f64::consts::TAU * 3.0 * i as f64 / n + phase).sin();
+                [0, 1, 2].map(|a| o[a] + (p[a] - o[a]) * k)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn residuals_correlated_in_time_widen_the_standard_errors() {
+        let stored = stored_of(&wandering(1, 0.0));
+        let report = check3(&wandering(2, 2.0), &stored).unwrap();
+        let refit = report.refit.as_ref().unwrap();
+        assert!(refit.residual_autocorrelation > 0.8, "{refit:?}");
+        assert!(refit.se_inflation > 4.0, "{refit:?}");
+        // With the fits' white-noise SEs some parameter would be called
+        // moved; the sensor did not change, and the check says it holds.
+        let white_max = refit
+            .parameters
+            .iter()
+            .map(|p| p.z.abs() * refit.se_inflation)
+            .fold(0.0, f64::max);
+        assert!(white_max > refit.z_threshold, "{white_max}");
+        assert_eq!(report.holds, Some(true), "{}", report.verdict);
+        assert!(
+            report.verdict.contains("correlated in time"),
+            "{}",
+            report.verdict
+        );
+        // White noise is left alone.
+        let white = check3(&tumble(2, OFFSET_X), &stored_of(&tumble(1, OFFSET_X))).unwrap();
+        let refit = white.refit.unwrap();
+        assert!(refit.se_inflation < 1.1, "{refit:?}");
+        assert_eq!(lag1_autocorrelation(&[1.0, 1.0, 1.0]), 0.0);
+        assert_eq!(lag1_autocorrelation(&[1.0, -1.0, 1.0, -1.0]), 0.0);
     }
 
     #[test]
