@@ -131,6 +131,7 @@ use serde::{Deserialize, Serialize};
 use toml::Spanned;
 use toml::de::{DeTable, DeValue};
 
+use super::north::{LocationKeys, North};
 use super::publish::{Access, Origin, Token};
 use crate::capture::{self, CaptureFile, StreamKind};
 use crate::io::csv::{CsvLayout, open_rows};
@@ -371,6 +372,10 @@ pub struct SensorConfig {
     /// source and collection; then `axes` holds its first two axes, and
     /// `effects`, `gyro`, `rotation` and `limits` are unused.
     pub three: Option<crate::daemon::sensor3::Sensor3Config>,
+    /// A magnetometer's true north (`declination_deg` or `[sensor.location]`,
+    /// else `[daemon]`'s for a device's magnetometer): its readings then
+    /// carry `true_heading_deg`.
+    pub north: Option<North>,
 }
 
 /// The gyro a sensor's heading is checked against (`gyro`, `gyro_chip`,
@@ -534,6 +539,9 @@ struct RawDaemon {
     state_dir: Option<PathBuf>,
     status_interval_s: Option<f64>,
     log_format: LogFormat,
+    /// The default true north of every magnetometer of a device source.
+    declination_deg: Option<f64>,
+    location: Option<LocationKeys>,
 }
 
 #[derive(Deserialize, Default)]
@@ -627,6 +635,9 @@ struct RawSensor {
     lsb_per_g: Option<f64>,
     /// A 3-axis sensor's collection and rms limit.
     sphere: Option<crate::daemon::sensor3::SphereSettings>,
+    /// A magnetometer's true north: a declination, or a place for the WMM.
+    declination_deg: Option<f64>,
+    location: Option<LocationKeys>,
 }
 
 /// One byte stream of a source: its id and, for a chip, which one.
@@ -763,7 +774,14 @@ impl Checker<'_> {
         }
     }
 
-    fn check(&self, raw: RawConfig) -> Result<Config, ConfigError> {
+    fn check(&self, mut raw: RawConfig) -> Result<Config, ConfigError> {
+        let today = crate::geomag::CivilDate::today();
+        let daemon_north = self.check_north(
+            "daemon",
+            raw.daemon.declination_deg,
+            raw.daemon.location.take(),
+            today,
+        )?;
         let daemon = self.check_daemon(raw.daemon)?;
         let outputs = self.check_outputs(raw.outputs)?;
 
@@ -815,6 +833,7 @@ impl Checker<'_> {
                 ));
             }
             sensor_index.insert(s.name.clone(), i);
+            let north = self.check_north(&key, s.declination_deg, s.location.clone(), today)?;
             let Some(&src) = source_index.get(&s.source) else {
                 let names: Vec<&str> = sources.iter().map(|s| s.name.as_str()).collect();
                 return Err(self.error(
@@ -838,7 +857,9 @@ impl Checker<'_> {
                 None => ("", ""),
             };
             if let (Some(Some(layout)), Some(source)) = (layouts.get(src), sources.get(src)) {
-                sensors.push(self.check_csv_sensor(&key, s, source, layout)?);
+                let mut sensor = self.check_csv_sensor(&key, s, source, layout)?;
+                sensor.north = north;
+                sensors.push(sensor);
                 continue;
             }
             let Some(field) = s.field else {
@@ -849,6 +870,26 @@ impl Checker<'_> {
                          \"mag\", \"accel\" or \"gyro\""
                     ),
                 ));
+            };
+            let north = match north {
+                Some(_) if field != Field::Mag => {
+                    let name = if s.location.is_some() {
+                        "location"
+                    } else {
+                        "declination_deg"
+                    };
+                    return Err(self.error(
+                        &format!("{key}.{name}"),
+                        format!(
+                            "`{name}` is a magnetometer's: this sensor measures {}, whose \
+                             heading owes nothing to the Earth's magnetic north; leave it out",
+                            field.name()
+                        ),
+                    ));
+                }
+                Some(n) => Some(n),
+                None if field == Field::Mag => daemon_north.clone(),
+                None => None,
             };
             if s.gyro_units.is_some() {
                 return Err(self.error(
@@ -894,11 +935,12 @@ impl Checker<'_> {
                 });
             }
             if parsed.len() == 3 {
-                let (sensor, tilt) =
+                let (mut sensor, tilt) =
                     self.check_sensor3(&key, s, field, stream.id, &parsed, src_name)?;
                 if let Some(tilt) = tilt {
                     pending_tilts.push((i, tilt));
                 }
+                sensor.north = north;
                 sensors.push(sensor);
                 continue;
             }
@@ -961,6 +1003,7 @@ impl Checker<'_> {
                 gyro,
                 columns: None,
                 three: None,
+                north,
             });
         }
         self.link_tilts(&mut sensors, &pending_tilts)?;
@@ -971,6 +1014,41 @@ impl Checker<'_> {
             sources,
             sensors,
             path: self.path.to_path_buf(),
+        })
+    }
+
+    /// `declination_deg` or `location` of a sensor or of `[daemon]`
+    /// (`key` is `sensor[N]` or `daemon`): the true north it gives, if any.
+    fn check_north(
+        &self,
+        key: &str,
+        declination: Option<f64>,
+        location: Option<LocationKeys>,
+        today: Option<crate::geomag::CivilDate>,
+    ) -> Result<Option<North>, ConfigError> {
+        let found = match (declination, &location) {
+            (None, None) => return Ok(None),
+            (Some(_), Some(_)) => {
+                return Err(self.error(
+                    &format!("{key}.location"),
+                    format!(
+                        "both declination_deg and [{key}.location] are given: give one (the \
+                         declination, or the place whose declination the World Magnetic Model \
+                         gives)",
+                        key = key.split('[').next().unwrap_or(key)
+                    ),
+                ));
+            }
+            (Some(d), None) => North::declination(d).map_err(|e| (e, "declination_deg")),
+            (None, Some(place)) => North::location(place, today).map_err(|e| (e, "location")),
+        };
+        found.map(Some).map_err(|(e, what)| {
+            let at = if e.key.is_empty() {
+                format!("{key}.{what}")
+            } else {
+                format!("{key}.{what}.{}", e.key)
+            };
+            self.error(&at, e.problem)
         })
     }
 
@@ -1569,6 +1647,7 @@ impl Checker<'_> {
             gyro,
             columns: Some(columns),
             three: None,
+            north: None,
         })
     }
 
@@ -1886,6 +1965,7 @@ impl Checker<'_> {
                 ),
                 columns: None,
                 three: Some(three),
+                north: None,
             },
             s.tilt,
         ))
