@@ -20,6 +20,18 @@
 //! status_interval_s = 1.0   # 0.05 to 86400 s; default 1
 //! # Log lines on stderr: "text" (default) or "json".
 //! log_format = "text"
+//! # True north for every magnetometer (field = "mag") of a device source:
+//! # the declination, degrees east of true north, -180 to 180...
+//! # declination_deg = 3.8
+//! # ...or (not both) the place, whose declination NOAA's World Magnetic
+//! # Model (WMM2020/WMM2025, 2020-01-01 to 2029-12-31) gives. A sensor's own
+//! # declination_deg or [sensor.location] replaces it; csv sensors take
+//! # only their own.
+//! [daemon.location]
+//! latitude = 50.1109        # WGS 84 degrees north, -90 to 90
+//! longitude = 8.6821        # WGS 84 degrees east, -180 to 180
+//! height_m = 100.0          # above the WGS 84 ellipsoid, -1000 to 850000; default 0
+//! date = "2026-06-01"       # default: the host's date at start and at each reload
 //!
 //! [outputs]
 //! # Newline-delimited JSON on standard output. Default true.
@@ -111,8 +123,24 @@
 //!                           # (then `gyro` is required: mountings differ)
 //! gyro_lsb_per_deg_s = 131.0  # counts per deg/s; default the chip's
 //!                           # (MPU-6050 at +-250 deg/s: 131; Falcon-GX: 10)
+//! # A magnetometer's true north (also for a csv sensor): READINGs carry
+//! # true_heading_deg, CALIBRATIONs declination_deg and its source.
+//! declination_deg = -1.5    # or [sensor.location], as [daemon.location]
 //! [sensor.rotation]         # the rotation buffer's settings
 //! [sensor.limits]           # the acceptance limits of a fit
+//!
+//! [[sensor]]                # a 3-axis sensor: all three axes
+//! name = "compass3"
+//! source = "imu"
+//! field = "mag"
+//! axes = ["x", "y", "z"]    # in the order of the sensor's x, y, z
+//! model = "offset+scale+cross-axis"  # or "offset", "offset+scale"; default "full"
+//! lsb_per_gauss = 1090.0    # a magnetometer's counts per gauss (lsb_per_g: an accelerometer's)
+//! tilt = "level"            # the 3-axis accelerometer sensor of the same source
+//! [sensor.location]         # the WMM's declination, and its field beside the fitted one
+//! latitude = 50.1109
+//! longitude = 8.6821
+//! [sensor.sphere]           # min_samples, max_samples, max_rms
 //! ```
 //!
 //! Relative paths in the file (`file`, `state_dir`, `unix`) are relative to

@@ -426,7 +426,7 @@ mod tests {
     #[test]
     fn the_earth_comparison_says_what_disagrees_and_why() {
         let north = North::location(&place(-80.0, -120.0, "2025-01-01"), None).unwrap();
-        let m = north.model.clone().unwrap();
+        let m = north.model.unwrap();
         let lsb = 2000.0;
         let r_right = m.total_intensity_nt / 1e5 * lsb;
         let incl = |median| {

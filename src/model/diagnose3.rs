@@ -999,7 +999,7 @@ mod tests {
         for (i, p) in data.points.iter_mut().enumerate() {
             let pose = i * 6 / n;
             let axis = pose / 2;
-            let sign = if pose % 2 == 0 { 1.0 } else { -1.0 };
+            let sign = if pose.is_multiple_of(2) { 1.0 } else { -1.0 };
             let mut v = [0.0; 3];
             v[axis] = sign * 0.5;
             let gains = [1.1, 0.92, 1.0];

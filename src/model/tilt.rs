@@ -1062,10 +1062,10 @@ mod tests {
                 let (m, a) = board.read(h, p, r, 60.0);
                 // The chip reads such that truth.apply(chip) = body.
                 let mut chip = [0.0; 3];
-                for i in 0..3 {
+                for (i, c) in chip.iter_mut().enumerate() {
                     let probe = [0, 1, 2].map(|k| if k == i { 1.0 } else { 0.0 });
                     let body_of_axis = truth.apply(probe);
-                    chip[i] = (0..3).map(|k| body_of_axis[k] * m[k]).sum();
+                    *c = (0..3).map(|k| body_of_axis[k] * m[k]).sum();
                 }
                 assert!((0..3).all(|k| (truth.apply(chip)[k] - m[k]).abs() < 1e-12));
                 mag.push(chip);
