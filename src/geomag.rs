@@ -257,6 +257,48 @@ pub struct FieldComparison {
     pub verdict: String,
 }
 
+/// The largest difference between a measured inclination (median and
+/// robust spread over the samples) and the model's that the sensors and
+/// the model allow, degrees: the two chips' alignment
+/// ([`ALIGNMENT_ALLOWANCE_DEG`]) plus [`DISAGREEMENT_SIGMAS`] of the
+/// model's 1σ and of the median's standard error, 1.25 × spread /
+/// √[`COMPARISON_BATCHES`] (the median's efficiency, over about 20
+/// independent stretches of samples that are not independent).
+pub fn inclination_allowed_deg(inclination: &RobustSpread, model: &ModelField) -> f64 {
+    let se_median = 1.2533 * inclination.spread / (COMPARISON_BATCHES as f64).sqrt();
+    ALIGNMENT_ALLOWANCE_DEG
+        + DISAGREEMENT_SIGMAS
+            * (model.inclination_uncertainty_deg.powi(2) + se_median.powi(2)).sqrt()
+}
+
+/// The largest difference between a measured field magnitude and the
+/// model's total intensity F that the sensor and the model allow,
+/// nanotesla: the magnetometer's gain tolerance ([`GAIN_TOLERANCE`] of F)
+/// plus [`DISAGREEMENT_SIGMAS`] of the model's 1σ of F. NOAA's error model
+/// (WMM2025 Technical Report §3.4: 138 nT for F) is the model's total
+/// error against observatory and satellite data, the crustal field it
+/// leaves out included, so ordinary local anomalies are inside it; iron
+/// near the sensor is not.
+pub fn intensity_allowed_nt(model: &ModelField) -> f64 {
+    GAIN_TOLERANCE * model.total_intensity_nt
+        + DISAGREEMENT_SIGMAS * model.total_intensity_uncertainty_nt
+}
+
+/// Whether a measured inclination that disagrees with the model's has its
+/// size and the opposite sign: the magnetometer's axes mirrored against
+/// the accelerometer's.
+pub fn is_mirrored(measured_deg: f64, model: &ModelField, allowed_deg: f64) -> bool {
+    measured_deg * model.inclination_deg < 0.0
+        && (measured_deg + model.inclination_deg).abs() <= allowed_deg
+}
+
+/// The name of the World Magnetic Model the bundled crate evaluates on
+/// `date`: each coefficient set serves the five years from its epoch
+/// (WMM2020 for 2020-2024, WMM2025 for 2025-2029).
+pub fn wmm_name(date: CivilDate) -> String {
+    format!("WMM{}", date.year - date.year.rem_euclid(5))
+}
+
 /// Compares the measured inclination (over the samples) and magnitude
 /// (the calibration's r, or the readings' median magnitude, in
 /// nanotesla) with the model's. The inclination's median is known to
@@ -268,14 +310,10 @@ pub fn compare_field(
     intensity_nt: Option<f64>,
     model: &ModelField,
 ) -> FieldComparison {
-    let se_median = 1.2533 * inclination.spread / (COMPARISON_BATCHES as f64).sqrt();
-    let inclination_allowed = ALIGNMENT_ALLOWANCE_DEG
-        + DISAGREEMENT_SIGMAS
-            * (model.inclination_uncertainty_deg.powi(2) + se_median.powi(2)).sqrt();
+    let inclination_allowed = inclination_allowed_deg(inclination, model);
     let inclination_agrees =
         (inclination.median - model.inclination_deg).abs() <= inclination_allowed;
-    let intensity_allowed = GAIN_TOLERANCE * model.total_intensity_nt
-        + DISAGREEMENT_SIGMAS * model.total_intensity_uncertainty_nt;
+    let intensity_allowed = intensity_allowed_nt(model);
     let intensity_agrees = intensity_nt
         .filter(|v| v.is_finite())
         .map(|v| (v - model.total_intensity_nt).abs() <= intensity_allowed);
@@ -298,9 +336,7 @@ pub fn compare_field(
                     intensity_allowed
                 ));
             }
-            let mirrored = !i
-                && inclination.median * model.inclination_deg < 0.0
-                && (inclination.median + model.inclination_deg).abs() <= inclination_allowed;
+            let mirrored = !i && is_mirrored(inclination.median, model, inclination_allowed);
             let cause = if mirrored {
                 "the measured dip has the model's size and the opposite sign: the magnetometer's axes are mirrored against the accelerometer's (negate all three in --mag-axes, or one axis of a chip whose sign is flipped)"
             } else {

@@ -20,6 +20,18 @@
 //! status_interval_s = 1.0   # 0.05 to 86400 s; default 1
 //! # Log lines on stderr: "text" (default) or "json".
 //! log_format = "text"
+//! # True north for every magnetometer (field = "mag") of a device source:
+//! # the declination, degrees east of true north, -180 to 180...
+//! # declination_deg = 3.8
+//! # ...or (not both) the place, whose declination NOAA's World Magnetic
+//! # Model (WMM2020/WMM2025, 2020-01-01 to 2029-12-31) gives. A sensor's own
+//! # declination_deg or [sensor.location] replaces it; csv sensors take
+//! # only their own.
+//! [daemon.location]
+//! latitude = 50.1109        # WGS 84 degrees north, -90 to 90
+//! longitude = 8.6821        # WGS 84 degrees east, -180 to 180
+//! height_m = 100.0          # above the WGS 84 ellipsoid, -1000 to 850000; default 0
+//! date = "2026-06-01"       # default: the host's date at start and at each reload
 //!
 //! [outputs]
 //! # Newline-delimited JSON on standard output. Default true.
@@ -111,8 +123,24 @@
 //!                           # (then `gyro` is required: mountings differ)
 //! gyro_lsb_per_deg_s = 131.0  # counts per deg/s; default the chip's
 //!                           # (MPU-6050 at +-250 deg/s: 131; Falcon-GX: 10)
+//! # A magnetometer's true north (also for a csv sensor): READINGs carry
+//! # true_heading_deg, CALIBRATIONs declination_deg and its source.
+//! declination_deg = -1.5    # or [sensor.location], as [daemon.location]
 //! [sensor.rotation]         # the rotation buffer's settings
 //! [sensor.limits]           # the acceptance limits of a fit
+//!
+//! [[sensor]]                # a 3-axis sensor: all three axes
+//! name = "compass3"
+//! source = "imu"
+//! field = "mag"
+//! axes = ["x", "y", "z"]    # in the order of the sensor's x, y, z
+//! model = "offset+scale+cross-axis"  # or "offset", "offset+scale"; default "full"
+//! lsb_per_gauss = 1090.0    # a magnetometer's counts per gauss (lsb_per_g: an accelerometer's)
+//! tilt = "level"            # the 3-axis accelerometer sensor of the same source
+//! [sensor.location]         # the WMM's declination, and its field beside the fitted one
+//! latitude = 50.1109
+//! longitude = 8.6821
+//! [sensor.sphere]           # min_samples, max_samples, max_rms
 //! ```
 //!
 //! Relative paths in the file (`file`, `state_dir`, `unix`) are relative to
@@ -131,6 +159,7 @@ use serde::{Deserialize, Serialize};
 use toml::Spanned;
 use toml::de::{DeTable, DeValue};
 
+use super::north::{LocationKeys, North};
 use super::publish::{Access, Origin, Token};
 use crate::capture::{self, CaptureFile, StreamKind};
 use crate::io::csv::{CsvLayout, open_rows};
@@ -371,6 +400,10 @@ pub struct SensorConfig {
     /// source and collection; then `axes` holds its first two axes, and
     /// `effects`, `gyro`, `rotation` and `limits` are unused.
     pub three: Option<crate::daemon::sensor3::Sensor3Config>,
+    /// A magnetometer's true north (`declination_deg` or `[sensor.location]`,
+    /// else `[daemon]`'s for a device's magnetometer): its readings then
+    /// carry `true_heading_deg`.
+    pub north: Option<North>,
 }
 
 /// The gyro a sensor's heading is checked against (`gyro`, `gyro_chip`,
@@ -534,6 +567,9 @@ struct RawDaemon {
     state_dir: Option<PathBuf>,
     status_interval_s: Option<f64>,
     log_format: LogFormat,
+    /// The default true north of every magnetometer of a device source.
+    declination_deg: Option<f64>,
+    location: Option<LocationKeys>,
 }
 
 #[derive(Deserialize, Default)]
@@ -627,6 +663,9 @@ struct RawSensor {
     lsb_per_g: Option<f64>,
     /// A 3-axis sensor's collection and rms limit.
     sphere: Option<crate::daemon::sensor3::SphereSettings>,
+    /// A magnetometer's true north: a declination, or a place for the WMM.
+    declination_deg: Option<f64>,
+    location: Option<LocationKeys>,
 }
 
 /// One byte stream of a source: its id and, for a chip, which one.
@@ -763,7 +802,14 @@ impl Checker<'_> {
         }
     }
 
-    fn check(&self, raw: RawConfig) -> Result<Config, ConfigError> {
+    fn check(&self, mut raw: RawConfig) -> Result<Config, ConfigError> {
+        let today = crate::geomag::CivilDate::today();
+        let daemon_north = self.check_north(
+            "daemon",
+            raw.daemon.declination_deg,
+            raw.daemon.location.take(),
+            today,
+        )?;
         let daemon = self.check_daemon(raw.daemon)?;
         let outputs = self.check_outputs(raw.outputs)?;
 
@@ -815,6 +861,7 @@ impl Checker<'_> {
                 ));
             }
             sensor_index.insert(s.name.clone(), i);
+            let north = self.check_north(&key, s.declination_deg, s.location.clone(), today)?;
             let Some(&src) = source_index.get(&s.source) else {
                 let names: Vec<&str> = sources.iter().map(|s| s.name.as_str()).collect();
                 return Err(self.error(
@@ -838,7 +885,9 @@ impl Checker<'_> {
                 None => ("", ""),
             };
             if let (Some(Some(layout)), Some(source)) = (layouts.get(src), sources.get(src)) {
-                sensors.push(self.check_csv_sensor(&key, s, source, layout)?);
+                let mut sensor = self.check_csv_sensor(&key, s, source, layout)?;
+                sensor.north = north;
+                sensors.push(sensor);
                 continue;
             }
             let Some(field) = s.field else {
@@ -849,6 +898,26 @@ impl Checker<'_> {
                          \"mag\", \"accel\" or \"gyro\""
                     ),
                 ));
+            };
+            let north = match north {
+                Some(_) if field != Field::Mag => {
+                    let name = if s.location.is_some() {
+                        "location"
+                    } else {
+                        "declination_deg"
+                    };
+                    return Err(self.error(
+                        &format!("{key}.{name}"),
+                        format!(
+                            "`{name}` is a magnetometer's: this sensor measures {}, whose \
+                             heading owes nothing to the Earth's magnetic north; leave it out",
+                            field.name()
+                        ),
+                    ));
+                }
+                Some(n) => Some(n),
+                None if field == Field::Mag => daemon_north.clone(),
+                None => None,
             };
             if s.gyro_units.is_some() {
                 return Err(self.error(
@@ -894,11 +963,12 @@ impl Checker<'_> {
                 });
             }
             if parsed.len() == 3 {
-                let (sensor, tilt) =
+                let (mut sensor, tilt) =
                     self.check_sensor3(&key, s, field, stream.id, &parsed, src_name)?;
                 if let Some(tilt) = tilt {
                     pending_tilts.push((i, tilt));
                 }
+                sensor.north = north;
                 sensors.push(sensor);
                 continue;
             }
@@ -961,6 +1031,7 @@ impl Checker<'_> {
                 gyro,
                 columns: None,
                 three: None,
+                north,
             });
         }
         self.link_tilts(&mut sensors, &pending_tilts)?;
@@ -971,6 +1042,41 @@ impl Checker<'_> {
             sources,
             sensors,
             path: self.path.to_path_buf(),
+        })
+    }
+
+    /// `declination_deg` or `location` of a sensor or of `[daemon]`
+    /// (`key` is `sensor[N]` or `daemon`): the true north it gives, if any.
+    fn check_north(
+        &self,
+        key: &str,
+        declination: Option<f64>,
+        location: Option<LocationKeys>,
+        today: Option<crate::geomag::CivilDate>,
+    ) -> Result<Option<North>, ConfigError> {
+        let found = match (declination, &location) {
+            (None, None) => return Ok(None),
+            (Some(_), Some(_)) => {
+                return Err(self.error(
+                    &format!("{key}.location"),
+                    format!(
+                        "both declination_deg and [{key}.location] are given: give one (the \
+                         declination, or the place whose declination the World Magnetic Model \
+                         gives)",
+                        key = key.split('[').next().unwrap_or(key)
+                    ),
+                ));
+            }
+            (Some(d), None) => North::declination(d).map_err(|e| (e, "declination_deg")),
+            (None, Some(place)) => North::location(place, today).map_err(|e| (e, "location")),
+        };
+        found.map(Some).map_err(|(e, what)| {
+            let at = if e.key.is_empty() {
+                format!("{key}.{what}")
+            } else {
+                format!("{key}.{what}.{}", e.key)
+            };
+            self.error(&at, e.problem)
         })
     }
 
@@ -1569,6 +1675,7 @@ impl Checker<'_> {
             gyro,
             columns: Some(columns),
             three: None,
+            north: None,
         })
     }
 
@@ -1886,6 +1993,7 @@ impl Checker<'_> {
                 ),
                 columns: None,
                 three: Some(three),
+                north: None,
             },
             s.tilt,
         ))

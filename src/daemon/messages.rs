@@ -37,6 +37,10 @@ pub struct ReadingMessage<'a> {
     /// Heading of the corrected reading, degrees counter-clockwise from +x in [0, 360).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub heading_deg: Option<f64>,
+    /// The heading from true north (`heading_deg` plus the sensor's
+    /// declination, in [0, 360)), when the sensor has a declination.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub true_heading_deg: Option<f64>,
     /// The id of the calibration that corrected it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub calibration: Option<u64>,
@@ -137,6 +141,15 @@ pub struct CalibrationMessage<'a> {
     /// was fitted but no check was possible.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub heading_check: Option<String>,
+    /// The sensor's declination (degrees east of true north), its source
+    /// (`config`, or `WMM2025 at LAT,LON,DATE`) and, from the model, its
+    /// 1σ: when the sensor has one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub declination_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub declination_source: Option<&'a str>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub declination_uncertainty_deg: Option<f64>,
 }
 
 /// A rotation's heading error against the integrated gyro: the gyro's
@@ -193,6 +206,19 @@ impl<'a> CalibrationMessage<'a> {
             close_second: None,
             heading_vs_gyro: None,
             heading_check: None,
+            declination_deg: None,
+            declination_source: None,
+            declination_uncertainty_deg: None,
+        }
+    }
+
+    /// With the declination of `north`, when there is one.
+    pub fn with_north(self, north: Option<&'a super::north::North>) -> Self {
+        CalibrationMessage {
+            declination_deg: north.map(|n| n.declination_deg),
+            declination_source: north.map(|n| n.source.as_str()),
+            declination_uncertainty_deg: north.and_then(|n| n.uncertainty_deg()),
+            ..self
         }
     }
 }

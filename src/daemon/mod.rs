@@ -12,6 +12,7 @@ pub mod config;
 pub mod http;
 pub mod http_conn;
 pub mod messages;
+pub mod north;
 pub mod notify;
 pub mod progress;
 pub mod publish;

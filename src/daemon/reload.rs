@@ -131,6 +131,10 @@ pub enum SensorPlan {
         name: String,
         keys: Vec<&'static str>,
     },
+    /// Only its true north changed (`declination_deg`, the location, or
+    /// the host's date a location without `date` takes): applied live, the
+    /// calibration and the rotation being collected kept.
+    North(String),
     /// New in the file, on a running source: started.
     Added(String),
     /// Gone from the file: no longer read or published.
@@ -169,6 +173,14 @@ pub fn plan(old: &Config, new: &Config) -> ReloadPlan {
         let before = old.sensors.iter().find(|o| o.name == s.name);
         sensors.push(match before {
             Some(o) if o == s => SensorPlan::Unchanged(s.name.clone()),
+            Some(o)
+                if SensorConfig {
+                    north: s.north.clone(),
+                    ..o.clone()
+                } == *s =>
+            {
+                SensorPlan::North(s.name.clone())
+            }
             _ if !live(&s.source) => SensorPlan::Held {
                 name: s.name.clone(),
                 source: s.source.clone(),
@@ -224,6 +236,9 @@ fn changed_keys(old: &SensorConfig, new: &SensorConfig) -> Vec<&'static str> {
     }
     if old.three != new.three {
         keys.push("axes, model, tilt, units or sphere");
+    }
+    if old.north != new.north {
+        keys.push("declination or location");
     }
     if keys.is_empty() && old != new {
         keys.push("settings");
@@ -614,6 +629,31 @@ fn apply_plan(
                 running.sensors.push(config.clone());
                 counts[0] += 1;
             }
+            SensorPlan::North(name) => {
+                let (Some(((index, mut sensor), was)), Some(config)) = (
+                    old.remove(name),
+                    new.sensors.iter().find(|s| &s.name == name),
+                ) else {
+                    continue;
+                };
+                let describe = |n: &Option<super::north::North>| match n {
+                    Some(n) => format!("declination {:+.2}° ({})", n.declination_deg, n.source),
+                    None => "no declination".to_string(),
+                };
+                sensor.set_north(config.north.clone());
+                info(
+                    &mut lines,
+                    format!(
+                        "sensor '{name}': {} -> {}: applied; its calibration and rotation are kept",
+                        describe(&was.north),
+                        describe(&config.north)
+                    ),
+                    Some(name),
+                );
+                sensors.push((index, sensor));
+                running.sensors.push(config.clone());
+                counts[0] += 1;
+            }
             SensorPlan::Added(name) => {
                 let Some((index, sensor)) = built.remove(name.as_str()) else {
                     continue;
@@ -924,6 +964,53 @@ axes = ["x", "y"]
         assert_eq!(
             p.restart,
             ["[[source]] bench added: restart fieldcal to start it"]
+        );
+    }
+
+    #[test]
+    fn a_changed_declination_applies_live_keeping_the_rotation_and_calibration() {
+        let (mut config, mut sensors) = running(BASE);
+        turn(&mut sensors[0].1, 0, 201);
+        assert_eq!(sensors[0].1.calibration().map(|c| c.id), Some(1));
+        sensors[0].1.recalibrate();
+        turn(&mut sensors[0].1, 201, 100);
+        let new = BASE.replacen(
+            "field = \"mag\"\naxes = [\"x\", \"y\"]",
+            "field = \"mag\"\naxes = [\"x\", \"y\"]\ndeclination_deg = 10.0",
+            1,
+        );
+        assert_eq!(
+            plan(&parse(BASE), &parse(&new)).sensors[0],
+            SensorPlan::North("compass".into())
+        );
+        let out = apply(Ok(parse(&new)), &mut config, &mut sensors, &SOURCES, None);
+        assert!(
+            out.lines[0].contains(
+                "sensor 'compass': no declination -> declination +10.00° (config): applied; its \
+                 calibration and rotation are kept"
+            ),
+            "{:?}",
+            out.lines
+        );
+        let status = sensors[0].1.status();
+        assert_eq!(status.rotation.unwrap().samples, 100);
+        assert_eq!(status.calibration, Some(1));
+        let lines = turn(&mut sensors[0].1, 301, 1);
+        let v: serde_json::Value = serde_json::from_str(&lines[0]).unwrap();
+        let (h, t) = (
+            v["heading_deg"].as_f64().unwrap(),
+            v["true_heading_deg"].as_f64().unwrap(),
+        );
+        assert!(((h + 10.0) % 360.0 - t).abs() < 1e-9, "{v}");
+        // A declination change beside another change: a new rotation.
+        let new2 = new.replace(
+            "declination_deg = 10.0",
+            "declination_deg = 5.0\nmodel = [\"paper\", \"cross-axis\"]",
+        );
+        let p = plan(&parse(&new), &parse(&new2));
+        assert!(
+            matches!(&p.sensors[0], SensorPlan::Changed { keys, .. } if keys.contains(&"declination or location")),
+            "{p:?}"
         );
     }
 

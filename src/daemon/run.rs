@@ -134,6 +134,9 @@ impl Sensors {
                         None
                     }
                 });
+                if let Some(north) = &s.north {
+                    tracing::info!(sensor = %s.name, "{}", north.describe());
+                }
                 Some((source, Sensor::new(s.clone(), stored)))
             })
             .collect();

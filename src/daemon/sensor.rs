@@ -255,10 +255,9 @@ impl Sensor {
     pub fn loaded_line(&self) -> Option<String> {
         match &self.three {
             Some(three) => three.loaded_line(),
-            None => self
-                .current
-                .as_ref()
-                .map(|c| to_line(&CalibrationMessage::loaded(c))),
+            None => self.current.as_ref().map(|c| {
+                to_line(&CalibrationMessage::loaded(c).with_north(self.config.north.as_ref()))
+            }),
         }
     }
 
@@ -357,6 +356,16 @@ impl Sensor {
 
     pub fn name(&self) -> &str {
         &self.config.name
+    }
+
+    /// Takes a new true north (a reload that changed only
+    /// `declination_deg` or the location): the calibration and the
+    /// rotation being collected are kept.
+    pub fn set_north(&mut self, north: Option<super::north::North>) {
+        if let Some(three) = &mut self.three {
+            three.set_north(north.clone());
+        }
+        self.config.north = north;
     }
 
     pub fn config(&self) -> &SensorConfig {
@@ -470,6 +479,9 @@ impl Sensor {
             raw: [x, y],
             corrected: corrected.map(|c| c.1),
             heading_deg: corrected.map(|c| c.2),
+            true_heading_deg: corrected
+                .zip(self.config.north.as_ref())
+                .map(|(c, n)| n.true_heading(c.2)),
             calibration: corrected.map(|c| c.0),
             calibrated: corrected.is_some(),
             columns: columns.filter(|c| !c.is_empty()),
@@ -543,7 +555,7 @@ impl Sensor {
             close_second,
             heading_vs_gyro,
             heading_check,
-            ..CalibrationMessage::loaded(&calibration)
+            ..CalibrationMessage::loaded(&calibration).with_north(self.config.north.as_ref())
         };
         emit(Lane::Control, to_line(&message));
         match (&message.heading_vs_gyro, &message.heading_check) {
@@ -717,7 +729,11 @@ impl Sensor {
             close_second: None,
             heading_vs_gyro: None,
             heading_check: None,
+            declination_deg: None,
+            declination_source: None,
+            declination_uncertainty_deg: None,
         }
+        .with_north(self.config.north.as_ref())
     }
 
     fn note_rejection(&mut self, reason: String) {

@@ -17,13 +17,14 @@ use serde::{Deserialize, Serialize};
 
 use super::config::{Axis, Field, SensorConfig};
 use super::messages::{SensorState, to_line};
+use super::north::{Earth, North, earth};
 use super::publish::Lane;
 use super::sensor::Emit;
 use super::{Calibration, Ellipsoid3Params};
 use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
 use crate::model::paper::PaperCalibration;
 use crate::model::sphere::{self, MissingDirections, SphereCoverage};
-use crate::model::tilt::tilt_heading;
+use crate::model::tilt::{RobustSpread, inclination_deg, robust_spread, tilt_heading};
 use crate::sample::Reading;
 
 /// ArduPilot's compass calibrator collects `COMPASS_CAL_NUM_SAMPLES` = 300
@@ -332,6 +333,9 @@ struct Reading3Message<'a> {
     /// Tilt-compensated, clockwise from magnetic north to the sensor's +x.
     #[serde(skip_serializing_if = "Option::is_none")]
     heading_deg: Option<f64>,
+    /// `heading_deg` from true north, when the sensor has a declination.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    true_heading_deg: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     tilt: Option<TiltFields<'a>>,
 }
@@ -368,6 +372,16 @@ struct Calibration3Message<'a> {
     fit_ms: f64,
     time: f64,
     origin: &'static str,
+    /// The declination, its source and 1σ (as a 2-axis CALIBRATION's).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    declination_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    declination_source: Option<&'a str>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    declination_uncertainty_deg: Option<f64>,
+    /// The fitted field beside the World Magnetic Model's (a location).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    earth: Option<Earth>,
 }
 
 /// One 3-axis sensor: its buffer, its calibration and its counts.
@@ -397,6 +411,11 @@ pub struct Sensor3 {
     tilt_calibration: Option<Calibration>,
     /// The tilt source's last raw reading.
     last_accel: Option<[f64; 3]>,
+    /// The tilt source's raw reading beside each of `points` (a sensor
+    /// with `tilt`; else empty), for the measured inclination.
+    accel_at: Vec<Option<[f64; 3]>>,
+    /// True north (`declination_deg` or a location).
+    north: Option<North>,
 }
 
 fn pick(triad: [i16; 3], axes: [Axis; 3]) -> [f64; 3] {
@@ -446,6 +465,8 @@ impl Sensor3 {
             last_rejection: None,
             tilt_calibration: None,
             last_accel: None,
+            accel_at: Vec::new(),
+            north: config.north.clone(),
             config: three,
         }
     }
@@ -488,8 +509,14 @@ impl Sensor3 {
         self.recalibrate();
     }
 
+    /// Takes a new true north; keeps the calibration and the buffer.
+    pub fn set_north(&mut self, north: Option<North>) {
+        self.north = north;
+    }
+
     pub fn recalibrate(&mut self) {
         self.points.clear();
+        self.accel_at.clear();
         self.estimate = None;
         self.since_check = 0;
         self.wait = 0;
@@ -584,6 +611,9 @@ impl Sensor3 {
             Some((h, t)) => (Some(h), Some(t)),
             None => (None, None),
         };
+        let true_heading_deg = heading_deg
+            .zip(self.north.as_ref())
+            .map(|(h, n)| n.true_heading(h));
         to_line(&Reading3Message {
             class: "READING",
             sensor: &self.name,
@@ -595,6 +625,7 @@ impl Sensor3 {
             calibration: corrected.map(|c| c.0),
             calibrated: corrected.is_some(),
             heading_deg,
+            true_heading_deg,
             tilt,
         })
     }
@@ -610,6 +641,9 @@ impl Sensor3 {
             self.thin();
         }
         self.points.push(raw);
+        if self.config.tilt.is_some() {
+            self.accel_at.push(self.last_accel);
+        }
         self.wait = self.wait.saturating_sub(1);
         self.since_check += 1;
         if self.since_check < CHECK_EVERY {
@@ -691,18 +725,32 @@ impl Sensor3 {
             return;
         };
         let mut drop = (most / 2).max(1);
+        let keep: Vec<bool> = regions
+            .iter()
+            .map(|r| {
+                let keep = !(drop > 0 && *r == Some(crowded));
+                if !keep {
+                    drop -= 1;
+                }
+                keep
+            })
+            .collect();
         let mut i = 0;
         self.points.retain(|_| {
-            let keep = !(drop > 0 && regions.get(i).copied().flatten() == Some(crowded));
-            if !keep {
-                drop -= 1;
-            }
             i += 1;
-            keep
+            keep.get(i - 1).copied().unwrap_or(true)
+        });
+        let mut i = 0;
+        self.accel_at.retain(|_| {
+            i += 1;
+            keep.get(i - 1).copied().unwrap_or(true)
         });
         if self.points.len() >= self.config.sphere.max_samples {
             // No direction (a degenerate estimate): drop the oldest.
             self.points.remove(0);
+            if !self.accel_at.is_empty() {
+                self.accel_at.remove(0);
+            }
         }
     }
 
@@ -754,9 +802,13 @@ impl Sensor3 {
                 coverage: fit.coverage.fraction,
             }),
         };
+        let earth = self.earth_of(&fit);
+        if let Some(e) = &earth {
+            tracing::info!(sensor = %self.name, "against the World Magnetic Model: {}", e.verdict);
+        }
         emit(
             Lane::Control,
-            to_line(&self.message(&calibration, Some(&fit), fit_ms, "sphere")),
+            to_line(&self.message(&calibration, Some(&fit), fit_ms, "sphere", earth)),
         );
         tracing::info!(
             sensor = %self.name,
@@ -771,6 +823,7 @@ impl Sensor3 {
         self.fits_accepted += 1;
         self.state = SensorState::Calibrated;
         self.points = Vec::new();
+        self.accel_at = Vec::new();
         self.current = Some(calibration.clone());
         Some(calibration)
     }
@@ -781,6 +834,7 @@ impl Sensor3 {
         fit: Option<&Ellipsoid3Fit>,
         fit_ms: f64,
         origin: &'static str,
+        earth: Option<Earth>,
     ) -> Calibration3Message<'a> {
         let p = c.ellipsoid.as_ref();
         Calibration3Message {
@@ -806,14 +860,84 @@ impl Sensor3 {
             fit_ms,
             time: c.time,
             origin,
+            declination_deg: self.north.as_ref().map(|n| n.declination_deg),
+            declination_source: self.north.as_ref().map(|n| n.source.as_str()),
+            declination_uncertainty_deg: self.north.as_ref().and_then(North::uncertainty_deg),
+            earth,
         }
+    }
+
+    /// The fitted field beside the World Magnetic Model's, when the sensor
+    /// is a magnetometer with a location.
+    fn earth_of(&self, fit: &Ellipsoid3Fit) -> Option<Earth> {
+        let north = self.north.as_ref().filter(|_| self.field == Field::Mag)?;
+        let params = Ellipsoid3Params {
+            offset: fit.offset,
+            matrix: fit.matrix,
+            r: fit.r,
+            coverage: fit.coverage.fraction,
+        };
+        earth(
+            north,
+            fit.r,
+            self.config.lsb_per_unit,
+            self.measured_inclination(&params),
+        )
+    }
+
+    /// The inclination over the samples held, each corrected by `params`
+    /// with the tilt accelerometer's reading beside it (corrected by its
+    /// calibration, when it has one): median and robust spread, as
+    /// `fieldcal heading` measures it.
+    fn measured_inclination(&self, params: &Ellipsoid3Params) -> Result<RobustSpread, String> {
+        if self.config.tilt.is_none() {
+            return Err(
+                "the sensor has no tilt accelerometer (tilt = the 3-axis accelerometer \
+                        sensor of its source)"
+                    .into(),
+            );
+        }
+        let accel_cal = self
+            .tilt_calibration
+            .as_ref()
+            .and_then(|c| c.ellipsoid.as_ref());
+        let values: Vec<f64> = self
+            .points
+            .iter()
+            .zip(&self.accel_at)
+            .filter_map(|(raw, accel)| {
+                let accel = (*accel)?;
+                let accel = match accel_cal {
+                    Some(p) => apply3(p, accel),
+                    None => accel,
+                };
+                inclination_deg(apply3(params, *raw), accel)
+            })
+            .collect();
+        robust_spread(&values)
+            .ok_or_else(|| "no fitted sample had a tilt accelerometer reading beside it".into())
     }
 
     /// The `CALIBRATION` line of a calibration loaded from the state
     /// directory.
     pub fn loaded_line(&self) -> Option<String> {
         let c = self.current.as_ref()?;
-        Some(to_line(&self.message(c, None, 0.0, "state")))
+        let earth = match (&self.north, &c.ellipsoid) {
+            (Some(north), Some(p)) if self.field == Field::Mag => earth(
+                north,
+                p.r,
+                self.config.lsb_per_unit,
+                Err(if self.config.tilt.is_some() {
+                    "it is measured over a fit's samples, and a calibration loaded from the \
+                     state directory has none"
+                        .into()
+                } else {
+                    "the sensor has no tilt accelerometer".into()
+                }),
+            ),
+            _ => None,
+        };
+        Some(to_line(&self.message(c, None, 0.0, "state", earth)))
     }
 
     fn reject(
@@ -848,6 +972,10 @@ impl Sensor3 {
             fit_ms,
             time,
             origin: "sphere",
+            declination_deg: self.north.as_ref().map(|n| n.declination_deg),
+            declination_source: self.north.as_ref().map(|n| n.source.as_str()),
+            declination_uncertainty_deg: self.north.as_ref().and_then(North::uncertainty_deg),
+            earth: fit.and_then(|f| self.earth_of(f)),
         };
         emit(Lane::Control, to_line(&message));
         tracing::warn!(sensor = %self.name, "3-D calibration rejected: {reason}");
@@ -855,6 +983,7 @@ impl Sensor3 {
         self.last_rejection = Some(reason);
         // Collect anew; the previous calibration (if any) keeps correcting.
         self.points.clear();
+        self.accel_at.clear();
         self.estimate = None;
         self.wait = 0;
         self.coverage = sphere::coverage(std::iter::empty());
