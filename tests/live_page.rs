@@ -365,6 +365,13 @@ fn the_live_page_maps_the_sphere_of_a_tumbling_3_axis_sensor_in_chromium() {
         "8.0",
         "stdout = false\nhttp = \"127.0.0.1:0\"",
     );
+    // Headings from true north, 10° east of magnetic.
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(
+        &config,
+        text.replace("tilt = \"level\"", "tilt = \"level\"\ndeclination_deg = 10.0"),
+    )
+    .unwrap();
     let daemon = Daemon::start(&config, &[]);
     let addr = live_address(&daemon.wait_for_log(T, "live page at http://"));
     driver.session_call(
@@ -435,7 +442,10 @@ fn the_live_page_maps_the_sphere_of_a_tumbling_3_axis_sensor_in_chromium() {
     let text = page["calibrationText"].as_str().unwrap();
     assert!(text.contains("3-D calibration #1 accepted"), "{text}");
     assert!(text.contains("offset+scale+cross-axis"), "{text}");
-    assert!(text.contains("tilt-compensated"), "{text}");
+    assert!(
+        text.contains("true heading") && text.contains("declination 10.00°"),
+        "{text}"
+    );
     assert!(page["points"].as_f64().unwrap() >= 300.0, "{page}");
     // The config the page reads: the 3-axis sensor and the regions' map.
     let api = request(&addr, "GET", "/api/config", None, T);
