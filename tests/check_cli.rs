@@ -672,3 +672,55 @@ fn the_real_tumble_calibration_holds_its_magnitude_on_the_hand_held_turns() {
         "{report}"
     );
 }
+
+/// The wobbling real z turn: its residuals are correlated in time (the
+/// wobble, not noise), so the check widens the SEs and says how large a
+/// move it could see instead of calling a hard iron 0.02 G away either
+/// moved or plainly holding. A simulated run (white noise) is left alone.
+#[test]
+fn correlated_residuals_widen_the_check_and_say_what_it_can_see() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = format!("{REAL}/rotate-360ccw-around-z-pointing-up");
+    let csv = shared_path(&format!("{run}/hmc5883l_mag.csv"));
+    let axes = ["--x", "mag_x", "--y", "mag_z"];
+    let (cal, _) = fit_json(dir.path(), &csv, &axes);
+    let text = fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    let mut shifted = format!("{}\n", lines.next().unwrap());
+    for line in lines {
+        let mut cols: Vec<String> = line.split(',').map(str::to_string).collect();
+        cols[1] = (cols[1].parse::<f64>().unwrap() + 0.02).to_string();
+        shifted.push_str(&cols.join(","));
+        shifted.push('\n');
+    }
+    let moved_path = dir.path().join("shifted.csv");
+    fs::write(&moved_path, shifted).unwrap();
+    let report = check_json(&moved_path, &cal, &axes);
+    let inflation = report["se_inflation"].as_f64().unwrap();
+    assert!(inflation > 5.0, "{report}");
+    assert!(report["residual_autocorrelation"].as_f64().unwrap() > 0.9);
+    let verdict = report["verdict"].as_str().unwrap();
+    assert!(
+        verdict.starts_with("holds within what this recording can tell")
+            && verdict.contains("would not show"),
+        "{verdict}"
+    );
+    // With the fits' white-noise SEs the shift would have been called.
+    let b = report["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["name"] == "b")
+        .unwrap();
+    assert!(b["z"].as_f64().unwrap().abs() * inflation > 3.0, "{b}");
+    // White noise: the SEs are the fits' own.
+    let run1 = simulate(dir.path(), "run1.csv", 1, 150.0);
+    let run2 = simulate(dir.path(), "run2.csv", 2, 150.0);
+    let (cal, _) = fit_json(dir.path(), &run1, &[]);
+    let report = check_json(&run2, &cal, &[]);
+    assert!(report["se_inflation"].as_f64().unwrap() < 1.3, "{report}");
+    assert!(
+        report["verdict"].as_str().unwrap().starts_with("holds: "),
+        "{report}"
+    );
+}

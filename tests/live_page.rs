@@ -369,7 +369,10 @@ fn the_live_page_maps_the_sphere_of_a_tumbling_3_axis_sensor_in_chromium() {
     let text = std::fs::read_to_string(&config).unwrap();
     std::fs::write(
         &config,
-        text.replace("tilt = \"level\"", "tilt = \"level\"\ndeclination_deg = 10.0"),
+        text.replace(
+            "tilt = \"level\"",
+            "tilt = \"level\"\ndeclination_deg = 10.0",
+        ),
     )
     .unwrap();
     let daemon = Daemon::start(&config, &[]);

@@ -396,6 +396,83 @@ pub fn se_note(stored_has_se: bool) -> &'static str {
     }
 }
 
+/// Most the SEs are inflated: ρ is clamped to 0.9998 (10 000 samples
+/// counting as one), so a constant residual cannot divide by zero.
+const MAX_RHO: f64 = 0.9998;
+
+/// Lag-1 autocorrelation of `e` (0 when it is too short or constant),
+/// clamped to [0, MAX_RHO]: a negative one would deflate the SEs, which
+/// the fits' white-noise SEs do not warrant.
+pub fn lag1_autocorrelation(e: &[f64]) -> f64 {
+    if e.len() < 3 {
+        return 0.0;
+    }
+    let mean = e.iter().sum::<f64>() / e.len() as f64;
+    let var: f64 = e.iter().map(|x| (x - mean) * (x - mean)).sum();
+    if !(var > 0.0) {
+        return 0.0;
+    }
+    let cov: f64 = e.windows(2).map(|w| (w[0] - mean) * (w[1] - mean)).sum();
+    (cov / var).clamp(0.0, MAX_RHO)
+}
+
+/// sqrt((1 + ρ)/(1 − ρ)): the factor the fits' white-noise standard errors
+/// are multiplied by before z when the residuals have lag-1
+/// autocorrelation ρ (the variance inflation of a mean of AR(1) errors; a
+/// smooth turn or tumble makes the parameters' sensitivities slow too, so
+/// correlated residuals count as fewer independent ones). 1 for white
+/// noise.
+pub fn se_inflation(rho: f64) -> f64 {
+    ((1.0 + rho) / (1.0 - rho)).sqrt()
+}
+
+/// The verdict's first words when nothing moved: plain "holds", or, when
+/// correlated residuals left the recording able to see only large moves,
+/// "holds within what this recording can tell".
+pub fn holds_word(inflation: f64) -> &'static str {
+    if inflation > 3.0 {
+        "holds within what this recording can tell"
+    } else {
+        "holds"
+    }
+}
+
+/// The verdict's note when the SEs were widened for correlated residuals:
+/// the factor, and when it is large (the recording tells little), the
+/// smallest move of each parameter the check could see (`z_threshold` ×
+/// the widened combined SE), so that "holds" is not read as more than it is.
+pub fn inflation_note(
+    inflation: f64,
+    rho: f64,
+    parameters: &[ParamShift],
+    z_threshold: f64,
+) -> String {
+    if inflation <= 1.05 {
+        return String::new();
+    }
+    let mut note = format!(
+        "; z uses the SEs × {inflation:.1}, as the residuals are correlated in time (lag-1 {rho:.2}: fewer independent samples than points)"
+    );
+    if inflation > 3.0 {
+        let sizes: Vec<String> = parameters
+            .iter()
+            .map(|p| {
+                let se = (p.refitted_se.powi(2) + p.stored_se.unwrap_or(0.0).powi(2)).sqrt();
+                format!(
+                    "{} {}",
+                    p.name,
+                    crate::report::significant(z_threshold * inflation * se, 2)
+                )
+            })
+            .collect();
+        note.push_str(&format!(
+            ": a smaller move than {} would not show",
+            sizes.join(", ")
+        ));
+    }
+    note
+}
+
 /// What `fieldcal check` found.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CheckReport {
@@ -418,6 +495,10 @@ pub struct CheckReport {
     pub family_false_alarm: f64,
     /// Whether z used the stored file's standard errors too.
     pub stored_has_se: bool,
+    /// Lag-1 autocorrelation of the refit's residuals in time order.
+    pub residual_autocorrelation: f64,
+    /// The factor both SEs were multiplied by before z ([`se_inflation`]).
+    pub se_inflation: f64,
     /// True when no parameter moved.
     pub holds: bool,
     pub verdict: String,
@@ -454,7 +535,7 @@ pub fn check(
     let paper =
         stored.source == StoredSource::FitPaper || stored.effects.iter().all(Effect::is_paper);
     // The refit, with its standard errors and the samples it set aside.
-    let (refitted, refitted_rms, refitted_headings, flagged) = if paper {
+    let (refitted, refitted_rms, refitted_headings, flagged, refit_residuals) = if paper {
         let options = FitOptions {
             min_coverage_deg,
             ..FitOptions::default()
@@ -475,14 +556,30 @@ pub fn check(
             .zip(&data.y)
             .map(|(&x, &y)| c.heading(x, y))
             .collect::<Vec<_>>();
-        (params, report.rms, headings, Vec::new())
+        let residuals: Vec<f64> = data
+            .x
+            .iter()
+            .zip(&data.y)
+            .map(|(&x, &y)| c.magnitude_error(x, y))
+            .collect();
+        (params, report.rms, headings, Vec::new(), residuals)
     } else {
         let fit = fit_model(data, &stored.effects).map_err(CheckError::Refit)?;
         coverage(fit.headings.iter().copied())
             .require(min_coverage_deg)
             .map_err(CheckError::Refit)?;
-        (fit.params, fit.rms, fit.headings, fit.flagged)
+        // The samples the refit set aside are not its residuals' series.
+        let residuals: Vec<f64> = fit
+            .residuals
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| fit.flagged.binary_search(i).is_err())
+            .map(|(_, &e)| e)
+            .collect();
+        (fit.params, fit.rms, fit.headings, fit.flagged, residuals)
     };
+    let residual_autocorrelation = lag1_autocorrelation(&refit_residuals);
+    let inflation = se_inflation(residual_autocorrelation);
     // The stored calibration on the new recording.
     let applied = apply_model(data, &stored.effects, &stored.params, stored.cubic_scale)
         .map_err(CheckError::Apply)?;
@@ -518,13 +615,17 @@ pub fn check(
         .iter()
         .filter_map(|s| {
             let new = refitted.iter().find(|p| p.name == s.name)?;
-            Some(ParamShift::compare(
+            let mut shift = ParamShift::compare(
                 s.name.clone(),
-                (s.value, s.se),
-                (new.value, new.se),
+                (s.value, s.se * inflation),
+                (new.value, new.se * inflation),
                 stored_has_se,
                 z_threshold,
-            ))
+            );
+            // Report the SEs as the fits gave them; z carries the inflation.
+            shift.stored_se = shift.stored_se.map(|_| s.se);
+            shift.refitted_se = new.se;
+            Some(shift)
         })
         .collect();
     let moved: Vec<&ParamShift> = parameters.iter().filter(|p| p.moved).collect();
@@ -533,10 +634,20 @@ pub fn check(
         .as_ref()
         .map(|h| format!(", heading {:.1}° rms against {}", h.rms_deg, h.gyro_column))
         .unwrap_or_default();
-    let se_note = se_note(stored_has_se);
+    let se_note = format!(
+        "{}{}",
+        se_note(stored_has_se),
+        inflation_note(
+            inflation,
+            residual_autocorrelation,
+            &parameters,
+            z_threshold
+        )
+    );
     let verdict = if holds {
         format!(
-            "holds: rms {:.2} % (fitted here {:.2} %){heading_text}; no parameter moved beyond {z_threshold:.1} SE{se_note}",
+            "{}: rms {:.2} % (fitted here {:.2} %){heading_text}; no parameter moved beyond {z_threshold:.1} SE{se_note}",
+            holds_word(inflation),
             rms * 100.0,
             refitted_rms * 100.0
         )
@@ -560,6 +671,8 @@ pub fn check(
         z_threshold,
         family_false_alarm: FAMILY_FALSE_ALARM,
         stored_has_se,
+        residual_autocorrelation,
+        se_inflation: inflation,
         holds,
         verdict,
     })

@@ -21,7 +21,8 @@ use serde::Serialize;
 use serde_json::Value;
 
 use super::check::{
-    CheckError, FAMILY_FALSE_ALARM, ParamShift, StoredSource, moved_text, moved_threshold, se_note,
+    CheckError, FAMILY_FALSE_ALARM, ParamShift, StoredSource, lag1_autocorrelation, moved_text,
+    moved_threshold, se_inflation, se_note,
 };
 use super::ellipsoid::{self, Ellipsoid3Error, Ellipsoid3Model, Ellipsoid3Se};
 use super::sphere::{self, SphereCoverage};
@@ -250,26 +251,6 @@ pub struct Refit3 {
     pub se_inflation: f64,
 }
 
-/// Most the SEs are inflated: ρ is clamped to 0.9998 (10 000 samples
-/// counting as one), so a constant residual cannot divide by zero.
-const MAX_RHO: f64 = 0.9998;
-
-/// Lag-1 autocorrelation of `e` (0 when it is too short or constant),
-/// clamped to [0, MAX_RHO]: a negative one would deflate the SEs, which
-/// the fits' white-noise SEs do not warrant.
-fn lag1_autocorrelation(e: &[f64]) -> f64 {
-    if e.len() < 3 {
-        return 0.0;
-    }
-    let mean = e.iter().sum::<f64>() / e.len() as f64;
-    let var: f64 = e.iter().map(|x| (x - mean) * (x - mean)).sum();
-    if !(var > 0.0) {
-        return 0.0;
-    }
-    let cov: f64 = e.windows(2).map(|w| (w[0] - mean) * (w[1] - mean)).sum();
-    (cov / var).clamp(0.0, MAX_RHO)
-}
-
 /// What `fieldcal check` found for a 3-D calibration.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Check3Report {
@@ -396,7 +377,7 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
             let z_threshold = moved_threshold(list.len());
             let residuals: Vec<f64> = points.iter().map(|&p| fit.magnitude_error(p)).collect();
             let rho = lag1_autocorrelation(&residuals);
-            let f = ((1.0 + rho) / (1.0 - rho)).sqrt();
+            let f = se_inflation(rho);
             let parameters = list
                 .into_iter()
                 .map(|(name, s, s_se, new, new_se)| {
@@ -431,19 +412,21 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
     let se_note = se_note(stored_has_se);
     let (holds, verdict) = match &refit {
         Some(refit) => {
-            let se_note = if refit.se_inflation > 1.05 {
-                format!(
-                    "{se_note}; z uses the SEs × {:.1}, as the residuals are correlated in time (lag-1 {:.2}: fewer independent samples than points)",
-                    refit.se_inflation, refit.residual_autocorrelation
+            let se_note = format!(
+                "{se_note}{}",
+                super::check::inflation_note(
+                    refit.se_inflation,
+                    refit.residual_autocorrelation,
+                    &refit.parameters,
+                    refit.z_threshold
                 )
-            } else {
-                se_note.to_string()
-            };
+            );
             if refit.parameters.iter().all(|p| !p.moved) {
                 (
                     Some(true),
                     format!(
-                        "holds: {rms_text}, {:.2} % fitted here; no parameter moved beyond {:.1} SE{se_note}",
+                        "{}: {rms_text}, {:.2} % fitted here; no parameter moved beyond {:.1} SE{se_note}",
+                        super::check::holds_word(refit.se_inflation),
                         refit.rms * 100.0,
                         refit.z_threshold
                     ),
