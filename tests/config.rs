@@ -991,7 +991,7 @@ fn a_csv_source_names_its_columns() {
     assert_eq!(
         config.sources[0].kind,
         SourceKind::Csv {
-            file: dir.path().join("robot.csv"),
+            files: vec![dir.path().join("robot.csv")],
             speed: Speed::Max,
             time_column: None,
             period_s: None,
