@@ -1186,6 +1186,6 @@ fn a_csv_file_is_checked_before_anything_starts() {
         &text,
         "source[0].port",
         None,
-        &["file, speed, time_column, period_s"],
+        &["file, files, speed, time_column, period_s"],
     );
 }

@@ -1018,7 +1018,7 @@ mod tests {
 
     const SOURCES: [RunningSource<'static>; 1] = [RunningSource {
         name: "imu",
-        layout: None,
+        csv: None,
     }];
 
     fn config(text: &str) -> crate::daemon::config::Config {

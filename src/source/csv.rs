@@ -137,7 +137,7 @@ pub fn play_csv_files(
     let pacer = Pacer::new(speed);
     let mut summary = CsvPlayback::default();
     for (k, lane) in lanes.iter_mut().enumerate() {
-        advance(lane, k, &files[k], counters)?;
+        advance(lane, &files[k], counters)?;
     }
     let mut first: Option<f64> = None;
     loop {
@@ -164,7 +164,7 @@ pub fn play_csv_files(
         summary.span_s = row.time - t0;
         SourceCounters::add(&counters.frames_good, 1);
         emit(CsvRow { file: k, ..row });
-        advance(&mut lanes[k], k, &files[k], counters)?;
+        advance(&mut lanes[k], &files[k], counters)?;
     }
     for (lane, path) in lanes.iter().zip(files) {
         summary.bytes_read += lane.counted_bytes;
@@ -182,13 +182,7 @@ pub fn play_csv_files(
 
 /// Reads `lane`'s next good row into `lane.next` (none at the end of its
 /// file), counting the bytes and the rows skipped on the way.
-fn advance(
-    lane: &mut Lane,
-    k: usize,
-    path: &Path,
-    counters: &SourceCounters,
-) -> Result<(), CsvError> {
-    let _ = k;
+fn advance(lane: &mut Lane, path: &Path, counters: &SourceCounters) -> Result<(), CsvError> {
     // Bounded by the file: every turn reads a line or ends.
     while !lane.done {
         let next = lane.rows.next_row().map_err(|source| CsvError::Io {
