@@ -94,6 +94,22 @@
 //! gyro = "gyro_y"           # a column, for the heading check; or "none"
 //! gyro_units = "deg/s"      # or "rad/s"; default deg/s
 //!
+//! [[source]]
+//! name = "board"
+//! kind = "csv"              # several files recorded on one clock, each with
+//! files = ["mag.csv", "imu.csv"]  # its own header and time column; rows
+//!                           # played merged in time order; 1 to 16 files;
+//!                           # not with `file`, nor `period_s`
+//!
+//! [[sensor]]                # a 3-axis sensor of a csv source: three columns
+//! name = "board-compass"    # of one file (its x, y, z) and the field
+//! source = "board"
+//! axes = ["mag_x", "mag_y", "mag_z"]
+//! field = "mag"             # required with three columns: mag | accel
+//! lsb_per_gauss = 1090      # and tilt, model, [sensor.sphere] as for a device
+//! tilt = "board-level"      # a 3-axis accel sensor of the same source; its
+//!                           # latest row older than 0.1 s leaves the heading out
+//!
 //! [[sensor]]
 //! name = "compass"          # letters, digits, '-', '_'; names the state file
 //! source = "bridge"
