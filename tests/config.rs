@@ -991,7 +991,7 @@ fn a_csv_source_names_its_columns() {
     assert_eq!(
         config.sources[0].kind,
         SourceKind::Csv {
-            file: dir.path().join("robot.csv"),
+            files: vec![dir.path().join("robot.csv")],
             speed: Speed::Max,
             time_column: None,
             period_s: None,
@@ -1186,6 +1186,6 @@ fn a_csv_file_is_checked_before_anything_starts() {
         &text,
         "source[0].port",
         None,
-        &["file, speed, time_column, period_s"],
+        &["file, files, speed, time_column, period_s"],
     );
 }

@@ -106,6 +106,22 @@
 //! gyro = "gyro_y"           # a column, for the heading check; or "none"
 //! gyro_units = "deg/s"      # or "rad/s"; default deg/s
 //!
+//! [[source]]
+//! name = "board"
+//! kind = "csv"              # several files recorded on one clock, each with
+//! files = ["mag.csv", "imu.csv"]  # its own header and time column; rows
+//!                           # played merged in time order; 1 to 16 files;
+//!                           # not with `file`, nor `period_s`
+//!
+//! [[sensor]]                # a 3-axis sensor of a csv source: three columns
+//! name = "board-compass"    # of one file (its x, y, z) and the field
+//! source = "board"
+//! axes = ["mag_x", "mag_y", "mag_z"]
+//! field = "mag"             # required with three columns: mag | accel
+//! lsb_per_gauss = 1090      # and tilt, model, [sensor.sphere] as for a device
+//! tilt = "board-level"      # a 3-axis accel sensor of the same source; its
+//!                           # latest row older than 0.1 s leaves the heading out
+//!
 //! [[sensor]]
 //! name = "compass"          # letters, digits, '-', '_'; names the state file
 //! source = "bridge"
@@ -284,9 +300,12 @@ pub enum SourceKind {
     Replay { file: PathBuf, speed: Speed },
     /// A CSV recording played row by row (one stream, 0): the rows' times
     /// come from `time_column` (else the first of t, t_s, time, time_s) or,
-    /// when the file has none, row k is at k * `period_s`.
+    /// when the file has none, row k is at k * `period_s`. Several files
+    /// recorded on one clock (`files`, each with its own header and time
+    /// column) are played merged in time order; a source of one file
+    /// (`file`) has one here.
     Csv {
-        file: PathBuf,
+        files: Vec<PathBuf>,
         speed: Speed,
         time_column: Option<String>,
         period_s: Option<f64>,
@@ -614,7 +633,7 @@ impl RawKind {
             RawKind::Falcon => &["port", "baud"],
             RawKind::UsbIss => &["port", "chips", "poll_ms", "i2c_khz"],
             RawKind::Replay => &["file", "speed"],
-            RawKind::Csv => &["file", "speed", "time_column", "period_s"],
+            RawKind::Csv => &["file", "files", "speed", "time_column", "period_s"],
         }
     }
 }
@@ -630,6 +649,7 @@ struct RawSource {
     poll_ms: Option<u64>,
     i2c_khz: Option<u32>,
     file: Option<PathBuf>,
+    files: Option<Vec<PathBuf>>,
     speed: Option<toml::Value>,
     time_column: Option<String>,
     period_s: Option<f64>,
@@ -816,7 +836,7 @@ impl Checker<'_> {
         let mut sources = Vec::with_capacity(raw.source.len());
         let mut streams: Vec<Vec<StreamDesc>> = Vec::with_capacity(raw.source.len());
         // The header of each csv source's file, resolved.
-        let mut layouts: Vec<Option<CsvLayout>> = Vec::with_capacity(raw.source.len());
+        let mut layouts: Vec<Option<Vec<CsvLayout>>> = Vec::with_capacity(raw.source.len());
         let mut source_index: HashMap<String, usize> = HashMap::new();
         for (i, s) in raw.source.into_iter().enumerate() {
             let key = format!("source[{i}]");
@@ -885,8 +905,29 @@ impl Checker<'_> {
                 None => ("", ""),
             };
             if let (Some(Some(layout)), Some(source)) = (layouts.get(src), sources.get(src)) {
-                let mut sensor = self.check_csv_sensor(&key, s, source, layout)?;
+                let location_given = s.location.is_some();
+                let (mut sensor, tilt) = self.check_csv_sensor(&key, s, source, layout)?;
+                // A 3-axis csv sensor names its field: true north is a
+                // magnetometer's (a 2-axis one's columns carry no field).
+                if north.is_some() && sensor.three.is_some() && sensor.field != Field::Mag {
+                    let name = if location_given {
+                        "location"
+                    } else {
+                        "declination_deg"
+                    };
+                    return Err(self.error(
+                        &format!("{key}.{name}"),
+                        format!(
+                            "`{name}` is a magnetometer's: this sensor measures {}, whose \
+                             heading owes nothing to the Earth's magnetic north; leave it out",
+                            sensor.field.name()
+                        ),
+                    ));
+                }
                 sensor.north = north;
+                if let Some(tilt) = tilt {
+                    pending_tilts.push((i, tilt));
+                }
                 sensors.push(sensor);
                 continue;
             }
@@ -1339,7 +1380,7 @@ impl Checker<'_> {
         &self,
         key: &str,
         s: RawSource,
-    ) -> Result<(SourceConfig, Vec<StreamDesc>, Option<CsvLayout>), ConfigError> {
+    ) -> Result<(SourceConfig, Vec<StreamDesc>, Option<Vec<CsvLayout>>), ConfigError> {
         let kind = s.kind;
         let present = [
             ("port", s.port.is_some()),
@@ -1348,6 +1389,7 @@ impl Checker<'_> {
             ("poll_ms", s.poll_ms.is_some()),
             ("i2c_khz", s.i2c_khz.is_some()),
             ("file", s.file.is_some()),
+            ("files", s.files.is_some()),
             ("speed", s.speed.is_some()),
             ("time_column", s.time_column.is_some()),
             ("period_s", s.period_s.is_some()),
@@ -1452,27 +1494,43 @@ impl Checker<'_> {
                 (SourceKind::Replay { file, speed }, streams)
             }
             RawKind::Csv => {
-                let Some(file) = s.file.filter(|f| !f.as_os_str().is_empty()) else {
-                    return Err(self.error(
-                        &format!("{key}.file"),
-                        "a csv source needs `file`, a CSV recording with a header line \
-                         (relative to the configuration's directory)",
-                    ));
-                };
-                let file = self.resolve(&file);
+                let (files, listed) = self.csv_files(key, s.file, s.files)?;
                 let speed = self.check_speed(&format!("{key}.speed"), s.speed.as_ref())?;
                 let period_s = match s.period_s {
                     None => None,
+                    Some(_) if files.len() > 1 => {
+                        return Err(self.error(
+                            &format!("{key}.period_s"),
+                            "`period_s` is for a single file without a time column: the files of \
+                             one clock are merged by their time columns, so each needs one \
+                             (name it with time_column)",
+                        ));
+                    }
                     Some(p) => {
                         self.seconds(&format!("{key}.period_s"), p, 86_400.0)?;
                         Some(p)
                     }
                 };
                 let time_column = s.time_column.map(|t| t.trim().to_string());
-                layout = Some(self.csv_layout(key, &file, time_column.as_deref(), period_s)?);
+                let mut found = Vec::with_capacity(files.len());
+                for (k, file) in files.iter().enumerate() {
+                    let on = if listed {
+                        format!("{key}.files[{k}]")
+                    } else {
+                        format!("{key}.file")
+                    };
+                    found.push(self.csv_layout(
+                        key,
+                        &on,
+                        file,
+                        time_column.as_deref(),
+                        period_s,
+                    )?);
+                }
+                layout = Some(found);
                 (
                     SourceKind::Csv {
-                        file,
+                        files,
                         speed,
                         time_column,
                         period_s,
@@ -1492,11 +1550,85 @@ impl Checker<'_> {
         ))
     }
 
+    /// A csv source's `file` or `files` (one of the two; at most
+    /// [`crate::source::csv::MAX_FILES`], each once), resolved against the
+    /// configuration's directory.
+    fn csv_files(
+        &self,
+        key: &str,
+        file: Option<PathBuf>,
+        files: Option<Vec<PathBuf>>,
+    ) -> Result<(Vec<PathBuf>, bool), ConfigError> {
+        use crate::source::csv::MAX_FILES;
+        let list = match (file, files) {
+            (Some(_), Some(_)) => {
+                return Err(self.error(
+                    &format!("{key}.files"),
+                    "both `file` and `files` given: give `file` for one recording, or `files` \
+                     for several recorded on one clock, not both",
+                ));
+            }
+            (None, None) => {
+                return Err(self.error(
+                    &format!("{key}.file"),
+                    "a csv source needs `file`, a CSV recording with a header line \
+                     (relative to the configuration's directory), or `files`, several recorded \
+                     on one clock",
+                ));
+            }
+            (Some(file), None) => {
+                if file.as_os_str().is_empty() {
+                    return Err(self.error(
+                        &format!("{key}.file"),
+                        "a csv source needs `file`, a CSV recording with a header line \
+                         (relative to the configuration's directory)",
+                    ));
+                }
+                return Ok((vec![self.resolve(&file)], false));
+            }
+            (None, Some(files)) => files,
+        };
+        if list.is_empty() || list.len() > MAX_FILES {
+            return Err(self.error(
+                &format!("{key}.files"),
+                format!(
+                    "{} files: give 1 to {MAX_FILES} CSV recordings made on one clock",
+                    list.len()
+                ),
+            ));
+        }
+        let mut resolved: Vec<PathBuf> = Vec::with_capacity(list.len());
+        for (k, f) in list.iter().enumerate() {
+            if f.as_os_str().is_empty() {
+                return Err(self.error(
+                    &format!("{key}.files[{k}]"),
+                    "an empty path: give a CSV recording (relative to the configuration's \
+                     directory)",
+                ));
+            }
+            let path = self.resolve(f);
+            if let Some(j) = resolved.iter().position(|p| *p == path) {
+                return Err(self.error(
+                    &format!("{key}.files[{k}]"),
+                    format!(
+                        "{} is already files[{j}]: give each file once",
+                        path.display()
+                    ),
+                ));
+            }
+            resolved.push(path);
+        }
+        Ok((resolved, true))
+    }
+
     /// The header of a csv source's file, resolved: the error, if any, is
-    /// put on the key it is about (`file`, `time_column` or `period_s`).
+    /// put on the key it is about (`on_file`, the file's own key
+    /// `source[N].file` or `source[N].files[K]`, or `time_column` or
+    /// `period_s`).
     fn csv_layout(
         &self,
         key: &str,
+        on_file: &str,
         file: &Path,
         time_column: Option<&str>,
         period_s: Option<f64>,
@@ -1509,7 +1641,7 @@ impl Checker<'_> {
                     CsvError::TimeAndPeriod { .. } => "period_s",
                     CsvError::NoTime { .. } if time_column.is_none() => "period_s",
                     CsvError::MissingColumn { .. } => "time_column",
-                    _ => "file",
+                    _ => "",
                 };
                 let hint = match &e {
                     CsvError::Io { .. } => {
@@ -1517,25 +1649,131 @@ impl Checker<'_> {
                     }
                     _ => String::new(),
                 };
-                Err(self.error(&format!("{key}.{on}"), format!("{e}{hint}")))
+                let on = if on.is_empty() {
+                    on_file.to_string()
+                } else {
+                    format!("{key}.{on}")
+                };
+                Err(self.error(&on, format!("{e}{hint}")))
             }
         }
     }
 
-    /// A sensor of a csv source: two columns of its file, and optionally a
-    /// gyro column; the keys of a device's sensor are refused by name.
+    /// A sensor of a csv source: two columns of its file (or of one of its
+    /// files), and optionally a gyro column; or three columns and a `field`,
+    /// a 3-axis sensor. The keys of a device's sensor are refused by name.
+    /// Returns the sensor and the name its `tilt` gives.
     fn check_csv_sensor(
         &self,
         key: &str,
         s: RawSensor,
         source: &SourceConfig,
-        layout: &CsvLayout,
-    ) -> Result<SensorConfig, ConfigError> {
-        let file = match &source.kind {
-            SourceKind::Csv { file, .. } => file.display().to_string(),
-            _ => String::new(),
+        layouts: &[CsvLayout],
+    ) -> Result<(SensorConfig, Option<String>), ConfigError> {
+        let paths: &[PathBuf] = match &source.kind {
+            SourceKind::Csv { files, .. } => files,
+            _ => &[],
         };
+        let file = paths
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(" or ");
         let src = &source.name;
+        // Where a column is: (file index, name); errors name the key `k`.
+        let column = |k: String, name: &str, what: &str| -> Result<(usize, String), ConfigError> {
+            let name = name.trim();
+            let mut hit: Option<usize> = None;
+            for (f, layout) in layouts.iter().enumerate() {
+                let Some(i) = layout.index(name) else {
+                    continue;
+                };
+                let this = paths
+                    .get(f)
+                    .map(|p| p.display().to_string())
+                    .unwrap_or_default();
+                if Some(i) == layout.time_index() {
+                    return Err(self.error(
+                        &k,
+                        format!("'{name}' is the time column of {this}: give a column of {what}"),
+                    ));
+                }
+                if let Some(first) = hit {
+                    let that = paths
+                        .get(first)
+                        .map(|p| p.display().to_string())
+                        .unwrap_or_default();
+                    return Err(self.error(
+                        &k,
+                        format!(
+                            "'{name}' is a column of both {that} and {this}: the files of one \
+                             source must not share a column a sensor reads (rename it in one of \
+                             them)"
+                        ),
+                    ));
+                }
+                hit = Some(f);
+            }
+            if let Some(f) = hit {
+                return Ok((f, name.to_string()));
+            }
+            let device = matches!(name, "x" | "y" | "z")
+                .then_some(
+                    " (a csv source's sensors name columns of the file, not the x, y, z \
+                     of a device)",
+                )
+                .unwrap_or_default();
+            Err(self.error(
+                &k,
+                match layouts {
+                    [layout] => format!(
+                        "{file}:{}: no column '{name}' in the header (columns: {}): give a \
+                         column of {what}{device}",
+                        layout.header_line,
+                        layout.available()
+                    ),
+                    _ => format!(
+                        "no column '{name}' in the headers of {file} (columns: {}): give a \
+                         column of {what}{device}",
+                        layouts
+                            .iter()
+                            .zip(paths)
+                            .map(|(l, p)| format!("{} in {}", l.available(), p.display()))
+                            .collect::<Vec<_>>()
+                            .join("; ")
+                    ),
+                },
+            ))
+        };
+        // Every column of one sensor from one file: `found[0]`'s.
+        let one_file = |found: &[(usize, String)], keys: &[String]| -> Result<usize, ConfigError> {
+            let first = found.first().map_or(0, |f| f.0);
+            for ((f, name), k) in found.iter().zip(keys) {
+                if *f != first {
+                    let of = |f: usize| {
+                        paths
+                            .get(f)
+                            .map(|p| p.display().to_string())
+                            .unwrap_or_default()
+                    };
+                    return Err(self.error(
+                        k,
+                        format!(
+                            "'{name}' is a column of {}, but '{}' is of {}: a row carries only \
+                             its own file's columns, so a sensor's columns must all come from \
+                             one file",
+                            of(*f),
+                            found[0].1,
+                            of(first)
+                        ),
+                    ));
+                }
+            }
+            Ok(first)
+        };
+        if s.axes.len() == 3 {
+            return self.check_csv_sensor3(key, s, &file, column, one_file);
+        }
         for (name, given) in [
             ("field", s.field.is_some()),
             ("chip", s.chip.is_some()),
@@ -1551,39 +1789,19 @@ impl Checker<'_> {
                     &format!("{key}.{name}"),
                     format!(
                         "a sensor of csv source '{src}' has no `{name}`: it names two columns \
-                         of {file} in axes (and a gyro column in gyro, with gyro_units)"
+                         of {file} in axes (and a gyro column in gyro, with gyro_units){}",
+                        if matches!(
+                            name,
+                            "field" | "tilt" | "lsb_per_gauss" | "lsb_per_g" | "sphere"
+                        ) {
+                            "; a 3-axis sensor names three columns in axes, with field"
+                        } else {
+                            ""
+                        }
                     ),
                 ));
             }
         }
-        let time = layout.time_index();
-        let column = |k: String, name: &str, what: &str| -> Result<String, ConfigError> {
-            let name = name.trim();
-            match layout.index(name) {
-                Some(i) if Some(i) == time => Err(self.error(
-                    &k,
-                    format!("'{name}' is the time column of {file}: give a column of {what}"),
-                )),
-                Some(_) => Ok(name.to_string()),
-                None => {
-                    let device = matches!(name, "x" | "y" | "z")
-                        .then_some(
-                            " (a csv source's sensors name columns of the file, not the x, y, z \
-                             of a device)",
-                        )
-                        .unwrap_or_default();
-                    Err(self.error(
-                        &k,
-                        format!(
-                            "{file}:{}: no column '{name}' in the header (columns: {}): give a \
-                             column of {what}{device}",
-                            layout.header_line,
-                            layout.available()
-                        ),
-                    ))
-                }
-            }
-        };
         let columns = match s.axes.as_slice() {
             [a, b] if a.trim() == b.trim() => {
                 return Err(self.error(
@@ -1595,21 +1813,29 @@ impl Checker<'_> {
                     ),
                 ));
             }
-            [a, b] => [
-                column(format!("{key}.axes[0]"), a, "the axes that turn")?,
-                column(format!("{key}.axes[1]"), b, "the axes that turn")?,
-            ],
+            [a, b] => {
+                let keys = [format!("{key}.axes[0]"), format!("{key}.axes[1]")];
+                let found = [
+                    column(keys[0].clone(), a, "the axes that turn")?,
+                    column(keys[1].clone(), b, "the axes that turn")?,
+                ];
+                one_file(&found, &keys)?;
+                found
+            }
             other => {
                 return Err(self.error(
                     &format!("{key}.axes"),
                     format!(
                         "{} columns given: give exactly two different columns of {file} (the \
-                         two axes that turn)",
+                         two axes that turn), or three with field = \"mag\" or \"accel\" for a \
+                         3-axis sensor",
                         other.len()
                     ),
                 ));
             }
         };
+        let file_of_axes = columns[0].0;
+        let columns = [columns[0].1.clone(), columns[1].1.clone()];
         let units_key = format!("{key}.gyro_units");
         let units = match s.gyro_units.as_deref().map(str::trim) {
             None | Some("deg/s") => GyroUnits::DegPerSecond,
@@ -1639,11 +1865,28 @@ impl Checker<'_> {
             }
             Some(name) => {
                 let gyro_key = format!("{key}.gyro");
-                let name = column(
+                let (gyro_file, name) = column(
                     gyro_key.clone(),
                     name,
                     "the angular rate about the turn's axis",
                 )?;
+                if gyro_file != file_of_axes {
+                    let of = |f: usize| {
+                        paths
+                            .get(f)
+                            .map(|p| p.display().to_string())
+                            .unwrap_or_default()
+                    };
+                    return Err(self.error(
+                        &gyro_key,
+                        format!(
+                            "'{name}' is a column of {}, but the axes are of {}: a row carries \
+                             only its own file's columns, so the gyro must be in the axes' file",
+                            of(gyro_file),
+                            of(file_of_axes)
+                        ),
+                    ));
+                }
                 if columns.contains(&name) {
                     return Err(self.error(
                         &gyro_key,
@@ -1663,20 +1906,88 @@ impl Checker<'_> {
         if let Err(problem) = s.limits.validate() {
             return Err(self.error(&format!("{key}.limits"), problem));
         }
-        Ok(SensorConfig {
-            name: s.name,
-            source: s.source,
-            stream: 0,
-            field: Field::Mag,
-            axes: [Axis::X, Axis::Y],
-            effects,
-            rotation: s.rotation,
-            limits: s.limits,
-            gyro,
-            columns: Some(columns),
-            three: None,
-            north: None,
-        })
+        Ok((
+            SensorConfig {
+                name: s.name,
+                source: s.source,
+                stream: 0,
+                field: Field::Mag,
+                axes: [Axis::X, Axis::Y],
+                effects,
+                rotation: s.rotation,
+                limits: s.limits,
+                gyro,
+                columns: Some(columns),
+                three: None,
+                north: None,
+            },
+            None,
+        ))
+    }
+
+    /// A 3-axis sensor of a csv source: three different columns of one of
+    /// its files (the sensor's x, y, z), the `field` they measure (columns
+    /// carry none), and the 3-axis keys of a device's sensor.
+    fn check_csv_sensor3(
+        &self,
+        key: &str,
+        s: RawSensor,
+        file: &str,
+        column: impl Fn(String, &str, &str) -> Result<(usize, String), ConfigError>,
+        one_file: impl Fn(&[(usize, String)], &[String]) -> Result<usize, ConfigError>,
+    ) -> Result<(SensorConfig, Option<String>), ConfigError> {
+        for (name, given) in [
+            ("chip", s.chip.is_some()),
+            ("gyro_units", s.gyro_units.is_some()),
+        ] {
+            if given {
+                return Err(self.error(
+                    &format!("{key}.{name}"),
+                    format!(
+                        "a 3-axis sensor of csv source '{}' has no `{name}`: it names three \
+                         columns of {file} in axes, with field = \"mag\" or \"accel\"",
+                        s.source
+                    ),
+                ));
+            }
+        }
+        let Some(field) = s.field else {
+            return Err(self.error(
+                &format!("{key}.field"),
+                "missing: three columns carry no field, so a 3-axis sensor of a csv source \
+                 needs field = \"mag\" (a magnetometer) or \"accel\" (an accelerometer)",
+            ));
+        };
+        let names: Vec<&str> = s.axes.iter().map(|a| a.trim()).collect();
+        for j in 1..names.len() {
+            if let Some(i) = names[..j].iter().position(|n| *n == names[j]) {
+                return Err(self.error(
+                    &format!("{key}.axes[{j}]"),
+                    format!(
+                        "'{}' is already axes[{i}]: give three different columns of {file}, the \
+                         sensor's x, y, z in that order",
+                        names[j]
+                    ),
+                ));
+            }
+        }
+        let what = match field {
+            Field::Accel => "the sensor's acceleration (x, y, z)",
+            _ => "the sensor's field (x, y, z)",
+        };
+        let keys: Vec<String> = (0..3).map(|k| format!("{key}.axes[{k}]")).collect();
+        let mut found = Vec::with_capacity(3);
+        for (k, name) in keys.iter().zip(&names) {
+            found.push(column(k.clone(), name, what)?);
+        }
+        one_file(&found, &keys)?;
+        let columns = [found[0].1.clone(), found[1].1.clone(), found[2].1.clone()];
+        let (mut sensor, tilt) =
+            self.check_sensor3(key, s, field, 0, &[Axis::X, Axis::Y, Axis::Z], "")?;
+        if let Some(three) = sensor.three.as_mut() {
+            three.columns = Some(columns);
+        }
+        Ok((sensor, tilt))
     }
 
     fn check_chips(&self, key: &str, chips: Vec<String>) -> Result<Vec<(Chip, u8)>, ConfigError> {
@@ -1976,6 +2287,7 @@ impl Checker<'_> {
             // Resolved by link_tilts.
             tilt: None,
             sphere,
+            columns: None,
         };
         Ok((
             SensorConfig {
@@ -2067,6 +2379,7 @@ impl Checker<'_> {
                 sensor: name.clone(),
                 stream: other.stream,
                 axes: t.axes,
+                columns: t.columns.clone(),
             });
             if let Some(three) = sensors.get_mut(*i).and_then(|s| s.three.as_mut()) {
                 three.tilt = tilt;

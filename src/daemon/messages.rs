@@ -249,6 +249,11 @@ pub struct SensorStatus<'a> {
     pub sphere: Option<super::sensor3::SphereProgress>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub calibration: Option<u64>,
+    /// A 3-axis magnetometer with a tilt source: readings whose heading was
+    /// left out because the accelerometer's latest reading was stale
+    /// ([`super::sensor3::MAX_TILT_AGE_S`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub headings_stale: Option<u64>,
     pub readings: u64,
     pub fits_accepted: u64,
     pub fits_rejected: u64,

@@ -45,7 +45,7 @@ use super::sensor::Sensor;
 use super::state::StateStore;
 use crate::capture::{CaptureError, read_capture};
 use crate::io::csv::{CsvError, CsvLayout};
-use crate::source::csv::check_csv;
+use crate::source::csv::check_csv_files;
 
 /// Why a new configuration was refused.
 #[derive(Debug, thiserror::Error)]
@@ -90,15 +90,16 @@ pub fn check(path: &Path) -> Result<Config, ReloadError> {
                 read_capture(file)?;
             }
             SourceKind::Csv {
-                file,
+                files,
                 time_column,
                 period_s,
                 ..
             } => {
-                let (layout, _) = check_csv(file, time_column.as_deref(), *period_s)?;
-                let layout = Arc::new(layout);
+                let (checked, _) = check_csv_files(files, time_column.as_deref(), *period_s)?;
+                let layouts: Vec<Arc<CsvLayout>> =
+                    checked.into_iter().map(|(l, _)| Arc::new(l)).collect();
                 for sensor in config.sensors.iter().filter(|s| s.source == source.name) {
-                    Sensor::new(sensor.clone(), None).bind_csv(&layout, file)?;
+                    Sensor::new(sensor.clone(), None).bind_csv(&layouts, files)?;
                 }
             }
             SourceKind::Falcon { .. } | SourceKind::UsbIss { .. } => {}
@@ -404,20 +405,24 @@ fn source_keys(old: &SourceConfig, new: &SourceConfig) -> Vec<&'static str> {
         }
         (
             SourceKind::Csv {
-                file: f0,
+                files: f0,
                 speed: s0,
                 time_column: t0,
                 period_s: p0,
             },
             SourceKind::Csv {
-                file: f1,
+                files: f1,
                 speed: s1,
                 time_column: t1,
                 period_s: p1,
             },
         ) => {
             if f0 != f1 {
-                keys.push("file");
+                keys.push(if f0.len() == 1 && f1.len() == 1 {
+                    "file"
+                } else {
+                    "files"
+                });
             }
             if s0 != s1 {
                 keys.push("speed");
@@ -438,10 +443,12 @@ fn source_keys(old: &SourceConfig, new: &SourceConfig) -> Vec<&'static str> {
 }
 
 /// A running source as a reload sees it: its name, and for a csv source
-/// the header of the file it plays (sensors bind their columns to it).
+/// the files it plays and their headers (sensors bind their columns to
+/// them).
 pub struct RunningSource<'a> {
     pub name: &'a str,
-    pub layout: Option<&'a Arc<CsvLayout>>,
+    #[allow(clippy::type_complexity)]
+    pub csv: Option<(&'a [std::path::PathBuf], &'a [Arc<CsvLayout>])>,
 }
 
 /// What a reload did, for the main loop to publish and apply.
@@ -555,11 +562,8 @@ fn apply_plan(
         };
         let mut sensor = Sensor::new(config.clone(), stored);
         // A live source is as it runs: its file is the running one's.
-        if let (Some(layout), Some(SourceKind::Csv { file, .. })) = (
-            sources[index].layout,
-            running.source(&config.source).map(|s| &s.kind),
-        ) {
-            sensor.bind_csv(layout, file)?;
+        if let Some((files, layouts)) = sources[index].csv {
+            sensor.bind_csv(layouts, files)?;
         }
         built.insert(name.as_str(), (index, sensor));
     }
@@ -1048,7 +1052,7 @@ axes = ["x", "y"]
 
     const SOURCES: [RunningSource<'static>; 1] = [RunningSource {
         name: "imu",
-        layout: None,
+        csv: None,
     }];
 
     #[test]

@@ -35,7 +35,9 @@ use super::state_writer::{SaveFailure, StateWriter};
 use crate::capture::{CaptureFile, read_capture};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::source::bridge::{BridgeConfig, spawn_bridge_source};
-use crate::source::csv::{CsvPlayback, CsvSource, check_csv, play_csv, spawn_csv_source};
+use crate::source::csv::{
+    CsvPlayback, CsvSource, check_csv, check_csv_files, play_csv, spawn_csv_source,
+};
 use crate::source::replay::{ReplayError, ReplaySummary, Speed, replay_counted};
 use crate::source::serial::{SerialConfig, run_serial_source, unix_now};
 use crate::source::{SourceCounters, SourceEvent};
@@ -91,6 +93,11 @@ pub enum DaemonError {
          kind = \"csv\""
     )]
     NotCsv(String),
+    #[error(
+        "source '{0}' plays {1} files on one clock: one CSV recording cannot stand in for it; run \
+         the daemon on the configuration (`fieldcal run --config`), whose source names the files"
+    )]
+    SeveralCsvFiles(String, usize),
     #[error("no source named '{0}' in the configuration")]
     NoSuchSource(String),
     #[error("cannot write the output: {0}")]
@@ -106,8 +113,9 @@ struct SourceHandle {
     counters: Arc<SourceCounters>,
     connected: bool,
     task: SourceTask,
-    /// A csv source's header, for sensors a reload binds to it.
-    csv_layout: Option<Arc<CsvLayout>>,
+    /// A csv source's files and their headers, for sensors a reload binds
+    /// to them.
+    csv_layout: Option<(Vec<std::path::PathBuf>, Vec<Arc<CsvLayout>>)>,
 }
 
 enum SourceTask {
@@ -195,31 +203,43 @@ impl Sensors {
         emit: &mut dyn FnMut(Lane, String),
         store: &mut dyn FnMut(&Calibration),
     ) {
+        let mut accepted_any = false;
         for (src, sensor) in &mut self.sensors {
             if *src == source
                 && let Some(accepted) = sensor.on_row(row, emit)
             {
                 store(&accepted);
+                accepted_any = true;
             }
+        }
+        if accepted_any {
+            self.link_tilts();
         }
     }
 
-    /// Binds the sensors of csv source `source` to the header of the file
-    /// it plays (`path`); returns the columns they read, sorted, once each.
+    /// Binds the sensors of csv source `source` to the headers of the
+    /// files it plays (`files[k]` has `layouts[k]`); returns the columns
+    /// they read in each file, sorted, once each.
     fn bind_csv(
         &mut self,
         source: usize,
-        layout: &Arc<CsvLayout>,
-        path: &std::path::Path,
-    ) -> Result<Vec<usize>, CsvError> {
-        let mut required = Vec::new();
+        layouts: &[Arc<CsvLayout>],
+        files: &[std::path::PathBuf],
+    ) -> Result<Vec<Vec<usize>>, CsvError> {
+        let mut required = vec![Vec::new(); layouts.len()];
         for (src, sensor) in &mut self.sensors {
             if *src == source {
-                required.extend(sensor.bind_csv(layout, path)?);
+                for (file, column) in sensor.bind_csv(layouts, files)? {
+                    if let Some(r) = required.get_mut(file) {
+                        r.push(column);
+                    }
+                }
             }
         }
-        required.sort_unstable();
-        required.dedup();
+        for r in &mut required {
+            r.sort_unstable();
+            r.dedup();
+        }
         Ok(required)
     }
 
@@ -452,29 +472,36 @@ pub async fn run_with(
                 }))
             }
             SourceKind::Csv {
-                file,
+                files,
                 speed,
                 time_column,
                 period_s,
             } => {
-                // Checked whole before READY: the header, and times that increase.
-                let (layout, scan) = check_csv(file, time_column.as_deref(), *period_s)?;
-                let layout = Arc::new(layout);
-                csv_layout = Some(layout.clone());
-                let required = sensors.bind_csv(index, &layout, file)?;
-                tracing::info!(
-                    rows = scan.rows,
-                    bad_rows = scan.bad,
-                    "{}: {} columns ({})",
-                    file.display(),
-                    layout.names.len(),
-                    layout.available()
-                );
+                // Checked whole before READY: each header, times that
+                // increase, and clocks that overlap.
+                let (checked, warning) = check_csv_files(files, time_column.as_deref(), *period_s)?;
+                if let Some(warning) = warning {
+                    tracing::warn!("source '{}': {warning}", source.name);
+                }
+                let layouts: Vec<Arc<CsvLayout>> =
+                    checked.iter().map(|(l, _)| Arc::new(l.clone())).collect();
+                csv_layout = Some((files.clone(), layouts.clone()));
+                let required = sensors.bind_csv(index, &layouts, files)?;
+                for (file, (layout, scan)) in files.iter().zip(&checked) {
+                    tracing::info!(
+                        rows = scan.rows,
+                        bad_rows = scan.bad,
+                        "{}: {} columns ({})",
+                        file.display(),
+                        layout.names.len(),
+                        layout.available()
+                    );
+                }
                 let thread = spawn_csv_source(
                     CsvSource {
                         name: source.name.clone(),
-                        file: file.clone(),
-                        layout,
+                        files: files.clone(),
+                        layouts: checked.into_iter().map(|(l, _)| l).collect(),
                         required,
                         speed: *speed,
                     },
@@ -588,7 +615,7 @@ pub async fn run_with(
                         .iter()
                         .map(|s| super::reload::RunningSource {
                             name: &s.name,
-                            layout: s.csv_layout.as_ref(),
+                            csv: s.csv_layout.as_ref().map(|(f, l)| (f.as_slice(), l.as_slice())),
                         })
                         .collect();
                     let outcome = super::reload::apply(
@@ -961,6 +988,7 @@ pub fn replay_csv_through_pipeline(
 ) -> Result<CsvPlayback, DaemonError> {
     let mut pipeline = Pipeline::new(config, source, speed)?;
     let Some(SourceKind::Csv {
+        files,
         time_column,
         period_s,
         ..
@@ -968,9 +996,23 @@ pub fn replay_csv_through_pipeline(
     else {
         return Err(DaemonError::NotCsv(pipeline.source_name.clone()));
     };
+    if files.len() > 1 {
+        return Err(DaemonError::SeveralCsvFiles(
+            pipeline.source_name.clone(),
+            files.len(),
+        ));
+    }
     let (layout, _) = check_csv(path, time_column.as_deref(), *period_s)?;
     let layout = Arc::new(layout);
-    let required = pipeline.sensors.bind_csv(pipeline.index, &layout, path)?;
+    let required = pipeline
+        .sensors
+        .bind_csv(
+            pipeline.index,
+            std::slice::from_ref(&layout),
+            &[path.to_path_buf()],
+        )?
+        .pop()
+        .unwrap_or_default();
     let stop = AtomicBool::new(false);
     let counters = SourceCounters::default();
     let summary = play_csv(

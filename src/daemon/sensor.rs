@@ -55,6 +55,8 @@ pub struct Sensor {
 /// [`CsvRow::values`], resolved once, never looked up by name per row.
 #[derive(Debug, Clone)]
 struct CsvBinding {
+    /// The file of its source the columns are in ([`CsvRow::file`]).
+    file: usize,
     layout: Arc<CsvLayout>,
     axes: [usize; 2],
     gyro: Option<usize>,
@@ -261,41 +263,43 @@ impl Sensor {
         }
     }
 
-    /// Resolves a csv sensor's columns against the header of the file its
-    /// source plays (`path`, for messages), once before the first row.
-    /// Returns the columns it needs a number in, for the source to skip
-    /// rows without. A sensor of another source needs none.
+    /// Resolves a csv sensor's columns against the headers of the files
+    /// its source plays (`files[k]` has `layouts[k]`; one file, or several
+    /// on one clock), once before the first row: all its columns must be in
+    /// one file. Returns the (file, column) pairs it needs a number in, for
+    /// the source to skip rows without. A sensor of another source needs
+    /// none.
     pub fn bind_csv(
         &mut self,
-        layout: &Arc<CsvLayout>,
-        path: &std::path::Path,
-    ) -> Result<Vec<usize>, CsvError> {
+        layouts: &[Arc<CsvLayout>],
+        files: &[std::path::PathBuf],
+    ) -> Result<Vec<(usize, usize)>, CsvError> {
+        let refs: Vec<&CsvLayout> = layouts.iter().map(Arc::as_ref).collect();
+        if let Some(three) = &mut self.three {
+            return three.bind_csv(files, &refs);
+        }
         let Some(columns) = &self.config.columns else {
             return Ok(Vec::new());
         };
-        let find = |name: &str, role: &'static str| {
-            layout.index(name).ok_or_else(|| CsvError::MissingColumn {
-                path: path.to_path_buf(),
-                name: name.to_string(),
-                role,
-                flag: "the sensor's keys in the configuration",
-                available: layout.available(),
-            })
-        };
-        let axes = [
-            find(&columns[0], "the sensor's x axis")?,
-            find(&columns[1], "the sensor's y axis")?,
+        let mut names = vec![
+            (columns[0].as_str(), "the sensor's x axis"),
+            (columns[1].as_str(), "the sensor's y axis"),
         ];
-        let gyro = match &self.config.gyro {
-            GyroChoice::Column { name, .. } => Some(find(name, "the sensor's gyro")?),
-            _ => None,
+        if let GyroChoice::Column { name, .. } = &self.config.gyro {
+            names.push((name.as_str(), "the sensor's gyro"));
+        }
+        let (file, found) = crate::source::csv::locate_columns(files, &refs, &names)?;
+        let Some(layout) = layouts.get(file) else {
+            return Ok(Vec::new());
         };
+        let axes = [found[0], found[1]];
+        let gyro = found.get(2).copied();
         let others = (0..layout.names.len())
             .filter(|i| !axes.contains(i) && Some(*i) != layout.time_index())
             .collect();
-        let mut required = axes.to_vec();
-        required.extend(gyro);
+        let required = found.iter().map(|&i| (file, i)).collect();
         self.csv = Some(CsvBinding {
+            file,
             layout: layout.clone(),
             axes,
             gyro,
@@ -306,10 +310,17 @@ impl Sensor {
 
     /// Handles one row of the sensor's csv source, as
     /// [`Sensor::on_reading`] a reading: the row's other columns travel
-    /// with the published reading. A sensor not bound to a csv source, or
-    /// a row without numbers in its axes, is ignored.
+    /// with the published reading. A sensor not bound to a csv source, a
+    /// row of another file of the source, or a row without numbers in its
+    /// axes, is ignored.
     pub fn on_row(&mut self, row: &CsvRow, emit: &mut Emit<'_>) -> Option<Calibration> {
+        if let Some(three) = &mut self.three {
+            return three.on_row(row, emit);
+        }
         let binding = self.csv.as_ref()?;
+        if row.file != binding.file {
+            return None;
+        }
         let (x, y) = (
             *row.values.get(binding.axes[0])?,
             *row.values.get(binding.axes[1])?,
@@ -753,6 +764,7 @@ impl Sensor {
                 rotation: None,
                 sphere: three.progress(),
                 calibration: three.calibration().map(|c| c.id),
+                headings_stale: (three.tilt_sensor().is_some()).then(|| three.headings_stale()),
                 readings,
                 fits_accepted,
                 fits_rejected,
@@ -766,6 +778,7 @@ impl Sensor {
             rotation: (self.state != SensorState::Calibrated).then(|| self.buffer.progress()),
             sphere: None,
             calibration: self.current.as_ref().map(|c| c.id),
+            headings_stale: None,
             readings: self.readings,
             fits_accepted: self.fits_accepted,
             fits_rejected: self.fits_rejected,

@@ -125,6 +125,19 @@ impl SphereSettings {
     }
 }
 
+/// The oldest accelerometer reading a heading is tilt-compensated with,
+/// seconds before the magnetometer's reading: 0.1 s. A hand turns a board
+/// at up to about 90°/s while calibrating (the sphere is covered in tens
+/// of seconds), so in 0.1 s the vertical moves up to some 9°, and the
+/// tilt-compensated heading errs by as much (a heading error is of the
+/// order of the tilt error times tan(inclination), ≈ 1-2.5 at mid
+/// latitudes). Ten periods of the MPU-6050's usual 100 Hz, three of the
+/// usb-iss default 30 ms poll: readings of one board sampled together are
+/// always well within it. With a staler accelerometer (a gap in its file,
+/// a file that has ended) the heading is left out and the reason said
+/// (`heading_omitted`) and counted (`headings_stale` in STATUS).
+pub const MAX_TILT_AGE_S: f64 = 0.1;
+
 /// The accelerometer a magnetometer's heading is tilt-compensated with:
 /// another 3-axis sensor of the same source (`tilt = "<name>"`).
 #[derive(Debug, Clone, PartialEq)]
@@ -132,6 +145,8 @@ pub struct TiltSource {
     pub sensor: String,
     pub stream: u8,
     pub axes: [Axis; 3],
+    /// For a csv source: the accelerometer sensor's three columns.
+    pub columns: Option<[String; 3]>,
 }
 
 /// What a `[[sensor]]` with three axes adds to [`SensorConfig`].
@@ -145,6 +160,9 @@ pub struct Sensor3Config {
     pub lsb_per_unit: Option<f64>,
     pub tilt: Option<TiltSource>,
     pub sphere: SphereSettings,
+    /// A sensor of a csv source: the columns of its x, y, z (then `axes`
+    /// is x, y, z and unused).
+    pub columns: Option<[String; 3]>,
 }
 
 impl Sensor3Config {
@@ -338,6 +356,9 @@ struct Reading3Message<'a> {
     true_heading_deg: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     tilt: Option<TiltFields<'a>>,
+    /// Why a calibrated magnetometer with a tilt source has no heading.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    heading_omitted: Option<String>,
 }
 
 #[derive(Serialize)]
@@ -409,13 +430,26 @@ pub struct Sensor3 {
     last_rejection: Option<String>,
     /// The tilt source's current calibration, as [`Sensor3::set_tilt`] gave it.
     tilt_calibration: Option<Calibration>,
-    /// The tilt source's last raw reading.
-    last_accel: Option<[f64; 3]>,
+    /// The tilt source's last raw reading, with its time.
+    last_accel: Option<(f64, [f64; 3])>,
     /// The tilt source's raw reading beside each of `points` (a sensor
     /// with `tilt`; else empty), for the measured inclination.
     accel_at: Vec<Option<[f64; 3]>>,
     /// True north (`declination_deg` or a location).
     north: Option<North>,
+    /// Readings whose heading was left out for a stale accelerometer.
+    headings_stale: u64,
+    /// A sensor of a csv source: where its values (and its tilt source's)
+    /// are in the rows, resolved by [`Sensor3::bind_csv`].
+    csv: Option<Csv3Binding>,
+}
+
+/// Where a 3-axis csv sensor's values are: (file, column indices of x, y,
+/// z) of its own and of its tilt source.
+#[derive(Debug, Clone)]
+struct Csv3Binding {
+    own: (usize, [usize; 3]),
+    tilt: Option<(usize, [usize; 3])>,
 }
 
 fn pick(triad: [i16; 3], axes: [Axis; 3]) -> [f64; 3] {
@@ -467,6 +501,8 @@ impl Sensor3 {
             last_accel: None,
             accel_at: Vec::new(),
             north: config.north.clone(),
+            headings_stale: 0,
+            csv: None,
             config: three,
         }
     }
@@ -506,6 +542,7 @@ impl Sensor3 {
         self.fits_rejected = old.fits_rejected;
         self.last_rejection = old.last_rejection;
         self.tilt_calibration = old.tilt_calibration;
+        self.headings_stale = old.headings_stale;
         self.recalibrate();
     }
 
@@ -559,6 +596,94 @@ impl Sensor3 {
         })
     }
 
+    /// Readings whose tilt-compensated heading was left out because the
+    /// accelerometer's latest reading was older than [`MAX_TILT_AGE_S`].
+    pub fn headings_stale(&self) -> u64 {
+        self.headings_stale
+    }
+
+    /// Resolves a csv sensor's columns (and its tilt source's) against the
+    /// headers of its source's files (`files[k]` has `layouts[k]`). Returns
+    /// the (file, column) pairs it needs numbers in.
+    pub fn bind_csv(
+        &mut self,
+        files: &[std::path::PathBuf],
+        layouts: &[&crate::io::csv::CsvLayout],
+    ) -> Result<Vec<(usize, usize)>, crate::io::csv::CsvError> {
+        use crate::source::csv::locate_columns;
+        let Some(columns) = &self.config.columns else {
+            return Ok(Vec::new());
+        };
+        let roles = [
+            "the sensor's x axis",
+            "the sensor's y axis",
+            "the sensor's z axis",
+        ];
+        let names: Vec<(&str, &'static str)> = columns
+            .iter()
+            .zip(roles)
+            .map(|(c, r)| (c.as_str(), r))
+            .collect();
+        let (file, own) = locate_columns(files, layouts, &names)?;
+        let own = (file, [own[0], own[1], own[2]]);
+        let mut required: Vec<(usize, usize)> = own.1.iter().map(|&i| (file, i)).collect();
+        let tilt = match self.config.tilt.as_ref().and_then(|t| t.columns.as_ref()) {
+            None => None,
+            Some(columns) => {
+                let roles = [
+                    "the tilt source's x axis",
+                    "the tilt source's y axis",
+                    "the tilt source's z axis",
+                ];
+                let names: Vec<(&str, &'static str)> = columns
+                    .iter()
+                    .zip(roles)
+                    .map(|(c, r)| (c.as_str(), r))
+                    .collect();
+                let (file, at) = locate_columns(files, layouts, &names)?;
+                required.extend(at.iter().map(|&i| (file, i)));
+                Some((file, [at[0], at[1], at[2]]))
+            }
+        };
+        self.csv = Some(Csv3Binding { own, tilt });
+        Ok(required)
+    }
+
+    /// Handles one row of the sensor's csv source as [`Sensor3::on_reading`]
+    /// a reading: a row of the tilt source's file updates the accelerometer
+    /// kept, a row of its own file is published and collected. Unbound, or
+    /// without numbers in its columns, the row is ignored.
+    pub fn on_row(
+        &mut self,
+        row: &crate::io::csv::CsvRow,
+        emit: &mut Emit<'_>,
+    ) -> Option<Calibration> {
+        let binding = self.csv.as_ref()?;
+        let values = |at: [usize; 3]| -> Option<[f64; 3]> {
+            let v = [
+                *row.values.get(at[0])?,
+                *row.values.get(at[1])?,
+                *row.values.get(at[2])?,
+            ];
+            v.iter().all(|x| x.is_finite()).then_some(v)
+        };
+        if let Some((file, at)) = binding.tilt
+            && row.file == file
+            && let Some(accel) = values(at)
+        {
+            self.last_accel = Some((row.time, accel));
+        }
+        let (file, at) = binding.own;
+        if row.file != file {
+            return None;
+        }
+        let raw = values(at)?;
+        self.readings += 1;
+        let line = self.reading_line(row.time, raw);
+        emit(Lane::Reading, line);
+        self.collect(row.time, raw, emit)
+    }
+
     /// Handles one reading: keeps the tilt source's accelerometer, and for
     /// the sensor's own stream publishes the reading (corrected when
     /// calibrated, with the tilt-compensated heading when it has a tilt
@@ -568,23 +693,45 @@ impl Sensor3 {
             && reading.stream == tilt.stream
             && let Some(triad) = reading.accel
         {
-            self.last_accel = Some(pick(triad, tilt.axes));
+            self.last_accel = Some((reading.time, pick(triad, tilt.axes)));
         }
         if reading.stream != self.stream {
             return None;
         }
         let raw = pick(field_of(reading, self.field)?, self.config.axes);
         self.readings += 1;
-        emit(Lane::Reading, self.reading_line(reading.time, raw));
+        let line = self.reading_line(reading.time, raw);
+        emit(Lane::Reading, line);
         self.collect(reading.time, raw, emit)
     }
 
-    fn reading_line(&self, time: f64, raw: [f64; 3]) -> String {
+    fn reading_line(&mut self, time: f64, raw: [f64; 3]) -> String {
         let corrected = self
             .current
             .as_ref()
             .and_then(|c| Some((c.id, apply3(c.ellipsoid.as_ref()?, raw))));
-        let tilt = match (&self.config.tilt, corrected, self.last_accel) {
+        let mut heading_omitted = None;
+        let accel = match (&self.config.tilt, corrected, self.last_accel) {
+            (Some(source), Some(_), None) => {
+                heading_omitted = Some(format!(
+                    "no reading of the tilt source '{}' yet",
+                    source.sensor
+                ));
+                None
+            }
+            (Some(source), Some(_), Some((t, _))) if time - t > MAX_TILT_AGE_S => {
+                self.headings_stale += 1;
+                heading_omitted = Some(format!(
+                    "the latest reading of the tilt source '{}' is {:.3} s old, more than \
+                     {MAX_TILT_AGE_S} s: its tilt is stale",
+                    source.sensor,
+                    time - t
+                ));
+                None
+            }
+            (_, _, last) => last.map(|(_, a)| a),
+        };
+        let tilt = match (&self.config.tilt, corrected, accel) {
             (Some(source), Some((_, mag)), Some(accel_raw)) => {
                 let cal = self.tilt_calibration.as_ref();
                 let accel = match cal.and_then(|c| c.ellipsoid.as_ref()) {
@@ -627,6 +774,7 @@ impl Sensor3 {
             heading_deg,
             true_heading_deg,
             tilt,
+            heading_omitted,
         })
     }
 
@@ -642,7 +790,12 @@ impl Sensor3 {
         }
         self.points.push(raw);
         if self.config.tilt.is_some() {
-            self.accel_at.push(self.last_accel);
+            // The accelerometer beside this sample, unless it is stale.
+            let fresh = self
+                .last_accel
+                .filter(|(t, _)| (time - t).abs() <= MAX_TILT_AGE_S)
+                .map(|(_, a)| a);
+            self.accel_at.push(fresh);
         }
         self.wait = self.wait.saturating_sub(1);
         self.since_check += 1;
@@ -1005,7 +1158,7 @@ mod tests {
 
     const SOURCES: [RunningSource<'static>; 1] = [RunningSource {
         name: "imu",
-        layout: None,
+        csv: None,
     }];
 
     fn config(text: &str) -> crate::daemon::config::Config {

@@ -67,6 +67,38 @@ pub enum CsvError {
         available: String,
     },
     #[error(
+        "column '{name}' is in both {first} and {second}: a sensor of a source of several files \
+         must name columns found in one file only; rename one of them"
+    )]
+    AmbiguousColumn {
+        name: String,
+        first: PathBuf,
+        second: PathBuf,
+    },
+    #[error(
+        "'{name}' is a column of {path} but '{other}' of {other_path}: a row carries only its \
+         own file's columns, so a sensor's columns must all come from one file"
+    )]
+    SplitColumns {
+        name: String,
+        path: PathBuf,
+        other: String,
+        other_path: PathBuf,
+    },
+    #[error(
+        "{first} covers {first_start:.3} to {first_end:.3} s and {second} covers \
+         {second_start:.3} to {second_end:.3} s: the files of one csv source do not overlap in \
+         time, so they are not on one clock; give files recorded together"
+    )]
+    Disjoint {
+        first: PathBuf,
+        first_start: f64,
+        first_end: f64,
+        second: PathBuf,
+        second_start: f64,
+        second_end: f64,
+    },
+    #[error(
         "{path}:1: column '{name}' appears twice in the header (fields {first} and {second}); rename one"
     )]
     DuplicateColumn {
@@ -913,6 +945,7 @@ impl CsvLayout {
             line,
             time,
             values: values.into_boxed_slice(),
+            file: 0,
         })
     }
 }
@@ -927,6 +960,10 @@ pub struct CsvRow {
     /// Every column in header order (the time column too); NaN where a
     /// cell of a column nobody reads is not a number.
     pub values: Box<[f64]>,
+    /// Which file of its source it comes from (the place in the source's
+    /// `files`; 0 for a source of one file): `values` follow that file's
+    /// header.
+    pub file: usize,
 }
 
 /// Why a row is skipped: its line, the column (name and 1-based field)

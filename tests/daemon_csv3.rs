@@ -1,0 +1,511 @@
+//! A csv source in 3-D and on several files of one clock: the real
+//! sunsided tilt-sphere recording (an HMC5883L magnetometer and an MPU-6050
+//! accelerometer logged to two CSV files) through `fieldcal run --config`
+//! gives a 3-D CALIBRATION of the compass and READINGs with the heading
+//! tilt-compensated by the accelerometer's latest row; a stale
+//! accelerometer leaves the heading out and says so; files that do not
+//! share a clock, and the configuration's mistakes, are refused by name.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{repo_path, run};
+use fieldcal::daemon::config::{ConfigError, SourceKind, load, parse};
+use serde_json::Value;
+
+const SET: &str = "../shared/data/real/sunsided-set-1/tilt-sphere";
+
+fn real(name: &str) -> PathBuf {
+    repo_path(&format!("{SET}/{name}"))
+}
+
+/// A configuration of the two files (`mag`, `accel`) as one csv source
+/// with a 3-axis compass tilted by a 3-axis accelerometer.
+fn pair_config(dir: &Path, mag: &Path, accel: &Path) -> PathBuf {
+    let path = dir.join("pair.toml");
+    std::fs::write(
+        &path,
+        format!(
+            r#"
+[daemon]
+state_dir = "{state}"
+status_interval_s = 0.05
+
+[outputs]
+stdout = true
+
+[[source]]
+name = "board"
+kind = "csv"
+files = ["{mag}", "{accel}"]
+speed = "max"
+
+[[sensor]]
+name = "compass"
+source = "board"
+axes = ["mag_x", "mag_y", "mag_z"]
+field = "mag"
+lsb_per_gauss = 1.0
+tilt = "level"
+
+[[sensor]]
+name = "level"
+source = "board"
+axes = ["acc_x", "acc_y", "acc_z"]
+field = "accel"
+lsb_per_g = 1.0
+"#,
+            state = dir.join("state").display(),
+            mag = mag.display(),
+            accel = accel.display(),
+        ),
+    )
+    .unwrap();
+    path
+}
+
+fn run_daemon(config: &Path) -> (Vec<Value>, String) {
+    let r = run(&["run", "--config", config.to_str().unwrap()]);
+    assert_eq!(r.code, Some(0), "run failed: {}", r.stderr);
+    assert!(!r.stderr.contains("panicked"), "{}", r.stderr);
+    let lines = r
+        .stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("a JSON line"))
+        .collect();
+    (lines, r.stderr)
+}
+
+fn of<'a>(lines: &'a [Value], class: &str, sensor: &str) -> Vec<&'a Value> {
+    lines
+        .iter()
+        .filter(|v| v["class"] == class && v["sensor"] == sensor)
+        .collect()
+}
+
+fn f(v: &Value) -> f64 {
+    v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"))
+}
+
+fn rows(path: &Path) -> usize {
+    std::fs::read_to_string(path).unwrap().lines().count() - 1
+}
+
+fn last_status(lines: &[Value]) -> &Value {
+    lines.iter().rev().find(|v| v["class"] == "STATUS").unwrap()
+}
+
+fn sensor_status<'a>(status: &'a Value, name: &str) -> &'a Value {
+    status["sensors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["sensor"] == name)
+        .unwrap()
+}
+
+#[test]
+fn the_real_tilt_sphere_pair_calibrates_the_compass_in_3d_with_tilt_compensated_headings() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mag, accel) = (real("hmc5883l_mag.csv"), real("mpu6050.csv"));
+    let (lines, _) = run_daemon(&pair_config(dir.path(), &mag, &accel));
+
+    // Every row of both files played, merged in time order (the re-stamped
+    // times of the READINGs of both sensors never go back).
+    let compass = of(&lines, "READING", "compass");
+    let level = of(&lines, "READING", "level");
+    assert_eq!(compass.len(), rows(&mag));
+    assert_eq!(level.len(), rows(&accel));
+    let times: Vec<f64> = lines
+        .iter()
+        .filter(|v| v["class"] == "READING")
+        .map(|v| f(&v["time"]))
+        .collect();
+    assert!(times.windows(2).all(|w| w[1] >= w[0]), "not in time order");
+    let status = last_status(&lines);
+    let source = &status["sources"][0];
+    assert_eq!(
+        source["frames_good"].as_u64(),
+        Some((rows(&mag) + rows(&accel)) as u64),
+        "{source}"
+    );
+    assert_eq!(source["frames_bad"].as_u64(), Some(0));
+
+    // The compass: one accepted 3-D fit. `fieldcal fit FILE --z mag_z` on
+    // the whole file gives rms 0.83 %; the daemon fits at most
+    // max_samples = 3000 of the 4322 readings, thinned where they crowd, so
+    // its rms differs a little: within 0.25 points of the file's (and far
+    // inside ArduPilot's 16 mG, 3 % of this 0.53 G field). The radius is
+    // the local field, 0.45-0.6 G.
+    let fits = of(&lines, "CALIBRATION", "compass");
+    let accepted: Vec<_> = fits.iter().filter(|c| c["accepted"] == true).collect();
+    assert_eq!(accepted.len(), 1, "{fits:?}");
+    let cal = accepted[0];
+    assert_eq!(cal["axes"], 3);
+    assert_eq!(cal["units"], "gauss");
+    let rms = f(&cal["rms"]);
+    assert!((rms - 0.0083).abs() < 0.0025, "rms {rms}");
+    let r = f(&cal["r_units"]);
+    assert!((0.45..0.6).contains(&r), "r {r}");
+    assert!(cal["n"].as_u64().unwrap() <= 3000);
+
+    // The accelerometer: a hand-turned board also accelerates, so its fit
+    // is refused on ArduPilot's rms limit, with its radius near 1 g
+    // (gravity, in the file's g).
+    let level_fits = of(&lines, "CALIBRATION", "level");
+    assert!(!level_fits.is_empty());
+    for c in &level_fits {
+        assert_eq!(c["units"], "g");
+        let r = f(&c["r_units"]);
+        assert!((0.95..1.1).contains(&r), "accelerometer r {r} g");
+        if c["accepted"] == false {
+            assert!(c["reason"].as_str().unwrap().contains("rms"), "{c}");
+        }
+    }
+
+    // Once calibrated, the compass's READINGs carry the heading,
+    // tilt-compensated with the accelerometer's row of the other file.
+    let calibrated: Vec<_> = compass.iter().filter(|v| v["calibrated"] == true).collect();
+    assert!(calibrated.len() > 1000, "{}", calibrated.len());
+    let with_heading: Vec<_> = calibrated
+        .iter()
+        .filter(|v| v.get("heading_deg").is_some())
+        .collect();
+    assert!(
+        with_heading.len() * 100 >= calibrated.len() * 95,
+        "{} of {}",
+        with_heading.len(),
+        calibrated.len()
+    );
+    for v in &with_heading {
+        let h = f(&v["heading_deg"]);
+        assert!((0.0..360.0).contains(&h), "{v}");
+        assert_eq!(v["tilt"]["sensor"], "level");
+        assert!(f(&v["tilt"]["tilt_deg"]).is_finite());
+    }
+    // The heading turns with the board: the recording covers the sphere.
+    let spread = with_heading
+        .iter()
+        .map(|v| f(&v["heading_deg"]))
+        .fold((f64::MAX, f64::MIN), |(lo, hi), h| (lo.min(h), hi.max(h)));
+    assert!(spread.1 - spread.0 > 180.0, "{spread:?}");
+    // Both files' rows come close together: no heading was stale.
+    assert_eq!(sensor_status(status, "compass")["headings_stale"], 0);
+    assert!(
+        sensor_status(status, "level")
+            .get("headings_stale")
+            .is_none()
+    );
+}
+
+#[test]
+fn a_stale_accelerometer_leaves_the_heading_out_and_says_why() {
+    // The accelerometer's file cut at 20 s of the 56 s: the compass
+    // calibrates later, when no accelerometer row is recent.
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(real("mpu6050.csv")).unwrap();
+    let cut: Vec<&str> = text
+        .lines()
+        .take_while(|l| {
+            l.starts_with('t') || l.split(',').next().unwrap().parse::<f64>().unwrap() < 20.0
+        })
+        .collect();
+    let accel = dir.path().join("mpu6050-20s.csv");
+    std::fs::write(&accel, cut.join("\n") + "\n").unwrap();
+    let config = pair_config(dir.path(), &real("hmc5883l_mag.csv"), &accel);
+    let (lines, stderr) = run_daemon(&config);
+    // Less than half the time shared: said before the play.
+    assert!(stderr.contains("share only"), "{stderr}");
+
+    let calibrated: Vec<_> = of(&lines, "READING", "compass")
+        .into_iter()
+        .filter(|v| v["calibrated"] == true)
+        .collect();
+    assert!(!calibrated.is_empty());
+    let omitted: Vec<_> = calibrated
+        .iter()
+        .filter(|v| v.get("heading_omitted").is_some())
+        .collect();
+    for v in &calibrated {
+        assert!(v.get("heading_deg").is_none(), "a stale heading: {v}");
+    }
+    assert_eq!(omitted.len(), calibrated.len());
+    let why = omitted[0]["heading_omitted"].as_str().unwrap();
+    assert!(
+        why.contains("'level'") && why.contains("s old") && why.contains("0.1 s"),
+        "{why}"
+    );
+    let status = last_status(&lines);
+    assert_eq!(
+        sensor_status(status, "compass")["headings_stale"].as_u64(),
+        Some(omitted.len() as u64)
+    );
+}
+
+#[test]
+fn files_whose_clocks_do_not_overlap_are_refused_before_ready() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(real("mpu6050.csv")).unwrap();
+    let mut shifted = String::new();
+    for (i, line) in text.lines().enumerate() {
+        if i == 0 {
+            shifted.push_str(line);
+        } else {
+            let (t, rest) = line.split_once(',').unwrap();
+            shifted.push_str(&format!("{},{rest}", t.parse::<f64>().unwrap() + 100.0));
+        }
+        shifted.push('\n');
+    }
+    let accel = dir.path().join("later.csv");
+    std::fs::write(&accel, shifted).unwrap();
+    let config = pair_config(dir.path(), &real("hmc5883l_mag.csv"), &accel);
+    let r = run(&["run", "--config", config.to_str().unwrap()]);
+    assert_ne!(r.code, Some(0));
+    assert!(!r.stdout.contains("READING"), "{}", r.stdout);
+    for word in [
+        "hmc5883l_mag.csv",
+        "later.csv",
+        "do not overlap",
+        "one clock",
+    ] {
+        assert!(r.stderr.contains(word), "no '{word}' in: {}", r.stderr);
+    }
+}
+
+#[test]
+fn the_shipped_example_names_the_real_pair() {
+    let config = load(&repo_path("config/sunsided-tilt-sphere.toml")).unwrap();
+    let SourceKind::Csv { files, .. } = &config.sources[0].kind else {
+        panic!("{:?}", config.sources[0].kind);
+    };
+    assert_eq!(files.len(), 2);
+    for (file, name) in files.iter().zip(["hmc5883l_mag.csv", "mpu6050.csv"]) {
+        assert_eq!(
+            std::fs::canonicalize(file).unwrap(),
+            std::fs::canonicalize(real(name)).unwrap()
+        );
+    }
+    let three = config.sensors[0].three.as_ref().unwrap();
+    assert_eq!(three.tilt.as_ref().unwrap().sensor, "level");
+}
+
+// ---- the configuration's refusals ----
+
+fn two_files() -> (tempfile::TempDir, PathBuf, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let mag = dir.path().join("mag.csv");
+    let accel = dir.path().join("imu.csv");
+    std::fs::write(&mag, "t_s,mag_x,mag_y,mag_z,temp_c\n0,1,2,3,20\n").unwrap();
+    std::fs::write(
+        &accel,
+        "t_s,acc_x,acc_y,acc_z,gyro_z,temp_c\n0,1,2,3,4,20\n",
+    )
+    .unwrap();
+    (dir, mag, accel)
+}
+
+fn config_path() -> PathBuf {
+    repo_path("config/test.toml")
+}
+
+fn with(source: &str, sensors: &str) -> String {
+    let (_, mag, accel) = FILES.with(|f| f.clone());
+    format!(
+        "[[source]]\nname = \"board\"\nkind = \"csv\"\nfiles = [\"{}\", \"{}\"]\n{source}\n\n{sensors}",
+        mag.display(),
+        accel.display()
+    )
+}
+
+thread_local! {
+    static FILES: (std::rc::Rc<tempfile::TempDir>, PathBuf, PathBuf) = {
+        let (dir, mag, accel) = two_files();
+        (std::rc::Rc::new(dir), mag, accel)
+    };
+}
+
+const COMPASS: &str = "[[sensor]]\nname = \"compass\"\nsource = \"board\"\n";
+
+#[track_caller]
+fn refused(text: &str, key: &str, words: &[&str]) {
+    let err: ConfigError = match parse(text, &config_path()) {
+        Ok(c) => panic!("accepted: {c:?}"),
+        Err(e) => e,
+    };
+    let message = err.to_string();
+    assert_eq!(err.key(), Some(key), "{message}");
+    for w in words {
+        assert!(message.contains(w), "no '{w}' in: {message}");
+    }
+}
+
+#[test]
+fn a_3_axis_csv_sensor_and_a_source_of_several_files_are_checked_naming_the_key() {
+    let mag3 = "axes = [\"mag_x\", \"mag_y\", \"mag_z\"]\n";
+    // Accepted: both sensors, each from its own file, the tilt linked.
+    let ok = with(
+        "",
+        &format!(
+            "{COMPASS}{mag3}field = \"mag\"\ntilt = \"level\"\n\n[[sensor]]\nname = \"level\"\n\
+             source = \"board\"\naxes = [\"acc_x\", \"acc_y\", \"acc_z\"]\nfield = \"accel\"\n"
+        ),
+    );
+    let config = parse(&ok, &config_path()).unwrap();
+    let three = config.sensors[0].three.as_ref().unwrap();
+    assert_eq!(
+        three.columns,
+        Some(["mag_x".to_string(), "mag_y".into(), "mag_z".into()])
+    );
+    assert_eq!(
+        three.tilt.as_ref().unwrap().columns,
+        Some(["acc_x".to_string(), "acc_y".into(), "acc_z".into()])
+    );
+
+    // Three columns carry no field.
+    refused(
+        &with("", &format!("{COMPASS}{mag3}")),
+        "sensor[0].field",
+        &["columns carry no field", "\"mag\"", "\"accel\""],
+    );
+    refused(
+        &with("", &format!("{COMPASS}{mag3}field = \"gyro\"\n")),
+        "sensor[0].field",
+        &["gyro"],
+    );
+    // A column twice.
+    refused(
+        &with(
+            "",
+            &format!("{COMPASS}axes = [\"mag_x\", \"mag_y\", \"mag_x\"]\nfield = \"mag\"\n"),
+        ),
+        "sensor[0].axes[2]",
+        &["'mag_x' is already axes[0]"],
+    );
+    // A column of no file: every file's columns listed.
+    refused(
+        &with(
+            "",
+            &format!("{COMPASS}axes = [\"mag_x\", \"mag_y\", \"mag_w\"]\nfield = \"mag\"\n"),
+        ),
+        "sensor[0].axes[2]",
+        &[
+            "no column 'mag_w'",
+            "t_s, mag_x, mag_y, mag_z, temp_c in",
+            "mag.csv",
+            "acc_x",
+            "imu.csv",
+        ],
+    );
+    // A column in both files is ambiguous.
+    refused(
+        &with(
+            "",
+            &format!("{COMPASS}axes = [\"mag_x\", \"mag_y\", \"temp_c\"]\nfield = \"mag\"\n"),
+        ),
+        "sensor[0].axes[2]",
+        &["'temp_c' is a column of both", "mag.csv", "imu.csv"],
+    );
+    // Columns of two files.
+    refused(
+        &with(
+            "",
+            &format!("{COMPASS}axes = [\"mag_x\", \"mag_y\", \"acc_z\"]\nfield = \"mag\"\n"),
+        ),
+        "sensor[0].axes[2]",
+        &[
+            "'acc_z' is a column of",
+            "imu.csv",
+            "'mag_x' is of",
+            "mag.csv",
+            "one file",
+        ],
+    );
+    // The time column.
+    refused(
+        &with(
+            "",
+            &format!("{COMPASS}axes = [\"mag_x\", \"mag_y\", \"t_s\"]\nfield = \"mag\"\n"),
+        ),
+        "sensor[0].axes[2]",
+        &["time column"],
+    );
+    // A 2-axis sensor's keys on a 3-axis one.
+    for (line, key) in [
+        ("gyro = \"gyro_z\"", "gyro"),
+        ("gyro_units = \"rad/s\"", "gyro_units"),
+        ("chip = \"x\"", "chip"),
+        ("[sensor.rotation]\nmax_gap_deg = 20", "rotation"),
+    ] {
+        refused(
+            &with("", &format!("{COMPASS}{mag3}field = \"mag\"\n{line}\n")),
+            &format!("sensor[0].{key}"),
+            &[key],
+        );
+    }
+    // 3-axis keys on a 2-axis csv sensor.
+    refused(
+        &with(
+            "",
+            &format!("{COMPASS}axes = [\"mag_x\", \"mag_y\"]\nlsb_per_gauss = 1090\n"),
+        ),
+        "sensor[0].lsb_per_gauss",
+        &["three columns in axes, with field"],
+    );
+    // A 2-axis sensor's gyro from the other file.
+    refused(
+        &with(
+            "",
+            &format!("{COMPASS}axes = [\"mag_x\", \"mag_y\"]\ngyro = \"gyro_z\"\n"),
+        ),
+        "sensor[0].gyro",
+        &["imu.csv", "the axes' file"],
+    );
+    // The tilt source must be a 3-axis accelerometer of the source.
+    refused(
+        &with(
+            "",
+            &format!(
+                "{COMPASS}{mag3}field = \"mag\"\ntilt = \"flat\"\n\n[[sensor]]\nname = \"flat\"\n\
+                 source = \"board\"\naxes = [\"acc_x\", \"acc_y\"]\n"
+            ),
+        ),
+        "sensor[0].tilt",
+        &["2-axis sensor"],
+    );
+    // The source: file and files, period_s, the count, a file twice.
+    let sensor = format!("{COMPASS}{mag3}field = \"mag\"\n");
+    let (_, mag, _) = FILES.with(|f| f.clone());
+    refused(
+        &with(&format!("file = \"{}\"", mag.display()), &sensor),
+        "source[0].files",
+        &["both `file` and `files`"],
+    );
+    refused(
+        &with("period_s = 0.01", &sensor),
+        "source[0].period_s",
+        &["single file"],
+    );
+    let many = vec![format!("\"{}\"", mag.display()); 17].join(", ");
+    refused(
+        &format!("[[source]]\nname = \"board\"\nkind = \"csv\"\nfiles = [{many}]\n\n{sensor}"),
+        "source[0].files",
+        &["17 files", "1 to 16"],
+    );
+    refused(
+        &format!(
+            "[[source]]\nname = \"board\"\nkind = \"csv\"\nfiles = [\"{0}\", \"{0}\"]\n\n{sensor}",
+            mag.display()
+        ),
+        "source[0].files[1]",
+        &["already files[0]"],
+    );
+    refused(
+        &format!(
+            "[[source]]\nname = \"board\"\nkind = \"csv\"\nfiles = [\"{}\", \"nowhere.csv\"]\n\n{sensor}",
+            mag.display()
+        ),
+        "source[0].files[1]",
+        &["nowhere.csv"],
+    );
+}
