@@ -83,6 +83,30 @@ pub struct RotationView {
     /// Missing headings as [start, end] degrees; end < start wraps through 0°.
     pub missing: Vec<[f64; 2]>,
     pub samples: usize,
+    /// A 3-axis sensor's sphere: the missing directions by the axes they
+    /// lie toward ("-z", "+x+y"); `None` for a 2-axis sensor's rotation.
+    pub sphere: Option<Vec<String>>,
+}
+
+impl RotationView {
+    /// "missing 120-200°" of a rotation, "missing -z, +x+y" of a sphere;
+    /// empty when nothing is missing.
+    fn missing_words(&self) -> String {
+        match &self.sphere {
+            Some(toward) if !toward.is_empty() => format!("missing {}", toward.join(", ")),
+            Some(_) => String::new(),
+            None => missing_text(&self.missing),
+        }
+    }
+
+    /// What the person holding the sensor should do next.
+    fn further(&self) -> &'static str {
+        if self.sphere.is_some() {
+            "tumble further"
+        } else {
+            "turn further"
+        }
+    }
 }
 
 impl From<&Progress> for RotationView {
@@ -99,6 +123,7 @@ impl From<&Progress> for RotationView {
             coverage_pct: p.coverage_pct.min(turned_pct).clamp(0.0, 100.0),
             missing: p.missing_sectors.clone(),
             samples: p.samples,
+            sphere: None,
         }
     }
 }
@@ -167,6 +192,7 @@ impl SensorSnapshot {
                         coverage_pct: p.coverage_pct,
                         missing: Vec::new(),
                         samples: p.samples,
+                        sphere: Some(p.missing.iter().map(|m| m.toward.clone()).collect()),
                     })
                 }),
             calibration: sensor.calibration().map(|c| (c.id, c.rms)),
@@ -316,7 +342,7 @@ pub fn render_line(view: &SensorView, name_width: usize) -> String {
     let name = format!("{:<name_width$}", view.sensor);
     let rotation_line = |r: &RotationView, words: &str| {
         let mut line = format!("{name}  {} {:>3.0} %", bar(r.coverage_pct), r.coverage_pct);
-        let missing = missing_text(&r.missing);
+        let missing = r.missing_words();
         if !missing.is_empty() {
             line.push_str("  ");
             line.push_str(&missing);
@@ -332,7 +358,7 @@ pub fn render_line(view: &SensorView, name_width: usize) -> String {
             rotation_line(r, &rejected_words(reason, suggested.as_deref()))
         }
         (Some(r), _) if r.samples == 0 => rotation_line(r, "waiting for readings"),
-        (Some(r), _) => rotation_line(r, "turn further"),
+        (Some(r), _) => rotation_line(r, r.further()),
         (
             None,
             Some(Outcome::Accepted {
@@ -465,24 +491,37 @@ impl Board {
             if !track.attempt {
                 track.attempt = true;
                 track.quarter = 0;
-                logs.push(format!(
-                    "{}: rotation started; turn the sensor a full rotation",
-                    s.sensor
-                ));
+                logs.push(if r.sphere.is_some() {
+                    format!(
+                        "{}: collecting the sphere; tumble the sensor through every direction",
+                        s.sensor
+                    )
+                } else {
+                    format!(
+                        "{}: rotation started; turn the sensor a full rotation",
+                        s.sensor
+                    )
+                });
             }
             let quarter = (r.coverage_pct / 25.0).floor().clamp(0.0, 3.0) as u8;
             if quarter > track.quarter {
                 track.quarter = quarter;
-                let missing = missing_text(&r.missing);
+                let missing = r.missing_words();
                 logs.push(format!(
-                    "{}: {:.0} % of headings covered{}; turn further",
+                    "{}: {:.0} % of {} covered{}; {}",
                     s.sensor,
                     r.coverage_pct,
+                    if r.sphere.is_some() {
+                        "the sphere"
+                    } else {
+                        "headings"
+                    },
                     if missing.is_empty() {
                         String::new()
                     } else {
                         format!(", {missing}")
-                    }
+                    },
+                    r.further()
                 ));
             }
         }
@@ -930,7 +969,36 @@ mod tests {
             coverage_pct: pct,
             missing,
             samples,
+            sphere: None,
         }
+    }
+
+    #[test]
+    fn a_sphere_is_tumbled_not_turned() {
+        let r = RotationView {
+            coverage_pct: 62.0,
+            missing: Vec::new(),
+            samples: 400,
+            sphere: Some(vec!["-z".into(), "+x+y".into()]),
+        };
+        let line = render_line(&view(Some(r.clone()), None), 7);
+        assert!(
+            line.ends_with("62 %  missing -z, +x+y  tumble further"),
+            "{line}"
+        );
+        let mut board = Board::default();
+        let logs = board.update(&[SensorSnapshot {
+            sensor: "compass".into(),
+            rotation: Some(r),
+            calibration: None,
+        }]);
+        assert_eq!(
+            logs,
+            [
+                "compass: collecting the sphere; tumble the sensor through every direction",
+                "compass: 62 % of the sphere covered, missing -z, +x+y; tumble further"
+            ]
+        );
     }
 
     fn view(rotation: Option<RotationView>, outcome: Option<Outcome>) -> SensorView {
