@@ -456,3 +456,13 @@ fn bad_options_are_refused_by_name() {
     let msg = run_err(&["simulate", "--period=-1"]);
     assert!(msg.contains("--period must be a positive number"), "{msg}");
 }
+
+#[test]
+fn nan_words_are_told_from_letters_in_a_name() {
+    assert!(common::has_nan_word("rms NaN %"));
+    assert!(common::has_nan_word("r = NaN"));
+    assert!(common::has_nan_word("(NaN)"));
+    assert!(!common::has_nan_word("/tmp/.tmp0NaNIS/few.csv"));
+    assert!(!common::has_nan_word("/tmp/.tmpNaN1/x"));
+    assert!(!common::has_nan_word("no number here"));
+}
