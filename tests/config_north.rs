@@ -232,3 +232,31 @@ fn a_csv_sensor_takes_its_own_declination_and_not_the_daemons() {
     let c = parsed(&text("[daemon]\ndeclination_deg = 4.25", ""));
     assert!(c.sensors[0].north.is_none());
 }
+
+/// A 3-axis csv sensor names its field: true north is refused on its
+/// accelerometer, and taken by its magnetometer.
+#[test]
+fn a_3_axis_csv_accelerometer_takes_no_declination() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("imu.csv");
+    std::fs::write(
+        &csv,
+        "t_s,mag_x,mag_y,mag_z,acc_x,acc_y,acc_z\n0,1,2,3,0,0,1\n",
+    )
+    .unwrap();
+    let text = |field: &str, axes: &str| {
+        format!(
+            "[[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"{}\"\n\n\
+             [[sensor]]\nname = \"s\"\nsource = \"log\"\nfield = \"{field}\"\n\
+             axes = {axes}\ndeclination_deg = 4.25\n",
+            csv.display()
+        )
+    };
+    refused(
+        &text("accel", r#"["acc_x", "acc_y", "acc_z"]"#),
+        "sensor[0].declination_deg",
+        &["magnetometer's", "accel"],
+    );
+    let c = parsed(&text("mag", r#"["mag_x", "mag_y", "mag_z"]"#));
+    assert_eq!(c.sensors[0].north.as_ref().unwrap().declination_deg, 4.25);
+}

@@ -910,19 +910,7 @@ impl Checker<'_> {
                 // A 3-axis csv sensor names its field: true north is a
                 // magnetometer's (a 2-axis one's columns carry no field).
                 if north.is_some() && sensor.three.is_some() && sensor.field != Field::Mag {
-                    let name = if location_given {
-                        "location"
-                    } else {
-                        "declination_deg"
-                    };
-                    return Err(self.error(
-                        &format!("{key}.{name}"),
-                        format!(
-                            "`{name}` is a magnetometer's: this sensor measures {}, whose \
-                             heading owes nothing to the Earth's magnetic north; leave it out",
-                            sensor.field.name()
-                        ),
-                    ));
+                    return Err(self.north_not_magnetometer(&key, location_given, sensor.field));
                 }
                 sensor.north = north;
                 if let Some(tilt) = tilt {
@@ -942,19 +930,7 @@ impl Checker<'_> {
             };
             let north = match north {
                 Some(_) if field != Field::Mag => {
-                    let name = if s.location.is_some() {
-                        "location"
-                    } else {
-                        "declination_deg"
-                    };
-                    return Err(self.error(
-                        &format!("{key}.{name}"),
-                        format!(
-                            "`{name}` is a magnetometer's: this sensor measures {}, whose \
-                             heading owes nothing to the Earth's magnetic north; leave it out",
-                            field.name()
-                        ),
-                    ));
+                    return Err(self.north_not_magnetometer(&key, s.location.is_some(), field));
                 }
                 Some(n) => Some(n),
                 None if field == Field::Mag => daemon_north.clone(),
@@ -2185,6 +2161,23 @@ impl Checker<'_> {
                 ),
             )),
         }
+    }
+
+    /// `declination_deg` or `location` on a sensor that is no magnetometer.
+    fn north_not_magnetometer(&self, key: &str, location_given: bool, field: Field) -> ConfigError {
+        let name = if location_given {
+            "location"
+        } else {
+            "declination_deg"
+        };
+        self.error(
+            &format!("{key}.{name}"),
+            format!(
+                "`{name}` is a magnetometer's: this sensor measures {}, whose heading owes \
+                 nothing to the Earth's magnetic north; leave it out",
+                field.name()
+            ),
+        )
     }
 
     /// A `[[sensor]]` with three axes: its 3-D settings, and the name its
