@@ -444,7 +444,10 @@ fn a_subscriber_that_never_reads_slows_nobody_and_its_drops_are_counted() {
         .last()
         .expect("no STATUS reply reached the reading subscriber");
     let (given, dropped) = (f(&last["readings"]) as u64, f(&last["dropped"]) as u64);
-    assert!(*before >= 10_000, "the last reply came after {before} readings: {last}");
+    assert!(
+        *before >= 10_000,
+        "the last reply came after {before} readings: {last}"
+    );
     assert_eq!(
         *before as u64,
         given - dropped,

@@ -184,6 +184,15 @@ fn the_real_tilt_sphere_pair_calibrates_the_compass_in_3d_with_tilt_compensated_
         assert_eq!(v["tilt"]["sensor"], "level");
         assert!(f(&v["tilt"]["tilt_deg"]).is_finite());
     }
+    // A calibrated READING without a heading says why: on a tumble, the
+    // board stood on its end (forward axis vertical) or the field near
+    // the vertical.
+    for v in calibrated.iter().filter(|v| v.get("heading_deg").is_none()) {
+        let why = v["heading_omitted"]
+            .as_str()
+            .unwrap_or_else(|| panic!("no reason: {v}"));
+        assert!(why.contains("vertical"), "{why}");
+    }
     // The heading turns with the board: the recording covers the sphere.
     let spread = with_heading
         .iter()

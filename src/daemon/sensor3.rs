@@ -24,7 +24,7 @@ use super::{Calibration, Ellipsoid3Params};
 use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
 use crate::model::paper::PaperCalibration;
 use crate::model::sphere::{self, MissingDirections, SphereCoverage};
-use crate::model::tilt::{RobustSpread, inclination_deg, robust_spread, tilt_heading};
+use crate::model::tilt::{RobustSpread, inclination_deg, robust_spread, tilt_heading_or_why};
 use crate::sample::Reading;
 
 /// ArduPilot's compass calibrator collects `COMPASS_CAL_NUM_SAMPLES` = 300
@@ -738,8 +738,8 @@ impl Sensor3 {
                     Some(p) => apply3(p, accel_raw),
                     None => accel_raw,
                 };
-                tilt_heading(mag, accel, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]).map(|h| {
-                    (
+                match tilt_heading_or_why(mag, accel, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]) {
+                    Ok(h) => Some((
                         h.heading_deg,
                         TiltFields {
                             sensor: &source.sensor,
@@ -749,8 +749,12 @@ impl Sensor3 {
                             pitch_deg: h.pitch_deg,
                             inclination_deg: h.inclination_deg,
                         },
-                    )
-                })
+                    )),
+                    Err(why) => {
+                        heading_omitted = Some(why.to_string());
+                        None
+                    }
+                }
             }
             _ => None,
         };

@@ -36,28 +36,73 @@ pub struct TiltHeading {
     pub tilt_deg: f64,
 }
 
+/// Why a sample has no tilt-compensated heading.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum NoHeading {
+    /// A component of the field or the specific force is NaN or infinite.
+    #[error("the field or the tilt reading is not finite")]
+    NotFinite,
+    /// The field, the specific force or the forward axis is zero.
+    #[error("the field, the tilt reading or the forward axis is zero")]
+    Zero,
+    /// The field is within 5° of the vertical: its horizontal part, which
+    /// gives north, is noise (near a magnetic pole, or motion along it).
+    #[error(
+        "the field is {angle_deg:.1}° from the vertical, within 5°: it has no horizontal part to \
+         give north"
+    )]
+    FieldVertical {
+        /// The field's angle from the vertical, degrees.
+        angle_deg: f64,
+    },
+    /// The forward axis is within a degree of the vertical: it points at no
+    /// heading (a board stood on its end).
+    #[error(
+        "the forward axis is {angle_deg:.1}° from the vertical, within 1°: it points at no \
+         heading"
+    )]
+    ForwardVertical {
+        /// The forward axis's angle from the vertical, degrees.
+        angle_deg: f64,
+    },
+}
+
 /// The tilt-compensated heading of the body's `forward` and `up` axes
 /// (unit vectors of the body frame; the usual board: forward +x, up +z),
 /// from a calibrated field `mag` and a calibrated specific force `accel` in
 /// that frame. `None` when a vector is zero or not finite, when the forward
 /// axis is within a degree of the vertical (it has no heading), or when the
-/// field is too near the vertical ([`MIN_HORIZONTAL_FRACTION`]).
+/// field is too near the vertical ([`MIN_HORIZONTAL_FRACTION`]);
+/// [`tilt_heading_or_why`] says which.
 pub fn tilt_heading(
     mag: [f64; 3],
     accel: [f64; 3],
     forward: [f64; 3],
     up_axis: [f64; 3],
 ) -> Option<TiltHeading> {
+    tilt_heading_or_why(mag, accel, forward, up_axis).ok()
+}
+
+/// [`tilt_heading`], or why the sample has none.
+pub fn tilt_heading_or_why(
+    mag: [f64; 3],
+    accel: [f64; 3],
+    forward: [f64; 3],
+    up_axis: [f64; 3],
+) -> Result<TiltHeading, NoHeading> {
     let m = Vector3::from(mag);
     let a = Vector3::from(accel);
     let f = Vector3::from(forward);
     let b_up = Vector3::from(up_axis);
     if !(m.iter().chain(a.iter()).all(|v| v.is_finite())) {
-        return None;
+        return Err(NoHeading::NotFinite);
     }
     let (m_norm, a_norm, f_norm) = (m.norm(), a.norm(), f.norm());
-    if m_norm == 0.0 || a_norm == 0.0 || f_norm == 0.0 || !f_norm.is_finite() {
-        return None;
+    if !f_norm.is_finite() {
+        return Err(NoHeading::NotFinite);
+    }
+    if m_norm == 0.0 || a_norm == 0.0 || f_norm == 0.0 {
+        return Err(NoHeading::Zero);
     }
     let up = a / a_norm;
     let f = f / f_norm;
@@ -66,14 +111,18 @@ pub fn tilt_heading(
     let east = m.cross(&up);
     let horizontal = east.norm() / m_norm;
     if horizontal < MIN_HORIZONTAL_FRACTION {
-        return None;
+        return Err(NoHeading::FieldVertical {
+            angle_deg: horizontal.clamp(0.0, 1.0).asin().to_degrees(),
+        });
     }
     let east = east / east.norm();
     let north = up.cross(&east);
     let (fe, fn_) = (f.dot(&east), f.dot(&north));
     // The forward axis within a degree of the vertical has no heading.
     if fe.hypot(fn_) < 1.0_f64.to_radians().sin() {
-        return None;
+        return Err(NoHeading::ForwardVertical {
+            angle_deg: fe.hypot(fn_).clamp(0.0, 1.0).asin().to_degrees(),
+        });
     }
     let heading_deg = fe.atan2(fn_).to_degrees().rem_euclid(360.0);
     let inclination_deg = (-(m.dot(&up)) / m_norm)
@@ -90,7 +139,7 @@ pub fn tilt_heading(
     } else {
         f64::NAN
     };
-    Some(TiltHeading {
+    Ok(TiltHeading {
         heading_deg: if heading_deg >= 360.0 {
             0.0
         } else {
@@ -932,11 +981,31 @@ mod tests {
     fn no_heading_without_a_horizontal_field_or_with_bad_input() {
         let (m, a) = seen(10.0, 0.0, 0.0, 89.0);
         assert!(tilt_heading(m, a, FORWARD, UP).is_none());
-        assert!(tilt_heading([0.0; 3], a, FORWARD, UP).is_none());
-        assert!(tilt_heading(m, [f64::NAN, 0.0, 1.0], FORWARD, UP).is_none());
+        match tilt_heading_or_why(m, a, FORWARD, UP) {
+            Err(NoHeading::FieldVertical { angle_deg }) => {
+                assert!((angle_deg - 1.0).abs() < 1e-9, "{angle_deg}")
+            }
+            other => panic!("{other:?}"),
+        }
+        // 6° from the vertical still has a heading.
+        let (m6, a6) = seen(10.0, 0.0, 0.0, 84.0);
+        assert!(tilt_heading(m6, a6, FORWARD, UP).is_some());
+        assert_eq!(
+            tilt_heading_or_why([0.0; 3], a, FORWARD, UP),
+            Err(NoHeading::Zero)
+        );
+        assert_eq!(
+            tilt_heading_or_why(m, [f64::NAN, 0.0, 1.0], FORWARD, UP),
+            Err(NoHeading::NotFinite)
+        );
         // The forward axis pointing straight up.
         let (m, a) = seen(10.0, 90.0, 0.0, 60.0);
-        assert!(tilt_heading(m, a, FORWARD, UP).is_none());
+        let why = tilt_heading_or_why(m, a, FORWARD, UP).unwrap_err();
+        assert!(
+            matches!(why, NoHeading::ForwardVertical { angle_deg } if angle_deg < 1e-6),
+            "{why:?}"
+        );
+        assert!(why.to_string().contains("forward axis"), "{why}");
     }
 
     #[test]
