@@ -220,12 +220,28 @@ pub struct Earth {
     pub measured_inclination_spread_deg: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub measured_inclination_n: Option<usize>,
+    /// Whether the tilt accelerometer was corrected by its calibration
+    /// when the inclination was measured: `"calibrated"` or `"raw"` (not
+    /// calibrated yet; its zero-g bias and gains tilt the vertical).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measured_inclination_accelerometer: Option<&'static str>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub inclination_allowed_deg: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub inclination_agrees: Option<bool>,
     /// What the comparison says, in a sentence.
     pub verdict: String,
+}
+
+/// The inclination measured over a fit's samples with the tilt
+/// accelerometer beside each.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeasuredDip {
+    /// Median, robust spread and count, degrees.
+    pub spread: RobustSpread,
+    /// Whether the accelerometer's readings were corrected by its
+    /// calibration (false: raw, not calibrated yet).
+    pub accelerometer_calibrated: bool,
 }
 
 /// The fitted field beside the model's, when `north` has a location: `r`
@@ -236,7 +252,7 @@ pub fn earth(
     north: &North,
     r: f64,
     lsb_per_gauss: Option<f64>,
-    inclination: Result<RobustSpread, String>,
+    inclination: Result<MeasuredDip, String>,
 ) -> Option<Earth> {
     let m = north.model.as_ref()?;
     let f = m.total_intensity_nt;
@@ -247,7 +263,17 @@ pub fn earth(
     let ratio = r_nt.map(|v| v / f);
     let ratio_allowed = intensity_allowed_nt(m) / f;
     let magnitude_agrees = ratio.map(|q| (q - 1.0).abs() <= ratio_allowed);
-    let incl = inclination.as_ref().ok().map(|i| {
+    let raw_accel = inclination
+        .as_ref()
+        .is_ok_and(|d| !d.accelerometer_calibrated);
+    // Said beside the figure when the accelerometer was not corrected.
+    let with = if raw_accel {
+        " (with the raw, uncalibrated accelerometer)"
+    } else {
+        ""
+    };
+    let incl = inclination.as_ref().ok().map(|d| {
+        let i = &d.spread;
         let allowed = inclination_allowed_deg(i, m);
         (i, allowed, (i.median - m.inclination_deg).abs() <= allowed)
     });
@@ -280,9 +306,15 @@ pub fn earth(
     match (&incl, &inclination) {
         (Some((i, allowed, false)), _) => {
             wrong.push(format!(
-                "inclination {:.1}° against the model's {:.1}°, allowed ±{allowed:.1}°",
+                "inclination {:.1}°{with} against the model's {:.1}°, allowed ±{allowed:.1}°",
                 i.median, m.inclination_deg
             ));
+            if raw_accel && !is_mirrored(i.median, m, *allowed) {
+                causes.push(
+                    "the tilt accelerometer is not calibrated yet (its zero-g bias and gains \
+                     tilt the vertical it gives: compare again once it is)",
+                );
+            }
             causes.push(if is_mirrored(i.median, m, *allowed) {
                 "the measured dip has the model's size and the opposite sign: the \
                  magnetometer's axes are mirrored against the tilt accelerometer's (check the \
@@ -293,7 +325,7 @@ pub fn earth(
             });
         }
         (Some((i, _, true)), _) => right.push(format!(
-            "inclination {:.1}° against {:.1}°",
+            "inclination {:.1}°{with} against {:.1}°",
             i.median, m.inclination_deg
         )),
         (None, Err(why)) => not_compared.push(format!("the inclination is not compared: {why}")),
@@ -339,6 +371,13 @@ pub fn earth(
         measured_inclination_deg: incl.map(|(i, _, _)| i.median),
         measured_inclination_spread_deg: incl.map(|(i, _, _)| i.spread),
         measured_inclination_n: incl.map(|(i, _, _)| i.n),
+        measured_inclination_accelerometer: inclination.as_ref().ok().map(|d| {
+            if d.accelerometer_calibrated {
+                "calibrated"
+            } else {
+                "raw"
+            }
+        }),
         inclination_allowed_deg: incl.map(|(_, a, _)| a),
         inclination_agrees: incl.map(|(_, _, ok)| ok),
         verdict,
@@ -430,10 +469,13 @@ mod tests {
         let lsb = 2000.0;
         let r_right = m.total_intensity_nt / 1e5 * lsb;
         let incl = |median| {
-            Ok(RobustSpread {
-                median,
-                spread: 1.0,
-                n: 1000,
+            Ok(MeasuredDip {
+                spread: RobustSpread {
+                    median,
+                    spread: 1.0,
+                    n: 1000,
+                },
+                accelerometer_calibrated: true,
             })
         };
         let e = earth(&north, r_right * 1.01, Some(lsb), incl(-71.5)).unwrap();
@@ -454,6 +496,31 @@ mod tests {
         let e = earth(&north, r_right, Some(lsb), incl(72.0)).unwrap();
         assert_eq!(e.inclination_agrees, Some(false));
         assert!(e.verdict.contains("mirrored"), "{}", e.verdict);
+        assert_eq!(e.measured_inclination_accelerometer, Some("calibrated"));
+        assert!(!e.verdict.contains("raw"), "{}", e.verdict);
+        // The same dip, off by 4°, measured with a raw accelerometer: said
+        // beside the figure and among the causes.
+        let raw = |median| {
+            incl(median).map(|d| MeasuredDip {
+                accelerometer_calibrated: false,
+                ..d
+            })
+        };
+        let e = earth(&north, r_right, Some(lsb), raw(-68.0)).unwrap();
+        assert_eq!(e.inclination_agrees, Some(false), "{e:?}");
+        assert_eq!(e.measured_inclination_accelerometer, Some("raw"));
+        assert!(
+            e.verdict.contains("raw, uncalibrated accelerometer"),
+            "{}",
+            e.verdict
+        );
+        assert!(e.verdict.contains("not calibrated yet"), "{}", e.verdict);
+        let e = earth(&north, r_right, Some(lsb), raw(-71.5)).unwrap();
+        assert!(
+            e.verdict.contains("agrees") && e.verdict.contains("raw"),
+            "{}",
+            e.verdict
+        );
         // No units, no tilt.
         let e = earth(&north, r_right, None, Err("no tilt".into())).unwrap();
         assert_eq!(e.ratio, None);

@@ -17,14 +17,14 @@ use serde::{Deserialize, Serialize};
 
 use super::config::{Axis, Field, SensorConfig};
 use super::messages::{SensorState, to_line};
-use super::north::{Earth, North, earth};
+use super::north::{Earth, MeasuredDip, North, earth};
 use super::publish::Lane;
 use super::sensor::Emit;
 use super::{Calibration, Ellipsoid3Params};
 use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
 use crate::model::paper::PaperCalibration;
 use crate::model::sphere::{self, MissingDirections, SphereCoverage};
-use crate::model::tilt::{RobustSpread, inclination_deg, robust_spread, tilt_heading_or_why};
+use crate::model::tilt::{inclination_deg, robust_spread, tilt_heading_or_why};
 use crate::sample::Reading;
 
 /// ArduPilot's compass calibrator collects `COMPASS_CAL_NUM_SAMPLES` = 300
@@ -1046,7 +1046,7 @@ impl Sensor3 {
     /// with the tilt accelerometer's reading beside it (corrected by its
     /// calibration, when it has one): median and robust spread, as
     /// `fieldcal heading` measures it.
-    fn measured_inclination(&self, params: &Ellipsoid3Params) -> Result<RobustSpread, String> {
+    fn measured_inclination(&self, params: &Ellipsoid3Params) -> Result<MeasuredDip, String> {
         if self.config.tilt.is_none() {
             return Err(
                 "the sensor has no tilt accelerometer (tilt = the 3-axis accelerometer \
@@ -1072,6 +1072,10 @@ impl Sensor3 {
             })
             .collect();
         robust_spread(&values)
+            .map(|spread| MeasuredDip {
+                spread,
+                accelerometer_calibrated: accel_cal.is_some(),
+            })
             .ok_or_else(|| "no fitted sample had a tilt accelerometer reading beside it".into())
     }
 
