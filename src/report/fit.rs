@@ -103,6 +103,12 @@ const VALUE_WIDTH: usize = 22;
 
 /// One `label  value  note` line of a text report, trailing blanks trimmed.
 fn push_line(out: &mut String, value_width: usize, label: &str, value: &str, note: &str) {
+    // A value too long for its column keeps two blanks before the note.
+    let value = if value.chars().count() + 2 > value_width {
+        format!("{value}  ")
+    } else {
+        value.to_string()
+    };
     out.push_str(format!("{label:<10}{value:<value_width$}{note}").trim_end());
     out.push('\n');
 }
@@ -362,4 +368,25 @@ pub fn render_model_text(
         "",
     );
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_value_wider_than_its_column_keeps_two_blanks_before_the_note() {
+        let mut out = String::new();
+        push_line(
+            &mut out,
+            VALUE_WIDTH,
+            "b",
+            "2.090700e-17 ± 8.1e-18",
+            "offset of x",
+        );
+        assert_eq!(out, "b         2.090700e-17 ± 8.1e-18  offset of x\n");
+        let mut out = String::new();
+        push_line(&mut out, VALUE_WIDTH, "a", "1.000000 ± 1.6e-17", "gain");
+        assert_eq!(out, "a         1.000000 ± 1.6e-17    gain\n");
+    }
 }
