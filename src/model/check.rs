@@ -373,10 +373,15 @@ pub fn moved_text(parameters: &[ParamShift], meaning: impl Fn(&str) -> String) -
         .iter()
         .filter(|p| p.moved)
         .map(|p| {
+            let by = if p.z.is_finite() {
+                format!("by {:.1} SE", p.z.abs())
+            } else {
+                // A stored value so far off that the SE count overflows.
+                "far beyond its standard errors".to_string()
+            };
             format!(
-                "{} moved by {:.1} SE ({} → {} ± {}): {}",
+                "{} moved {by} ({} → {} ± {}): {}",
                 p.name,
-                p.z.abs(),
                 sig(p.stored),
                 sig(p.refitted),
                 crate::report::significant(p.refitted_se, 2),
@@ -682,6 +687,21 @@ pub fn check(
 mod tests {
     use super::*;
     use crate::sim::SimSensor;
+
+    #[test]
+    fn a_move_too_large_to_count_in_standard_errors_is_said_in_words() {
+        let moved = ParamShift::compare("r".into(), (1e308, 1e-12), (1.0, 1e-12), true, 3.29);
+        assert!(moved.moved && moved.z.is_infinite());
+        let text = moved_text(&[moved], |_| "the field changed".into());
+        assert!(
+            text.starts_with("r moved far beyond its standard errors (1"),
+            "{text}"
+        );
+        assert!(!text.contains("inf"), "{text}");
+        let moved = ParamShift::compare("b".into(), (1.0, 0.1), (2.0, 0.0), true, 3.29);
+        let text = moved_text(&[moved], |_| String::new());
+        assert!(text.starts_with("b moved by 10.0 SE"), "{text}");
+    }
 
     #[test]
     fn normal_quantile_matches_tables() {
