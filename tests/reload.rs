@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 
 use common::daemon::{Daemon, is_class, write_config};
 use common::faults::{free_port, long_capture};
+use common::http::{live_address, request};
 use serde_json::Value;
 
 /// A capture of 60 turns (10 s each), replayed at 10 times real time: a
@@ -193,8 +194,21 @@ fn sighup_with_the_same_file_changes_nothing_and_sigterm_still_stops_cleanly() {
 /// the other sensor keeps its calibration and state.
 #[test]
 fn a_changed_model_starts_a_new_rotation_for_that_sensor_only() {
-    let s = setup("0.2", "");
+    let http = "http = \"127.0.0.1:0\"";
+    let s = setup("0.2", http);
     let mut daemon = Daemon::start(&s.config, &[]);
+    let page = live_address(&daemon.wait_for_log(Duration::from_secs(10), "live page at http://"));
+    let model_on_page = |name: &str| {
+        let cfg = request(&page, "GET", "/api/config", None, Duration::from_secs(5)).json();
+        let sensor = cfg["sensors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["name"] == name)
+            .cloned();
+        sensor.map(|s| s["model"].clone())
+    };
+    assert_eq!(model_on_page("heading"), Some("offset+scale".into()));
     both_calibrated(&mut daemon);
 
     write_config(
@@ -204,7 +218,7 @@ fn a_changed_model_starts_a_new_rotation_for_that_sensor_only() {
             &s.capture,
             SPEED,
             "0.2",
-            "",
+            http,
             "model = [\"paper\", \"cross-axis\"]",
         ),
     );
@@ -231,6 +245,12 @@ fn a_changed_model_starts_a_new_rotation_for_that_sensor_only() {
         ),
         "{summary}"
     );
+    // The live page's configuration follows the reload.
+    assert_eq!(
+        model_on_page("heading"),
+        Some("offset+scale+cross-axis".into())
+    );
+    assert_eq!(model_on_page("compass"), Some("offset+scale".into()));
     // The next reading of heading is still corrected by calibration 1,
     // and the status says it recalibrates.
     let reading = daemon.wait_for_value(Duration::from_secs(5), "a READING of heading", |v| {

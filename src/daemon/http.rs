@@ -76,8 +76,29 @@ const ANSWER_LINES: usize = 64;
 struct App {
     hub: Hub,
     commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
-    config_json: Arc<str>,
+    /// `/api/config`'s body, replaced when a reload changes the sensors.
+    config_json: watch::Receiver<Arc<str>>,
     access: Access,
+}
+
+/// The daemon's handle on what `/api/config` serves: a reload that changes
+/// the sensors (their model, limits, rotation or sphere rules) updates it,
+/// so a page opened after the reload judges numbers by the limits in force.
+#[derive(Debug)]
+pub struct PageConfig(watch::Sender<Arc<str>>);
+
+impl PageConfig {
+    /// Serves `config`'s sensors from now on.
+    pub fn update(&self, config: &Config) {
+        let body: Arc<str> = Arc::from(page_config(config).to_string());
+        self.0.send_if_modified(|old| {
+            let changed = *old != body;
+            if changed {
+                *old = body;
+            }
+            changed
+        });
+    }
 }
 
 /// What `/api/config` serves: the sensors with the limits their fits are
@@ -145,19 +166,30 @@ pub fn router(
     commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
     config: &Config,
 ) -> Router {
+    router_with_config(hub, commands, config).0
+}
+
+/// [`router`], and the handle that updates `/api/config` after a reload.
+pub fn router_with_config(
+    hub: Hub,
+    commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
+    config: &Config,
+) -> (Router, PageConfig) {
+    let (tx, rx) = watch::channel(Arc::from(page_config(config).to_string()));
     let app = App {
         hub,
         commands,
-        config_json: Arc::from(page_config(config).to_string()),
+        config_json: rx,
         access: config.outputs.access.clone(),
     };
-    Router::new()
+    let router = Router::new()
         .route("/", get(page))
         .route("/api/config", get(api_config))
         .route("/api/events", get(events))
         .route("/api/recalibrate", post(recalibrate))
         .fallback(not_found)
-        .with_state(app)
+        .with_state(app);
+    (router, PageConfig(tx))
 }
 
 /// Serves `router` on `listener` until `shutdown` turns true, with the
@@ -206,7 +238,8 @@ async fn page() -> Response {
 }
 
 async fn api_config(State(app): State<App>) -> Response {
-    json_text(StatusCode::OK, app.config_json.to_string())
+    let body = app.config_json.borrow().to_string();
+    json_text(StatusCode::OK, body)
 }
 
 async fn not_found() -> Response {

@@ -367,9 +367,12 @@ pub async fn run_with(
             async move { hub.serve_unix(listener, commands, stop).await }
         });
     }
-    if let Some(address) = &config.outputs.http {
-        spawn_live_page(*address, &hub, &commands_tx, &outputs_stop_rx, &config).await?;
-    }
+    let page_config = match &config.outputs.http {
+        Some(address) => {
+            Some(spawn_live_page(*address, &hub, &commands_tx, &outputs_stop_rx, &config).await?)
+        }
+        None => None,
+    };
     let stdout_task = config.outputs.stdout.then(|| {
         let hub = hub.clone();
         let stop = outputs_stop_rx.clone();
@@ -626,6 +629,9 @@ pub async fn run_with(
                         Some(&reload_store),
                     );
                     sensors.link_tilts();
+                    if let Some(page) = &page_config {
+                        page.update(&running);
+                    }
                     for line in outcome.lines {
                         emit(Lane::Control, line);
                     }
@@ -746,7 +752,7 @@ async fn spawn_live_page(
     commands: &mpsc::Sender<(ClientCommand, ReplyTo)>,
     stop: &watch::Receiver<bool>,
     config: &Config,
-) -> Result<(), DaemonError> {
+) -> Result<super::http::PageConfig, DaemonError> {
     let listener = tokio::net::TcpListener::bind(address)
         .await
         .map_err(|source| DaemonError::Http {
@@ -755,10 +761,11 @@ async fn spawn_live_page(
         })?;
     let bound = listener.local_addr().unwrap_or(address);
     hub.keep_for_replay(super::http::REPLAY_READINGS);
-    let router = super::http::router(hub.clone(), commands.clone(), config);
+    let (router, page_config) =
+        super::http::router_with_config(hub.clone(), commands.clone(), config);
     tracing::info!(address = %bound, "live page at http://{bound}/");
     tokio::spawn(super::http::serve(listener, router, stop.clone()));
-    Ok(())
+    Ok(page_config)
 }
 
 /// Readings go on with the new calibration in memory; the stored file stays
