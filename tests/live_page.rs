@@ -327,6 +327,33 @@ fn the_live_page_fills_the_coverage_and_shows_the_calibration_in_chromium() {
         );
         std::thread::sleep(Duration::from_millis(100));
     }
+
+    // A reload that loosens the rms limit: the open page judges by the new
+    // one (it fetches /api/config again on the RELOAD summary).
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(
+        &config,
+        format!("{text}\n[sensor.limits]\nmax_rms = 0.08\n"),
+    )
+    .unwrap();
+    // SAFETY: kill(2) on our own child's pid; no memory is touched.
+    assert_eq!(
+        unsafe { libc::kill(daemon.pid() as libc::pid_t, libc::SIGHUP) },
+        0
+    );
+    let deadline = Instant::now() + T;
+    loop {
+        let page = driver.script(READ_PAGE);
+        if page["rmsRow"].as_str().unwrap_or("").contains("≤ 8.0 %") {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the page kept the old limit after the reload: {page}; daemon log:\n{}",
+            daemon.stderr()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
     drop(daemon);
 }
 
