@@ -35,6 +35,7 @@ pub mod paper;
 pub mod residuals;
 pub mod sphere;
 pub mod still;
+pub mod still_stream;
 pub mod tilt;
 pub mod turn;
 pub mod vertical;

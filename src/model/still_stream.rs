@@ -1,0 +1,600 @@
+//! Still poses found as samples arrive: the daemon's form of
+//! [`crate::model::still::find_still`], for an accelerometer calibrated
+//! from poses held still (ArduPilot's six-position calibration) rather
+//! than from a tumble, where the hand's own acceleration spoils the fit.
+//!
+//! The rules are those of [`find_still`](crate::model::still::find_still),
+//! with the same constants:
+//! - a window holds the last [`STILL_WINDOW_S`] of samples; its spread is
+//!   the rms distance of its readings from their mean;
+//! - the noise is the [`FLOOR_QUANTILE`] of every window's spread seen so
+//!   far (a log histogram: bounded memory), once [`MIN_WINDOWS`] windows
+//!   were seen;
+//! - a window is still when its spread is within `NOISE_FACTOR` × the
+//!   noise and the motion of a hand held still, and the noise itself is
+//!   below [`MAX_NOISE_FRACTION`] of the field's scale (else the sensor has
+//!   never been still);
+//! - consecutive still windows form a pose; it ends when a window is not
+//!   still (or a gap in time). Its samples are kept (every other one
+//!   dropped when it grows beyond [`POSE_SAMPLES`] × 2: a long pose stays
+//!   evenly sampled in bounded memory).
+//!
+//! Early judgements rest on a noise estimate from few windows, so a pose
+//! is judged again whenever the poses are asked for
+//! ([`StillStream::poses`]): one whose largest window spread exceeds the
+//! current threshold is left out.
+//!
+//! Pure: samples in, poses out; no clock, no I/O.
+
+use std::collections::VecDeque;
+
+use serde::Serialize;
+
+use super::still::{
+    FLOOR_QUANTILE, HAND_STILL_DEG_S, MAX_NOISE_FRACTION, MAX_WINDOW_SAMPLES, MIN_WINDOW_SAMPLES,
+    NOISE_FACTOR, STILL_WINDOW_S,
+};
+
+/// Samples a pose keeps, about: a pose held longer is thinned evenly to
+/// between this and twice this. A pose's mean is known to noise/√100 =
+/// a tenth of the noise; more samples add nothing a fit needs.
+pub const POSE_SAMPLES: usize = 100;
+
+/// Most poses kept; the oldest goes first. ArduPilot's calibration takes
+/// six; a person placing the board on its faces and edges, 26.
+pub const MAX_POSES: usize = 64;
+
+/// Windows seen before the noise is estimated: the [`FLOOR_QUANTILE`] of
+/// 20 windows is their quietest. Fewer would leave the quantile
+/// undefined; more would lose the first pose of a person who places the
+/// board at once (20 windows end 0.9 s into a pose at 50 Hz). An estimate
+/// from few windows is corrected as more come: a pose begun under a
+/// higher threshold restarts when its spread exceeds the current one,
+/// and [`StillStream::poses`] judges every pose again.
+pub const MIN_WINDOWS: u64 = 20;
+
+/// The spread histogram: bins of a 32nd of an octave (2 %) from 2^-64
+/// to 2^64 (any unit a sensor reports in), a spread of exactly 0 in the
+/// first.
+const BINS_PER_OCTAVE: f64 = 32.0;
+const MIN_LOG2: f64 = -64.0;
+const BINS: usize = 128 * 32;
+
+/// A pose: samples at rest.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StillPose {
+    /// Time of its first and last sample.
+    pub start: f64,
+    pub end: f64,
+    /// Samples it held, in all.
+    pub count: usize,
+    /// Mean reading.
+    pub mean: [f64; 3],
+    /// Rms distance of its samples from their mean.
+    pub spread: f64,
+    /// The samples kept (evenly spaced, at most 2 × [`POSE_SAMPLES`]).
+    #[serde(skip)]
+    pub samples: Vec<[f64; 3]>,
+}
+
+/// What the detector knows now, for STATUS.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct StillState {
+    /// The noise (the quiet windows' spread), raw units; none before
+    /// [`MIN_WINDOWS`] windows.
+    pub noise: Option<f64>,
+    /// The largest spread of a still window, raw units.
+    pub threshold: Option<f64>,
+    /// The field's scale, raw units: the configured units (counts per g),
+    /// else the larger of the rms distance of every sample from their
+    /// mean and the magnitude of the current window's mean. (Before a
+    /// second pose the first is the only one, and its samples spread by
+    /// the noise alone; an accelerometer's reading at rest is g plus its
+    /// zero-g offset, far below g on any chip.)
+    pub field_scale: f64,
+    /// Whether the sensor is at rest now (in a pose).
+    pub still_now: bool,
+    /// Whether the quiet windows spread more than [`MAX_NOISE_FRACTION`]
+    /// of the field: the sensor was never at rest.
+    pub never_still: bool,
+}
+
+/// The streaming detector of still poses.
+#[derive(Debug, Clone)]
+pub struct StillStream {
+    /// The field's magnitude in raw units, when configured.
+    unit: Option<f64>,
+    window: VecDeque<(f64, [f64; 3])>,
+    // Welford's running mean and sum of squares over every sample.
+    n: u64,
+    mean: [f64; 3],
+    m2: f64,
+    hist: Vec<u32>,
+    windows: u64,
+    current: Option<PoseBuilder>,
+    poses: VecDeque<StillPose>,
+    last_time: Option<f64>,
+}
+
+#[derive(Debug, Clone)]
+struct PoseBuilder {
+    start: f64,
+    end: f64,
+    count: usize,
+    /// The first sample: sums are of the samples less it, so raw counts in
+    /// the tens of thousands lose no precision to the squares.
+    origin: [f64; 3],
+    sum: [f64; 3],
+    sum_sq: f64,
+    samples: Vec<[f64; 3]>,
+    stride: usize,
+    skipped: usize,
+}
+
+impl PoseBuilder {
+    fn new(window: &VecDeque<(f64, [f64; 3])>) -> Self {
+        let mut b = PoseBuilder {
+            start: window.front().map_or(0.0, |s| s.0),
+            end: 0.0,
+            count: 0,
+            origin: window.front().map_or([0.0; 3], |s| s.1),
+            sum: [0.0; 3],
+            sum_sq: 0.0,
+            samples: Vec::new(),
+            stride: 1,
+            skipped: 0,
+        };
+        for &(t, p) in window {
+            b.add(t, p);
+        }
+        b
+    }
+
+    fn add(&mut self, t: f64, p: [f64; 3]) {
+        self.end = t;
+        self.count += 1;
+        for k in 0..3 {
+            let d = p[k] - self.origin[k];
+            self.sum[k] += d;
+            self.sum_sq += d * d;
+        }
+        self.skipped += 1;
+        if self.skipped >= self.stride {
+            self.skipped = 0;
+            self.samples.push(p);
+            if self.samples.len() >= 2 * POSE_SAMPLES {
+                // Every other one: still evenly spaced, at twice the stride.
+                let mut i = 0;
+                self.samples.retain(|_| {
+                    i += 1;
+                    i % 2 == 1
+                });
+                self.stride *= 2;
+            }
+        }
+    }
+
+    /// Rms distance of the samples from their mean.
+    fn spread(&self) -> f64 {
+        let c = self.count.max(1) as f64;
+        let m2: f64 = self.sum.iter().map(|s| (s / c).powi(2)).sum();
+        (self.sum_sq / c - m2).max(0.0).sqrt()
+    }
+
+    fn pose(&self) -> StillPose {
+        let c = self.count.max(1) as f64;
+        StillPose {
+            start: self.start,
+            end: self.end,
+            count: self.count,
+            mean: [0, 1, 2].map(|k| self.origin[k] + self.sum[k] / c),
+            spread: self.spread(),
+            samples: self.samples.clone(),
+        }
+    }
+}
+
+impl Default for StillStream {
+    fn default() -> Self {
+        Self::new(None)
+    }
+}
+
+impl StillStream {
+    /// A detector for a field of magnitude `unit` raw units (counts per g,
+    /// `lsb_per_g`), when known.
+    pub fn new(unit: Option<f64>) -> Self {
+        StillStream {
+            unit: unit.filter(|u| u.is_finite() && *u > 0.0),
+            window: VecDeque::new(),
+            n: 0,
+            mean: [0.0; 3],
+            m2: 0.0,
+            hist: vec![0; BINS],
+            windows: 0,
+            current: None,
+            poses: VecDeque::new(),
+            last_time: None,
+        }
+    }
+
+    /// Forgets the poses (a recalibration); the noise learnt is kept.
+    pub fn clear_poses(&mut self) {
+        self.poses.clear();
+        self.current = None;
+    }
+
+    /// Takes one sample at `time` (seconds). Returns the pose it ended, if
+    /// any. Non-finite samples and times are ignored; a time that goes
+    /// back or jumps by more than a window ends the pose and restarts the
+    /// window.
+    pub fn push(&mut self, time: f64, raw: [f64; 3]) -> Option<StillPose> {
+        if !time.is_finite() || raw.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        let mut ended = None;
+        if let Some(last) = self.last_time
+            && !(time >= last && time - last <= STILL_WINDOW_S)
+        {
+            ended = self.end_pose();
+            self.window.clear();
+        }
+        self.last_time = Some(time);
+        self.welford(raw);
+        self.window.push_back((time, raw));
+        while self.window.len() > MAX_WINDOW_SAMPLES
+            || self
+                .window
+                .front()
+                .is_some_and(|(t0, _)| time - t0 > STILL_WINDOW_S)
+        {
+            self.window.pop_front();
+        }
+        let Some(spread) = self.full_window_spread() else {
+            return ended;
+        };
+        self.windows += 1;
+        self.hist[bin(spread)] += 1;
+        let state = self.state();
+        let still = !state.never_still && state.threshold.is_some_and(|th| spread <= th);
+        if still {
+            let threshold = state.threshold.unwrap_or(f64::INFINITY);
+            match &mut self.current {
+                // Begun under a higher threshold (an early noise estimate
+                // from a sensor in motion): its quiet part starts here.
+                Some(b) if b.spread() > threshold => {
+                    self.current = Some(PoseBuilder::new(&self.window));
+                }
+                Some(b) => b.add(time, raw),
+                None => self.current = Some(PoseBuilder::new(&self.window)),
+            }
+            ended
+        } else {
+            ended.or_else(|| self.end_pose())
+        }
+    }
+
+    fn end_pose(&mut self) -> Option<StillPose> {
+        let pose = self.current.take()?.pose();
+        if self.poses.len() >= MAX_POSES {
+            self.poses.pop_front();
+        }
+        self.poses.push_back(pose.clone());
+        Some(pose)
+    }
+
+    fn welford(&mut self, p: [f64; 3]) {
+        self.n += 1;
+        let n = self.n as f64;
+        let mut d2 = 0.0;
+        for k in 0..3 {
+            let d = p[k] - self.mean[k];
+            self.mean[k] += d / n;
+            d2 += d * (p[k] - self.mean[k]);
+        }
+        self.m2 += d2;
+    }
+
+    /// The window's spread, when it spans a whole window: at least
+    /// [`MIN_WINDOW_SAMPLES`], over (len − 1)/len of [`STILL_WINDOW_S`]
+    /// (what `len` evenly spaced samples of a 0.5 s window span).
+    fn full_window_spread(&self) -> Option<f64> {
+        let len = self.window.len();
+        if len < MIN_WINDOW_SAMPLES {
+            return None;
+        }
+        let span = self.window.back()?.0 - self.window.front()?.0;
+        if span * len as f64 / (len - 1) as f64 + 1e-9 < STILL_WINDOW_S {
+            return None;
+        }
+        let k = len as f64;
+        let mut mean = [0.0; 3];
+        for (_, p) in &self.window {
+            for j in 0..3 {
+                mean[j] += p[j] / k;
+            }
+        }
+        let ss: f64 = self
+            .window
+            .iter()
+            .map(|(_, p)| (0..3).map(|j| (p[j] - mean[j]).powi(2)).sum::<f64>())
+            .sum();
+        Some((ss / k).sqrt())
+    }
+
+    /// The noise, the threshold and whether the sensor is at rest now.
+    pub fn state(&self) -> StillState {
+        let k = self.window.len().max(1) as f64;
+        let mut mean = [0.0; 3];
+        for (_, p) in &self.window {
+            for j in 0..3 {
+                mean[j] += p[j] / k;
+            }
+        }
+        let field_scale = self.scale_at(mean);
+        let noise = self.noise();
+        let threshold = noise.map(|n| threshold(n, field_scale));
+        StillState {
+            noise,
+            threshold,
+            field_scale,
+            still_now: self.current.is_some(),
+            never_still: noise.is_some_and(|n| !(n <= MAX_NOISE_FRACTION * field_scale)),
+        }
+    }
+
+    fn noise(&self) -> Option<f64> {
+        (self.windows >= MIN_WINDOWS).then(|| self.quantile(FLOOR_QUANTILE))
+    }
+
+    /// The field's scale about readings whose mean is `mean` (see
+    /// [`StillState::field_scale`]).
+    fn scale_at(&self, mean: [f64; 3]) -> f64 {
+        self.unit.unwrap_or_else(|| {
+            let spread = if self.n > 0 {
+                (self.m2.max(0.0) / self.n as f64).sqrt()
+            } else {
+                0.0
+            };
+            spread.max((mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2]).sqrt())
+        })
+    }
+
+    /// The upper edge of the bin holding the `q` quantile of the spreads.
+    fn quantile(&self, q: f64) -> f64 {
+        let target = ((self.windows as f64) * q).ceil().max(1.0) as u64;
+        let mut seen = 0u64;
+        for (k, &c) in self.hist.iter().enumerate() {
+            seen += u64::from(c);
+            if seen >= target {
+                return bin_upper(k);
+            }
+        }
+        bin_upper(BINS - 1)
+    }
+
+    /// The poses ended so far that the current threshold still finds at
+    /// rest, and the one being held now when it spans a window.
+    pub fn poses(&self) -> Vec<StillPose> {
+        let Some(noise) = self.noise() else {
+            return Vec::new();
+        };
+        self.poses
+            .iter()
+            .cloned()
+            .chain(self.current.as_ref().map(PoseBuilder::pose))
+            .filter(|p| {
+                let scale = self.scale_at(p.mean);
+                noise <= MAX_NOISE_FRACTION * scale && p.spread <= threshold(noise, scale)
+            })
+            .collect()
+    }
+}
+
+/// The largest spread of a still window, as find_still's: the noise
+/// `NOISE_FACTOR` times over, beside a hand turning at HAND_STILL_DEG_S,
+/// which sweeps the field through this angle in one window (an rms
+/// spread of r·a/√12).
+fn threshold(noise: f64, scale: f64) -> f64 {
+    let sweep = HAND_STILL_DEG_S.to_radians() * STILL_WINDOW_S;
+    let motion = scale * sweep / 12f64.sqrt();
+    ((NOISE_FACTOR * noise).powi(2) + motion.powi(2)).sqrt()
+}
+
+fn bin(spread: f64) -> usize {
+    if !(spread > 0.0) {
+        return 0;
+    }
+    let k = ((spread.log2() - MIN_LOG2) * BINS_PER_OCTAVE).floor();
+    if k < 1.0 {
+        1
+    } else {
+        (k as usize).min(BINS - 1)
+    }
+}
+
+fn bin_upper(k: usize) -> f64 {
+    if k == 0 {
+        return 0.0;
+    }
+    (MIN_LOG2 + (k as f64 + 1.0) / BINS_PER_OCTAVE).exp2()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix3, Vector3};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    /// Six axis poses held `hold_s` each, joined by turns at 90 °/s, at
+    /// `rate_hz`; raw = W⁻¹u + o + noise. Returns (t, raw) and the true
+    /// mean reading of each pose.
+    pub(super) fn six_poses(
+        hold_s: f64,
+        noise: f64,
+        rate_hz: f64,
+        seed: u64,
+    ) -> (Vec<(f64, [f64; 3])>, Vec<[f64; 3]>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let w = Matrix3::new(1.05, 0.02, 0.0, 0.02, 0.97, 0.01, 0.0, 0.01, 1.02);
+        let winv = w.try_inverse().unwrap();
+        let o = Vector3::new(0.04, -0.03, 0.06);
+        let dirs = [
+            Vector3::z(),
+            Vector3::x(),
+            -Vector3::z(),
+            Vector3::y(),
+            -Vector3::x(),
+            -Vector3::y(),
+        ];
+        let dt = 1.0 / rate_hz;
+        let mut out = Vec::new();
+        let mut truth = Vec::new();
+        let sample = |u: Vector3<f64>, out: &mut Vec<(f64, [f64; 3])>, rng: &mut ChaCha8Rng| {
+            let g = Vector3::new(
+                StandardNormal.sample(rng),
+                StandardNormal.sample(rng),
+                StandardNormal.sample(rng),
+            );
+            let p: Vector3<f64> = winv * u + o + g * noise;
+            out.push((out.len() as f64 * dt, p.into()));
+        };
+        for (k, &u) in dirs.iter().enumerate() {
+            for _ in 0..(hold_s * rate_hz) as usize {
+                sample(u, &mut out, &mut rng);
+            }
+            truth.push((winv * u + o).into());
+            if let Some(&next) = dirs.get(k + 1) {
+                let angle = u.angle(&next);
+                let axis = u.cross(&next);
+                let axis = if axis.norm() > 1e-9 {
+                    axis.normalize()
+                } else {
+                    Vector3::x()
+                };
+                let steps = (angle.to_degrees() / 90.0 * rate_hz).ceil() as usize;
+                for i in 1..steps {
+                    let r = nalgebra::Rotation3::from_axis_angle(
+                        &nalgebra::Unit::new_normalize(axis),
+                        angle * i as f64 / steps as f64,
+                    );
+                    sample(r * u, &mut out, &mut rng);
+                }
+            }
+        }
+        (out, truth)
+    }
+
+    #[test]
+    fn six_poses_are_found_with_their_means_over_many_seeds() {
+        for seed in 0..20 {
+            for rate in [50.0, 100.0] {
+                let noise = 0.003;
+                let (samples, truth) = six_poses(2.0, noise, rate, seed);
+                let mut s = StillStream::new(None);
+                let mut ended = 0;
+                for &(t, p) in &samples {
+                    if let Some(p) = s.push(t, p) {
+                        ended += 1;
+                        eprintln!(
+                            "pose {:.2}-{:.2} n {} spread {:.5} state {:?}",
+                            p.start,
+                            p.end,
+                            p.count,
+                            p.spread,
+                            s.state()
+                        );
+                    }
+                }
+                let poses = s.poses();
+                // The last pose is still being held: it counts once it
+                // spans a window.
+                assert_eq!(ended, 5, "seed {seed} at {rate} Hz");
+                assert_eq!(poses.len(), 6, "seed {seed} at {rate} Hz: {poses:?}");
+                for (p, t) in poses.iter().zip(&truth) {
+                    let e = (0..3)
+                        .map(|k| (p.mean[k] - t[k]).powi(2))
+                        .sum::<f64>()
+                        .sqrt();
+                    // The mean of ≥ 1.5 s of samples: noise/√75 per axis.
+                    assert!(
+                        e < 5.0 * noise / 75f64.sqrt() * 3f64.sqrt(),
+                        "seed {seed}: {e}"
+                    );
+                    assert!(
+                        p.samples.len() <= 2 * POSE_SAMPLES && p.samples.len() >= POSE_SAMPLES / 2
+                    );
+                    // The first pose counts from the 20th window (the
+                    // noise is not known before), the others from the
+                    // first still window.
+                    assert!(
+                        p.count as f64 >= 1.2 * rate,
+                        "seed {seed} at {rate} Hz: {} in {:?}",
+                        p.count,
+                        poses.iter().map(|p| (p.start, p.count)).collect::<Vec<_>>()
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_sensor_that_never_rests_gives_no_pose() {
+        // Turning at 60 °/s about a tilted axis, with 2 % of the field in
+        // hand accelerations: no window is quiet.
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut s = StillStream::new(None);
+        for i in 0..3000 {
+            let t = i as f64 * 0.01;
+            let a = (60.0 * t).to_radians();
+            let b = (23.0 * t).to_radians();
+            let u = [a.cos() * b.cos(), a.sin() * b.cos(), b.sin()];
+            let p = u.map(|v| {
+                let g: f64 = StandardNormal.sample(&mut rng);
+                v + 0.02 * g
+            });
+            assert!(s.push(t, p).is_none());
+        }
+        assert!(s.poses().is_empty());
+        assert!(s.state().never_still, "{:?}", s.state());
+    }
+
+    #[test]
+    fn a_gap_or_a_time_that_goes_back_ends_the_pose_and_bad_values_are_ignored() {
+        let (samples, _) = six_poses(2.0, 0.003, 50.0, 1);
+        let mut s = StillStream::new(None);
+        // The first pose (2 s at 50 Hz), held.
+        for &(t, p) in &samples[..100] {
+            assert!(s.push(t, p).is_none());
+        }
+        assert!(s.state().still_now, "{:?}", s.state());
+        assert!(s.push(f64::NAN, [0.0; 3]).is_none());
+        assert!(s.push(3.0, [f64::INFINITY, 0.0, 0.0]).is_none());
+        assert!(s.state().still_now, "a bad value changed nothing");
+        // 2 s of silence: the pose ends there, with its samples.
+        let (t, p) = samples[99];
+        let pose = s.push(t + 2.0, p).expect("the gap ends the pose");
+        assert!(pose.count >= 50 && pose.end <= t, "{pose:?}");
+        // A new pose, then a time that goes back: it ends too.
+        for k in 0..60 {
+            s.push(t + 2.0 + f64::from(k) * 0.02, p);
+        }
+        assert!(
+            s.push(t, p).is_some(),
+            "a time that goes back ends the pose"
+        );
+        assert_eq!(s.poses().len(), 2);
+        s.clear_poses();
+        assert!(s.poses().is_empty());
+        // Raw counts in the tens of thousands: the same poses.
+        let mut big = StillStream::new(Some(16384.0));
+        let mut ended = 0;
+        for &(t, p) in &samples {
+            ended += usize::from(big.push(t, p.map(|v| v * 16384.0 + 20000.0)).is_some());
+        }
+        assert_eq!(ended, 5);
+        assert_eq!(big.poses().len(), 6);
+    }
+}
