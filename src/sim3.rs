@@ -246,8 +246,10 @@ pub enum ImuMotion {
     /// Turns about the vertical, the board rolling and pitching by up to
     /// `tilt_deg` at incommensurate rates (a boat, a hand-held turn).
     WobblingTurn { turns: f64, tilt_deg: f64 },
-    /// `poses` orientations drawn uniformly, each held still for an equal
-    /// share of the samples (the accelerometer's six-face calibration).
+    /// `poses` orientations drawn uniformly, each held for an equal share
+    /// of the samples (the accelerometer's six-face calibration): still
+    /// for its first three quarters, then turned to the next pose at a
+    /// steady rate (as a hand moves it; a jump would be an infinite rate).
     Static { poses: usize },
 }
 
@@ -492,19 +494,34 @@ impl SimImu3 {
             }
             ImuMotion::Static { poses } => {
                 let per = n.div_ceil(poses).max(1);
-                let mut r = level;
-                for i in 0..n {
-                    if i % per == 0 {
-                        // A uniform random rotation (a normalised Gaussian
-                        // quaternion).
-                        let mut g = [0.0f64; 4];
-                        for v in &mut g {
-                            *v = StandardNormal.sample(&mut rng);
-                        }
-                        let q = nalgebra::Quaternion::new(g[0], g[1], g[2], g[3]);
-                        r = nalgebra::UnitQuaternion::from_quaternion(q).to_rotation_matrix();
+                // A uniform random rotation (a normalised Gaussian
+                // quaternion).
+                let mut draw = || {
+                    let mut g = [0.0f64; 4];
+                    for v in &mut g {
+                        *v = StandardNormal.sample(&mut rng);
                     }
-                    out.push(r);
+                    let q = nalgebra::Quaternion::new(g[0], g[1], g[2], g[3]);
+                    nalgebra::UnitQuaternion::from_quaternion(q)
+                };
+                let mut pose = draw();
+                let mut next = draw();
+                let hold = (per * 3).div_ceil(4);
+                for i in 0..n {
+                    let k = i % per;
+                    if i > 0 && k == 0 {
+                        pose = next;
+                        next = draw();
+                    }
+                    let last = i / per + 1 >= poses;
+                    let r = if k < hold || last {
+                        pose
+                    } else {
+                        // The shorter way round, at a steady rate.
+                        let s = (k - hold + 1) as f64 / (per - hold + 1) as f64;
+                        pose.try_slerp(&next, s, 1e-9).unwrap_or(next)
+                    };
+                    out.push(r.to_rotation_matrix());
                 }
             }
         }

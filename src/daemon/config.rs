@@ -2272,6 +2272,17 @@ impl Checker<'_> {
         if let Err(problem) = sphere.validate() {
             return Err(self.error(&format!("{key}.sphere"), problem));
         }
+        if sphere.still && field != Field::Accel {
+            return Err(self.error(
+                &format!("{key}.sphere.still"),
+                format!(
+                    "still poses are for an accelerometer (field = \"accel\"): a {} reads the \
+                     same whether it moves or rests; tumble it through every direction and leave \
+                     `still` out",
+                    field.name()
+                ),
+            ));
+        }
         let _ = src_name;
         let three = Sensor3Config {
             axes,

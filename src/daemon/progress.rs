@@ -86,6 +86,8 @@ pub struct RotationView {
     /// A 3-axis sensor's sphere: the missing directions by the axes they
     /// lie toward ("-z", "+x+y"); `None` for a 2-axis sensor's rotation.
     pub sphere: Option<Vec<String>>,
+    /// A still-pose sensor: (poses held, poses its model needs).
+    pub still: Option<(usize, usize)>,
 }
 
 impl RotationView {
@@ -100,11 +102,14 @@ impl RotationView {
     }
 
     /// What the person holding the sensor should do next.
-    fn further(&self) -> &'static str {
-        if self.sphere.is_some() {
-            "tumble further"
-        } else {
-            "turn further"
+    fn further(&self) -> String {
+        match (&self.still, &self.sphere) {
+            (Some((held, needed)), _) => format!(
+                "{held} of at least {needed} poses held; rest the sensor still (0.5 s) facing \
+                 the missing directions"
+            ),
+            (None, Some(_)) => "tumble further".into(),
+            (None, None) => "turn further".into(),
         }
     }
 }
@@ -124,6 +129,7 @@ impl From<&Progress> for RotationView {
             missing: p.missing_sectors.clone(),
             samples: p.samples,
             sphere: None,
+            still: None,
         }
     }
 }
@@ -193,6 +199,7 @@ impl SensorSnapshot {
                         missing: Vec::new(),
                         samples: p.samples,
                         sphere: Some(p.missing.iter().map(|m| m.toward.clone()).collect()),
+                        still: p.still.as_ref().map(|s| (s.poses, s.poses_needed)),
                     })
                 }),
             calibration: sensor.calibration().map(|c| (c.id, c.rms)),
@@ -358,7 +365,7 @@ pub fn render_line(view: &SensorView, name_width: usize) -> String {
             rotation_line(r, &rejected_words(reason, suggested.as_deref()))
         }
         (Some(r), _) if r.samples == 0 => rotation_line(r, "waiting for readings"),
-        (Some(r), _) => rotation_line(r, r.further()),
+        (Some(r), _) => rotation_line(r, &r.further()),
         (
             None,
             Some(Outcome::Accepted {
@@ -407,6 +414,9 @@ struct CalibrationLine {
     heading_vs_gyro: Option<HeadingRms>,
     #[serde(default)]
     heading_check: Option<String>,
+    /// A still-pose accelerometer's fit: its poses.
+    #[serde(default)]
+    poses: Option<usize>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -491,7 +501,13 @@ impl Board {
             if !track.attempt {
                 track.attempt = true;
                 track.quarter = 0;
-                logs.push(if r.sphere.is_some() {
+                logs.push(if r.still.is_some() {
+                    format!(
+                        "{}: collecting still poses; rest the sensor still (0.5 s) in each pose, \
+                         facing every direction in turn (as on the faces of a box)",
+                        s.sensor
+                    )
+                } else if r.sphere.is_some() {
                     format!(
                         "{}: collecting the sphere; tumble the sensor through every direction",
                         s.sensor
@@ -567,7 +583,14 @@ impl Board {
                 suggested: c.suggested.clone(),
             },
         };
-        if !stored && c.n > 0 && line.contains("\"axes\":3") {
+        if let (false, Some(poses)) = (stored, c.poses) {
+            logs.push(format!(
+                "{}: {} held still, {}",
+                c.sensor,
+                crate::sample::count(poses as u64, "pose"),
+                crate::sample::count(c.n as u64, "sample")
+            ));
+        } else if !stored && c.n > 0 && line.contains("\"axes\":3") {
             logs.push(format!(
                 "{}: sphere covered, {}",
                 c.sensor,
@@ -970,6 +993,7 @@ mod tests {
             missing,
             samples,
             sphere: None,
+            still: None,
         }
     }
 
@@ -980,6 +1004,7 @@ mod tests {
             missing: Vec::new(),
             samples: 400,
             sphere: Some(vec!["-z".into(), "+x+y".into()]),
+            still: None,
         };
         let line = render_line(&view(Some(r.clone()), None), 7);
         assert!(

@@ -24,6 +24,7 @@ use super::{Calibration, Ellipsoid3Params};
 use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
 use crate::model::paper::PaperCalibration;
 use crate::model::sphere::{self, MissingDirections, SphereCoverage};
+use crate::model::still_stream::{StillState, StillStream};
 use crate::model::tilt::{inclination_deg, robust_spread, tilt_heading_or_why};
 use crate::sample::Reading;
 
@@ -86,6 +87,13 @@ pub struct SphereSettings {
     /// absent, ArduPilot's 16 mG for a magnetometer whose units are known,
     /// 5 % otherwise.
     pub max_rms: Option<f64>,
+    /// An accelerometer fitted on poses held still
+    /// ([`crate::model::still_stream`]) instead of every reading of a
+    /// tumble, whose hand accelerations spoil the fit: ArduPilot's
+    /// six-position calibration. `min_samples` is then not used: a fit
+    /// needs as many poses as the model has unknowns (6 for
+    /// `offset+scale`), and directions that determine it.
+    pub still: bool,
 }
 
 impl Default for SphereSettings {
@@ -94,6 +102,7 @@ impl Default for SphereSettings {
             min_samples: DEFAULT_MIN_SAMPLES,
             max_samples: DEFAULT_MAX_SAMPLES,
             max_rms: None,
+            still: false,
         }
     }
 }
@@ -318,6 +327,21 @@ pub struct SphereProgress {
     pub model: &'static str,
     /// The richest model the directions so far support, if any.
     pub supported: Option<&'static str>,
+    /// With `still`: the poses held so far and the detector's state.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub still: Option<StillProgress>,
+}
+
+/// A still-pose sensor's progress in `STATUS`.
+#[derive(Debug, Clone, Serialize)]
+pub struct StillProgress {
+    /// Poses held still so far (the one being held included, once it
+    /// spans a window).
+    pub poses: usize,
+    /// Poses the model needs at least: its unknowns.
+    pub poses_needed: usize,
+    #[serde(flatten)]
+    pub state: StillState,
 }
 
 #[derive(Serialize)]
@@ -403,6 +427,9 @@ struct Calibration3Message<'a> {
     /// The fitted field beside the World Magnetic Model's (a location).
     #[serde(skip_serializing_if = "Option::is_none")]
     earth: Option<Earth>,
+    /// With `still`: the poses the fit was made on.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    poses: Option<usize>,
 }
 
 /// One 3-axis sensor: its buffer, its calibration and its counts.
@@ -442,6 +469,10 @@ pub struct Sensor3 {
     /// A sensor of a csv source: where its values (and its tilt source's)
     /// are in the rows, resolved by [`Sensor3::bind_csv`].
     csv: Option<Csv3Binding>,
+    /// With `[sensor.sphere] still`: the still-pose detector, and the
+    /// poses `points` were last built from.
+    still: Option<StillStream>,
+    poses: usize,
 }
 
 /// Where a 3-axis csv sensor's values are: (file, column indices of x, y,
@@ -503,6 +534,11 @@ impl Sensor3 {
             north: config.north.clone(),
             headings_stale: 0,
             csv: None,
+            still: three
+                .sphere
+                .still
+                .then(|| StillStream::new(three.lsb_per_unit)),
+            poses: 0,
             config: three,
         }
     }
@@ -554,6 +590,10 @@ impl Sensor3 {
     pub fn recalibrate(&mut self) {
         self.points.clear();
         self.accel_at.clear();
+        if let Some(still) = &mut self.still {
+            still.clear_poses();
+        }
+        self.poses = 0;
         self.estimate = None;
         self.since_check = 0;
         self.wait = 0;
@@ -593,6 +633,12 @@ impl Sensor3 {
                 .collect(),
             model: self.config.model.name(),
             supported: self.supported.map(Ellipsoid3Model::name),
+            still: self.still.as_ref().map(|still| StillProgress {
+                // Judged now: a later noise estimate may drop a pose.
+                poses: still.pose_count(),
+                poses_needed: self.config.model.unknowns(),
+                state: still.state(),
+            }),
         })
     }
 
@@ -789,6 +835,9 @@ impl Sensor3 {
         if self.state == SensorState::Calibrated || raw.iter().any(|v| !v.is_finite()) {
             return None;
         }
+        if self.still.is_some() {
+            return self.collect_still(time, raw, emit);
+        }
         if self.points.len() >= self.config.sphere.max_samples {
             self.thin();
         }
@@ -818,6 +867,62 @@ impl Sensor3 {
             return None;
         }
         self.fit(time, emit)
+    }
+
+    /// [`Sensor3::collect`] of a still-pose sensor: the points are the
+    /// poses' samples, judged again when a pose ends and, while one is
+    /// held, every [`CHECK_EVERY`] samples.
+    fn collect_still(
+        &mut self,
+        time: f64,
+        raw: [f64; 3],
+        emit: &mut Emit<'_>,
+    ) -> Option<Calibration> {
+        let still = self.still.as_mut()?;
+        let ended = still.push(time, raw).is_some();
+        self.since_check += 1;
+        let held = still.state().still_now && self.since_check >= CHECK_EVERY;
+        if !(ended || held) {
+            return None;
+        }
+        self.since_check = 0;
+        let poses = still.poses();
+        self.poses = poses.len();
+        self.points = poses
+            .iter()
+            .flat_map(|p| p.samples.iter().copied())
+            .collect();
+        if self.poses < self.config.model.unknowns() {
+            // Too few poses to fit a centre: their directions about zero
+            // (a resting accelerometer reads g plus a zero-g offset far
+            // below g), for the progress's missing directions.
+            self.estimate = Some((
+                [0.0; 3],
+                [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            ));
+            self.coverage = sphere::coverage(self.directions());
+            self.supported = None;
+            return None;
+        }
+        self.judge();
+        if self.poses < self.config.model.unknowns()
+            || self
+                .supported
+                .is_none_or(|m| m.unknowns() < self.config.model.unknowns())
+        {
+            return None;
+        }
+        let fitted = self.fit(time, emit);
+        // Accepted or rejected, the points are gone and the next
+        // calibration starts from new poses; a fit refused for coverage
+        // keeps them.
+        if self.points.is_empty()
+            && let Some(still) = &mut self.still
+        {
+            still.clear_poses();
+            self.poses = 0;
+        }
+        fitted
     }
 
     /// The directions of the points about the current estimate.
@@ -1021,6 +1126,7 @@ impl Sensor3 {
             declination_source: self.north.as_ref().map(|n| n.source.as_str()),
             declination_uncertainty_deg: self.north.as_ref().and_then(North::uncertainty_deg),
             earth,
+            poses: (origin == "sphere" && self.still.is_some()).then_some(self.poses),
         }
     }
 
@@ -1137,6 +1243,7 @@ impl Sensor3 {
             declination_source: self.north.as_ref().map(|n| n.source.as_str()),
             declination_uncertainty_deg: self.north.as_ref().and_then(North::uncertainty_deg),
             earth: fit.and_then(|f| self.earth_of(f)),
+            poses: self.still.is_some().then_some(self.poses),
         };
         emit(Lane::Control, to_line(&message));
         tracing::warn!(sensor = %self.name, "3-D calibration rejected: {reason}");
@@ -1446,5 +1553,139 @@ mod tests {
             compass.rms * 100.0
         );
         assert!(headings > 100, "{headings}");
+    }
+
+    /// An accelerometer (4096 counts per g) rested on its six faces for
+    /// `hold_s` each, turned between them at 90 °/s, at 50 Hz.
+    fn six_faces(hold_s: f64, seed: u64) -> (Vec<Reading>, [f64; 3], [[f64; 3]; 3]) {
+        use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let w = [[1.03, 0.0, 0.0], [0.0, 0.97, 0.0], [0.0, 0.0, 1.01]];
+        let offset = [60.0, -45.0, 90.0];
+        let winv = Matrix3::from_fn(|i, j| w[i][j]).try_inverse().unwrap();
+        let dirs = [
+            Vector3::z(),
+            Vector3::x(),
+            -Vector3::z(),
+            Vector3::y(),
+            -Vector3::x(),
+            -Vector3::y(),
+        ];
+        let mut out = Vec::new();
+        let mut push = |u: Vector3<f64>, out: &mut Vec<Reading>| {
+            let g: [f64; 3] = [0; 3].map(|_| StandardNormal.sample(&mut rng));
+            let p = winv * (u * 4096.0) + Vector3::from(offset) + Vector3::from(g) * 8.0;
+            out.push(Reading {
+                time: out.len() as f64 * 0.02,
+                accel: Some([p.x, p.y, p.z].map(|v| v.round() as i16)),
+                ..Reading::default()
+            });
+        };
+        for (k, &u) in dirs.iter().enumerate() {
+            for _ in 0..(hold_s * 50.0) as usize {
+                push(u, &mut out);
+            }
+            if let Some(&next) = dirs.get(k + 1) {
+                let angle = u.angle(&next);
+                let axis = Unit::new_normalize(if u.cross(&next).norm() > 1e-9 {
+                    u.cross(&next)
+                } else {
+                    Vector3::x()
+                });
+                let steps = (angle.to_degrees() / 90.0 * 50.0).ceil() as usize;
+                for i in 1..steps {
+                    push(
+                        Rotation3::from_axis_angle(&axis, angle * i as f64 / steps as f64) * u,
+                        &mut out,
+                    );
+                }
+            }
+        }
+        (out, offset, w)
+    }
+
+    const STILL: &str = "[[source]]\nname = \"imu\"\nkind = \"falcon\"\nport = \"/dev/null\"\n\
+        [[sensor]]\nname = \"level\"\nsource = \"imu\"\nfield = \"accel\"\naxes = [\"x\", \"y\", \"z\"]\n\
+        lsb_per_g = 4096\nmodel = \"offset+scale\"\n[sensor.sphere]\nstill = true\n";
+
+    #[test]
+    fn an_accelerometer_rested_on_its_six_faces_is_calibrated_from_the_poses() {
+        for seed in 0..5 {
+            let (readings, offset, w) = six_faces(2.0, seed);
+            let c = config(STILL);
+            let mut sensor = Sensor::new(c.sensors[0].clone(), None);
+            let mut lines = Vec::new();
+            let mut poses_seen = Vec::new();
+            for r in &readings {
+                sensor.on_reading(r, &mut |_, l| lines.push(l));
+                if let Some(p) = sensor.status().sphere.and_then(|p| p.still) {
+                    poses_seen.push(p.poses);
+                }
+            }
+            let cals: Vec<&String> = lines
+                .iter()
+                .filter(|l| l.contains("\"CALIBRATION\""))
+                .collect();
+            assert_eq!(cals.len(), 1, "seed {seed}: {cals:?}");
+            assert!(cals[0].contains("\"accepted\":true"), "{}", cals[0]);
+            let cal = sensor.calibration().unwrap();
+            let p = cal.ellipsoid.as_ref().unwrap();
+            // 8 counts of noise over 6 poses of ~80 samples: the offsets
+            // within a few counts, the gains within 0.2 %.
+            for k in 0..3 {
+                assert!(
+                    (p.offset[k] - offset[k]).abs() < 4.0,
+                    "seed {seed}: {:?}",
+                    p.offset
+                );
+                // det W = 1: W·(raw − o) has magnitude r, 4096 counts per g.
+                let gain = p.matrix[k][k] * 4096.0 / p.r;
+                assert!(
+                    (gain - w[k][k]).abs() < 2e-3,
+                    "seed {seed}: {:?} r {}",
+                    p.matrix,
+                    p.r
+                );
+            }
+            assert!((p.r / 4096.0 - 1.0).abs() < 0.01, "r {}", p.r);
+            // STATUS counted the poses up to 5; the sixth, once it spans
+            // a window, completes the model's six unknowns and is fitted.
+            assert_eq!(poses_seen.iter().max(), Some(&5));
+            assert!(poses_seen.windows(2).all(|w| w[0] <= w[1]));
+            assert!(cals[0].contains("\"n\":"), "{}", cals[0]);
+        }
+    }
+
+    #[test]
+    fn a_still_pose_accelerometer_that_never_rests_is_not_calibrated_and_says_so() {
+        let c = config(&STILL.replace("model = \"offset+scale\"\n", ""));
+        let mut sensor = Sensor::new(c.sensors[0].clone(), None);
+        let mut lines = Vec::new();
+        for r in tumble() {
+            sensor.on_reading(&r, &mut |_, l| lines.push(l));
+        }
+        assert!(!lines.iter().any(|l| l.contains("\"CALIBRATION\"")));
+        let still = sensor.status().sphere.and_then(|p| p.still).unwrap();
+        assert_eq!(still.poses, 0);
+        assert!(still.state.never_still, "{still:?}");
+        let status = serde_json::to_value(sensor.status().sphere.unwrap()).unwrap();
+        assert_eq!(status["still"]["never_still"], true, "{status}");
+        assert_eq!(status["still"]["poses_needed"], 9, "{status}");
+    }
+
+    #[test]
+    fn still_poses_are_refused_for_a_magnetometer() {
+        let text = STILL
+            .replace("field = \"accel\"", "field = \"mag\"")
+            .replace("lsb_per_g", "lsb_per_gauss");
+        let e = parse(&text, std::path::Path::new("t.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("sphere.still") && e.contains("accelerometer"),
+            "{e}"
+        );
     }
 }

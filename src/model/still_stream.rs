@@ -53,6 +53,11 @@ pub const MAX_POSES: usize = 64;
 /// and [`StillStream::poses`] judges every pose again.
 pub const MIN_WINDOWS: u64 = 20;
 
+/// Windows between two estimates of the noise: 0.16 s at 50 Hz, a small
+/// share of a 0.5 s window, while a scan of the histogram's 4096 bins is
+/// not paid at every sample.
+pub const NOISE_EVERY: u64 = 8;
+
 /// The spread histogram: bins of a 32nd of an octave (2 %) from 2^-64
 /// to 2^64 (any unit a sensor reports in), a spread of exactly 0 in the
 /// first.
@@ -111,6 +116,9 @@ pub struct StillStream {
     m2: f64,
     hist: Vec<u32>,
     windows: u64,
+    /// The noise, from `hist`: renewed every [`NOISE_EVERY`] windows (a
+    /// scan of the histogram's bins is not done at every sample).
+    noise: Option<f64>,
     current: Option<PoseBuilder>,
     poses: VecDeque<StillPose>,
     last_time: Option<f64>,
@@ -153,9 +161,9 @@ impl PoseBuilder {
     fn add(&mut self, t: f64, p: [f64; 3]) {
         self.end = t;
         self.count += 1;
-        for k in 0..3 {
-            let d = p[k] - self.origin[k];
-            self.sum[k] += d;
+        for ((sum, v), o) in self.sum.iter_mut().zip(p).zip(self.origin) {
+            let d = v - o;
+            *sum += d;
             self.sum_sq += d * d;
         }
         self.skipped += 1;
@@ -179,6 +187,15 @@ impl PoseBuilder {
         let c = self.count.max(1) as f64;
         let m2: f64 = self.sum.iter().map(|s| (s / c).powi(2)).sum();
         (self.sum_sq / c - m2).max(0.0).sqrt()
+    }
+
+    /// (mean, spread) without copying the samples.
+    fn summary(&self) -> ([f64; 3], f64) {
+        let c = self.count.max(1) as f64;
+        (
+            [0, 1, 2].map(|k| self.origin[k] + self.sum[k] / c),
+            self.spread(),
+        )
     }
 
     fn pose(&self) -> StillPose {
@@ -212,6 +229,7 @@ impl StillStream {
             m2: 0.0,
             hist: vec![0; BINS],
             windows: 0,
+            noise: None,
             current: None,
             poses: VecDeque::new(),
             last_time: None,
@@ -255,6 +273,9 @@ impl StillStream {
         };
         self.windows += 1;
         self.hist[bin(spread)] += 1;
+        if self.windows >= MIN_WINDOWS && (self.windows - MIN_WINDOWS) % NOISE_EVERY == 0 {
+            self.noise = Some(self.quantile(FLOOR_QUANTILE));
+        }
         let state = self.state();
         let still = !state.never_still && state.threshold.is_some_and(|th| spread <= th);
         if still {
@@ -287,10 +308,10 @@ impl StillStream {
         self.n += 1;
         let n = self.n as f64;
         let mut d2 = 0.0;
-        for k in 0..3 {
-            let d = p[k] - self.mean[k];
-            self.mean[k] += d / n;
-            d2 += d * (p[k] - self.mean[k]);
+        for (mean, v) in self.mean.iter_mut().zip(p) {
+            let d = v - *mean;
+            *mean += d / n;
+            d2 += d * (v - *mean);
         }
         self.m2 += d2;
     }
@@ -344,7 +365,7 @@ impl StillStream {
     }
 
     fn noise(&self) -> Option<f64> {
-        (self.windows >= MIN_WINDOWS).then(|| self.quantile(FLOOR_QUANTILE))
+        self.noise
     }
 
     /// The field's scale about readings whose mean is `mean` (see
@@ -376,18 +397,37 @@ impl StillStream {
     /// The poses ended so far that the current threshold still finds at
     /// rest, and the one being held now when it spans a window.
     pub fn poses(&self) -> Vec<StillPose> {
-        let Some(noise) = self.noise() else {
-            return Vec::new();
-        };
         self.poses
             .iter()
             .cloned()
             .chain(self.current.as_ref().map(PoseBuilder::pose))
-            .filter(|p| {
-                let scale = self.scale_at(p.mean);
-                noise <= MAX_NOISE_FRACTION * scale && p.spread <= threshold(noise, scale)
-            })
+            .filter(|p| self.at_rest(p))
             .collect()
+    }
+
+    /// How many poses [`StillStream::poses`] gives, without copying them.
+    pub fn pose_count(&self) -> usize {
+        let current = self.current.as_ref().map(PoseBuilder::summary);
+        self.poses
+            .iter()
+            .map(|p| (p.mean, p.spread))
+            .chain(current)
+            .filter(|&(mean, spread)| self.judged_at_rest(mean, spread))
+            .count()
+    }
+
+    fn at_rest(&self, p: &StillPose) -> bool {
+        self.judged_at_rest(p.mean, p.spread)
+    }
+
+    /// Whether a pose of this mean and spread is at rest by the current
+    /// noise: the noise is a sensor's at rest, and the spread within the
+    /// threshold about the pose's own scale.
+    fn judged_at_rest(&self, mean: [f64; 3], spread: f64) -> bool {
+        self.noise().is_some_and(|noise| {
+            let scale = self.scale_at(mean);
+            noise <= MAX_NOISE_FRACTION * scale && spread <= threshold(noise, scale)
+        })
     }
 }
 
@@ -431,12 +471,10 @@ mod tests {
     /// Six axis poses held `hold_s` each, joined by turns at 90 °/s, at
     /// `rate_hz`; raw = W⁻¹u + o + noise. Returns (t, raw) and the true
     /// mean reading of each pose.
-    pub(super) fn six_poses(
-        hold_s: f64,
-        noise: f64,
-        rate_hz: f64,
-        seed: u64,
-    ) -> (Vec<(f64, [f64; 3])>, Vec<[f64; 3]>) {
+    /// (time, reading) samples.
+    type Samples = Vec<(f64, [f64; 3])>;
+
+    fn six_poses(hold_s: f64, noise: f64, rate_hz: f64, seed: u64) -> (Samples, Vec<[f64; 3]>) {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let w = Matrix3::new(1.05, 0.02, 0.0, 0.02, 0.97, 0.01, 0.0, 0.01, 1.02);
         let winv = w.try_inverse().unwrap();
@@ -586,6 +624,7 @@ mod tests {
             "a time that goes back ends the pose"
         );
         assert_eq!(s.poses().len(), 2);
+        assert_eq!(s.pose_count(), 2);
         s.clear_poses();
         assert!(s.poses().is_empty());
         // Raw counts in the tens of thousands: the same poses.
