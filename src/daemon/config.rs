@@ -156,7 +156,7 @@
 //! [sensor.location]         # the WMM's declination, and its field beside the fitted one
 //! latitude = 50.1109
 //! longitude = 8.6821
-//! [sensor.sphere]           # min_samples, max_samples, max_rms
+//! [sensor.sphere]           # min_samples, max_samples, max_rms, still (an accelerometer at rest in poses)
 //! ```
 //!
 //! Relative paths in the file (`file`, `state_dir`, `unix`) are relative to
