@@ -325,7 +325,10 @@ impl StillStream {
             return None;
         }
         let span = self.window.back()?.0 - self.window.front()?.0;
-        if span * len as f64 / (len - 1) as f64 + 1e-9 < STILL_WINDOW_S {
+        // A sensor faster than 2 kHz fills the window's cap first: then the
+        // window is its cap, as find_still's is.
+        if len < MAX_WINDOW_SAMPLES && span * len as f64 / (len - 1) as f64 + 1e-9 < STILL_WINDOW_S
+        {
             return None;
         }
         let k = len as f64;
@@ -627,6 +630,14 @@ mod tests {
         assert_eq!(s.pose_count(), 2);
         s.clear_poses();
         assert!(s.poses().is_empty());
+        // A 4 kHz sensor: its window is find_still's cap of 1000 samples
+        // (0.25 s), and a pose is still found.
+        let mut fast = StillStream::new(Some(1.0));
+        for i in 0..20_000 {
+            let wobble = if i % 2 == 0 { 0.001 } else { -0.001 };
+            fast.push(f64::from(i) / 4000.0, [wobble, 0.0, 1.0]);
+        }
+        assert_eq!(fast.pose_count(), 1);
         // Raw counts in the tens of thousands: the same poses.
         let mut big = StillStream::new(Some(16384.0));
         let mut ended = 0;
