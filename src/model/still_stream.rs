@@ -273,7 +273,7 @@ impl StillStream {
         };
         self.windows += 1;
         self.hist[bin(spread)] += 1;
-        if self.windows >= MIN_WINDOWS && (self.windows - MIN_WINDOWS) % NOISE_EVERY == 0 {
+        if self.windows >= MIN_WINDOWS && (self.windows - MIN_WINDOWS).is_multiple_of(NOISE_EVERY) {
             self.noise = Some(self.quantile(FLOOR_QUANTILE));
         }
         let state = self.state();
