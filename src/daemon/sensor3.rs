@@ -881,7 +881,7 @@ impl Sensor3 {
         let still = self.still.as_mut()?;
         let ended = still.push(time, raw).is_some();
         self.since_check += 1;
-        let held = still.state().still_now && self.since_check >= CHECK_EVERY;
+        let held = still.still_now() && self.since_check >= CHECK_EVERY;
         if !(ended || held) {
             return None;
         }
@@ -1555,55 +1555,27 @@ mod tests {
         assert!(headings > 100, "{headings}");
     }
 
-    /// An accelerometer (4096 counts per g) rested on its six faces for
-    /// `hold_s` each, turned between them at 90 °/s, at 50 Hz.
+    /// An accelerometer (4096 counts per g, 8 counts of noise) rested on
+    /// its six faces for `hold_s` each, turned between them at 90 °/s, at
+    /// 50 Hz.
     fn six_faces(hold_s: f64, seed: u64) -> (Vec<Reading>, [f64; 3], [[f64; 3]; 3]) {
-        use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, StandardNormal};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let w = [[1.03, 0.0, 0.0], [0.0, 0.97, 0.0], [0.0, 0.0, 1.01]];
         let offset = [60.0, -45.0, 90.0];
-        let winv = Matrix3::from_fn(|i, j| w[i][j]).try_inverse().unwrap();
-        let dirs = [
-            Vector3::z(),
-            Vector3::x(),
-            -Vector3::z(),
-            Vector3::y(),
-            -Vector3::x(),
-            -Vector3::y(),
-        ];
-        let mut out = Vec::new();
-        let mut push = |u: Vector3<f64>, out: &mut Vec<Reading>| {
-            let g: [f64; 3] = [0; 3].map(|_| StandardNormal.sample(&mut rng));
-            let p = winv * (u * 4096.0) + Vector3::from(offset) + Vector3::from(g) * 8.0;
-            out.push(Reading {
-                time: out.len() as f64 * 0.02,
-                accel: Some([p.x, p.y, p.z].map(|v| v.round() as i16)),
+        let (samples, _) = crate::model::still_stream::tests::six_faces(
+            hold_s,
+            50.0,
+            (w, offset, 4096.0, 8.0),
+            seed,
+        );
+        let readings = samples
+            .into_iter()
+            .map(|(time, p)| Reading {
+                time,
+                accel: Some(p.map(|v| v.round() as i16)),
                 ..Reading::default()
-            });
-        };
-        for (k, &u) in dirs.iter().enumerate() {
-            for _ in 0..(hold_s * 50.0) as usize {
-                push(u, &mut out);
-            }
-            if let Some(&next) = dirs.get(k + 1) {
-                let angle = u.angle(&next);
-                let axis = Unit::new_normalize(if u.cross(&next).norm() > 1e-9 {
-                    u.cross(&next)
-                } else {
-                    Vector3::x()
-                });
-                let steps = (angle.to_degrees() / 90.0 * 50.0).ceil() as usize;
-                for i in 1..steps {
-                    push(
-                        Rotation3::from_axis_angle(&axis, angle * i as f64 / steps as f64) * u,
-                        &mut out,
-                    );
-                }
-            }
-        }
-        (out, offset, w)
+            })
+            .collect();
+        (readings, offset, w)
     }
 
     const STILL: &str = "[[source]]\nname = \"imu\"\nkind = \"falcon\"\nport = \"/dev/null\"\n\

@@ -268,7 +268,7 @@ impl StillStream {
         {
             self.window.pop_front();
         }
-        let Some(spread) = self.full_window_spread() else {
+        let Some((spread, mean)) = self.full_window() else {
             return ended;
         };
         self.windows += 1;
@@ -276,23 +276,21 @@ impl StillStream {
         if self.windows >= MIN_WINDOWS && (self.windows - MIN_WINDOWS).is_multiple_of(NOISE_EVERY) {
             self.noise = Some(self.quantile(FLOOR_QUANTILE));
         }
-        let state = self.state();
-        let still = !state.never_still && state.threshold.is_some_and(|th| spread <= th);
-        if still {
-            let threshold = state.threshold.unwrap_or(f64::INFINITY);
-            match &mut self.current {
-                // Begun under a higher threshold (an early noise estimate
-                // from a sensor in motion): its quiet part starts here.
-                Some(b) if b.spread() > threshold => {
-                    self.current = Some(PoseBuilder::new(&self.window));
-                }
-                Some(b) => b.add(time, raw),
-                None => self.current = Some(PoseBuilder::new(&self.window)),
-            }
-            ended
-        } else {
-            ended.or_else(|| self.end_pose())
+        if !self.judged_at_rest(mean, spread) {
+            return ended.or_else(|| self.end_pose());
         }
+        // Begun under a higher threshold (an early noise estimate from a
+        // sensor in motion), a pose is no longer at rest: its quiet part
+        // starts here.
+        let restart = self.current.as_ref().is_some_and(|b| {
+            let (mean, spread) = b.summary();
+            !self.judged_at_rest(mean, spread)
+        });
+        match &mut self.current {
+            Some(b) if !restart => b.add(time, raw),
+            _ => self.current = Some(PoseBuilder::new(&self.window)),
+        }
+        ended
     }
 
     fn end_pose(&mut self) -> Option<StillPose> {
@@ -316,10 +314,11 @@ impl StillStream {
         self.m2 += d2;
     }
 
-    /// The window's spread, when it spans a whole window: at least
-    /// [`MIN_WINDOW_SAMPLES`], over (len − 1)/len of [`STILL_WINDOW_S`]
-    /// (what `len` evenly spaced samples of a 0.5 s window span).
-    fn full_window_spread(&self) -> Option<f64> {
+    /// The window's spread and mean, when it spans a whole window: at
+    /// least [`MIN_WINDOW_SAMPLES`], over (len − 1)/len of
+    /// [`STILL_WINDOW_S`] (what `len` evenly spaced samples of a 0.5 s
+    /// window span).
+    fn full_window(&self) -> Option<(f64, [f64; 3])> {
         let len = self.window.len();
         if len < MIN_WINDOW_SAMPLES {
             return None;
@@ -331,23 +330,16 @@ impl StillStream {
         {
             return None;
         }
-        let k = len as f64;
-        let mut mean = [0.0; 3];
-        for (_, p) in &self.window {
-            for j in 0..3 {
-                mean[j] += p[j] / k;
-            }
-        }
+        let mean = self.window_mean();
         let ss: f64 = self
             .window
             .iter()
             .map(|(_, p)| (0..3).map(|j| (p[j] - mean[j]).powi(2)).sum::<f64>())
             .sum();
-        Some((ss / k).sqrt())
+        Some(((ss / len as f64).sqrt(), mean))
     }
 
-    /// The noise, the threshold and whether the sensor is at rest now.
-    pub fn state(&self) -> StillState {
+    fn window_mean(&self) -> [f64; 3] {
         let k = self.window.len().max(1) as f64;
         let mut mean = [0.0; 3];
         for (_, p) in &self.window {
@@ -355,20 +347,27 @@ impl StillStream {
                 mean[j] += p[j] / k;
             }
         }
-        let field_scale = self.scale_at(mean);
-        let noise = self.noise();
-        let threshold = noise.map(|n| threshold(n, field_scale));
-        StillState {
-            noise,
-            threshold,
-            field_scale,
-            still_now: self.current.is_some(),
-            never_still: noise.is_some_and(|n| !(n <= MAX_NOISE_FRACTION * field_scale)),
-        }
+        mean
     }
 
-    fn noise(&self) -> Option<f64> {
-        self.noise
+    /// Whether a pose is being held now.
+    pub fn still_now(&self) -> bool {
+        self.current.is_some()
+    }
+
+    /// The noise, the threshold and whether the sensor is at rest now.
+    pub fn state(&self) -> StillState {
+        let field_scale = self.scale_at(self.window_mean());
+        let threshold = self.noise.map(|n| threshold(n, field_scale));
+        StillState {
+            noise: self.noise,
+            threshold,
+            field_scale,
+            still_now: self.still_now(),
+            never_still: self
+                .noise
+                .is_some_and(|n| !(n <= MAX_NOISE_FRACTION * field_scale)),
+        }
     }
 
     /// The field's scale about readings whose mean is `mean` (see
@@ -427,7 +426,7 @@ impl StillStream {
     /// noise: the noise is a sensor's at rest, and the spread within the
     /// threshold about the pose's own scale.
     fn judged_at_rest(&self, mean: [f64; 3], spread: f64) -> bool {
-        self.noise().is_some_and(|noise| {
+        self.noise.is_some_and(|noise| {
             let scale = self.scale_at(mean);
             noise <= MAX_NOISE_FRACTION * scale && spread <= threshold(noise, scale)
         })
@@ -464,24 +463,29 @@ fn bin_upper(k: usize) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use nalgebra::{Matrix3, Vector3};
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, StandardNormal};
 
-    /// Six axis poses held `hold_s` each, joined by turns at 90 °/s, at
-    /// `rate_hz`; raw = W⁻¹u + o + noise. Returns (t, raw) and the true
-    /// mean reading of each pose.
     /// (time, reading) samples.
-    type Samples = Vec<(f64, [f64; 3])>;
+    pub(crate) type Samples = Vec<(f64, [f64; 3])>;
 
-    fn six_poses(hold_s: f64, noise: f64, rate_hz: f64, seed: u64) -> (Samples, Vec<[f64; 3]>) {
+    /// A board's six faces in turn, each held `hold_s`, joined by turns at
+    /// 90 °/s, at `rate_hz`: raw = W⁻¹u·`scale` + o + noise (u the unit
+    /// vector of each face). Returns (t, raw) and each pose's true mean
+    /// reading.
+    pub(crate) fn six_faces(
+        hold_s: f64,
+        rate_hz: f64,
+        (w, o, scale, noise): ([[f64; 3]; 3], [f64; 3], f64, f64),
+        seed: u64,
+    ) -> (Samples, Vec<[f64; 3]>) {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let w = Matrix3::new(1.05, 0.02, 0.0, 0.02, 0.97, 0.01, 0.0, 0.01, 1.02);
-        let winv = w.try_inverse().unwrap();
-        let o = Vector3::new(0.04, -0.03, 0.06);
+        let winv = Matrix3::from_fn(|i, j| w[i][j]).try_inverse().unwrap();
+        let o = Vector3::from(o);
         let dirs = [
             Vector3::z(),
             Vector3::x(),
@@ -493,20 +497,20 @@ mod tests {
         let dt = 1.0 / rate_hz;
         let mut out = Vec::new();
         let mut truth = Vec::new();
-        let sample = |u: Vector3<f64>, out: &mut Vec<(f64, [f64; 3])>, rng: &mut ChaCha8Rng| {
+        let sample = |u: Vector3<f64>, out: &mut Samples, rng: &mut ChaCha8Rng| {
             let g = Vector3::new(
                 StandardNormal.sample(rng),
                 StandardNormal.sample(rng),
                 StandardNormal.sample(rng),
             );
-            let p: Vector3<f64> = winv * u + o + g * noise;
+            let p: Vector3<f64> = winv * u * scale + o + g * noise;
             out.push((out.len() as f64 * dt, p.into()));
         };
         for (k, &u) in dirs.iter().enumerate() {
             for _ in 0..(hold_s * rate_hz) as usize {
                 sample(u, &mut out, &mut rng);
             }
-            truth.push((winv * u + o).into());
+            truth.push((winv * u * scale + o).into());
             if let Some(&next) = dirs.get(k + 1) {
                 let angle = u.angle(&next);
                 let axis = u.cross(&next);
@@ -526,6 +530,12 @@ mod tests {
             }
         }
         (out, truth)
+    }
+
+    /// Six faces in g with cross-axis terms and offsets of tens of mg.
+    fn six_poses(hold_s: f64, noise: f64, rate_hz: f64, seed: u64) -> (Samples, Vec<[f64; 3]>) {
+        let w = [[1.05, 0.02, 0.0], [0.02, 0.97, 0.01], [0.0, 0.01, 1.02]];
+        six_faces(hold_s, rate_hz, (w, [0.04, -0.03, 0.06], 1.0, noise), seed)
     }
 
     #[test]
