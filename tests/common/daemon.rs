@@ -35,14 +35,13 @@ pub fn write_config(dir: &Path, text: &str) -> PathBuf {
     path
 }
 
-/// A configuration replaying `capture` at `speed` (a TOML value: `20.0`,
+/// The `[daemon]`, `[outputs]` and replay `[[source]]` "imu" sections of
+/// a configuration replaying `capture` at `speed` (a TOML value: `20.0`,
 /// `"max"`) with a state directory `<dir>/state`, STATUS every 0.2 s, and
-/// the given `[outputs]` lines.
-pub fn replay_config(dir: &Path, capture: &Path, speed: &str, outputs: &str) -> PathBuf {
-    write_config(
-        dir,
-        &format!(
-            r#"
+/// the given `[outputs]` lines; the sensors follow.
+fn replay_sections(dir: &Path, capture: &Path, speed: &str, outputs: &str) -> String {
+    format!(
+        r#"
 [daemon]
 state_dir = "{state}"
 status_interval_s = 0.2
@@ -55,42 +54,40 @@ name = "imu"
 kind = "replay"
 file = "{capture}"
 speed = {speed}
+"#,
+        state = dir.join("state").display(),
+        capture = capture.display(),
+    )
+}
 
+/// A configuration replaying `capture` at `speed` into a 2-axis compass
+/// (the sections of [`replay_sections`]).
+pub fn replay_config(dir: &Path, capture: &Path, speed: &str, outputs: &str) -> PathBuf {
+    let head = replay_sections(dir, capture, speed, outputs);
+    write_config(
+        dir,
+        &format!(
+            r#"{head}
 [[sensor]]
 name = "compass"
 source = "imu"
 field = "mag"
 axes = ["x", "y"]
-"#,
-            state = dir.join("state").display(),
-            capture = capture.display(),
+"#
         ),
     )
 }
 
 /// A configuration replaying `capture` (a Falcon-GX capture of a tumbling
 /// IMU) at `speed` into a 3-axis magnetometer `compass` (2000 counts per
-/// gauss) tilt-compensated by a 3-axis accelerometer `level` (4096 per g),
-/// with a state directory `<dir>/state`, STATUS every 0.2 s, and the given
-/// `[outputs]` lines.
+/// gauss) tilt-compensated by a 3-axis accelerometer `level` (4096 per g)
+/// (the sections of [`replay_sections`]).
 pub fn tumble_config(dir: &Path, capture: &Path, speed: &str, outputs: &str) -> PathBuf {
+    let head = replay_sections(dir, capture, speed, outputs);
     write_config(
         dir,
         &format!(
-            r#"
-[daemon]
-state_dir = "{state}"
-status_interval_s = 0.2
-
-[outputs]
-{outputs}
-
-[[source]]
-name = "imu"
-kind = "replay"
-file = "{capture}"
-speed = {speed}
-
+            r#"{head}
 [[sensor]]
 name = "compass"
 source = "imu"
@@ -105,9 +102,7 @@ source = "imu"
 field = "accel"
 axes = ["x", "y", "z"]
 lsb_per_g = 4096.0
-"#,
-            state = dir.join("state").display(),
-            capture = capture.display(),
+"#
         ),
     )
 }
