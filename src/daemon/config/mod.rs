@@ -1,0 +1,887 @@
+//! The configuration of `fieldcal run`: one TOML file naming the sources
+//! (ports, bridges, replayed captures), the sensors calibrated on them, the
+//! outputs and the daemon's own settings.
+//!
+//! [`load`] only reads and checks: nothing is opened, bound or started, so a
+//! configuration error stops the daemon before it touches any device. Every
+//! error names the file, the key as a dotted path (`sensor[1].axes`, indices
+//! from 0 in file order), what was found and what is allowed, with the line
+//! and column where the key or value is in the file.
+//!
+//! # Example, every key
+//!
+//! ```toml
+//! [daemon]
+//! # Where calibrations are kept, one JSON file per sensor. Default:
+//! # $STATE_DIRECTORY (set by systemd's StateDirectory=), else ./state in
+//! # the working directory.
+//! state_dir = "/var/lib/fieldcal"
+//! # Seconds between STATUS messages (and systemd status lines). Default 1.
+//! status_interval_s = 1.0   # 0.05 to 86400 s; default 1
+//! # Log lines on stderr: "text" (default) or "json".
+//! log_format = "text"
+//! # True north for every magnetometer (field = "mag") of a device source:
+//! # the declination, degrees east of true north, -180 to 180...
+//! # declination_deg = 3.8
+//! # ...or (not both) the place, whose declination NOAA's World Magnetic
+//! # Model (WMM2020/WMM2025, 2020-01-01 to 2029-12-31) gives. A sensor's own
+//! # declination_deg or [sensor.location] replaces it; csv sensors take
+//! # only their own.
+//! [daemon.location]
+//! latitude = 50.1109        # WGS 84 degrees north, -90 to 90
+//! longitude = 8.6821        # WGS 84 degrees east, -180 to 180
+//! height_m = 100.0          # above the WGS 84 ellipsoid, -1000 to 850000; default 0
+//! date = "2026-06-01"       # default: the host's date at start and at each reload
+//!
+//! [outputs]
+//! # Newline-delimited JSON on standard output. Default true.
+//! stdout = true
+//! # A TCP listener, as IP:PORT. Optional. Only loopback addresses unless
+//! # tcp_public = true (readings are not authenticated).
+//! tcp = "127.0.0.1:2948"
+//! tcp_public = false
+//! # A Unix-socket listener. Optional.
+//! unix = "/run/fieldcal/fieldcal.sock"
+//! # The live page in a browser (and its JSON/server-sent-events API), as
+//! # IP:PORT; port 0 picks a free one (the log says which). Optional. Only
+//! # loopback addresses unless http_public = true (no authentication, and
+//! # the page can start a recalibration).
+//! http = "127.0.0.1:8080"
+//! http_public = false
+//! # Lines queued per subscriber before a slow one is dropped. Default 4096.
+//! queue = 4096
+//! # Subscribers at once (TCP, Unix socket, live page streams; stdout does
+//! # not count); 1 to 100000. Default: 64, fewer when the descriptor limit
+//! # (RLIMIT_NOFILE) minus 32 kept for the daemon is less; a value that does
+//! # not leave those 32 stops the start.
+//! max_subscribers = 64
+//! # The Unix socket's mode, octal (default "0660"), and its group (a name
+//! # or a number; default the daemon's group).
+//! unix_mode = "0660"
+//! unix_group = "fieldcal"
+//! # Listeners whose subscribers may send "recalibrate": any of "unix",
+//! # "tcp", "http". Default ["unix"]. "status" is open to all.
+//! recalibrate_from = ["unix"]
+//! # A file holding a token (not readable by others, not writable by its
+//! # group); a command carrying "token":"..." equal to it may recalibrate
+//! # from any listener. Optional.
+//! token_file = "/etc/fieldcal/token"
+//!
+//! [[source]]
+//! name = "imu"              # letters, digits, '-', '_'
+//! kind = "falcon"           # falcon | usb-iss | replay
+//! port = "/dev/ttyUSB0"     # falcon, usb-iss: the serial device
+//! baud = 38400              # falcon only; default 38400
+//! retry_s = 2.0             # seconds between tries after a failure; 0.05 to 3600; default 2
+//!
+//! [[source]]
+//! name = "bridge"
+//! kind = "usb-iss"
+//! port = "/dev/ttyACM0"
+//! # NAME or NAME@ADDR (7-bit address, 0x.. hex or decimal); the default
+//! # address is the chip's usual one. Chips: adxl345, mpu6050,
+//! # lsm303dlhc-accel, lsm303dlhc-mag.
+//! chips = ["mpu6050", "lsm303dlhc-mag@0x1e"]
+//! poll_ms = 30              # 1..=60000; default 30
+//! i2c_khz = 100             # 100 (default) or 400
+//!
+//! [[source]]
+//! name = "bench"
+//! kind = "replay"
+//! file = "captures/turn.fcap"  # relative to this file's directory
+//! speed = 1.0               # a factor from 0.001 to 1e6, or "max"; default 1
+//!
+//! [[source]]
+//! name = "log"
+//! kind = "csv"              # a CSV recording, played row by row
+//! file = "robot.csv"        # relative to this file's directory
+//! time_column = "t_s"       # default: the first of t, t_s, time, time_s
+//! period_s = 0.1            # only when the file has no time column
+//! speed = "max"             # as for kind = "replay"; default 1
+//!
+//! [[sensor]]                # a sensor of a csv source names two columns
+//! name = "robot-compass"
+//! source = "log"
+//! axes = ["mag_x", "mag_z"] # no `field`, no `chip`: columns of the file
+//! gyro = "gyro_y"           # a column, for the heading check; or "none"
+//! gyro_units = "deg/s"      # or "rad/s"; default deg/s
+//!
+//! [[source]]
+//! name = "board"
+//! kind = "csv"              # several files recorded on one clock, each with
+//! files = ["mag.csv", "imu.csv"]  # its own header and time column; rows
+//!                           # played merged in time order; 1 to 16 files;
+//!                           # not with `file`, nor `period_s`
+//!
+//! [[sensor]]                # a 3-axis sensor of a csv source: three columns
+//! name = "board-compass"    # of one file (its x, y, z) and the field
+//! source = "board"
+//! axes = ["mag_x", "mag_y", "mag_z"]
+//! field = "mag"             # required with three columns: mag | accel
+//! lsb_per_gauss = 1090      # and tilt, model, [sensor.sphere] as for a device
+//! tilt = "board-level"      # a 3-axis accel sensor of the same source; its
+//!                           # latest row older than 0.1 s leaves the heading out
+//!
+//! [[sensor]]
+//! name = "compass"          # letters, digits, '-', '_'; names the state file
+//! source = "bridge"
+//! chip = "lsm303dlhc-mag"   # which chip of a usb-iss source (or of a replayed
+//!                           # bridge capture); optional when it has one
+//! field = "mag"             # mag | accel | gyro
+//! axes = ["x", "y"]         # the two axes that turn, two different of x, y, z
+//! model = "paper"           # or ["offset", "scale"], or "offset+scale"
+//! # The gyro axis about which the sensor turns, for the heading check of
+//! # each CALIBRATION: "x", "y", "z" or "none". Default: the axis
+//! # perpendicular to `axes` when the sensor's stream carries a gyro (a
+//! # Falcon-GX frame, an MPU-6050), else none.
+//! gyro = "z"
+//! gyro_chip = "mpu6050"     # the gyro of another chip of the same source
+//!                           # (then `gyro` is required: mountings differ)
+//! gyro_lsb_per_deg_s = 131.0  # counts per deg/s; default the chip's
+//!                           # (MPU-6050 at +-250 deg/s: 131; Falcon-GX: 10)
+//! # A magnetometer's true north (also for a csv sensor): READINGs carry
+//! # true_heading_deg, CALIBRATIONs declination_deg and its source.
+//! declination_deg = -1.5    # or [sensor.location], as [daemon.location]
+//! [sensor.rotation]         # the rotation buffer's settings
+//! [sensor.limits]           # the acceptance limits of a fit
+//!
+//! [[sensor]]                # a 3-axis sensor: all three axes
+//! name = "compass3"
+//! source = "imu"
+//! field = "mag"
+//! axes = ["x", "y", "z"]    # in the order of the sensor's x, y, z
+//! model = "offset+scale+cross-axis"  # or "offset", "offset+scale"; default "full"
+//! lsb_per_gauss = 1090.0    # a magnetometer's counts per gauss (lsb_per_g: an accelerometer's)
+//! tilt = "level"            # the 3-axis accelerometer sensor of the same source
+//! [sensor.location]         # the WMM's declination, and its field beside the fitted one
+//! latitude = 50.1109
+//! longitude = 8.6821
+//! [sensor.sphere]           # min_samples, max_samples, max_rms, still (an accelerometer at rest in poses)
+//! ```
+//!
+//! Relative paths in the file (`file`, `state_dir`, `unix`) are relative to
+//! the file's own directory, so a configuration works from any working
+//! directory.
+
+use std::collections::HashMap;
+use std::fmt;
+use std::io::Read;
+use std::net::SocketAddr;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use toml::Spanned;
+use toml::de::{DeTable, DeValue};
+
+use super::north::{LocationKeys, North};
+use super::publish::{Access, Origin, Token};
+use crate::capture::{self, CaptureFile, StreamKind};
+use crate::io::csv::{CsvLayout, open_rows};
+use crate::model::effects::{self, Effect};
+use crate::model::gyro::GyroUnits;
+use crate::protocol::chips::Chip;
+use crate::protocol::falcon;
+use crate::source::bridge::{BridgeConfig, I2cSpeed};
+use crate::source::replay::Speed;
+
+/// When a sensor's rotation counts as complete (`[sensor.rotation]`).
+pub type RotationSettings = crate::daemon::rotation::RotationConfig;
+/// The limits a fit must meet to be accepted (`[sensor.limits]`).
+pub type LimitSettings = crate::daemon::acceptance::Limits;
+
+/// Polls per second are bounded by what a USB-ISS can do; a minute between
+/// polls is already useless for a turning sensor.
+const POLL_MS_MAX: u64 = 60_000;
+/// Shortest `daemon.status_interval_s`: 50 ms, the Falcon-GX's frame period
+/// (the I2C bridge polls every 30 ms by default). A STATUS line more often
+/// than readings arrive says nothing new, and a microsecond interval filled
+/// a slow subscriber's queue in milliseconds and left the loop handling
+/// one reading in a hundred (issue 12).
+const MIN_STATUS_INTERVAL_S: f64 = 0.05;
+/// Shortest `retry_s` of a source: a USB serial adapter takes hundreds of
+/// milliseconds to enumerate again after a replug, so trying to reopen it
+/// more than 20 times a second only burns CPU and fills the log.
+const MIN_RETRY_S: f64 = 0.05;
+/// Names become file names and JSON values: keep them short.
+const NAME_MAX: usize = 64;
+/// The effects the daemon can fit and apply to live readings: those that
+/// depend on the reading alone (drift needs the time base and covariates a
+/// logged column at correction time).
+const LIVE_EFFECTS: [Effect; 6] = [
+    Effect::Offset,
+    Effect::Scale,
+    Effect::CrossAxis,
+    Effect::Cubic,
+    Effect::CubicCentred,
+    Effect::Outliers,
+];
+
+/// A checked configuration.
+#[derive(Debug, Clone)]
+pub struct Config {
+    pub daemon: DaemonConfig,
+    pub outputs: OutputsConfig,
+    /// In file order.
+    pub sources: Vec<SourceConfig>,
+    /// In file order; at least one.
+    pub sensors: Vec<SensorConfig>,
+    /// The file it was read from, as given.
+    pub path: PathBuf,
+}
+
+/// `[daemon]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DaemonConfig {
+    /// Where the calibrations are kept.
+    pub state_dir: PathBuf,
+    /// Time between STATUS messages.
+    pub status_interval: Duration,
+    pub log_format: LogFormat,
+}
+
+/// How log lines are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LogFormat {
+    /// For people (journalctl, a terminal).
+    #[default]
+    Text,
+    /// One JSON object a line, for log collectors.
+    Json,
+}
+
+/// `[outputs]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OutputsConfig {
+    pub stdout: bool,
+    /// Loopback unless the file said `tcp_public = true`.
+    pub tcp: Option<SocketAddr>,
+    pub unix: Option<PathBuf>,
+    /// The live page's HTTP listener; loopback unless the file said
+    /// `http_public = true`.
+    pub http: Option<SocketAddr>,
+    /// Lines queued per subscriber.
+    pub queue: usize,
+    /// Subscribers at once; None: derived from the descriptor limit at start.
+    pub max_subscribers: Option<usize>,
+    /// The Unix socket's mode.
+    pub unix_mode: u32,
+    /// The Unix socket's group id, when set.
+    pub unix_group: Option<u32>,
+    /// Who may recalibrate (`recalibrate_from`, and the token of `token_file`).
+    pub access: Access,
+}
+
+/// One `[[source]]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SourceConfig {
+    pub name: String,
+    pub kind: SourceKind,
+    /// Time between tries after a failure.
+    pub retry: Duration,
+}
+
+/// What a source reads, with the settings of that kind.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SourceKind {
+    /// A Falcon-GX-style IMU on a serial line: one stream (0).
+    Falcon { port: PathBuf, baud: u32 },
+    /// Chips behind a USB-ISS bridge, polled in this order: stream k is
+    /// `chips[k]`.
+    UsbIss {
+        port: PathBuf,
+        chips: Vec<(Chip, u8)>,
+        poll: Duration,
+        i2c_khz: u32,
+    },
+    /// A capture (or raw Falcon dump) played back.
+    Replay { file: PathBuf, speed: Speed },
+    /// A CSV recording played row by row (one stream, 0): the rows' times
+    /// come from `time_column` (else the first of t, t_s, time, time_s) or,
+    /// when the file has none, row k is at k * `period_s`. Several files
+    /// recorded on one clock (`files`, each with its own header and time
+    /// column) are played merged in time order; a source of one file
+    /// (`file`) has one here.
+    Csv {
+        files: Vec<PathBuf>,
+        speed: Speed,
+        time_column: Option<String>,
+        period_s: Option<f64>,
+    },
+}
+
+impl SourceKind {
+    /// How fast a replayed file plays (`replay` and `csv` sources).
+    pub fn speed(&self) -> Option<Speed> {
+        match self {
+            SourceKind::Replay { speed, .. } | SourceKind::Csv { speed, .. } => Some(*speed),
+            _ => None,
+        }
+    }
+}
+
+impl SourceConfig {
+    /// The bridge settings of a `usb-iss` source, `None` for other kinds.
+    pub fn bridge_config(&self) -> Option<BridgeConfig> {
+        let SourceKind::UsbIss {
+            port,
+            chips,
+            poll,
+            i2c_khz,
+        } = &self.kind
+        else {
+            return None;
+        };
+        let mut config = BridgeConfig::new(port.clone(), chips.clone());
+        config.period = *poll;
+        config.speed = if *i2c_khz == 400 {
+            I2cSpeed::Khz400
+        } else {
+            I2cSpeed::Khz100
+        };
+        config.retry_interval = self.retry;
+        Some(config)
+    }
+}
+
+/// Which quantity of a reading a sensor calibrates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Field {
+    Mag,
+    Accel,
+    Gyro,
+}
+
+impl Field {
+    pub fn name(self) -> &'static str {
+        match self {
+            Field::Mag => "mag",
+            Field::Accel => "accel",
+            Field::Gyro => "gyro",
+        }
+    }
+}
+
+/// An axis of a 3-axis reading.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Axis {
+    X,
+    Y,
+    Z,
+}
+
+impl Axis {
+    pub fn name(self) -> &'static str {
+        match self {
+            Axis::X => "x",
+            Axis::Y => "y",
+            Axis::Z => "z",
+        }
+    }
+
+    /// The index into a reading's `[x, y, z]`.
+    pub fn index(self) -> usize {
+        match self {
+            Axis::X => 0,
+            Axis::Y => 1,
+            Axis::Z => 2,
+        }
+    }
+}
+
+/// One `[[sensor]]`: two axes of one field of one stream of a source.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorConfig {
+    pub name: String,
+    /// The name of its source (present in [`Config::sources`]).
+    pub source: String,
+    /// The stream of the source: the chip's place in a usb-iss `chips`
+    /// list, the stream id of a replayed capture, 0 for a Falcon.
+    pub stream: u8,
+    pub field: Field,
+    /// The raw x and y of the paper's model, in that order; different.
+    pub axes: [Axis; 2],
+    /// The model's effects, in catalogue order (the paper's: offset, scale).
+    pub effects: Vec<String>,
+    pub rotation: RotationSettings,
+    pub limits: LimitSettings,
+    /// Where the heading check of each rotation takes its gyro from.
+    pub gyro: GyroChoice,
+    /// A sensor of a csv source: the two columns that turn (the raw x and
+    /// y, in that order); then `stream`, `field` and `axes` are unused
+    /// (0, mag, x and y).
+    pub columns: Option<[String; 2]>,
+    /// A 3-axis sensor (`axes = ["x", "y", "z"]`): its model, units, tilt
+    /// source and collection; then `axes` holds its first two axes, and
+    /// `effects`, `gyro`, `rotation` and `limits` are unused.
+    pub three: Option<crate::daemon::sensor3::Sensor3Config>,
+    /// A magnetometer's true north (`declination_deg` or `[sensor.location]`,
+    /// else `[daemon]`'s for a device's magnetometer): its readings then
+    /// carry `true_heading_deg`.
+    pub north: Option<North>,
+}
+
+/// The gyro a sensor's heading is checked against (`gyro`, `gyro_chip`,
+/// `gyro_lsb_per_deg_s`).
+#[derive(Debug, Clone, PartialEq)]
+pub enum GyroChoice {
+    /// The angular rate about the turn's axis: `axis` of the gyro of the
+    /// source's stream `stream`, `lsb_per_deg_s` counts per degree/second.
+    Rate {
+        stream: u8,
+        axis: Axis,
+        lsb_per_deg_s: f64,
+    },
+    /// The angular rate about the turn's axis in a column of the sensor's
+    /// CSV recording, in `units`.
+    Column { name: String, units: GyroUnits },
+    /// No heading check, and why (said in each CALIBRATION).
+    Off(String),
+}
+
+impl Config {
+    /// The source named `name`.
+    pub fn source(&self, name: &str) -> Option<&SourceConfig> {
+        self.sources.iter().find(|s| s.name == name)
+    }
+}
+
+/// Where in the file: 1-based line and column.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Position {
+    pub line: usize,
+    pub column: usize,
+}
+
+impl fmt::Display for Position {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}:{}", self.line, self.column)
+    }
+}
+
+/// Why a configuration was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read the configuration {}: {source}", path.display())]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}:{position}: not valid TOML: {message}", path.display())]
+    Syntax {
+        path: PathBuf,
+        position: Position,
+        message: String,
+    },
+    /// A key with a wrong, missing or unknown value.
+    #[error("{}: {key}: {problem}", located(path, position))]
+    Invalid {
+        path: PathBuf,
+        /// Dotted path, e.g. `sensor[1].axes`; empty for the whole file.
+        key: String,
+        position: Option<Position>,
+        problem: String,
+    },
+}
+
+impl ConfigError {
+    /// The dotted key the error is about, if it is about one.
+    pub fn key(&self) -> Option<&str> {
+        match self {
+            ConfigError::Invalid { key, .. } => Some(key),
+            _ => None,
+        }
+    }
+
+    /// The line and column, where known.
+    pub fn position(&self) -> Option<Position> {
+        match self {
+            ConfigError::Read { .. } => None,
+            ConfigError::Syntax { position, .. } => Some(*position),
+            ConfigError::Invalid { position, .. } => *position,
+        }
+    }
+}
+
+/// The largest configuration file read, in bytes. A configuration of a
+/// dozen sources and sensors with comments is a few kilobytes; a file of a
+/// megabyte is not one, and is refused rather than read into memory.
+pub const MAX_CONFIG_LEN: u64 = 1 << 20;
+
+/// Reads and checks the configuration at `path`. Starts nothing. The path
+/// must be a regular file (a FIFO or a device is refused before it can
+/// block, see [`crate::io::regular`]) of at most [`MAX_CONFIG_LEN`] bytes.
+pub fn load(path: &Path) -> Result<Config, ConfigError> {
+    let read = |source| ConfigError::Read {
+        path: path.to_path_buf(),
+        source,
+    };
+    let bytes = crate::io::regular::read_regular(path, MAX_CONFIG_LEN).map_err(read)?;
+    let text = String::from_utf8(bytes)
+        .map_err(|e| read(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
+    parse(&text, path)
+}
+
+/// Checks a configuration's text; `path` is named in errors and anchors
+/// relative paths. Reads nothing but replayed captures' headers.
+pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
+    let doc = match DeTable::parse(text) {
+        Ok(doc) => doc,
+        Err(e) => {
+            return Err(ConfigError::Syntax {
+                path: path.to_path_buf(),
+                position: e
+                    .span()
+                    .map(|s| position_of(text, s.start))
+                    .unwrap_or(Position { line: 1, column: 1 }),
+                message: e.message().trim_end().to_string(),
+            });
+        }
+    };
+    let checker = Checker {
+        text,
+        path,
+        doc: &doc,
+        base: match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        },
+    };
+    let raw: RawConfig = toml::from_str(text).map_err(|e| checker.serde_error(&e))?;
+    checker.check(raw)
+}
+
+mod outputs;
+mod raw;
+mod sensors;
+mod settings;
+mod sources;
+mod spans;
+
+use raw::*;
+use sources::*;
+use spans::*;
+
+
+// ---------------------------------------------------------------------------
+// Checking, with positions looked up in the spanned document.
+
+struct Checker<'a> {
+    text: &'a str,
+    path: &'a Path,
+    doc: &'a Spanned<DeTable<'a>>,
+    base: PathBuf,
+}
+
+impl Checker<'_> {
+    fn error(&self, key: &str, problem: impl Into<String>) -> ConfigError {
+        ConfigError::Invalid {
+            path: self.path.to_path_buf(),
+            key: key.to_string(),
+            position: self.span_of(key).map(|s| position_of(self.text, s.start)),
+            problem: problem.into(),
+        }
+    }
+
+    /// A deserialisation error, with the key found from its span.
+    fn serde_error(&self, e: &toml::de::Error) -> ConfigError {
+        let message = e.message().trim_end().to_string();
+        let span = e.span();
+        let mut key = span
+            .as_ref()
+            .and_then(|s| path_at(self.doc, s.start))
+            .unwrap_or_default();
+        // "missing field `x`" points at the table; name the missing key.
+        if let Some(missing) = message
+            .strip_prefix("missing field `")
+            .and_then(|m| m.split('`').next())
+        {
+            key = if key.is_empty() {
+                missing.to_string()
+            } else {
+                format!("{key}.{missing}")
+            };
+        }
+        ConfigError::Invalid {
+            path: self.path.to_path_buf(),
+            key,
+            position: span.map(|s| position_of(self.text, s.start)),
+            problem: message,
+        }
+    }
+
+    fn resolve(&self, path: &Path) -> PathBuf {
+        if path.is_absolute() {
+            path.to_path_buf()
+        } else {
+            self.base.join(path)
+        }
+    }
+
+    fn check(&self, mut raw: RawConfig) -> Result<Config, ConfigError> {
+        let today = crate::geomag::CivilDate::today();
+        let daemon_north = self.check_north(
+            "daemon",
+            raw.daemon.declination_deg,
+            raw.daemon.location.take(),
+            today,
+        )?;
+        let daemon = self.check_daemon(raw.daemon)?;
+        let outputs = self.check_outputs(raw.outputs)?;
+
+        let mut sources = Vec::with_capacity(raw.source.len());
+        let mut streams: Vec<Vec<StreamDesc>> = Vec::with_capacity(raw.source.len());
+        // The header of each csv source's file, resolved.
+        let mut layouts: Vec<Option<Vec<CsvLayout>>> = Vec::with_capacity(raw.source.len());
+        let mut source_index: HashMap<String, usize> = HashMap::new();
+        for (i, s) in raw.source.into_iter().enumerate() {
+            let key = format!("source[{i}]");
+            self.check_name(&format!("{key}.name"), &s.name)?;
+            if let Some(j) = source_index.get(&s.name) {
+                return Err(self.error(
+                    &format!("{key}.name"),
+                    format!(
+                        "'{}' is already the name of source[{j}]: give every source its own name",
+                        s.name
+                    ),
+                ));
+            }
+            source_index.insert(s.name.clone(), i);
+            let (source, desc, layout) = self.check_source(&key, s)?;
+            sources.push(source);
+            streams.push(desc);
+            layouts.push(layout);
+        }
+
+        if raw.sensor.is_empty() {
+            return Err(self.error(
+                "sensor",
+                "no [[sensor]] in the file: `fieldcal run` needs at least one sensor to \
+                 calibrate (name, source, field, axes)",
+            ));
+        }
+        let mut sensors = Vec::with_capacity(raw.sensor.len());
+        let mut sensor_index: HashMap<String, usize> = HashMap::new();
+        let mut pending_tilts: Vec<(usize, String)> = Vec::new();
+        for (i, s) in raw.sensor.into_iter().enumerate() {
+            let key = format!("sensor[{i}]");
+            self.check_name(&format!("{key}.name"), &s.name)?;
+            if let Some(j) = sensor_index.get(&s.name) {
+                return Err(self.error(
+                    &format!("{key}.name"),
+                    format!(
+                        "'{}' is already the name of sensor[{j}]: give every sensor its own \
+                         name (it names the sensor's calibration file)",
+                        s.name
+                    ),
+                ));
+            }
+            sensor_index.insert(s.name.clone(), i);
+            let north = self.check_north(&key, s.declination_deg, s.location.clone(), today)?;
+            let Some(&src) = source_index.get(&s.source) else {
+                let names: Vec<&str> = sources.iter().map(|s| s.name.as_str()).collect();
+                return Err(self.error(
+                    &format!("{key}.source"),
+                    if names.is_empty() {
+                        format!(
+                            "no source named '{}': the file has no [[source]]; add one",
+                            s.source
+                        )
+                    } else {
+                        format!(
+                            "no source named '{}': the sources are {}",
+                            s.source,
+                            names.join(", ")
+                        )
+                    },
+                ));
+            };
+            let (src_name, src_kind) = match sources.get(src) {
+                Some(source) => (source.name.as_str(), kind_name(&source.kind)),
+                None => ("", ""),
+            };
+            if let (Some(Some(layout)), Some(source)) = (layouts.get(src), sources.get(src)) {
+                let location_given = s.location.is_some();
+                let (mut sensor, tilt) = self.check_csv_sensor(&key, s, source, layout)?;
+                // A 3-axis csv sensor names its field: true north is a
+                // magnetometer's (a 2-axis one's columns carry no field).
+                if north.is_some() && sensor.three.is_some() && sensor.field != Field::Mag {
+                    return Err(self.north_not_magnetometer(&key, location_given, sensor.field));
+                }
+                sensor.north = north;
+                if let Some(tilt) = tilt {
+                    pending_tilts.push((i, tilt));
+                }
+                sensors.push(sensor);
+                continue;
+            }
+            let Some(field) = s.field else {
+                return Err(self.error(
+                    &format!("{key}.field"),
+                    format!(
+                        "missing: give the quantity the sensor calibrates on source '{src_name}': \
+                         \"mag\", \"accel\" or \"gyro\""
+                    ),
+                ));
+            };
+            let north = match north {
+                Some(_) if field != Field::Mag => {
+                    return Err(self.north_not_magnetometer(&key, s.location.is_some(), field));
+                }
+                Some(n) => Some(n),
+                None if field == Field::Mag => daemon_north.clone(),
+                None => None,
+            };
+            if s.gyro_units.is_some() {
+                return Err(self.error(
+                    &format!("{key}.gyro_units"),
+                    format!(
+                        "a sensor of a {src_kind} source has no `gyro_units`: its gyro's scale \
+                         is gyro_lsb_per_deg_s (gyro_units is for a csv source's gyro column)"
+                    ),
+                ));
+            }
+            let stream_list = streams.get(src).map(Vec::as_slice).unwrap_or(&[]);
+            let stream =
+                self.resolve_stream(&key, s.chip.as_deref(), src_name, src_kind, stream_list)?;
+            let fields = stream.fields();
+            if !fields.contains(&field) {
+                let names: Vec<&str> = fields.iter().map(|f| f.name()).collect();
+                return Err(self.error(
+                    &format!("{key}.field"),
+                    format!(
+                        "'{}' is not measured by {} of source '{src_name}': it gives {}",
+                        field.name(),
+                        stream.describe(),
+                        names.join(", ")
+                    ),
+                ));
+            }
+            let mut parsed = Vec::with_capacity(s.axes.len());
+            for (k, name) in s.axes.iter().enumerate() {
+                parsed.push(match name.trim() {
+                    "x" => Axis::X,
+                    "y" => Axis::Y,
+                    "z" => Axis::Z,
+                    other => {
+                        return Err(self.error(
+                            &format!("{key}.axes[{k}]"),
+                            format!(
+                                "\"{other}\" is not an axis: a sensor of a {src_kind} source \
+                                 gives two different of \"x\", \"y\", \"z\" of its field \
+                                 (column names are for sensors of a kind = \"csv\" source)"
+                            ),
+                        ));
+                    }
+                });
+            }
+            if parsed.len() == 3 {
+                let (mut sensor, tilt) =
+                    self.check_sensor3(&key, s, field, stream.id, &parsed, src_name)?;
+                if let Some(tilt) = tilt {
+                    pending_tilts.push((i, tilt));
+                }
+                sensor.north = north;
+                sensors.push(sensor);
+                continue;
+            }
+            for (name, given) in [
+                ("tilt", s.tilt.is_some()),
+                ("lsb_per_gauss", s.lsb_per_gauss.is_some()),
+                ("lsb_per_g", s.lsb_per_g.is_some()),
+                ("sphere", s.sphere.is_some()),
+            ] {
+                if given {
+                    return Err(self.error(
+                        &format!("{key}.{name}"),
+                        format!(
+                            "`{name}` is for a 3-axis sensor: give axes = [\"x\", \"y\", \"z\"], \
+                             or leave `{name}` out of this 2-axis sensor"
+                        ),
+                    ));
+                }
+            }
+            let axes = match parsed.as_slice() {
+                [a, b] if a == b => {
+                    return Err(self.error(
+                        &format!("{key}.axes"),
+                        format!(
+                            "both axes are \"{}\": give the two axes that turn, two different \
+                             of \"x\", \"y\", \"z\"",
+                            a.name()
+                        ),
+                    ));
+                }
+                [a, b] => [*a, *b],
+                other => {
+                    return Err(self.error(
+                        &format!("{key}.axes"),
+                        format!(
+                            "{} axes given: give exactly two different of \"x\", \"y\", \"z\" \
+                             (the two that turn), or all three for a 3-D calibration",
+                            other.len()
+                        ),
+                    ));
+                }
+            };
+            let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
+            let gyro = self.check_gyro(&key, &s, axes, stream, src_name, stream_list)?;
+            if let Err(problem) = s.rotation.validate() {
+                return Err(self.error(&format!("{key}.rotation"), problem));
+            }
+            if let Err(problem) = s.limits.validate() {
+                return Err(self.error(&format!("{key}.limits"), problem));
+            }
+            sensors.push(SensorConfig {
+                name: s.name,
+                source: s.source,
+                stream: stream.id,
+                field,
+                axes,
+                effects,
+                rotation: s.rotation,
+                limits: s.limits,
+                gyro,
+                columns: None,
+                three: None,
+                north,
+            });
+        }
+        self.link_tilts(&mut sensors, &pending_tilts)?;
+
+        Ok(Config {
+            daemon,
+            outputs,
+            sources,
+            sensors,
+            path: self.path.to_path_buf(),
+        })
+    }
+}
+
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn positions_are_one_based() {
+        let text = "a = 1\nbé = 2\n";
+        assert_eq!(position_of(text, 0), Position { line: 1, column: 1 });
+        let at = text.find("= 2").unwrap_or(0);
+        assert_eq!(position_of(text, at), Position { line: 2, column: 4 });
+        assert_eq!(position_of(text, 10_000).line, 3);
+    }
+
+    #[test]
+    fn chip_fields_follow_the_drivers() {
+        assert_eq!(chip_fields(Chip::Lsm303dlhcMag), vec![Field::Mag]);
+        assert_eq!(chip_fields(Chip::Mpu6050), vec![Field::Accel, Field::Gyro]);
+        assert_eq!(chip_fields(Chip::Adxl345), vec![Field::Accel]);
+    }
+}

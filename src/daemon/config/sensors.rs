@@ -1,0 +1,889 @@
+//! `[[sensor]]`: which stream or columns a sensor reads, its model and
+//! effects, rotation and limits, gyro, tilt and true north.
+
+use super::*;
+
+impl Checker<'_> {
+    /// A sensor of a csv source: two columns of its file (or of one of its
+    /// files), and optionally a gyro column; or three columns and a `field`,
+    /// a 3-axis sensor. The keys of a device's sensor are refused by name.
+    /// Returns the sensor and the name its `tilt` gives.
+    pub(super) fn check_csv_sensor(
+        &self,
+        key: &str,
+        s: RawSensor,
+        source: &SourceConfig,
+        layouts: &[CsvLayout],
+    ) -> Result<(SensorConfig, Option<String>), ConfigError> {
+        let paths: &[PathBuf] = match &source.kind {
+            SourceKind::Csv { files, .. } => files,
+            _ => &[],
+        };
+        let file = paths
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(" or ");
+        let src = &source.name;
+        // Where a column is: (file index, name); errors name the key `k`.
+        let column = |k: String, name: &str, what: &str| -> Result<(usize, String), ConfigError> {
+            let name = name.trim();
+            let mut hit: Option<usize> = None;
+            for (f, layout) in layouts.iter().enumerate() {
+                let Some(i) = layout.index(name) else {
+                    continue;
+                };
+                let this = paths
+                    .get(f)
+                    .map(|p| p.display().to_string())
+                    .unwrap_or_default();
+                if Some(i) == layout.time_index() {
+                    return Err(self.error(
+                        &k,
+                        format!("'{name}' is the time column of {this}: give a column of {what}"),
+                    ));
+                }
+                if let Some(first) = hit {
+                    let that = paths
+                        .get(first)
+                        .map(|p| p.display().to_string())
+                        .unwrap_or_default();
+                    return Err(self.error(
+                        &k,
+                        format!(
+                            "'{name}' is a column of both {that} and {this}: the files of one \
+                             source must not share a column a sensor reads (rename it in one of \
+                             them)"
+                        ),
+                    ));
+                }
+                hit = Some(f);
+            }
+            if let Some(f) = hit {
+                return Ok((f, name.to_string()));
+            }
+            let device = matches!(name, "x" | "y" | "z")
+                .then_some(
+                    " (a csv source's sensors name columns of the file, not the x, y, z \
+                     of a device)",
+                )
+                .unwrap_or_default();
+            Err(self.error(
+                &k,
+                match layouts {
+                    [layout] => format!(
+                        "{file}:{}: no column '{name}' in the header (columns: {}): give a \
+                         column of {what}{device}",
+                        layout.header_line,
+                        layout.available()
+                    ),
+                    _ => format!(
+                        "no column '{name}' in the headers of {file} (columns: {}): give a \
+                         column of {what}{device}",
+                        layouts
+                            .iter()
+                            .zip(paths)
+                            .map(|(l, p)| format!("{} in {}", l.available(), p.display()))
+                            .collect::<Vec<_>>()
+                            .join("; ")
+                    ),
+                },
+            ))
+        };
+        // Every column of one sensor from one file: `found[0]`'s.
+        let one_file = |found: &[(usize, String)], keys: &[String]| -> Result<usize, ConfigError> {
+            let first = found.first().map_or(0, |f| f.0);
+            for ((f, name), k) in found.iter().zip(keys) {
+                if *f != first {
+                    let of = |f: usize| {
+                        paths
+                            .get(f)
+                            .map(|p| p.display().to_string())
+                            .unwrap_or_default()
+                    };
+                    return Err(self.error(
+                        k,
+                        format!(
+                            "'{name}' is a column of {}, but '{}' is of {}: a row carries only \
+                             its own file's columns, so a sensor's columns must all come from \
+                             one file",
+                            of(*f),
+                            found[0].1,
+                            of(first)
+                        ),
+                    ));
+                }
+            }
+            Ok(first)
+        };
+        if s.axes.len() == 3 {
+            return self.check_csv_sensor3(key, s, &file, column, one_file);
+        }
+        for (name, given) in [
+            ("field", s.field.is_some()),
+            ("chip", s.chip.is_some()),
+            ("tilt", s.tilt.is_some()),
+            ("lsb_per_gauss", s.lsb_per_gauss.is_some()),
+            ("lsb_per_g", s.lsb_per_g.is_some()),
+            ("sphere", s.sphere.is_some()),
+            ("gyro_chip", s.gyro_chip.is_some()),
+            ("gyro_lsb_per_deg_s", s.gyro_lsb_per_deg_s.is_some()),
+        ] {
+            if given {
+                return Err(self.error(
+                    &format!("{key}.{name}"),
+                    format!(
+                        "a sensor of csv source '{src}' has no `{name}`: it names two columns \
+                         of {file} in axes (and a gyro column in gyro, with gyro_units){}",
+                        if matches!(
+                            name,
+                            "field" | "tilt" | "lsb_per_gauss" | "lsb_per_g" | "sphere"
+                        ) {
+                            "; a 3-axis sensor names three columns in axes, with field"
+                        } else {
+                            ""
+                        }
+                    ),
+                ));
+            }
+        }
+        let columns = match s.axes.as_slice() {
+            [a, b] if a.trim() == b.trim() => {
+                return Err(self.error(
+                    &format!("{key}.axes"),
+                    format!(
+                        "both axes are \"{}\": give the two columns that turn, two different \
+                         columns of {file}",
+                        a.trim()
+                    ),
+                ));
+            }
+            [a, b] => {
+                let keys = [format!("{key}.axes[0]"), format!("{key}.axes[1]")];
+                let found = [
+                    column(keys[0].clone(), a, "the axes that turn")?,
+                    column(keys[1].clone(), b, "the axes that turn")?,
+                ];
+                one_file(&found, &keys)?;
+                found
+            }
+            other => {
+                return Err(self.error(
+                    &format!("{key}.axes"),
+                    format!(
+                        "{} columns given: give exactly two different columns of {file} (the \
+                         two axes that turn), or three with field = \"mag\" or \"accel\" for a \
+                         3-axis sensor",
+                        other.len()
+                    ),
+                ));
+            }
+        };
+        let file_of_axes = columns[0].0;
+        let columns = [columns[0].1.clone(), columns[1].1.clone()];
+        let units_key = format!("{key}.gyro_units");
+        let units = match s.gyro_units.as_deref().map(str::trim) {
+            None | Some("deg/s") => GyroUnits::DegPerSecond,
+            Some("rad/s") => GyroUnits::RadPerSecond,
+            Some(other) => {
+                return Err(self.error(
+                    &units_key,
+                    format!(
+                        "\"{other}\" is not a unit of angular rate: give \"deg/s\" or \"rad/s\""
+                    ),
+                ));
+            }
+        };
+        let gyro = match s.gyro.as_deref().map(str::trim) {
+            None | Some("none") if s.gyro_units.is_some() => {
+                return Err(self.error(
+                    &units_key,
+                    "given without a gyro column: name it with gyro = \"COLUMN\", or leave \
+                     gyro_units out",
+                ));
+            }
+            None => GyroChoice::Off(format!(
+                "no heading check: name a gyro column of {file} with gyro = \"COLUMN\""
+            )),
+            Some("none") => {
+                GyroChoice::Off("no heading check: gyro = \"none\" in the configuration".into())
+            }
+            Some(name) => {
+                let gyro_key = format!("{key}.gyro");
+                let (gyro_file, name) = column(
+                    gyro_key.clone(),
+                    name,
+                    "the angular rate about the turn's axis",
+                )?;
+                if gyro_file != file_of_axes {
+                    let of = |f: usize| {
+                        paths
+                            .get(f)
+                            .map(|p| p.display().to_string())
+                            .unwrap_or_default()
+                    };
+                    return Err(self.error(
+                        &gyro_key,
+                        format!(
+                            "'{name}' is a column of {}, but the axes are of {}: a row carries \
+                             only its own file's columns, so the gyro must be in the axes' file",
+                            of(gyro_file),
+                            of(file_of_axes)
+                        ),
+                    ));
+                }
+                if columns.contains(&name) {
+                    return Err(self.error(
+                        &gyro_key,
+                        format!(
+                            "'{name}' is one of the two axes that turn: give the gyro column of \
+                             the turn's axis, or \"none\""
+                        ),
+                    ));
+                }
+                GyroChoice::Column { name, units }
+            }
+        };
+        let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
+        if let Err(problem) = s.rotation.validate() {
+            return Err(self.error(&format!("{key}.rotation"), problem));
+        }
+        if let Err(problem) = s.limits.validate() {
+            return Err(self.error(&format!("{key}.limits"), problem));
+        }
+        Ok((
+            SensorConfig {
+                name: s.name,
+                source: s.source,
+                stream: 0,
+                field: Field::Mag,
+                axes: [Axis::X, Axis::Y],
+                effects,
+                rotation: s.rotation,
+                limits: s.limits,
+                gyro,
+                columns: Some(columns),
+                three: None,
+                north: None,
+            },
+            None,
+        ))
+    }
+
+    /// A 3-axis sensor of a csv source: three different columns of one of
+    /// its files (the sensor's x, y, z), the `field` they measure (columns
+    /// carry none), and the 3-axis keys of a device's sensor.
+    pub(super) fn check_csv_sensor3(
+        &self,
+        key: &str,
+        s: RawSensor,
+        file: &str,
+        column: impl Fn(String, &str, &str) -> Result<(usize, String), ConfigError>,
+        one_file: impl Fn(&[(usize, String)], &[String]) -> Result<usize, ConfigError>,
+    ) -> Result<(SensorConfig, Option<String>), ConfigError> {
+        for (name, given) in [
+            ("chip", s.chip.is_some()),
+            ("gyro_units", s.gyro_units.is_some()),
+        ] {
+            if given {
+                return Err(self.error(
+                    &format!("{key}.{name}"),
+                    format!(
+                        "a 3-axis sensor of csv source '{}' has no `{name}`: it names three \
+                         columns of {file} in axes, with field = \"mag\" or \"accel\"",
+                        s.source
+                    ),
+                ));
+            }
+        }
+        let Some(field) = s.field else {
+            return Err(self.error(
+                &format!("{key}.field"),
+                "missing: three columns carry no field, so a 3-axis sensor of a csv source \
+                 needs field = \"mag\" (a magnetometer) or \"accel\" (an accelerometer)",
+            ));
+        };
+        let names: Vec<&str> = s.axes.iter().map(|a| a.trim()).collect();
+        for j in 1..names.len() {
+            if let Some(i) = names[..j].iter().position(|n| *n == names[j]) {
+                return Err(self.error(
+                    &format!("{key}.axes[{j}]"),
+                    format!(
+                        "'{}' is already axes[{i}]: give three different columns of {file}, the \
+                         sensor's x, y, z in that order",
+                        names[j]
+                    ),
+                ));
+            }
+        }
+        let what = match field {
+            Field::Accel => "the sensor's acceleration (x, y, z)",
+            _ => "the sensor's field (x, y, z)",
+        };
+        let keys: Vec<String> = (0..3).map(|k| format!("{key}.axes[{k}]")).collect();
+        let mut found = Vec::with_capacity(3);
+        for (k, name) in keys.iter().zip(&names) {
+            found.push(column(k.clone(), name, what)?);
+        }
+        one_file(&found, &keys)?;
+        let columns = [found[0].1.clone(), found[1].1.clone(), found[2].1.clone()];
+        let (mut sensor, tilt) =
+            self.check_sensor3(key, s, field, 0, &[Axis::X, Axis::Y, Axis::Z], "")?;
+        if let Some(three) = sensor.three.as_mut() {
+            three.columns = Some(columns);
+        }
+        Ok((sensor, tilt))
+    }
+
+    /// `declination_deg` or `location` on a sensor that is no magnetometer.
+    pub(super) fn north_not_magnetometer(&self, key: &str, location_given: bool, field: Field) -> ConfigError {
+        let name = if location_given {
+            "location"
+        } else {
+            "declination_deg"
+        };
+        self.error(
+            &format!("{key}.{name}"),
+            format!(
+                "`{name}` is a magnetometer's: this sensor measures {}, whose heading owes \
+                 nothing to the Earth's magnetic north; leave it out",
+                field.name()
+            ),
+        )
+    }
+
+    /// A `[[sensor]]` with three axes: its 3-D settings, and the name its
+    /// `tilt` gives (resolved by [`Checker::link_tilts`] once every sensor
+    /// is read).
+    pub(super) fn check_sensor3(
+        &self,
+        key: &str,
+        s: RawSensor,
+        field: Field,
+        stream: u8,
+        parsed: &[Axis],
+        src_name: &str,
+    ) -> Result<(SensorConfig, Option<String>), ConfigError> {
+        use crate::daemon::sensor3::Sensor3Config;
+        use crate::model::ellipsoid::Ellipsoid3Model;
+        let axes = [parsed[0], parsed[1], parsed[2]];
+        if axes[0] == axes[1] || axes[0] == axes[2] || axes[1] == axes[2] {
+            return Err(self.error(
+                &format!("{key}.axes"),
+                "an axis is given twice: a 3-axis sensor gives \"x\", \"y\", \"z\", each once \
+                 (in the order of its x, y, z)",
+            ));
+        }
+        if field == Field::Gyro {
+            return Err(self.error(
+                &format!("{key}.field"),
+                "a gyro measures no constant field: a 3-axis sensor is \"mag\" or \"accel\"",
+            ));
+        }
+        for (name, given) in [
+            ("gyro", s.gyro.is_some()),
+            ("gyro_chip", s.gyro_chip.is_some()),
+            ("gyro_lsb_per_deg_s", s.gyro_lsb_per_deg_s.is_some()),
+            ("rotation", s.rotation != RotationSettings::default()),
+            ("limits", s.limits != LimitSettings::default()),
+        ] {
+            if given {
+                return Err(self.error(
+                    &format!("{key}.{name}"),
+                    format!(
+                        "`{name}` is for a 2-axis sensor's rotation: a 3-axis sensor collects \
+                         until its directions cover the sphere, set in [sensor.sphere] \
+                         (min_samples, max_samples, max_rms)"
+                    ),
+                ));
+            }
+        }
+        let model = match &s.model {
+            None => Ellipsoid3Model::Full,
+            Some(toml::Value::String(text)) => text
+                .trim()
+                .parse::<Ellipsoid3Model>()
+                .map_err(|e| self.error(&format!("{key}.model"), e))?,
+            Some(other) => {
+                return Err(self.error(
+                    &format!("{key}.model"),
+                    format!(
+                        "found {}: a 3-axis sensor's model is a string, \"offset\", \
+                         \"offset+scale\" or \"offset+scale+cross-axis\" (the default)",
+                        type_name(other)
+                    ),
+                ));
+            }
+        };
+        let (unit_key, wrong_key, unit) = match field {
+            Field::Accel => ("lsb_per_g", "lsb_per_gauss", s.lsb_per_g),
+            _ => ("lsb_per_gauss", "lsb_per_g", s.lsb_per_gauss),
+        };
+        let wrong = match field {
+            Field::Accel => s.lsb_per_gauss,
+            _ => s.lsb_per_g,
+        };
+        if wrong.is_some() {
+            return Err(self.error(
+                &format!("{key}.{wrong_key}"),
+                format!(
+                    "a {} sensor's units are `{unit_key}`, not `{wrong_key}`",
+                    field.name()
+                ),
+            ));
+        }
+        if let Some(u) = unit
+            && !(u.is_finite() && u > 0.0 && u <= 1e9)
+        {
+            return Err(self.error(
+                &format!("{key}.{unit_key}"),
+                format!("must be a positive number of counts (at most 1e9), got {u}"),
+            ));
+        }
+        let sphere = s.sphere.unwrap_or_default();
+        if let Err(problem) = sphere.validate() {
+            return Err(self.error(&format!("{key}.sphere"), problem));
+        }
+        if sphere.still && field != Field::Accel {
+            return Err(self.error(
+                &format!("{key}.sphere.still"),
+                format!(
+                    "still poses are for an accelerometer (field = \"accel\"): a {} reads the \
+                     same whether it moves or rests; tumble it through every direction and leave \
+                     `still` out",
+                    field.name()
+                ),
+            ));
+        }
+        let _ = src_name;
+        let three = Sensor3Config {
+            axes,
+            model,
+            lsb_per_unit: unit,
+            // Resolved by link_tilts.
+            tilt: None,
+            sphere,
+            columns: None,
+        };
+        Ok((
+            SensorConfig {
+                name: s.name,
+                source: s.source,
+                stream,
+                field,
+                axes: [axes[0], axes[1]],
+                effects: model.name().split('+').map(String::from).collect(),
+                rotation: RotationSettings::default(),
+                limits: LimitSettings::default(),
+                gyro: GyroChoice::Off(
+                    "a 3-axis sensor: its fit is judged by the sphere's coverage, not a gyro"
+                        .into(),
+                ),
+                columns: None,
+                three: Some(three),
+                north: None,
+            },
+            s.tilt,
+        ))
+    }
+
+    /// Resolves each 3-axis sensor's `tilt`: another 3-axis accelerometer
+    /// sensor of the same source.
+    pub(super) fn link_tilts(
+        &self,
+        sensors: &mut [SensorConfig],
+        pending: &[(usize, String)],
+    ) -> Result<(), ConfigError> {
+        use crate::daemon::sensor3::TiltSource;
+        for (i, name) in pending {
+            let key = format!("sensor[{i}].tilt");
+            let Some(me) = sensors.get(*i) else { continue };
+            let found = sensors.iter().position(|s| &s.name == name);
+            let Some(j) = found else {
+                let names: Vec<&str> = sensors
+                    .iter()
+                    .filter(|s| s.three.is_some() && s.field == Field::Accel)
+                    .map(|s| s.name.as_str())
+                    .collect();
+                return Err(self.error(
+                    &key,
+                    format!(
+                        "no sensor named '{name}': give the 3-axis accelerometer sensor of source \
+                         '{}' ({})",
+                        me.source,
+                        if names.is_empty() {
+                            "the file has none: add one with field = \"accel\" and axes = \
+                             [\"x\", \"y\", \"z\"]"
+                                .to_string()
+                        } else {
+                            format!("the file has {}", names.join(", "))
+                        }
+                    ),
+                ));
+            };
+            let other = &sensors[j];
+            let problem = if j == *i {
+                Some("a sensor cannot be its own tilt source".to_string())
+            } else if other.three.is_none() {
+                Some(format!(
+                    "'{name}' is a 2-axis sensor: the tilt source must be a 3-axis accelerometer \
+                     (axes = [\"x\", \"y\", \"z\"], field = \"accel\")"
+                ))
+            } else if other.field != Field::Accel {
+                Some(format!(
+                    "'{name}' measures {}: the tilt source must be an accelerometer (field = \"accel\")",
+                    other.field.name()
+                ))
+            } else if other.source != me.source {
+                Some(format!(
+                    "'{name}' is a sensor of source '{}', not of '{}': the tilt source must be on \
+                     the same board, read by the same source",
+                    other.source, me.source
+                ))
+            } else if me.field != Field::Mag {
+                Some(format!(
+                    "a tilt-compensated heading is a magnetometer's: this sensor measures {}",
+                    me.field.name()
+                ))
+            } else {
+                None
+            };
+            if let Some(problem) = problem {
+                return Err(self.error(&key, problem));
+            }
+            let tilt = other.three.as_ref().map(|t| TiltSource {
+                sensor: name.clone(),
+                stream: other.stream,
+                axes: t.axes,
+                columns: t.columns.clone(),
+            });
+            if let Some(three) = sensors.get_mut(*i).and_then(|s| s.three.as_mut()) {
+                three.tilt = tilt;
+            }
+        }
+        Ok(())
+    }
+
+    pub(super) fn check_model(
+        &self,
+        key: &str,
+        model: Option<&toml::Value>,
+    ) -> Result<Vec<String>, ConfigError> {
+        let mut names: Vec<(String, String)> = Vec::new(); // (key, name)
+        match model {
+            None => names.push((key.to_string(), "paper".into())),
+            Some(toml::Value::String(s)) => {
+                names.extend(
+                    s.split('+')
+                        .map(|n| (key.to_string(), n.trim().to_string())),
+                );
+            }
+            Some(toml::Value::Array(items)) => {
+                if items.is_empty() {
+                    return Err(self.error(
+                        key,
+                        "an empty list: give \"paper\" or a list of effects such as \
+                         [\"offset\", \"scale\"]",
+                    ));
+                }
+                for (k, item) in items.iter().enumerate() {
+                    let item_key = format!("{key}[{k}]");
+                    match item {
+                        toml::Value::String(s) => names.push((item_key, s.trim().to_string())),
+                        other => {
+                            return Err(self.error(
+                                &item_key,
+                                format!("found {}: effect names are strings", type_name(other)),
+                            ));
+                        }
+                    }
+                }
+            }
+            Some(other) => {
+                return Err(self.error(
+                    key,
+                    format!(
+                        "found {}: give \"paper\" or a list of effect names",
+                        type_name(other)
+                    ),
+                ));
+            }
+        }
+        let mut effects: Vec<Effect> = Vec::new();
+        for (item_key, name) in &names {
+            if name == "paper" {
+                effects.extend(effects::PAPER);
+                continue;
+            }
+            let effect: Effect = name
+                .parse()
+                .map_err(|problem| self.error(item_key, problem))?;
+            if !LIVE_EFFECTS.contains(&effect) {
+                return Err(self.error(
+                    item_key,
+                    format!(
+                        "the effect '{effect}' cannot correct live readings: it needs the time base or a \
+                         logged column at correction time; the daemon fits {}; analyse it offline with \
+                         `fieldcal fit --effects {effect}` or `fieldcal diagnose`",
+                        LIVE_EFFECTS.iter().map(Effect::to_string).collect::<Vec<_>>().join(", ")
+                    ),
+                ));
+            }
+            effects.push(effect);
+        }
+        let missing: Vec<String> = effects::PAPER
+            .iter()
+            .filter(|e| !effects.contains(e))
+            .map(Effect::to_string)
+            .collect();
+        if !missing.is_empty() {
+            return Err(self.error(
+                key,
+                format!(
+                    "the model lacks {}: every model is the paper's (offset, scale) plus \
+                     effects, so include both, or write \"paper\"",
+                    missing.join(" and ")
+                ),
+            ));
+        }
+        // Catalogue order, each once.
+        effects.sort();
+        effects.dedup();
+        Ok(effects.iter().map(Effect::to_string).collect())
+    }
+
+    /// The gyro of a sensor's heading check: the keys `gyro`, `gyro_chip`
+    /// and `gyro_lsb_per_deg_s` of `sensor[i]` (`key`).
+    pub(super) fn check_gyro(
+        &self,
+        key: &str,
+        s: &RawSensor,
+        axes: [Axis; 2],
+        own: StreamDesc,
+        source: &str,
+        streams: &[StreamDesc],
+    ) -> Result<GyroChoice, ConfigError> {
+        let axis_key = format!("{key}.gyro");
+        let chosen = match s.gyro.as_deref().map(str::trim) {
+            None => None,
+            Some("none") => {
+                if s.gyro_chip.is_some() {
+                    return Err(self.error(
+                        &format!("{key}.gyro_chip"),
+                        "given with gyro = \"none\": name the gyro axis, or leave gyro_chip out",
+                    ));
+                }
+                return Ok(GyroChoice::Off(
+                    "no heading check: gyro = \"none\" in the configuration".into(),
+                ));
+            }
+            Some("x") => Some(Axis::X),
+            Some("y") => Some(Axis::Y),
+            Some("z") => Some(Axis::Z),
+            Some(other) => {
+                return Err(self.error(
+                    &axis_key,
+                    format!(
+                        "\"{other}\" is not a gyro axis: give \"x\", \"y\" or \"z\" (the \
+                         gyro axis the sensor turns about) or \"none\""
+                    ),
+                ));
+            }
+        };
+        let stream = match s.gyro_chip.as_deref() {
+            None => own,
+            Some(text) => self.gyro_stream(&format!("{key}.gyro_chip"), text, source, streams)?,
+        };
+        let has_gyro = stream.fields().contains(&Field::Gyro);
+        if !has_gyro {
+            return match chosen {
+                None => Ok(GyroChoice::Off(format!(
+                    "no heading check: {} of source '{source}' has no gyro (give gyro_chip for \
+                     another chip's)",
+                    stream.describe()
+                ))),
+                Some(_) => Err(self.error(
+                    &axis_key,
+                    format!(
+                        "{} of source '{source}' has no gyro: give gyro_chip = \"NAME\" for \
+                         another chip's, or leave gyro out",
+                        stream.describe()
+                    ),
+                )),
+            };
+        }
+        let same_stream = stream.id == own.id;
+        let axis = match chosen {
+            Some(axis) if same_stream && axes.contains(&axis) => {
+                return Err(self.error(
+                    &axis_key,
+                    format!(
+                        "\"{}\" is one of the two axes that turn ({}, {}): the turn is about the \
+                         third, give it, or \"none\"",
+                        axis.name(),
+                        axes[0].name(),
+                        axes[1].name()
+                    ),
+                ));
+            }
+            Some(axis) => axis,
+            None if !same_stream => {
+                return Err(self.error(
+                    &axis_key,
+                    "missing: with gyro_chip, say which of its axes the sensor turns about \
+                     (\"x\", \"y\" or \"z\"): chips are not always mounted alike",
+                ));
+            }
+            None if s.field == Some(Field::Gyro) => {
+                return Ok(GyroChoice::Off(
+                    "no heading check: the sensor is itself the gyro".into(),
+                ));
+            }
+            None => [Axis::X, Axis::Y, Axis::Z]
+                .into_iter()
+                .find(|a| !axes.contains(a))
+                .unwrap_or(Axis::Z),
+        };
+        let lsb_key = format!("{key}.gyro_lsb_per_deg_s");
+        let lsb_per_deg_s = match (s.gyro_lsb_per_deg_s, gyro_lsb_per_deg_s(stream)) {
+            (Some(v), _) if v.is_finite() && v > 0.0 && v <= 1e6 => v,
+            (Some(v), _) => {
+                return Err(self.error(
+                    &lsb_key,
+                    format!("{v}: give the gyro's counts per degree/second, above 0 (at most 1e6)"),
+                ));
+            }
+            (None, Some(v)) => v,
+            (None, None) => {
+                return Err(self.error(
+                    &lsb_key,
+                    format!(
+                        "missing: the scale of the gyro of {} is not known; give its counts per \
+                         degree/second",
+                        stream.describe()
+                    ),
+                ));
+            }
+        };
+        Ok(GyroChoice::Rate {
+            stream: stream.id,
+            axis,
+            lsb_per_deg_s,
+        })
+    }
+
+    /// The stream of the chip named by `gyro_chip` on a sensor's source.
+    pub(super) fn gyro_stream(
+        &self,
+        key: &str,
+        text: &str,
+        source: &str,
+        streams: &[StreamDesc],
+    ) -> Result<StreamDesc, ConfigError> {
+        let (want, address) = parse_chip(text).map_err(|problem| self.error(key, problem))?;
+        let listed = streams
+            .iter()
+            .map(|s| s.describe())
+            .collect::<Vec<_>>()
+            .join(", ");
+        let matches: Vec<StreamDesc> = streams
+            .iter()
+            .filter(|s| {
+                s.chip
+                    .is_some_and(|(c, a)| c == want && address.is_none_or(|w| w == a))
+            })
+            .copied()
+            .collect();
+        match matches.as_slice() {
+            [one] if one.fields().contains(&Field::Gyro) => Ok(*one),
+            [one] => Err(self.error(
+                key,
+                format!("{} has no gyro: name a chip that has one", one.describe()),
+            )),
+            [] if streams.iter().all(|s| s.chip.is_none()) => Err(self.error(
+                key,
+                format!(
+                    "source '{source}' is of Falcon-GX frames, which have no chips: leave \
+                     gyro_chip out (the frame's own gyro is used)"
+                ),
+            )),
+            [] => Err(self.error(
+                key,
+                format!("'{text}' is not on source '{source}': its chips are {listed}"),
+            )),
+            _ => Err(self.error(
+                key,
+                format!("'{text}' is ambiguous on source '{source}' ({listed}): give NAME@ADDR"),
+            )),
+        }
+    }
+
+    pub(super) fn check_name(&self, key: &str, name: &str) -> Result<(), ConfigError> {
+        let problem = if name.is_empty() {
+            Some("empty".to_string())
+        } else if name.len() > NAME_MAX {
+            Some(format!(
+                "{} characters long, at most {NAME_MAX}",
+                name.len()
+            ))
+        } else {
+            name.chars()
+                .find(|c| !(c.is_ascii_alphanumeric() || *c == '-' || *c == '_'))
+                .map(|c| format!("it contains {c:?}"))
+        };
+        match problem {
+            None => Ok(()),
+            Some(p) => Err(self.error(
+                key,
+                format!(
+                    "'{name}' is not a usable name ({p}): use letters, digits, '-' and '_' \
+                     (it names files and appears in messages)"
+                ),
+            )),
+        }
+    }
+
+    /// Seconds from `min` to `max`, both included.
+    pub(super) fn seconds_in(
+        &self,
+        key: &str,
+        value: f64,
+        min: f64,
+        max: f64,
+    ) -> Result<Duration, ConfigError> {
+        if value >= min
+            && value <= max
+            && let Ok(d) = Duration::try_from_secs_f64(value)
+        {
+            return Ok(d);
+        }
+        Err(self.error(
+            key,
+            format!("{value} seconds: give a number of seconds from {min} to {max}"),
+        ))
+    }
+
+    pub(super) fn seconds(&self, key: &str, value: f64, max: f64) -> Result<Duration, ConfigError> {
+        if value > 0.0
+            && value <= max
+            && let Ok(d) = Duration::try_from_secs_f64(value)
+        {
+            return Ok(d);
+        }
+        Err(self.error(
+            key,
+            format!("{value} seconds: give a number of seconds above 0 and at most {max}"),
+        ))
+    }
+}
+
+/// Counts per degree/second of a stream's gyro, where the chip (or frame)
+/// defines it: the MPU-6050 as the bridge sets it up (+-250 deg/s), the
+/// Falcon-GX-style frame as this project defines it.
+pub(super) fn gyro_lsb_per_deg_s(stream: StreamDesc) -> Option<f64> {
+    match stream.chip {
+        None => Some(falcon::RATE_LSB_PER_DEG_S),
+        Some((Chip::Mpu6050, _)) => Some(crate::protocol::chips::mpu6050::GYRO_LSB_PER_DEG_S),
+        Some(_) => None,
+    }
+}
