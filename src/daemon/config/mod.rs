@@ -567,7 +567,6 @@ use raw::*;
 use sources::*;
 use spans::*;
 
-
 // ---------------------------------------------------------------------------
 // Checking, with positions looked up in the spanned document.
 
@@ -633,13 +632,25 @@ impl Checker<'_> {
         )?;
         let daemon = self.check_daemon(raw.daemon)?;
         let outputs = self.check_outputs(raw.outputs)?;
+        let checked = self.check_sources(raw.source)?;
+        let sensors = self.check_sensors(raw.sensor, &checked, daemon_north, today)?;
+        Ok(Config {
+            daemon,
+            outputs,
+            sources: checked.sources,
+            sensors,
+            path: self.path.to_path_buf(),
+        })
+    }
 
-        let mut sources = Vec::with_capacity(raw.source.len());
-        let mut streams: Vec<Vec<StreamDesc>> = Vec::with_capacity(raw.source.len());
+    /// Every `[[source]]`, each under a name of its own.
+    fn check_sources(&self, raw: Vec<RawSource>) -> Result<CheckedSources, ConfigError> {
+        let mut sources = Vec::with_capacity(raw.len());
+        let mut streams: Vec<Vec<StreamDesc>> = Vec::with_capacity(raw.len());
         // The header of each csv source's file, resolved.
-        let mut layouts: Vec<Option<Vec<CsvLayout>>> = Vec::with_capacity(raw.source.len());
+        let mut layouts: Vec<Option<Vec<CsvLayout>>> = Vec::with_capacity(raw.len());
         let mut source_index: HashMap<String, usize> = HashMap::new();
-        for (i, s) in raw.source.into_iter().enumerate() {
+        for (i, s) in raw.into_iter().enumerate() {
             let key = format!("source[{i}]");
             self.check_name(&format!("{key}.name"), &s.name)?;
             if let Some(j) = source_index.get(&s.name) {
@@ -657,18 +668,40 @@ impl Checker<'_> {
             streams.push(desc);
             layouts.push(layout);
         }
+        Ok(CheckedSources {
+            sources,
+            streams,
+            layouts,
+            index: source_index,
+        })
+    }
 
-        if raw.sensor.is_empty() {
+    /// Every `[[sensor]]`, each under a name of its own and on a source of
+    /// the file; then the tilt sources they name.
+    fn check_sensors(
+        &self,
+        raw: Vec<RawSensor>,
+        checked: &CheckedSources,
+        daemon_north: Option<North>,
+        today: Option<crate::geomag::CivilDate>,
+    ) -> Result<Vec<SensorConfig>, ConfigError> {
+        let CheckedSources {
+            sources,
+            streams,
+            layouts,
+            index: source_index,
+        } = checked;
+        if raw.is_empty() {
             return Err(self.error(
                 "sensor",
                 "no [[sensor]] in the file: `fieldcal run` needs at least one sensor to \
                  calibrate (name, source, field, axes)",
             ));
         }
-        let mut sensors = Vec::with_capacity(raw.sensor.len());
+        let mut sensors = Vec::with_capacity(raw.len());
         let mut sensor_index: HashMap<String, usize> = HashMap::new();
         let mut pending_tilts: Vec<(usize, String)> = Vec::new();
-        for (i, s) in raw.sensor.into_iter().enumerate() {
+        for (i, s) in raw.into_iter().enumerate() {
             let key = format!("sensor[{i}]");
             self.check_name(&format!("{key}.name"), &s.name)?;
             if let Some(j) = sensor_index.get(&s.name) {
@@ -720,6 +753,37 @@ impl Checker<'_> {
                 sensors.push(sensor);
                 continue;
             }
+            let stream_list = streams.get(src).map(Vec::as_slice).unwrap_or(&[]);
+            let on = DeviceSource {
+                name: src_name,
+                kind: src_kind,
+                streams: stream_list,
+            };
+            let (sensor, tilt) = self.check_device_sensor(&key, s, north, &daemon_north, on)?;
+            if let Some(tilt) = tilt {
+                pending_tilts.push((i, tilt));
+            }
+            sensors.push(sensor);
+        }
+        self.link_tilts(&mut sensors, &pending_tilts)?;
+        Ok(sensors)
+    }
+
+    /// A sensor of a device source (a serial IMU, an I2C bridge or a
+    /// replayed capture): its stream, field and axes, then a 3-axis or a
+    /// 2-axis sensor's own keys. `north` is the sensor's own; only a
+    /// magnetometer may have one, and a magnetometer without one takes
+    /// the daemon's.
+    fn check_device_sensor(
+        &self,
+        key: &str,
+        s: RawSensor,
+        north: Option<North>,
+        daemon_north: &Option<North>,
+        on: DeviceSource<'_>,
+    ) -> Result<(SensorConfig, Option<String>), ConfigError> {
+        let (src_name, src_kind, stream_list) = (on.name, on.kind, on.streams);
+        {
             let Some(field) = s.field else {
                 return Err(self.error(
                     &format!("{key}.field"),
@@ -746,7 +810,6 @@ impl Checker<'_> {
                     ),
                 ));
             }
-            let stream_list = streams.get(src).map(Vec::as_slice).unwrap_or(&[]);
             let stream =
                 self.resolve_stream(&key, s.chip.as_deref(), src_name, src_kind, stream_list)?;
             let fields = stream.fields();
@@ -782,13 +845,9 @@ impl Checker<'_> {
             }
             if parsed.len() == 3 {
                 let (mut sensor, tilt) =
-                    self.check_sensor3(&key, s, field, stream.id, &parsed, src_name)?;
-                if let Some(tilt) = tilt {
-                    pending_tilts.push((i, tilt));
-                }
+                    self.check_sensor3(key, s, field, stream.id, &parsed, src_name)?;
                 sensor.north = north;
-                sensors.push(sensor);
-                continue;
+                return Ok((sensor, tilt));
             }
             for (name, given) in [
                 ("tilt", s.tilt.is_some()),
@@ -837,33 +896,45 @@ impl Checker<'_> {
             if let Err(problem) = s.limits.validate() {
                 return Err(self.error(&format!("{key}.limits"), problem));
             }
-            sensors.push(SensorConfig {
-                name: s.name,
-                source: s.source,
-                stream: stream.id,
-                field,
-                axes,
-                effects,
-                rotation: s.rotation,
-                limits: s.limits,
-                gyro,
-                columns: None,
-                three: None,
-                north,
-            });
+            Ok((
+                SensorConfig {
+                    name: s.name,
+                    source: s.source,
+                    stream: stream.id,
+                    field,
+                    axes,
+                    effects,
+                    rotation: s.rotation,
+                    limits: s.limits,
+                    gyro,
+                    columns: None,
+                    three: None,
+                    north,
+                },
+                None,
+            ))
         }
-        self.link_tilts(&mut sensors, &pending_tilts)?;
-
-        Ok(Config {
-            daemon,
-            outputs,
-            sources,
-            sensors,
-            path: self.path.to_path_buf(),
-        })
     }
 }
 
+/// The sources as checked, for the sensors' checks.
+struct CheckedSources {
+    sources: Vec<SourceConfig>,
+    /// Each source's byte streams.
+    streams: Vec<Vec<StreamDesc>>,
+    /// The header of each csv source's files, resolved.
+    layouts: Vec<Option<Vec<CsvLayout>>>,
+    /// A source's index by its name.
+    index: HashMap<String, usize>,
+}
+
+/// The device source a sensor reads: its name, kind and streams.
+#[derive(Clone, Copy)]
+struct DeviceSource<'a> {
+    name: &'a str,
+    kind: &'static str,
+    streams: &'a [StreamDesc],
+}
 
 #[cfg(test)]
 mod tests {

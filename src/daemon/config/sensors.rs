@@ -336,7 +336,12 @@ impl Checker<'_> {
     }
 
     /// `declination_deg` or `location` on a sensor that is no magnetometer.
-    pub(super) fn north_not_magnetometer(&self, key: &str, location_given: bool, field: Field) -> ConfigError {
+    pub(super) fn north_not_magnetometer(
+        &self,
+        key: &str,
+        location_given: bool,
+        field: Field,
+    ) -> ConfigError {
         let name = if location_given {
             "location"
         } else {

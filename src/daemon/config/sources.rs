@@ -288,7 +288,11 @@ impl Checker<'_> {
         }
     }
 
-    pub(super) fn check_chips(&self, key: &str, chips: Vec<String>) -> Result<Vec<(Chip, u8)>, ConfigError> {
+    pub(super) fn check_chips(
+        &self,
+        key: &str,
+        chips: Vec<String>,
+    ) -> Result<Vec<(Chip, u8)>, ConfigError> {
         if chips.is_empty() {
             return Err(self.error(
                 &format!("{key}.chips"),
@@ -326,7 +330,11 @@ impl Checker<'_> {
         Ok(parsed)
     }
 
-    pub(super) fn check_speed(&self, key: &str, value: Option<&toml::Value>) -> Result<Speed, ConfigError> {
+    pub(super) fn check_speed(
+        &self,
+        key: &str,
+        value: Option<&toml::Value>,
+    ) -> Result<Speed, ConfigError> {
         let factor = match value {
             None => return Ok(Speed::Times(1.0)),
             Some(toml::Value::String(s)) => {
@@ -351,7 +359,11 @@ impl Checker<'_> {
 
     /// The streams of a replayed file: those its capture header declares,
     /// or one Falcon stream for a raw dump. Reads the header only.
-    pub(super) fn replay_streams(&self, key: &str, file: &Path) -> Result<Vec<StreamDesc>, ConfigError> {
+    pub(super) fn replay_streams(
+        &self,
+        key: &str,
+        file: &Path,
+    ) -> Result<Vec<StreamDesc>, ConfigError> {
         let meta = std::fs::metadata(file).map_err(|e| {
             self.error(
                 key,

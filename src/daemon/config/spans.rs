@@ -86,7 +86,12 @@ pub(super) fn contains(span: &Range<usize>, pos: usize) -> bool {
     span.contains(&pos) || (span.is_empty() && span.start == pos)
 }
 
-pub(super) fn consider(best: &mut Option<(usize, String)>, span: Range<usize>, path: &str, pos: usize) {
+pub(super) fn consider(
+    best: &mut Option<(usize, String)>,
+    span: Range<usize>,
+    path: &str,
+    pos: usize,
+) {
     if !contains(&span, pos) {
         return;
     }
@@ -97,7 +102,12 @@ pub(super) fn consider(best: &mut Option<(usize, String)>, span: Range<usize>, p
     }
 }
 
-pub(super) fn walk_table(table: &DeTable, path: &mut String, pos: usize, best: &mut Option<(usize, String)>) {
+pub(super) fn walk_table(
+    table: &DeTable,
+    path: &mut String,
+    pos: usize,
+    best: &mut Option<(usize, String)>,
+) {
     for (key, value) in table.iter() {
         let saved = path.len();
         if !path.is_empty() {

@@ -1,0 +1,214 @@
+//! The daemon's sensors on a recording, synchronously and losslessly, for
+//! `fieldcal replay --config`: every line `run` would publish, in order, on
+//! the recording's clock.
+
+use std::io::Write;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use super::DaemonError;
+use super::sensors::Sensors;
+use crate::capture::CaptureFile;
+use crate::daemon::config::{Config, SourceKind};
+use crate::daemon::messages::SourceStatus;
+use crate::daemon::publish::Lane;
+use crate::source::csv::{CsvPlayback, check_csv, play_csv};
+use crate::source::replay::{ReplaySummary, Speed, replay_counted};
+use crate::source::{SourceCounters, SourceEvent};
+
+/// STATUS lines due at once after a gap in a recording, at most: a longer
+/// gap gets one STATUS (at the last interval before the reading), so a
+/// time column that jumps cannot make the output unbounded.
+pub const MAX_STATUS_CATCH_UP: u32 = 10;
+
+/// The daemon's sensors run on a recording for `fieldcal replay --config`:
+/// every line `run` would publish, in order, on the recording's clock.
+struct Pipeline {
+    sensors: Sensors,
+    index: usize,
+    source_name: String,
+    interval: f64,
+    /// The next STATUS is at this multiple of the interval: the first after
+    /// the first reading, then every interval (counted, so times do not
+    /// drift by rounding).
+    next_status: Option<f64>,
+    realtime: bool,
+    lines: Vec<String>,
+    failed: Option<std::io::Error>,
+}
+
+impl Pipeline {
+    fn new(config: &Config, source: Option<&str>, speed: Speed) -> Result<Self, DaemonError> {
+        let index = match source {
+            Some(wanted) => config
+                .sources
+                .iter()
+                .position(|s| s.name == wanted)
+                .ok_or_else(|| DaemonError::NoSuchSource(wanted.to_string()))?,
+            None => 0,
+        };
+        Ok(Pipeline {
+            sensors: Sensors::build(config, None),
+            index,
+            source_name: config
+                .sources
+                .get(index)
+                .map_or("replay", |s| s.name.as_str())
+                .to_string(),
+            interval: config.daemon.status_interval.as_secs_f64(),
+            next_status: None,
+            realtime: !matches!(speed, Speed::Max),
+            lines: Vec::new(),
+            failed: None,
+        })
+    }
+
+    /// Publishes the STATUS lines due before `time`, then the event's lines;
+    /// on a write error, keeps it and asks the source to stop.
+    fn handle(
+        &mut self,
+        time: f64,
+        event: SourceEvent,
+        counters: &SourceCounters,
+        out: &mut dyn Write,
+        stop: &AtomicBool,
+    ) {
+        if self.failed.is_some() {
+            return;
+        }
+        let interval = self.interval;
+        let k = self
+            .next_status
+            .get_or_insert_with(|| (time / interval).floor() + 1.0);
+        if time - *k * interval >= f64::from(MAX_STATUS_CATCH_UP) * interval {
+            *k = (time / interval).floor();
+        }
+        while time >= *k * interval {
+            let statuses = [SourceStatus {
+                source: &self.source_name,
+                connected: true,
+                counters: counters.snapshot(),
+            }];
+            self.lines
+                .push(self.sensors.status_line(*k * interval, &statuses, None));
+            *k += 1.0;
+        }
+        let lines = &mut self.lines;
+        let mut emit = |_: Lane, line: String| lines.push(line);
+        match event {
+            SourceEvent::Reading(reading) => {
+                self.sensors
+                    .on_reading(self.index, &reading, &mut emit, &mut |_| {})
+            }
+            SourceEvent::Row(row) => self
+                .sensors
+                .on_row(self.index, &row, &mut emit, &mut |_| {}),
+            _ => {}
+        }
+        for line in self.lines.drain(..) {
+            let written = out
+                .write_all(line.as_bytes())
+                .and_then(|()| out.write_all(b"\n"))
+                .and_then(|()| if self.realtime { out.flush() } else { Ok(()) });
+            if let Err(e) = written {
+                self.failed = Some(e);
+                stop.store(true, Ordering::Relaxed);
+                return;
+            }
+        }
+    }
+
+    fn finish(self, out: &mut dyn Write) -> Result<(), DaemonError> {
+        if let Some(e) = self.failed {
+            return Err(DaemonError::Output(e));
+        }
+        out.flush().map_err(DaemonError::Output)
+    }
+}
+
+/// Runs the configured sensors on a capture that stands in for the source
+/// `source` (or the only source), writing every line `run` would have
+/// published to `out`, losslessly. STATUS lines come every
+/// `status_interval_s` of capture time, so the output is the same on every
+/// run; their counters are the replay's, as a live source keeps them. No
+/// state is read or written.
+pub fn replay_through_pipeline(
+    config: &Config,
+    capture: &CaptureFile,
+    name: &str,
+    source: Option<&str>,
+    speed: Speed,
+    out: &mut dyn Write,
+) -> Result<ReplaySummary, DaemonError> {
+    let mut pipeline = Pipeline::new(config, source, speed)?;
+    let stop = AtomicBool::new(false);
+    let counters = SourceCounters::default();
+    let summary = replay_counted(capture, name, speed, &stop, &counters, &mut |reading| {
+        pipeline.handle(
+            reading.time,
+            SourceEvent::Reading(reading),
+            &counters,
+            out,
+            &stop,
+        );
+    })?;
+    pipeline.finish(out)?;
+    Ok(summary)
+}
+
+/// [`replay_through_pipeline`] for a CSV recording (`path`) standing in for
+/// the csv source `source` (or the first source, which must be a csv
+/// source): its time column (or period), and its sensors' columns, come
+/// from that source's configuration, resolved against this file's header.
+/// The file is checked whole first (header, times that increase), as `run`
+/// does before it is ready.
+pub fn replay_csv_through_pipeline(
+    config: &Config,
+    path: &std::path::Path,
+    source: Option<&str>,
+    speed: Speed,
+    out: &mut dyn Write,
+) -> Result<CsvPlayback, DaemonError> {
+    let mut pipeline = Pipeline::new(config, source, speed)?;
+    let Some(SourceKind::Csv {
+        files,
+        time_column,
+        period_s,
+        ..
+    }) = config.sources.get(pipeline.index).map(|s| &s.kind)
+    else {
+        return Err(DaemonError::NotCsv(pipeline.source_name.clone()));
+    };
+    if files.len() > 1 {
+        return Err(DaemonError::SeveralCsvFiles(
+            pipeline.source_name.clone(),
+            files.len(),
+        ));
+    }
+    let (layout, _) = check_csv(path, time_column.as_deref(), *period_s)?;
+    let layout = Arc::new(layout);
+    let required = pipeline
+        .sensors
+        .bind_csv(
+            pipeline.index,
+            std::slice::from_ref(&layout),
+            &[path.to_path_buf()],
+        )?
+        .pop()
+        .unwrap_or_default();
+    let stop = AtomicBool::new(false);
+    let counters = SourceCounters::default();
+    let summary = play_csv(
+        path,
+        &layout,
+        &required,
+        speed,
+        &stop,
+        &counters,
+        &mut |row| {
+            pipeline.handle(row.time, SourceEvent::Row(row), &counters, out, &stop);
+        },
+    )?;
+    pipeline.finish(out)?;
+    Ok(summary)
+}

@@ -1,0 +1,185 @@
+//! The daemon's sensors, grouped by the source that feeds them: readings
+//! and csv rows in, calibrations to store and lines to publish out.
+
+use std::sync::Arc;
+
+use crate::daemon::Calibration;
+use crate::daemon::config::Config;
+use crate::daemon::messages::{SourceStatus, StatusMessage, to_line};
+use crate::daemon::publish::{Hub, Lane};
+use crate::daemon::sensor::Sensor;
+use crate::daemon::state::StateStore;
+use crate::io::csv::{CsvError, CsvLayout, CsvRow};
+
+/// Sensors grouped by the source that feeds them.
+pub(super) struct Sensors {
+    pub(super) sensors: Vec<(usize, Sensor)>,
+}
+
+impl Sensors {
+    pub(super) fn build(config: &Config, store: Option<&StateStore>) -> Self {
+        let sensors = config
+            .sensors
+            .iter()
+            .filter_map(|s| {
+                let source = config.sources.iter().position(|src| src.name == s.source)?;
+                let stored = store.and_then(|store| match store.load(&s.name) {
+                    Ok(found) => found,
+                    Err(e) => {
+                        tracing::warn!("{e}; the sensor starts uncalibrated");
+                        None
+                    }
+                });
+                if let Some(north) = &s.north {
+                    tracing::info!(sensor = %s.name, "{}", north.describe());
+                }
+                Some((source, Sensor::new(s.clone(), stored)))
+            })
+            .collect();
+        let mut built = Sensors { sensors };
+        built.link_tilts();
+        built
+    }
+
+    /// Feeds a reading to the sensors of its source and stream.
+    pub(super) fn on_reading(
+        &mut self,
+        source: usize,
+        reading: &crate::sample::Reading,
+        emit: &mut dyn FnMut(Lane, String),
+        store: &mut dyn FnMut(&Calibration),
+    ) {
+        let mut accepted_any = false;
+        for (src, sensor) in &mut self.sensors {
+            if *src == source
+                && sensor.wants(reading.stream)
+                && let Some(accepted) = sensor.on_reading(reading, emit)
+            {
+                store(&accepted);
+                accepted_any = true;
+            }
+        }
+        if accepted_any {
+            self.link_tilts();
+        }
+    }
+
+    /// Gives each 3-axis sensor with a `tilt` source that sensor's current
+    /// calibration: at start, after a reload, and when a calibration is
+    /// accepted (rare: no cost on the readings' path).
+    pub(super) fn link_tilts(&mut self) {
+        let calibrations: Vec<(String, Option<Calibration>)> = self
+            .sensors
+            .iter()
+            .map(|(_, s)| (s.name().to_string(), s.calibration().cloned()))
+            .collect();
+        for (_, sensor) in &mut self.sensors {
+            if let Some(three) = sensor.three_mut()
+                && let Some(name) = three.tilt_sensor().map(str::to_string)
+            {
+                let found = calibrations.iter().find(|(n, _)| *n == name);
+                three.set_tilt(found.and_then(|(_, c)| c.as_ref()));
+            }
+        }
+    }
+
+    /// Feeds a row of a csv source to the sensors of that source.
+    pub(super) fn on_row(
+        &mut self,
+        source: usize,
+        row: &CsvRow,
+        emit: &mut dyn FnMut(Lane, String),
+        store: &mut dyn FnMut(&Calibration),
+    ) {
+        let mut accepted_any = false;
+        for (src, sensor) in &mut self.sensors {
+            if *src == source
+                && let Some(accepted) = sensor.on_row(row, emit)
+            {
+                store(&accepted);
+                accepted_any = true;
+            }
+        }
+        if accepted_any {
+            self.link_tilts();
+        }
+    }
+
+    /// Binds the sensors of csv source `source` to the headers of the
+    /// files it plays (`files[k]` has `layouts[k]`); returns the columns
+    /// they read in each file, sorted, once each.
+    pub(super) fn bind_csv(
+        &mut self,
+        source: usize,
+        layouts: &[Arc<CsvLayout>],
+        files: &[std::path::PathBuf],
+    ) -> Result<Vec<Vec<usize>>, CsvError> {
+        let mut required = vec![Vec::new(); layouts.len()];
+        for (src, sensor) in &mut self.sensors {
+            if *src == source {
+                for (file, column) in sensor.bind_csv(layouts, files)? {
+                    if let Some(r) = required.get_mut(file) {
+                        r.push(column);
+                    }
+                }
+            }
+        }
+        for r in &mut required {
+            r.sort_unstable();
+            r.dedup();
+        }
+        Ok(required)
+    }
+
+    pub(super) fn recalibrate(&mut self, name: Option<&str>) -> usize {
+        let mut n = 0;
+        for (_, sensor) in &mut self.sensors {
+            if name.is_none_or(|name| sensor.name() == name) {
+                sensor.recalibrate();
+                n += 1;
+            }
+        }
+        n
+    }
+
+    pub(super) fn status_line(
+        &self,
+        time: f64,
+        sources: &[SourceStatus<'_>],
+        hub: Option<&Hub>,
+    ) -> String {
+        let stats = hub.map(Hub::stats).unwrap_or_default();
+        to_line(&StatusMessage {
+            class: "STATUS",
+            time,
+            sensors: self.sensors.iter().map(|(_, s)| s.status()).collect(),
+            sources: sources.to_vec(),
+            subscribers: stats.subscribers,
+            dropped: stats.dropped,
+        })
+    }
+}
+
+/// The one-line STATUS= text systemd shows.
+pub(super) fn status_text(sensors: &Sensors) -> String {
+    let parts: Vec<String> = sensors
+        .sensors
+        .iter()
+        .map(|(_, s)| {
+            let status = s.status();
+            match (status.calibration, status.rotation) {
+                (Some(id), None) => format!("{}: calibrated (#{id})", s.name()),
+                (_, Some(p)) => format!("{}: collecting {:.0}%", s.name(), p.coverage_pct),
+                (None, None) => match status.sphere {
+                    Some(p) => format!(
+                        "{}: collecting {:.0}% of the sphere",
+                        s.name(),
+                        p.coverage_pct
+                    ),
+                    None => format!("{}: waiting", s.name()),
+                },
+            }
+        })
+        .collect();
+    parts.join("; ")
+}
