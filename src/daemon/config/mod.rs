@@ -556,6 +556,7 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
     checker.check(raw)
 }
 
+mod columns;
 mod outputs;
 mod raw;
 mod sensors;
@@ -563,6 +564,7 @@ mod settings;
 mod sources;
 mod spans;
 
+use columns::Columns;
 use raw::*;
 use sources::*;
 use spans::*;

@@ -25,99 +25,14 @@ impl Checker<'_> {
             .collect::<Vec<_>>()
             .join(" or ");
         let src = &source.name;
-        // Where a column is: (file index, name); errors name the key `k`.
-        let column = |k: String, name: &str, what: &str| -> Result<(usize, String), ConfigError> {
-            let name = name.trim();
-            let mut hit: Option<usize> = None;
-            for (f, layout) in layouts.iter().enumerate() {
-                let Some(i) = layout.index(name) else {
-                    continue;
-                };
-                let this = paths
-                    .get(f)
-                    .map(|p| p.display().to_string())
-                    .unwrap_or_default();
-                if Some(i) == layout.time_index() {
-                    return Err(self.error(
-                        &k,
-                        format!("'{name}' is the time column of {this}: give a column of {what}"),
-                    ));
-                }
-                if let Some(first) = hit {
-                    let that = paths
-                        .get(first)
-                        .map(|p| p.display().to_string())
-                        .unwrap_or_default();
-                    return Err(self.error(
-                        &k,
-                        format!(
-                            "'{name}' is a column of both {that} and {this}: the files of one \
-                             source must not share a column a sensor reads (rename it in one of \
-                             them)"
-                        ),
-                    ));
-                }
-                hit = Some(f);
-            }
-            if let Some(f) = hit {
-                return Ok((f, name.to_string()));
-            }
-            let device = matches!(name, "x" | "y" | "z")
-                .then_some(
-                    " (a csv source's sensors name columns of the file, not the x, y, z \
-                     of a device)",
-                )
-                .unwrap_or_default();
-            Err(self.error(
-                &k,
-                match layouts {
-                    [layout] => format!(
-                        "{file}:{}: no column '{name}' in the header (columns: {}): give a \
-                         column of {what}{device}",
-                        layout.header_line,
-                        layout.available()
-                    ),
-                    _ => format!(
-                        "no column '{name}' in the headers of {file} (columns: {}): give a \
-                         column of {what}{device}",
-                        layouts
-                            .iter()
-                            .zip(paths)
-                            .map(|(l, p)| format!("{} in {}", l.available(), p.display()))
-                            .collect::<Vec<_>>()
-                            .join("; ")
-                    ),
-                },
-            ))
-        };
-        // Every column of one sensor from one file: `found[0]`'s.
-        let one_file = |found: &[(usize, String)], keys: &[String]| -> Result<usize, ConfigError> {
-            let first = found.first().map_or(0, |f| f.0);
-            for ((f, name), k) in found.iter().zip(keys) {
-                if *f != first {
-                    let of = |f: usize| {
-                        paths
-                            .get(f)
-                            .map(|p| p.display().to_string())
-                            .unwrap_or_default()
-                    };
-                    return Err(self.error(
-                        k,
-                        format!(
-                            "'{name}' is a column of {}, but '{}' is of {}: a row carries only \
-                             its own file's columns, so a sensor's columns must all come from \
-                             one file",
-                            of(*f),
-                            found[0].1,
-                            of(first)
-                        ),
-                    ));
-                }
-            }
-            Ok(first)
+        let columns = Columns {
+            checker: self,
+            layouts,
+            paths,
+            file: file.clone(),
         };
         if s.axes.len() == 3 {
-            return self.check_csv_sensor3(key, s, &file, column, one_file);
+            return self.check_csv_sensor3(key, s, &columns);
         }
         for (name, given) in [
             ("field", s.field.is_some()),
@@ -147,7 +62,7 @@ impl Checker<'_> {
                 ));
             }
         }
-        let columns = match s.axes.as_slice() {
+        let axes = match s.axes.as_slice() {
             [a, b] if a.trim() == b.trim() => {
                 return Err(self.error(
                     &format!("{key}.axes"),
@@ -161,10 +76,10 @@ impl Checker<'_> {
             [a, b] => {
                 let keys = [format!("{key}.axes[0]"), format!("{key}.axes[1]")];
                 let found = [
-                    column(keys[0].clone(), a, "the axes that turn")?,
-                    column(keys[1].clone(), b, "the axes that turn")?,
+                    columns.find(keys[0].clone(), a, "the axes that turn")?,
+                    columns.find(keys[1].clone(), b, "the axes that turn")?,
                 ];
-                one_file(&found, &keys)?;
+                columns.one_file(&found, &keys)?;
                 found
             }
             other => {
@@ -179,71 +94,9 @@ impl Checker<'_> {
                 ));
             }
         };
-        let file_of_axes = columns[0].0;
-        let columns = [columns[0].1.clone(), columns[1].1.clone()];
-        let units_key = format!("{key}.gyro_units");
-        let units = match s.gyro_units.as_deref().map(str::trim) {
-            None | Some("deg/s") => GyroUnits::DegPerSecond,
-            Some("rad/s") => GyroUnits::RadPerSecond,
-            Some(other) => {
-                return Err(self.error(
-                    &units_key,
-                    format!(
-                        "\"{other}\" is not a unit of angular rate: give \"deg/s\" or \"rad/s\""
-                    ),
-                ));
-            }
-        };
-        let gyro = match s.gyro.as_deref().map(str::trim) {
-            None | Some("none") if s.gyro_units.is_some() => {
-                return Err(self.error(
-                    &units_key,
-                    "given without a gyro column: name it with gyro = \"COLUMN\", or leave \
-                     gyro_units out",
-                ));
-            }
-            None => GyroChoice::Off(format!(
-                "no heading check: name a gyro column of {file} with gyro = \"COLUMN\""
-            )),
-            Some("none") => {
-                GyroChoice::Off("no heading check: gyro = \"none\" in the configuration".into())
-            }
-            Some(name) => {
-                let gyro_key = format!("{key}.gyro");
-                let (gyro_file, name) = column(
-                    gyro_key.clone(),
-                    name,
-                    "the angular rate about the turn's axis",
-                )?;
-                if gyro_file != file_of_axes {
-                    let of = |f: usize| {
-                        paths
-                            .get(f)
-                            .map(|p| p.display().to_string())
-                            .unwrap_or_default()
-                    };
-                    return Err(self.error(
-                        &gyro_key,
-                        format!(
-                            "'{name}' is a column of {}, but the axes are of {}: a row carries \
-                             only its own file's columns, so the gyro must be in the axes' file",
-                            of(gyro_file),
-                            of(file_of_axes)
-                        ),
-                    ));
-                }
-                if columns.contains(&name) {
-                    return Err(self.error(
-                        &gyro_key,
-                        format!(
-                            "'{name}' is one of the two axes that turn: give the gyro column of \
-                             the turn's axis, or \"none\""
-                        ),
-                    ));
-                }
-                GyroChoice::Column { name, units }
-            }
-        };
+        let file_of_axes = axes[0].0;
+        let names = [axes[0].1.clone(), axes[1].1.clone()];
+        let gyro = self.check_csv_gyro(key, &s, &columns, &names, file_of_axes)?;
         let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
         if let Err(problem) = s.rotation.validate() {
             return Err(self.error(&format!("{key}.rotation"), problem));
@@ -262,12 +115,83 @@ impl Checker<'_> {
                 rotation: s.rotation,
                 limits: s.limits,
                 gyro,
-                columns: Some(columns),
+                columns: Some(names),
                 three: None,
                 north: None,
             },
             None,
         ))
+    }
+
+    /// A csv sensor's gyro column (in the axes' file, not one of `axes`)
+    /// and its units, or why there is no heading check.
+    fn check_csv_gyro(
+        &self,
+        key: &str,
+        s: &RawSensor,
+        columns: &Columns<'_>,
+        axes: &[String; 2],
+        file_of_axes: usize,
+    ) -> Result<GyroChoice, ConfigError> {
+        let units_key = format!("{key}.gyro_units");
+        let units = match s.gyro_units.as_deref().map(str::trim) {
+            None | Some("deg/s") => GyroUnits::DegPerSecond,
+            Some("rad/s") => GyroUnits::RadPerSecond,
+            Some(other) => {
+                return Err(self.error(
+                    &units_key,
+                    format!(
+                        "\"{other}\" is not a unit of angular rate: give \"deg/s\" or \"rad/s\""
+                    ),
+                ));
+            }
+        };
+        Ok(match s.gyro.as_deref().map(str::trim) {
+            None | Some("none") if s.gyro_units.is_some() => {
+                return Err(self.error(
+                    &units_key,
+                    "given without a gyro column: name it with gyro = \"COLUMN\", or leave \
+                     gyro_units out",
+                ));
+            }
+            None => GyroChoice::Off(format!(
+                "no heading check: name a gyro column of {} with gyro = \"COLUMN\"",
+                columns.file
+            )),
+            Some("none") => {
+                GyroChoice::Off("no heading check: gyro = \"none\" in the configuration".into())
+            }
+            Some(name) => {
+                let gyro_key = format!("{key}.gyro");
+                let (gyro_file, name) = columns.find(
+                    gyro_key.clone(),
+                    name,
+                    "the angular rate about the turn's axis",
+                )?;
+                if gyro_file != file_of_axes {
+                    let of = |f: usize| columns.name_of(f);
+                    return Err(self.error(
+                        &gyro_key,
+                        format!(
+                            "'{name}' is a column of {}, but the axes are of {}: a row carries \
+                             only its own file's columns, so the gyro must be in the axes' file",
+                            of(gyro_file),
+                            of(file_of_axes)
+                        ),
+                    ));
+                }
+                if axes.contains(&name) {
+                    return Err(self.error(
+                        &gyro_key,
+                        format!(
+                            "'{name}' is one of the two axes that turn: give the gyro column of \
+                             the turn's axis, or \"none\""
+                        ),
+                    ));
+                }
+                GyroChoice::Column { name, units }
+            }
+        })
     }
 
     /// A 3-axis sensor of a csv source: three different columns of one of
@@ -277,10 +201,9 @@ impl Checker<'_> {
         &self,
         key: &str,
         s: RawSensor,
-        file: &str,
-        column: impl Fn(String, &str, &str) -> Result<(usize, String), ConfigError>,
-        one_file: impl Fn(&[(usize, String)], &[String]) -> Result<usize, ConfigError>,
+        columns: &Columns<'_>,
     ) -> Result<(SensorConfig, Option<String>), ConfigError> {
+        let file = &columns.file;
         for (name, given) in [
             ("chip", s.chip.is_some()),
             ("gyro_units", s.gyro_units.is_some()),
@@ -323,9 +246,9 @@ impl Checker<'_> {
         let keys: Vec<String> = (0..3).map(|k| format!("{key}.axes[{k}]")).collect();
         let mut found = Vec::with_capacity(3);
         for (k, name) in keys.iter().zip(&names) {
-            found.push(column(k.clone(), name, what)?);
+            found.push(columns.find(k.clone(), name, what)?);
         }
-        one_file(&found, &keys)?;
+        columns.one_file(&found, &keys)?;
         let columns = [found[0].1.clone(), found[1].1.clone(), found[2].1.clone()];
         let (mut sensor, tilt) =
             self.check_sensor3(key, s, field, 0, &[Axis::X, Axis::Y, Axis::Z], "")?;
