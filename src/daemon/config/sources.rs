@@ -76,38 +76,7 @@ impl Checker<'_> {
             }
             RawKind::UsbIss => {
                 let port = require_port(s.port)?;
-                let chips = self.check_chips(key, s.chips.unwrap_or_default())?;
-                let poll_ms = s.poll_ms.unwrap_or(30);
-                if !(1..=POLL_MS_MAX).contains(&poll_ms) {
-                    return Err(self.error(
-                        &format!("{key}.poll_ms"),
-                        format!("{poll_ms} ms: give 1 to {POLL_MS_MAX} ms between polls"),
-                    ));
-                }
-                let i2c_khz = s.i2c_khz.unwrap_or(100);
-                if i2c_khz != 100 && i2c_khz != 400 {
-                    return Err(self.error(
-                        &format!("{key}.i2c_khz"),
-                        format!("{i2c_khz} kHz: the USB-ISS runs the bus at 100 or 400 kHz"),
-                    ));
-                }
-                let streams = chips
-                    .iter()
-                    .enumerate()
-                    .map(|(k, &chip)| StreamDesc {
-                        id: u8::try_from(k).unwrap_or(u8::MAX),
-                        chip: Some(chip),
-                    })
-                    .collect();
-                (
-                    SourceKind::UsbIss {
-                        port,
-                        chips,
-                        poll: Duration::from_millis(poll_ms),
-                        i2c_khz,
-                    },
-                    streams,
-                )
+                self.check_bridge(key, port, s.chips, s.poll_ms, s.i2c_khz)?
             }
             RawKind::Replay => {
                 let Some(file) = s.file.filter(|f| !f.as_os_str().is_empty()) else {
@@ -123,49 +92,16 @@ impl Checker<'_> {
                 (SourceKind::Replay { file, speed }, streams)
             }
             RawKind::Csv => {
-                let (files, listed) = self.csv_files(key, s.file, s.files)?;
-                let speed = self.check_speed(&format!("{key}.speed"), s.speed.as_ref())?;
-                let period_s = match s.period_s {
-                    None => None,
-                    Some(_) if files.len() > 1 => {
-                        return Err(self.error(
-                            &format!("{key}.period_s"),
-                            "`period_s` is for a single file without a time column: the files of \
-                             one clock are merged by their time columns, so each needs one \
-                             (name it with time_column)",
-                        ));
-                    }
-                    Some(p) => {
-                        self.seconds(&format!("{key}.period_s"), p, 86_400.0)?;
-                        Some(p)
-                    }
-                };
-                let time_column = s.time_column.map(|t| t.trim().to_string());
-                let mut found = Vec::with_capacity(files.len());
-                for (k, file) in files.iter().enumerate() {
-                    let on = if listed {
-                        format!("{key}.files[{k}]")
-                    } else {
-                        format!("{key}.file")
-                    };
-                    found.push(self.csv_layout(
-                        key,
-                        &on,
-                        file,
-                        time_column.as_deref(),
-                        period_s,
-                    )?);
-                }
+                let (kind, found) = self.check_csv_source(
+                    key,
+                    s.file,
+                    s.files,
+                    s.speed.as_ref(),
+                    s.period_s,
+                    s.time_column,
+                )?;
                 layout = Some(found);
-                (
-                    SourceKind::Csv {
-                        files,
-                        speed,
-                        time_column,
-                        period_s,
-                    },
-                    vec![StreamDesc { id: 0, chip: None }],
-                )
+                (kind, vec![StreamDesc { id: 0, chip: None }])
             }
         };
         Ok((
@@ -176,6 +112,99 @@ impl Checker<'_> {
             },
             streams,
             layout,
+        ))
+    }
+
+    /// An I2C bridge's chips, poll period and bus speed, and a stream for
+    /// each chip.
+    fn check_bridge(
+        &self,
+        key: &str,
+        port: PathBuf,
+        chips: Option<Vec<String>>,
+        poll_ms: Option<u64>,
+        i2c_khz: Option<u32>,
+    ) -> Result<(SourceKind, Vec<StreamDesc>), ConfigError> {
+        let chips = self.check_chips(key, chips.unwrap_or_default())?;
+        let poll_ms = poll_ms.unwrap_or(30);
+        if !(1..=POLL_MS_MAX).contains(&poll_ms) {
+            return Err(self.error(
+                &format!("{key}.poll_ms"),
+                format!("{poll_ms} ms: give 1 to {POLL_MS_MAX} ms between polls"),
+            ));
+        }
+        let i2c_khz = i2c_khz.unwrap_or(100);
+        if i2c_khz != 100 && i2c_khz != 400 {
+            return Err(self.error(
+                &format!("{key}.i2c_khz"),
+                format!("{i2c_khz} kHz: the USB-ISS runs the bus at 100 or 400 kHz"),
+            ));
+        }
+        let streams = chips
+            .iter()
+            .enumerate()
+            .map(|(k, &chip)| StreamDesc {
+                id: u8::try_from(k).unwrap_or(u8::MAX),
+                chip: Some(chip),
+            })
+            .collect();
+        Ok((
+            SourceKind::UsbIss {
+                port,
+                chips,
+                poll: Duration::from_millis(poll_ms),
+                i2c_khz,
+            },
+            streams,
+        ))
+    }
+
+    /// A csv source's files, speed and clock (a time column, or a period
+    /// for a single file), each file's header resolved.
+    fn check_csv_source(
+        &self,
+        key: &str,
+        file: Option<PathBuf>,
+        files: Option<Vec<PathBuf>>,
+        speed: Option<&toml::Value>,
+        period_s: Option<f64>,
+        time_column: Option<String>,
+    ) -> Result<(SourceKind, Vec<CsvLayout>), ConfigError> {
+        let (files, listed) = self.csv_files(key, file, files)?;
+        let speed = self.check_speed(&format!("{key}.speed"), speed)?;
+        let period_s = match period_s {
+            None => None,
+            Some(_) if files.len() > 1 => {
+                return Err(self.error(
+                    &format!("{key}.period_s"),
+                    "`period_s` is for a single file without a time column: the files of \
+                     one clock are merged by their time columns, so each needs one \
+                     (name it with time_column)",
+                ));
+            }
+            Some(p) => {
+                self.seconds(&format!("{key}.period_s"), p, 86_400.0)?;
+                Some(p)
+            }
+        };
+        let time_column = time_column.map(|t| t.trim().to_string());
+        let mut found = Vec::with_capacity(files.len());
+        for (k, file) in files.iter().enumerate() {
+            let on = if listed {
+                format!("{key}.files[{k}]")
+            } else {
+                format!("{key}.file")
+            };
+            found.push(self.csv_layout(key, &on, file, time_column.as_deref(), period_s)?);
+        }
+        Ok((
+            SourceKind::Csv {
+                files,
+                speed,
+                time_column,
+                period_s,
+            },
+            found,
         ))
     }
 
