@@ -1161,7 +1161,7 @@ impl Checker<'_> {
             }
         };
         let unix_mode = match raw.unix_mode {
-            None => super::unix_socket::SOCKET_MODE,
+            None => super::publish::unix::SOCKET_MODE,
             Some(text) => self.unix_mode(&text)?,
         };
         let unix_group = match raw.unix_group {

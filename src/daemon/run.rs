@@ -64,7 +64,7 @@ pub enum DaemonError {
         source: std::io::Error,
     },
     #[error(transparent)]
-    UnixSocket(#[from] super::unix_socket::UnixSocketError),
+    UnixSocket(#[from] super::publish::unix::UnixSocketError),
     #[error(
         "cannot listen for the live page on {address}: {source}; choose another address in [outputs] http (port 0 picks a free one), or stop what holds it"
     )]
@@ -353,7 +353,7 @@ pub async fn run_with(
         });
     }
     if let Some(path) = &config.outputs.unix {
-        let (listener, bound) = super::unix_socket::bind_owned(
+        let (listener, bound) = super::publish::unix::bind_owned(
             path,
             config.outputs.unix_mode,
             config.outputs.unix_group,
@@ -752,7 +752,7 @@ async fn spawn_live_page(
     commands: &mpsc::Sender<(ClientCommand, ReplyTo)>,
     stop: &watch::Receiver<bool>,
     config: &Config,
-) -> Result<super::http::PageConfig, DaemonError> {
+) -> Result<super::publish::http::PageConfig, DaemonError> {
     let listener = tokio::net::TcpListener::bind(address)
         .await
         .map_err(|source| DaemonError::Http {
@@ -760,11 +760,11 @@ async fn spawn_live_page(
             source,
         })?;
     let bound = listener.local_addr().unwrap_or(address);
-    hub.keep_for_replay(super::http::REPLAY_READINGS);
+    hub.keep_for_replay(super::publish::http::REPLAY_READINGS);
     let (router, page_config) =
-        super::http::router_with_config(hub.clone(), commands.clone(), config);
+        super::publish::http::router_with_config(hub.clone(), commands.clone(), config);
     tracing::info!(address = %bound, "live page at http://{bound}/");
-    tokio::spawn(super::http::serve(listener, router, stop.clone()));
+    tokio::spawn(super::publish::http::serve(listener, router, stop.clone()));
     Ok(page_config)
 }
 
