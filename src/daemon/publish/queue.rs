@@ -14,7 +14,7 @@ pub enum Lane {
     /// READING lines: the oldest are dropped (and counted) for a slow subscriber.
     Reading,
     /// CALIBRATION, STATUS, ERROR: never dropped; a subscriber that lets
-    /// [`CONTROL_QUEUE_LEN`] of them pile up is disconnected instead.
+    /// [`CONTROL_QUEUE_LEN`](super::CONTROL_QUEUE_LEN) of them pile up is disconnected instead.
     Control,
 }
 
@@ -157,7 +157,8 @@ impl Queue {
     /// The writer's control lane: a newer STATUS replaces a queued one;
     /// when full, the oldest ERROR goes (or this one, if it is an ERROR and
     /// none is queued); a CALIBRATION, and the one STATUS, are always
-    /// queued, beyond the bound if need be (they are few: see the module).
+    /// queued, beyond the bound if need be (they are few: see
+    /// [the publish module's stdout section](super#stdout)).
     fn push_coalesced(&mut self, seq: u64, line: Arc<str>) -> Pushed {
         let class = class_of(&line);
         let mut let_go = 0;
@@ -194,7 +195,7 @@ impl Queue {
     }
 
     /// Queues a STATUS reply with this queue's accounting (see
-    /// [`ReplyTo::send_status`]) and fences the readings ahead of it.
+    /// [`ReplyTo::send_status`](super::ReplyTo::send_status)) and fences the readings ahead of it.
     pub(super) fn push_status_reply(&mut self, status: &str, id: u64, peer: &str) -> Pushed {
         if self.state != QueueState::Open {
             return Pushed::Refused;
