@@ -230,7 +230,8 @@ pub struct Policy {
 
 impl Default for Policy {
     /// No subscriber limit, the rates above, everyone may recalibrate: the
-    /// hub of [`Hub::new`](super::Hub::new). The daemon builds its own from the configuration.
+    /// hub of [`Hub::new`](super::Hub::new). The daemon builds its own from
+    /// the configuration.
     fn default() -> Policy {
         Policy {
             max_subscribers: usize::MAX,

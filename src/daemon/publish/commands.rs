@@ -12,6 +12,7 @@ use serde_json::Value;
 /// the limit keeps a client from growing the daemon's memory.
 pub const MAX_COMMAND_LEN: usize = 4096;
 
+/// What every refused command line is told is allowed.
 const ALLOWED: &str = r#"allowed: {"command":"recalibrate"} with an optional "sensor":"<name>" (and "token":"<token>" where one is configured), and {"command":"status"}, one JSON object a line"#;
 
 /// A command a subscriber sent.

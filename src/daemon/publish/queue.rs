@@ -14,7 +14,8 @@ pub enum Lane {
     /// READING lines: the oldest are dropped (and counted) for a slow subscriber.
     Reading,
     /// CALIBRATION, STATUS, ERROR: never dropped; a subscriber that lets
-    /// [`CONTROL_QUEUE_LEN`](super::CONTROL_QUEUE_LEN) of them pile up is disconnected instead.
+    /// [`CONTROL_QUEUE_LEN`](super::CONTROL_QUEUE_LEN) of them pile up is
+    /// disconnected instead.
     Control,
 }
 
@@ -195,7 +196,8 @@ impl Queue {
     }
 
     /// Queues a STATUS reply with this queue's accounting (see
-    /// [`ReplyTo::send_status`](super::ReplyTo::send_status)) and fences the readings ahead of it.
+    /// [`ReplyTo::send_status`](super::ReplyTo::send_status)) and fences the
+    /// readings ahead of it.
     pub(super) fn push_status_reply(&mut self, status: &str, id: u64, peer: &str) -> Pushed {
         if self.state != QueueState::Open {
             return Pushed::Refused;

@@ -52,7 +52,8 @@ impl Hub {
 
     /// [`Hub::serve_connection`] for a subscriber that came through
     /// `origin`, which decides what it may do. At
-    /// [`Policy::max_subscribers`](super::Policy::max_subscribers) it is sent one ERROR line and closed.
+    /// [`Policy::max_subscribers`](super::Policy::max_subscribers) it is
+    /// sent one ERROR line and closed.
     pub async fn serve_connection_from<S>(
         &self,
         mut stream: S,

@@ -149,7 +149,8 @@ impl Hub {
     }
 
     /// [`Hub::subscribe`] for a subscriber from `origin`, saying why it was
-    /// refused: the hub is closed, or [`Policy::max_subscribers`](super::Policy::max_subscribers) are
+    /// refused: the hub is closed, or
+    /// [`Policy::max_subscribers`](super::Policy::max_subscribers) are
     /// connected.
     pub fn try_subscribe(
         &self,
