@@ -9,8 +9,6 @@
 
 pub mod acceptance;
 pub mod config;
-pub mod http;
-pub mod http_conn;
 pub mod messages;
 pub mod north;
 pub mod notify;
@@ -23,7 +21,12 @@ pub mod sensor;
 pub mod sensor3;
 pub mod state;
 pub mod state_writer;
-pub mod unix_socket;
+
+// The publisher's transports, also at the paths they had before they moved
+// under [`publish`].
+pub use publish::http;
+pub use publish::http::conn as http_conn;
+pub use publish::unix as unix_socket;
 
 use serde::{Deserialize, Serialize};
 

@@ -42,7 +42,7 @@ impl Checker<'_> {
             }
         };
         let unix_mode = match raw.unix_mode {
-            None => crate::daemon::unix_socket::SOCKET_MODE,
+            None => crate::daemon::publish::unix::SOCKET_MODE,
             Some(text) => self.unix_mode(&text)?,
         };
         let unix_group = match raw.unix_group {

@@ -64,7 +64,7 @@ pub enum DaemonError {
         source: std::io::Error,
     },
     #[error(transparent)]
-    UnixSocket(#[from] super::unix_socket::UnixSocketError),
+    UnixSocket(#[from] super::publish::unix::UnixSocketError),
     #[error(
         "cannot listen for the live page on {address}: {source}; choose another address in [outputs] http (port 0 picks a free one), or stop what holds it"
     )]

@@ -9,10 +9,10 @@ use tokio::sync::{mpsc, watch};
 
 use super::DaemonError;
 use crate::daemon::config::Config;
-use crate::daemon::http::PageConfig;
 use crate::daemon::progress::ProgressFeed;
+use crate::daemon::publish::http::PageConfig;
+use crate::daemon::publish::unix::BoundSocket;
 use crate::daemon::publish::{ClientCommand, Hub, ReplyTo};
-use crate::daemon::unix_socket::BoundSocket;
 
 /// The commands subscribers send, and where their replies go.
 pub(super) type Commands = mpsc::Sender<(ClientCommand, ReplyTo)>;
@@ -108,7 +108,7 @@ fn start_unix(
     commands: &Commands,
     stop: &watch::Receiver<bool>,
 ) -> Result<BoundSocket, DaemonError> {
-    let (listener, bound) = crate::daemon::unix_socket::bind_owned(
+    let (listener, bound) = crate::daemon::publish::unix::bind_owned(
         path,
         config.outputs.unix_mode,
         config.outputs.unix_group,
@@ -174,7 +174,7 @@ async fn spawn_live_page(
     commands: &mpsc::Sender<(ClientCommand, ReplyTo)>,
     stop: &watch::Receiver<bool>,
     config: &Config,
-) -> Result<crate::daemon::http::PageConfig, DaemonError> {
+) -> Result<crate::daemon::publish::http::PageConfig, DaemonError> {
     let listener = tokio::net::TcpListener::bind(address)
         .await
         .map_err(|source| DaemonError::Http {
@@ -182,10 +182,14 @@ async fn spawn_live_page(
             source,
         })?;
     let bound = listener.local_addr().unwrap_or(address);
-    hub.keep_for_replay(crate::daemon::http::REPLAY_READINGS);
+    hub.keep_for_replay(crate::daemon::publish::http::REPLAY_READINGS);
     let (router, page_config) =
-        crate::daemon::http::router_with_config(hub.clone(), commands.clone(), config);
+        crate::daemon::publish::http::router_with_config(hub.clone(), commands.clone(), config);
     tracing::info!(address = %bound, "live page at http://{bound}/");
-    tokio::spawn(crate::daemon::http::serve(listener, router, stop.clone()));
+    tokio::spawn(crate::daemon::publish::http::serve(
+        listener,
+        router,
+        stop.clone(),
+    ));
     Ok(page_config)
 }

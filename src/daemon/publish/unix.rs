@@ -1,5 +1,7 @@
-//! The daemon's Unix socket file: what may be at its path before the bind,
-//! the mode it gets, and removing it at shutdown only if it is still ours.
+//! The Unix-socket transport: subscribers accepted on the daemon's Unix
+//! socket ([`Hub::serve_unix`]), and the socket file itself: what may be at
+//! its path before the bind, the mode it gets, and removing it at shutdown
+//! only if it is still ours.
 //!
 //! - A socket left by a daemon that died (nothing answers on it) is removed
 //!   and bound again. Anything else at the path (a regular file, a
@@ -17,12 +19,37 @@ use std::io;
 use std::os::unix::fs::{FileTypeExt, MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 
+use tokio::sync::{mpsc, watch};
+
+use super::access::Origin;
+use super::commands::ClientCommand;
+use super::hub::Hub;
+use super::subscriber::ReplyTo;
+
 /// The mode of the socket file: read and write (connect) for the owner and
 /// its group, nothing for others. Connecting to a Unix socket needs write
 /// permission on it, and a subscriber can send commands, so others get
 /// none; the group is how a person or service is let in (systemd's
 /// `Group=` / `RuntimeDirectory=`).
 pub const SOCKET_MODE: u32 = 0o660;
+
+impl Hub {
+    /// Accepts Unix-socket subscribers until `shutdown` turns true, like
+    /// [`Hub::serve_tcp`].
+    pub async fn serve_unix(
+        &self,
+        listener: tokio::net::UnixListener,
+        commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
+        shutdown: watch::Receiver<bool>,
+    ) {
+        let accept = || async {
+            let (stream, _addr) = listener.accept().await?;
+            Ok((stream, "unix".to_owned()))
+        };
+        self.accept_loop(Origin::Unix, accept, commands, shutdown)
+            .await;
+    }
+}
 
 /// Why the socket could not be made.
 #[derive(Debug, thiserror::Error)]

@@ -27,9 +27,9 @@
 //!   whether the button works (`"recalibrate": {"allowed", "token",
 //!   "reason"}`), and the page disables it with the reason otherwise.
 //!
-//! Connections are bounded ([`super::http_conn`]): at most
-//! [`super::http_conn::PAGE_REQUESTS`] that are not event streams, each
-//! closed after [`super::http_conn::IDLE`] with nothing read or written.
+//! Connections are bounded ([`conn`]): at most [`conn::PAGE_REQUESTS`]
+//! that are not event streams, each closed after [`conn::IDLE`] with
+//! nothing read or written.
 
 use std::convert::Infallible;
 use std::sync::Arc;
@@ -45,13 +45,13 @@ use axum::routing::{get, post};
 use serde_json::{Value, json};
 use tokio::sync::{mpsc, watch};
 
-use super::config::Config;
-pub use super::http_conn::ConnectionLimits;
-use super::http_conn::{BoundedListener, Peer};
-use super::publish::{
-    Access, ClientCommand, Hub, MAX_COMMAND_LEN, Origin, ReplyTo, SubscribeError,
-};
+use super::{Access, ClientCommand, Hub, MAX_COMMAND_LEN, Origin, ReplyTo, SubscribeError};
+use crate::daemon::config::Config;
 use crate::model::effects::{model_name, parse_list};
+pub use conn::ConnectionLimits;
+use conn::{BoundedListener, Peer};
+
+pub mod conn;
 
 /// The page: HTML, CSS and script in one file, drawn by hand on a canvas.
 pub const PAGE: &str = include_str!("live.html");

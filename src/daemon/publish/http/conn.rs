@@ -7,7 +7,7 @@
 //! back once the hub has accepted it as a subscriber (from then on the hub's
 //! `[outputs] max_subscribers` counts it), so the page's descriptors are the
 //! subscribers' plus at most `requests`: the share of
-//! [`super::publish::RESERVED_DESCRIPTORS`] kept for the page's short
+//! [`crate::daemon::publish::RESERVED_DESCRIPTORS`] kept for the page's short
 //! requests. While every permit is held, further clients wait in the
 //! kernel's accept backlog (no descriptor is used) until a connection ends
 //! or goes idle.
@@ -26,7 +26,7 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tokio::time::{Instant, Sleep};
 
 /// Connections other than event streams the page may hold at once: the 6
-/// descriptors [`super::publish::RESERVED_DESCRIPTORS`] keeps for them. A
+/// descriptors [`crate::daemon::publish::RESERVED_DESCRIPTORS`] keeps for them. A
 /// browser opens the page with two or three (the page, `/api/config`, the
 /// event stream, which gives its permit back).
 pub const PAGE_REQUESTS: usize = 6;
