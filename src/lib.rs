@@ -1,11 +1,12 @@
-//! fieldcal: calibration of 2-axis field sensors (magnetometers,
+//! fieldcal: calibration of 2- and 3-axis field sensors (magnetometers,
 //! accelerometers) turning in a constant field, after Veriñaz, Vela and
 //! Ponguillo's gradient-descent method, with an exact closed-form solver.
 //!
 //! The pipeline, one module a stage:
 //! - [`sample`]: the data that flows (a recording's columns);
 //! - [`io`]: CSV in and out, atomic writes;
-//! - [`model`]: the paper's model, its solvers, coverage of the turn;
+//! - [`model`]: the paper's model and the ellipsoid, their solvers,
+//!   coverage of the turn and of the sphere, diagnosis and checks;
 //! - [`report`]: what a fit tells a person or a program;
 //! - [`protocol`]: wire protocols, sans-IO (Falcon-GX frames, USB-ISS, chips);
 //! - [`i2c`]: the I2C bus trait and its backends (USB-ISS bridge, Linux);

@@ -30,7 +30,7 @@ use fieldcal::source::replay::Speed;
 #[command(
     name = "fieldcal",
     version,
-    about = "Calibrates 2-axis field sensors (magnetometers, accelerometers) turned in a constant field",
+    about = "Calibrates 2- and 3-axis field sensors (magnetometers, accelerometers): turned (2-D) or tumbled (3-D) in a constant field",
     long_about = None
 )]
 struct Cli {
