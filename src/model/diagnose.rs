@@ -33,15 +33,12 @@ use super::effects::{self, Effect, model_name};
 use super::gyro::{HeadingCheck, HeadingReference};
 use super::heading::coverage;
 use super::ladder::{
-    self, Gates, Geometry, Judgement, LadderFit, NotDetermined, Offer, Ranked, ResidualStats,
-    STRUCTURE_SES, Scores, percent, range,
+    self, Gates, Geometry, Judgement, NotDetermined, Offer, STRUCTURE_SES, Scores, percent, range,
 };
 #[cfg(test)]
 use super::ladder::{own_params, tails_heavy};
 use super::nonlinear::{ModelFit, Param, fit_model};
-use super::residuals::{
-    self, CovariateLink, NoiseFloor, Residuals, SetAside, analyse, is_time_like, set_aside,
-};
+use super::residuals::{self, NoiseFloor, Residuals, SetAside, analyse, is_time_like, set_aside};
 use crate::sample::Dataset;
 
 /// An effect is supported when it lowers BIC by more than this (Kass and
@@ -272,56 +269,7 @@ pub struct Diagnosis {
     pub heading: String,
 }
 
-impl LadderFit for ModelFit {
-    fn rms(&self) -> f64 {
-        self.rms
-    }
-    fn rss(&self) -> f64 {
-        self.rss
-    }
-    fn unknowns(&self) -> usize {
-        self.unknowns
-    }
-    fn flagged(&self) -> usize {
-        self.flagged.len()
-    }
-    fn params(&self) -> &[Param] {
-        &self.params
-    }
-}
-
-impl ResidualStats for Residuals {
-    fn tail_count(&self) -> usize {
-        self.tail_count
-    }
-    fn tail_expected(&self) -> f64 {
-        self.tail_expected
-    }
-    fn tail_max_sd(&self) -> f64 {
-        self.tail_max_sd
-    }
-    fn noise_floor(&self) -> &NoiseFloor {
-        &self.noise_floor
-    }
-    fn time_structure(&self) -> Option<f64> {
-        self.time_structure
-    }
-    fn covariates(&self) -> &[CovariateLink] {
-        &self.covariates
-    }
-}
-
-impl Ranked for Candidate {
-    fn effect(&self) -> &Effect {
-        &self.effect
-    }
-    fn supported(&self) -> bool {
-        self.supported
-    }
-    fn delta_bic(&self) -> f64 {
-        self.delta_bic
-    }
-}
+ladder::ladder_types!(ModelFit, Residuals, Candidate);
 
 /// The criterion, as the report states it.
 pub fn criterion() -> String {

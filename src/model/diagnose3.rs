@@ -44,10 +44,7 @@ use super::diagnose::{
 use super::effects::{Effect, model_name};
 use super::ellipsoid::{self, Ellipsoid3Error, Ellipsoid3Model};
 use super::ellipsoid_effects::{Effects3Error, Ellipsoid3EffectsFit, base_effects, fit_effects};
-use super::ladder::{
-    self, Gates, Geometry, LadderFit, Offer, Ranked, ResidualStats, STRUCTURE_SES, percent, range,
-    starting_list,
-};
+use super::ladder::{self, Gates, Geometry, Offer, STRUCTURE_SES, percent, range, starting_list};
 use super::nonlinear::{MAD_TO_SD, Param};
 use super::residuals::{
     COPY_R2, CovariateLink, GAUSSIAN_TAIL_4SD, NoiseFloor, SetAside, TAIL_SDS, is_time_like, line,
@@ -146,56 +143,7 @@ pub struct Diagnosis3 {
     pub criterion: String,
 }
 
-impl LadderFit for Ellipsoid3EffectsFit {
-    fn rms(&self) -> f64 {
-        self.rms
-    }
-    fn rss(&self) -> f64 {
-        self.rss
-    }
-    fn unknowns(&self) -> usize {
-        self.unknowns
-    }
-    fn flagged(&self) -> usize {
-        self.flagged.len()
-    }
-    fn params(&self) -> &[Param] {
-        &self.params
-    }
-}
-
-impl ResidualStats for Residuals3 {
-    fn tail_count(&self) -> usize {
-        self.tail_count
-    }
-    fn tail_expected(&self) -> f64 {
-        self.tail_expected
-    }
-    fn tail_max_sd(&self) -> f64 {
-        self.tail_max_sd
-    }
-    fn noise_floor(&self) -> &NoiseFloor {
-        &self.noise_floor
-    }
-    fn time_structure(&self) -> Option<f64> {
-        self.time_structure
-    }
-    fn covariates(&self) -> &[CovariateLink] {
-        &self.covariates
-    }
-}
-
-impl Ranked for Candidate3 {
-    fn effect(&self) -> &Effect {
-        &self.effect
-    }
-    fn supported(&self) -> bool {
-        self.supported
-    }
-    fn delta_bic(&self) -> f64 {
-        self.delta_bic
-    }
-}
+ladder::ladder_types!(Ellipsoid3EffectsFit, Residuals3, Candidate3);
 
 /// The criterion, as the report states it.
 pub fn criterion() -> String {

@@ -73,6 +73,67 @@ pub(crate) trait Ranked {
     fn delta_bic(&self) -> f64;
 }
 
+/// Implements [`LadderFit`], [`ResidualStats`] and [`Ranked`] for a
+/// geometry's fit, residual and candidate types, whose fields share the
+/// ladder's names (`rms`, `rss`, `unknowns`, `flagged`, `params`; the tail
+/// counts, `noise_floor`, `time_structure`, `covariates`; `effect`,
+/// `supported`, `delta_bic`).
+macro_rules! ladder_types {
+    ($fit:ty, $residuals:ty, $candidate:ty) => {
+        impl $crate::model::ladder::LadderFit for $fit {
+            fn rms(&self) -> f64 {
+                self.rms
+            }
+            fn rss(&self) -> f64 {
+                self.rss
+            }
+            fn unknowns(&self) -> usize {
+                self.unknowns
+            }
+            fn flagged(&self) -> usize {
+                self.flagged.len()
+            }
+            fn params(&self) -> &[$crate::model::nonlinear::Param] {
+                &self.params
+            }
+        }
+
+        impl $crate::model::ladder::ResidualStats for $residuals {
+            fn tail_count(&self) -> usize {
+                self.tail_count
+            }
+            fn tail_expected(&self) -> f64 {
+                self.tail_expected
+            }
+            fn tail_max_sd(&self) -> f64 {
+                self.tail_max_sd
+            }
+            fn noise_floor(&self) -> &$crate::model::residuals::NoiseFloor {
+                &self.noise_floor
+            }
+            fn time_structure(&self) -> Option<f64> {
+                self.time_structure
+            }
+            fn covariates(&self) -> &[$crate::model::residuals::CovariateLink] {
+                &self.covariates
+            }
+        }
+
+        impl $crate::model::ladder::Ranked for $candidate {
+            fn effect(&self) -> &$crate::model::effects::Effect {
+                &self.effect
+            }
+            fn supported(&self) -> bool {
+                self.supported
+            }
+            fn delta_bic(&self) -> f64 {
+                self.delta_bic
+            }
+        }
+    };
+}
+pub(crate) use ladder_types;
+
 /// One geometry of the diagnosis: its fit, its residual, its steps and
 /// candidates, and which effects it can offer a model.
 pub(crate) trait Geometry {
