@@ -47,7 +47,7 @@ use super::ellipsoid_effects::{Effects3Error, Ellipsoid3EffectsFit, base_effects
 use super::ladder::{self, Gates, Geometry, Offer, STRUCTURE_SES, percent, range, starting_list};
 use super::nonlinear::{MAD_TO_SD, Param};
 use super::residuals::{
-    COPY_R2, CovariateLink, GAUSSIAN_TAIL_4SD, NoiseFloor, SetAside, TAIL_SDS, is_time_like, line,
+    COPY_R2, CovariateLink, GAUSSIAN_TAIL_4SD, NoiseFloor, SetAside, TAIL_SDS, is_time_like, links,
     median, robust_sd, slow_structure,
 };
 use super::sphere::{self, SphereCoverage};
@@ -310,27 +310,7 @@ pub fn analyse(data: &Dataset3, fit: &Ellipsoid3EffectsFit, aside: &[SetAside]) 
     let column = |values: &[f64]| -> Option<Vec<f64>> {
         (values.len() == n_all).then(|| order.iter().map(|&i| values[i]).collect())
     };
-    let time_trend = data
-        .t
-        .as_deref()
-        .and_then(column)
-        .and_then(|t| line(&t, &e))
-        .map(|(slope, _)| slope);
-    let covariates = data
-        .covariates
-        .iter()
-        .filter(|c| !aside.iter().any(|a| a.column == c.name))
-        .filter_map(|c| {
-            let values = column(&c.values)?;
-            let (slope, correlation) = line(&values, &e)?;
-            Some(CovariateLink {
-                column: c.name.clone(),
-                slope,
-                correlation,
-                explained: correlation * correlation,
-            })
-        })
-        .collect();
+    let (time_trend, covariates) = links(data.t.as_deref(), &data.covariates, aside, column, &e);
     let m = median(&e);
     let sd = robust_sd(&e);
     let z: Vec<f64> = if sd > 0.0 {
