@@ -527,20 +527,29 @@ fn sig(v: f64) -> String {
     crate::report::significant(v, 4)
 }
 
-/// Applies `stored` to `data`, refits its model there, and compares.
-/// `min_coverage_deg`: the turn the refit needs, as for `fit`.
-pub fn check(
+/// The stored model refitted on the new recording.
+struct Refit {
+    /// Its parameters, with their standard errors.
+    params: Vec<Param>,
+    rms: f64,
+    /// Every sample's heading.
+    headings: Vec<f64>,
+    /// The samples it set aside (the `outliers` effect).
+    flagged: Vec<usize>,
+    /// Its residuals over the samples it used, in input order.
+    residuals: Vec<f64>,
+}
+
+/// Refits the stored model on `data`: the paper's closed form for a paper
+/// calibration, the model's own fit otherwise.
+fn refit(
     data: &Dataset,
     stored: &StoredCalibration,
-    reference: Option<&HeadingReference>,
     min_coverage_deg: f64,
-) -> Result<CheckReport, CheckError> {
-    // A turn, or no check: the same gate as `fit` and `diagnose`.
-    crate::model::turn::check_turn_of(data, min_coverage_deg).map_err(CheckError::Refit)?;
+) -> Result<Refit, CheckError> {
     let paper =
         stored.source == StoredSource::FitPaper || stored.effects.iter().all(Effect::is_paper);
-    // The refit, with its standard errors and the samples it set aside.
-    let (refitted, refitted_rms, refitted_headings, flagged, refit_residuals) = if paper {
+    let (params, rms, headings, flagged, residuals) = if paper {
         let options = FitOptions {
             min_coverage_deg,
             ..FitOptions::default()
@@ -583,6 +592,32 @@ pub fn check(
             .collect();
         (fit.params, fit.rms, fit.headings, fit.flagged, residuals)
     };
+    Ok(Refit {
+        params,
+        rms,
+        headings,
+        flagged,
+        residuals,
+    })
+}
+
+/// Applies `stored` to `data`, refits its model there, and compares.
+/// `min_coverage_deg`: the turn the refit needs, as for `fit`.
+pub fn check(
+    data: &Dataset,
+    stored: &StoredCalibration,
+    reference: Option<&HeadingReference>,
+    min_coverage_deg: f64,
+) -> Result<CheckReport, CheckError> {
+    // A turn, or no check: the same gate as `fit` and `diagnose`.
+    crate::model::turn::check_turn_of(data, min_coverage_deg).map_err(CheckError::Refit)?;
+    let Refit {
+        params: refitted,
+        rms: refitted_rms,
+        headings: refitted_headings,
+        flagged,
+        residuals: refit_residuals,
+    } = refit(data, stored, min_coverage_deg)?;
     let residual_autocorrelation = lag1_autocorrelation(&refit_residuals);
     let inflation = se_inflation(residual_autocorrelation);
     // The stored calibration on the new recording.

@@ -32,6 +32,11 @@ use super::FitError;
 use super::effects::{self, Effect, model_name};
 use super::gyro::{HeadingCheck, HeadingReference};
 use super::heading::coverage;
+use super::ladder::{
+    self, Gates, Geometry, Judgement, NotDetermined, Offer, STRUCTURE_SES, Scores, percent, range,
+};
+#[cfg(test)]
+use super::ladder::{own_params, tails_heavy};
 use super::nonlinear::{ModelFit, Param, fit_model};
 use super::residuals::{self, NoiseFloor, Residuals, SetAside, analyse, is_time_like, set_aside};
 use crate::sample::Dataset;
@@ -196,12 +201,6 @@ pub const HEADING_WORSE_SES: f64 = 2.0;
 /// long recording resolves it.
 pub const HEADING_MATTERS_DEG: f64 = 0.1;
 
-/// An rms below this is rounding, not noise or structure.
-const NUMERICAL_RMS: f64 = 1e-12;
-/// A harmonic (or trend) counts as structure in the verdict when it exceeds
-/// this many standard errors of a Gaussian-noise estimate.
-const STRUCTURE_SES: f64 = 5.0;
-
 /// One effect the model could add, as judged on the current model.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Candidate {
@@ -270,6 +269,8 @@ pub struct Diagnosis {
     pub heading: String,
 }
 
+ladder::ladder_types!(ModelFit, Residuals, Candidate);
+
 /// The criterion, as the report states it.
 pub fn criterion() -> String {
     format!(
@@ -282,11 +283,7 @@ pub fn criterion() -> String {
 
 /// BIC of a fit over all `n` samples; flagged samples count as unknowns.
 fn bic(fit: &ModelFit, n: usize) -> f64 {
-    let n = n.max(1) as f64;
-    let p = (fit.unknowns + fit.flagged.len()) as f64;
-    // A perfect fit would give ln(0): floor the RSS far below any noise.
-    let rss = fit.rss.max(n * 1e-30);
-    n * (rss / n).ln() + p * n.ln()
+    ladder::bic(n, fit.unknowns + fit.flagged.len(), fit.rss)
 }
 
 /// A fit's heading error against the gyro (None without one, or when the
@@ -335,17 +332,6 @@ pub fn tail_threshold(expected: f64) -> usize {
         term *= lambda / k as f64;
     }
     k.max(MIN_TAILS)
-}
-
-/// Whether the tails of a residual are too heavy for Gaussian noise.
-fn tails_heavy(res: &Residuals) -> bool {
-    let n = res.tail_expected / residuals::GAUSSIAN_TAIL_4SD;
-    res.tail_count >= tail_threshold(res.tail_expected)
-        || (res.tail_count >= 1 && res.tail_max_sd > EXTREME_SDS && n < 100_000.0)
-}
-
-fn percent(fraction: f64) -> String {
-    format!("{:.2} %", fraction * 100.0)
 }
 
 /// A logged column that moves almost in step with time: drift and that
@@ -414,21 +400,6 @@ pub fn params_text(params: &[Param]) -> String {
         .join(", ")
 }
 
-/// The parameters `fit` has that `current` lacks: the added effect's own.
-fn own_params(fit: &ModelFit, current: &ModelFit) -> Vec<Param> {
-    fit.params
-        .iter()
-        .filter(|p| current.param(&p.name).is_none())
-        .cloned()
-        .collect()
-}
-
-/// What decided one candidate.
-struct Judgement {
-    supported: bool,
-    evidence: String,
-}
-
 /// Everything a candidate is judged on.
 struct Trial<'a> {
     data: &'a Dataset,
@@ -464,17 +435,6 @@ struct Trial<'a> {
 /// apart from both.
 pub const MIN_STRUCTURE_SHARE: f64 = 0.25;
 
-/// Explained share of the mean-square residual, and explained amplitude.
-fn explained(rms_before: f64, rms_after: f64) -> (f64, f64) {
-    let (before, after) = (rms_before * rms_before, rms_after * rms_after);
-    let share = if before > 0.0 {
-        1.0 - after / before
-    } else {
-        0.0
-    };
-    (share, (before - after).max(0.0).sqrt())
-}
-
 /// The largest swing of a moving offset (drift, covariate) over the
 /// recording, in calibrated units over the field.
 struct Swing {
@@ -483,15 +443,6 @@ struct Swing {
     se: f64,
     fraction: f64,
     over: String,
-}
-
-fn range(values: &[f64]) -> f64 {
-    let (lo, hi) = values
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
-            (lo.min(*v), hi.max(*v))
-        });
-    if hi >= lo { hi - lo } else { 0.0 }
 }
 
 fn offset_swing(t: &Trial<'_>) -> Option<Swing> {
@@ -526,134 +477,90 @@ fn offset_swing(t: &Trial<'_>) -> Option<Swing> {
         .max_by(|a, b| a.fraction.total_cmp(&b.fraction))
 }
 
-/// Judges a candidate, first failing reason first; the evidence is made of
-/// the numbers that decided it.
+/// Judges a candidate on the ladder's gates, with the circle's own tests.
 fn judge(t: &Trial<'_>) -> Judgement {
-    let (rms0, rms1) = (t.current.rms, t.fit.rms);
-    let (share, amplitude) = explained(rms0, rms1);
-    let numbers = format!(
-        "rms {} → {}, {:.1} % of the residual variance, ΔBIC {:.1}",
-        percent(rms0),
-        percent(rms1),
-        share * 100.0,
-        t.delta_bic
-    );
-    let with_params = if t.params.is_empty() {
-        numbers.clone()
-    } else {
-        format!("{numbers}; {}", params_text(t.params))
+    let scores = Scores {
+        effect: t.effect,
+        rms_before: t.current.rms,
+        rms_after: t.fit.rms,
+        params: t.params,
+        delta_bic: t.delta_bic,
+        res: t.res,
+        flagged: t.fit.flagged.len(),
     };
-    let refuse = |evidence: String| Judgement {
-        supported: false,
-        evidence,
-    };
-    if t.covered < t.covered_now - FOLD_DEG {
-        return refuse(format!(
+    ladder::judge(&scores, t)
+}
+
+impl Gates for Trial<'_> {
+    fn fold(&self) -> Option<String> {
+        (self.covered < self.covered_now - FOLD_DEG).then(|| format!(
             "not an effect: the fit folds the turn onto {:.0}° of heading (the model without it covers {:.0}°), a larger circle through an arc of the samples",
-            t.covered, t.covered_now
-        ));
+            self.covered, self.covered_now
+        ))
     }
-    for p in t.params {
-        if let Some(limit) = limit_of(&p.name).filter(|l| p.value.abs() > l.max_abs) {
-            return refuse(format!(
-                "not a physical {}: {} = {} ± {} {}, beyond what any sensor does ({}); {numbers}",
-                t.effect,
-                p.name,
-                sig(p.value),
-                sig(p.se),
-                (limit.describe)(p.value),
-                limit.source
-            ));
+
+    fn physical(&self, numbers: &str, _with_params: &str) -> Option<String> {
+        for p in self.params {
+            if let Some(limit) = limit_of(&p.name).filter(|l| p.value.abs() > l.max_abs) {
+                return Some(format!(
+                    "not a physical {}: {} = {} ± {} {}, beyond what any sensor does ({}); {numbers}",
+                    self.effect,
+                    p.name,
+                    sig(p.value),
+                    sig(p.se),
+                    (limit.describe)(p.value),
+                    limit.source
+                ));
+            }
         }
-    }
-    if let Some(swing) = offset_swing(t)
-        && swing.fraction > MAX_OFFSET_SWING
-    {
-        return refuse(format!(
+        let swing = offset_swing(self).filter(|s| s.fraction > MAX_OFFSET_SWING)?;
+        Some(format!(
             "not a physical {}: {} = {} ± {} moves the offset by {:.0} % of the field over {}, more than the {:.0} % ArduPilot's CompassMot accepts for motor interference; {numbers}",
-            t.effect,
+            self.effect,
             swing.param,
             sig(swing.value),
             sig(swing.se),
             swing.fraction * 100.0,
             swing.over,
             MAX_OFFSET_SWING * 100.0
-        ));
+        ))
     }
-    let (a0, a1) = (t.current.value("a"), t.fit.value("a"));
-    if a0 > 0.0 && a1 > 0.0 {
+
+    fn gain(&self, with_params: &str) -> Option<String> {
+        let (a0, a1) = (self.current.value("a"), self.fit.value("a"));
+        if !(a0 > 0.0 && a1 > 0.0) {
+            return None;
+        }
         let factor = (a1 / a0).max(a0 / a1);
-        if factor > MAX_GAIN_CHANGE {
-            return refuse(format!(
-                "not a physical {}: it moves the gain ratio a from {} to {} (×{factor:.2}), more than any effect of the catalogue at its limit (×{MAX_GAIN_CHANGE}); {with_params}",
-                t.effect,
-                sig(a0),
-                sig(a1)
-            ));
-        }
+        (factor > MAX_GAIN_CHANGE).then(|| format!(
+            "not a physical {}: it moves the gain ratio a from {} to {} (×{factor:.2}), more than any effect of the catalogue at its limit (×{MAX_GAIN_CHANGE}); {with_params}",
+            self.effect,
+            sig(a0),
+            sig(a1)
+        ))
     }
-    if !t.params.is_empty() && t.params.iter().all(|p| !(p.value.abs() > p.se)) {
-        return refuse(format!(
-            "not resolved: no parameter of {} stands above its standard error ({}); {numbers}",
-            t.effect,
-            params_text(t.params)
-        ));
+
+    fn candidate_floor(&self) -> f64 {
+        residuals::noise_floor(self.data, self.fit).rms
     }
-    if !(t.delta_bic < -BIC_MARGIN) {
-        return refuse(format!(
-            "not detectable: ΔBIC {:.1} does not reach -{BIC_MARGIN}; {}",
-            t.delta_bic, with_params
-        ));
+
+    fn squeeze_note(&self) -> &'static str {
+        ", which a physical effect leaves alone"
     }
-    if *t.effect == Effect::Outliers && !tails_heavy(t.res) {
-        return refuse(format!(
-            "no outliers: {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}; {numbers}",
-            crate::sample::count(t.res.tail_count as u64, "sample"),
-            t.res.tail_max_sd,
-            t.res.tail_expected
-        ));
-    }
-    let drop = if rms0 > 0.0 { 1.0 - rms1 / rms0 } else { 0.0 };
-    if drop < MIN_RMS_DROP {
-        return refuse(format!(
-            "too small to matter: it lowers the rms by {:.2} % (under {:.0} %); {with_params}",
-            drop * 100.0,
-            MIN_RMS_DROP * 100.0
-        ));
-    }
-    let floor = t.res.noise_floor.rms;
-    if amplitude < MIN_EXPLAINED_NOISE * floor {
-        return refuse(format!(
-            "too small to matter: it explains {} of the field, under a quarter of the noise floor {}; {with_params}",
-            percent(amplitude),
-            percent(floor)
-        ));
-    }
-    if *t.effect != Effect::Outliers {
-        let (floor0, floor1) = (floor, residuals::noise_floor(t.data, t.fit).rms);
-        let total = rms0 * rms0 - rms1 * rms1;
-        let from_noise = floor0 * floor0 - floor1 * floor1;
-        if total > 0.0 && total - from_noise < MIN_STRUCTURE_SHARE * total {
-            return refuse(format!(
-                "not an effect: it lowers the rms by squeezing the noise, not by removing structure ({:.0} % of what it explains comes out of the noise floor, {} → {}, which a physical effect leaves alone); {with_params}",
-                (from_noise / total * 100.0).min(100.0),
-                percent(floor0),
-                percent(floor1)
-            ));
-        }
-    }
-    // Worse than the model it is added to, or than the baseline: steps
-    // that each stay within their uncertainty must not add up to a worse
-    // heading than the one the ladder started from.
-    let [baseline, now, with] = t.heading;
-    if let Some(with) = with {
+
+    fn heading(&self, rms0: f64, rms1: f64, with_params: &str) -> Option<String> {
+        // Worse than the model it is added to, or than the baseline: steps
+        // that each stay within their uncertainty must not add up to a worse
+        // heading than the one the ladder started from.
+        let [baseline, now, with] = self.heading;
+        let with = with?;
         for (before, which) in [(now, "without it"), (baseline, "the baseline")] {
             let Some(before) = before else { continue };
             let delta = before.worse_by(with);
             if delta.delta_rms_deg > HEADING_WORSE_SES * delta.se_deg
                 && delta.delta_rms_deg > HEADING_MATTERS_DEG
             {
-                return refuse(format!(
+                return Some(format!(
                     "distorts heading: makes |s| rounder (rms {} → {}) but moves the heading: {:.1}° ({which}) → {:.1}° rms against {} (+{:.1}° ± {:.1}°); {}",
                     percent(rms0),
                     percent(rms1),
@@ -666,24 +573,7 @@ fn judge(t: &Trial<'_>) -> Judgement {
                 ));
             }
         }
-    }
-    let extra = if *t.effect == Effect::Outliers {
-        format!(
-            "; {} flagged, {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}",
-            crate::sample::count(t.fit.flagged.len() as u64, "sample"),
-            t.res.tail_count,
-            t.res.tail_max_sd,
-            t.res.tail_expected
-        )
-    } else {
-        String::new()
-    };
-    Judgement {
-        supported: true,
-        evidence: format!(
-            "explains {} of the field: {with_params}{extra}",
-            percent(amplitude)
-        ),
+        None
     }
 }
 
@@ -715,78 +605,76 @@ fn covered_deg(fit: &ModelFit) -> f64 {
     coverage(used).covered_deg
 }
 
-fn with_effect(model: &[Effect], effect: &Effect) -> Vec<Effect> {
-    let mut effects = model.to_vec();
-    effects.push(effect.clone());
-    effects.sort();
-    effects
+/// The circle of a turn: the 2-D geometry of the diagnosis ladder.
+struct Plane<'a> {
+    data: &'a Dataset,
+    aside: &'a [SetAside],
+    reference: Option<&'a HeadingReference>,
 }
 
-/// Fits and ranks every candidate against `current` (already fitted).
-fn rank(
-    data: &Dataset,
-    model: &[Effect],
-    current: (&ModelFit, Option<&HeadingCheck>),
-    baseline_heading: Option<&HeadingCheck>,
-    res: &Residuals,
-    aside: &[SetAside],
-    reference: Option<&HeadingReference>,
-) -> Vec<Candidate> {
-    let (current, current_heading) = current;
-    let n = data.len();
-    let base_bic = bic(current, n);
-    let covered_now = covered_deg(current);
-    let mut candidates: Vec<Candidate> = candidate_effects(data, model, aside)
-        .into_iter()
-        .filter_map(|effect| {
-            let effects = with_effect(model, &effect);
-            let fit = match fit_model(data, &effects) {
-                Ok(fit) => fit,
-                Err(err) => {
-                    tracing::debug!("candidate {effect}: no fit: {err}");
-                    return None;
-                }
-            };
-            if !fit.rms.is_finite() || !fit.rss.is_finite() {
-                return None;
-            }
-            let delta_bic = bic(&fit, n) - base_bic;
-            let unknowns_added = (fit.unknowns + fit.flagged.len())
-                .saturating_sub(current.unknowns + current.flagged.len());
-            let params = own_params(&fit, current);
-            let heading_vs_gyro = heading_check(&fit, reference);
-            let judged = judge(&Trial {
-                data,
-                heading: [baseline_heading, current_heading, heading_vs_gyro.as_ref()],
-                effect: &effect,
-                fit: &fit,
-                current,
-                res,
-                params: &params,
-                delta_bic,
-                covered: covered_deg(&fit),
-                covered_now,
-            });
-            Some(Candidate {
-                evidence: judged.evidence + &caveat(&effect, data),
-                rms: fit.rms,
-                rms_before: current.rms,
-                explained: explained(current.rms, fit.rms).0,
-                params,
-                effect,
-                unknowns_added,
-                delta_bic,
-                supported: judged.supported,
-                heading_vs_gyro,
-            })
-        })
-        .collect();
-    candidates.sort_by(|a, b| {
-        b.supported
-            .cmp(&a.supported)
-            .then(a.delta_bic.total_cmp(&b.delta_bic))
-    });
-    candidates
+impl Geometry for Plane<'_> {
+    type Fit = ModelFit;
+    type Residuals = Residuals;
+    type Step = Step;
+    type Candidate = Candidate;
+    type Error = FitError;
+
+    fn fit(&self, effects: &[Effect]) -> Result<ModelFit, FitError> {
+        fit_model(self.data, effects)
+    }
+
+    fn analyse(&self, fit: &ModelFit) -> Residuals {
+        analyse(self.data, fit)
+    }
+
+    fn bic(&self, fit: &ModelFit) -> f64 {
+        bic(fit, self.data.len())
+    }
+
+    fn step(&self, fit: &ModelFit, model: &[Effect]) -> Step {
+        step_of(fit, model, self.data.len(), self.reference)
+    }
+
+    fn offered(&self, model: &[Effect], _current: &ModelFit) -> (Vec<Effect>, Vec<NotDetermined>) {
+        (candidate_effects(self.data, model, self.aside), Vec::new())
+    }
+
+    fn no_fit(&self, effect: Effect, err: FitError) -> Option<NotDetermined> {
+        tracing::debug!("candidate {effect}: no fit: {err}");
+        None
+    }
+
+    fn candidate(&self, offer: Offer<'_, Self>) -> Candidate {
+        let heading_vs_gyro = heading_check(offer.fit, self.reference);
+        let judged = judge(&Trial {
+            data: self.data,
+            heading: [
+                offer.baseline.heading_vs_gyro.as_ref(),
+                offer.now.heading_vs_gyro.as_ref(),
+                heading_vs_gyro.as_ref(),
+            ],
+            effect: &offer.effect,
+            fit: offer.fit,
+            current: offer.current,
+            res: offer.res,
+            params: &offer.params,
+            delta_bic: offer.delta_bic,
+            covered: covered_deg(offer.fit),
+            covered_now: covered_deg(offer.current),
+        });
+        Candidate {
+            evidence: judged.evidence + &caveat(&offer.effect, self.data),
+            rms: offer.fit.rms,
+            rms_before: offer.current.rms,
+            explained: offer.explained(),
+            unknowns_added: offer.unknowns_added(),
+            delta_bic: offer.delta_bic,
+            supported: judged.supported,
+            heading_vs_gyro,
+            params: offer.params,
+            effect: offer.effect,
+        }
+    }
 }
 
 /// What the diagnosis says about the heading: checked against a gyro, or
@@ -815,92 +703,39 @@ pub fn diagnose(
     reference: Option<&HeadingReference>,
 ) -> Result<Diagnosis, FitError> {
     super::turn::check_turn_of(data, super::fit::DEFAULT_MIN_COVERAGE_DEG)?;
-    let mut model: Vec<Effect> = effects::PAPER.to_vec();
-    for e in baseline {
-        if !model.contains(e) {
-            model.push(e.clone());
-        }
-    }
-    model.sort();
-    let n = data.len();
+    let model = ladder::starting_list(baseline);
     let aside = set_aside(data);
-
     let base_fit = fit_model(data, &model)?;
     let baseline_residuals = analyse(data, &base_fit);
-    let baseline_step = step_of(&base_fit, &model, n, reference);
-    let candidates = rank(
+    let plane = Plane {
         data,
-        &model,
-        (&base_fit, baseline_step.heading_vs_gyro.as_ref()),
-        baseline_step.heading_vs_gyro.as_ref(),
-        &baseline_residuals,
-        &aside,
+        aside: &aside,
         reference,
-    );
-    let suggested = candidates
-        .first()
-        .filter(|c| c.supported)
-        .map(|c| c.effect.clone());
-    let close_second = match candidates.as_slice() {
-        [first, second, ..] if first.supported && second.supported => {
-            (second.delta_bic - first.delta_bic < BIC_MARGIN).then(|| second.effect.clone())
-        }
-        _ => None,
     };
-
-    let mut ladder = vec![baseline_step.clone()];
-    let mut current = base_fit;
-    let mut current_res = baseline_residuals.clone();
-    let mut next = suggested.clone();
-    while let Some(effect) = next.take() {
-        if ladder.len() > MAX_STEPS {
-            break;
-        }
-        let effects = with_effect(&model, &effect);
-        let Ok(fit) = fit_model(data, &effects) else {
-            break;
-        };
-        model = effects;
-        current_res = analyse(data, &fit);
-        let step = step_of(&fit, &model, n, reference);
-        next = rank(
-            data,
-            &model,
-            (&fit, step.heading_vs_gyro.as_ref()),
-            baseline_step.heading_vs_gyro.as_ref(),
-            &current_res,
-            &aside,
-            reference,
-        )
-        .into_iter()
-        .find(|c| c.supported)
-        .map(|c| c.effect);
-        ladder.push(step);
-        current = fit;
-    }
+    let climb = ladder::climb(&plane, model, base_fit, &baseline_residuals);
 
     // The noise floor comes from the final residual: differences of
     // neighbours cancel slow structure, but a large harmonic still moves a
     // little from one sample to the next (5 % at 200 samples a turn adds
     // ~13 % to the estimate), so the residual with the least structure left
     // gives the cleanest estimate.
-    let noise_floor = current_res.noise_floor.clone();
+    let noise_floor = climb.final_residuals.noise_floor.clone();
     let verdict = verdict(
-        current.rms,
-        &current_res,
+        climb.last.rms,
+        &climb.final_residuals,
         &noise_floor,
-        current.residuals.len(),
+        climb.last.residuals.len(),
     );
-    let heading = heading_note(reference, baseline_step.heading_vs_gyro.is_some());
+    let heading = heading_note(reference, climb.baseline.heading_vs_gyro.is_some());
     Ok(Diagnosis {
-        baseline: baseline_step,
+        baseline: climb.baseline,
         set_aside: aside,
         baseline_residuals,
-        candidates,
-        suggested,
-        close_second,
-        ladder,
-        final_residuals: current_res,
+        candidates: climb.candidates,
+        suggested: climb.suggested,
+        close_second: climb.close_second,
+        ladder: climb.ladder,
+        final_residuals: climb.final_residuals,
         noise_floor,
         verdict,
         criterion: criterion(),
@@ -910,70 +745,28 @@ pub fn diagnose(
 
 /// Noise, or where structure remains.
 fn verdict(rms: f64, res: &Residuals, floor: &NoiseFloor, n: usize) -> String {
-    // Noiseless data fits to rounding: no floor to compare with, and
-    // nothing left to explain.
-    if rms < NUMERICAL_RMS {
-        return format!(
-            "what remains is noise: the rms {rms:.1e} is at the level of rounding; the data has no measurable noise"
-        );
-    }
-    let excess = if floor.rms > 0.0 {
-        rms / floor.rms - 1.0
-    } else {
-        f64::INFINITY
+    let harmonics = || {
+        // Standard error of one harmonic amplitude under noise σ: σ·√(2/n).
+        let se = floor.rms * (2.0 / n.max(1) as f64).sqrt();
+        res.harmonics
+            .iter()
+            .filter(|h| h.amplitude > STRUCTURE_SES * se)
+            .map(|h| {
+                format!(
+                    "harmonic {} of heading ({} of the field)",
+                    h.order,
+                    percent(h.amplitude)
+                )
+            })
+            .collect()
     };
-    if excess <= NOISE_TOLERANCE {
-        let relation = if excess <= 0.0 {
-            "at or below".to_string()
+    ladder::verdict(rms, res, floor, harmonics, |places, _| {
+        if places.is_empty() {
+            "no single harmonic, trend, covariate or tail to blame; the residual changes faster than a turn's structure but slower than white noise".to_string()
         } else {
-            format!("within {:.0} % of", excess * 100.0)
-        };
-        return format!(
-            "what remains is noise: the rms {} is {relation} the noise floor {}",
-            percent(rms),
-            percent(floor.rms)
-        );
-    }
-    // Standard error of one harmonic amplitude under noise σ: σ·√(2/n).
-    let se = floor.rms * (2.0 / n.max(1) as f64).sqrt();
-    let mut places: Vec<String> = res
-        .harmonics
-        .iter()
-        .filter(|h| h.amplitude > STRUCTURE_SES * se)
-        .map(|h| {
-            format!(
-                "harmonic {} of heading ({} of the field)",
-                h.order,
-                percent(h.amplitude)
-            )
-        })
-        .collect();
-    if let Some(s) = res.time_structure.filter(|s| *s > 0.3) {
-        places.push(format!(
-            "slow wander in time ({:.0} % of the variance)",
-            s * 100.0
-        ));
-    }
-    for c in res.covariates.iter().filter(|c| c.correlation.abs() > 0.5) {
-        places.push(format!("{} (correlation {:.2})", c.column, c.correlation));
-    }
-    if tails_heavy(res) {
-        places.push(format!(
-            "{} beyond 4 robust SD",
-            crate::sample::count(res.tail_count as u64, "sample")
-        ));
-    }
-    let where_ = if places.is_empty() {
-        "no single harmonic, trend, covariate or tail to blame; the residual changes faster than a turn's structure but slower than white noise".to_string()
-    } else {
-        places.join(", ")
-    };
-    format!(
-        "structure remains that no effect in the catalogue explains: {where_} (rms {} is {:.0} % above the noise floor {})",
-        percent(rms),
-        excess * 100.0,
-        percent(floor.rms)
-    )
+            places.join(", ")
+        }
+    })
 }
 
 #[cfg(test)]

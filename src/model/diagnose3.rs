@@ -5,8 +5,10 @@
 //! (`offset+scale`, W diagonal, the 3-D form of the 2-D default), fit every
 //! candidate effect the model lacks, rank them by BIC (supported ones
 //! first), add the best supported one, and repeat until none is supported
-//! (at most [`MAX_STEPS`]); then compare the rms with the noise floor and
-//! say whether what remains is noise or where structure remains.
+//! (at most [`MAX_STEPS`](super::diagnose::MAX_STEPS)); then compare the
+//! rms with the noise floor and say whether what remains is noise or where
+//! structure remains. The ladder itself is [`super::ladder`]'s, shared with
+//! the 2-D diagnosis; this module brings the sphere's own tests.
 //!
 //! A candidate is supported only when it passes every test of the 2-D
 //! judgement, in the same order: it must not fold the sphere (the
@@ -16,7 +18,7 @@
 //! above their standard errors, ΔBIC below −[`BIC_MARGIN`], the tail gate
 //! for `outliers`, material ([`MIN_RMS_DROP`], [`MIN_EXPLAINED_NOISE`]) and
 //! out of the structure rather than the noise floor
-//! ([`MIN_STRUCTURE_SHARE`]).
+//! ([`MIN_STRUCTURE_SHARE`](super::diagnose::MIN_STRUCTURE_SHARE)).
 //!
 //! Physics before statistics: an effect the recording cannot determine is
 //! not a candidate at all, and the diagnosis says why (`not_determined`):
@@ -37,15 +39,15 @@ use serde::Serialize;
 
 use super::diagnose::{
     BIC_MARGIN, FOLD_DEG, MAX_CROSS_AXIS_SHEAR, MAX_CUBIC, MAX_GAIN_CHANGE, MAX_OFFSET_SWING,
-    MAX_STEPS, MIN_EXPLAINED_NOISE, MIN_RMS_DROP, MIN_STRUCTURE_SHARE, NOISE_TOLERANCE,
-    params_text, tail_threshold,
+    MIN_EXPLAINED_NOISE, MIN_RMS_DROP,
 };
 use super::effects::{Effect, model_name};
 use super::ellipsoid::{self, Ellipsoid3Error, Ellipsoid3Model};
 use super::ellipsoid_effects::{Effects3Error, Ellipsoid3EffectsFit, base_effects, fit_effects};
+use super::ladder::{self, Gates, Geometry, Offer, STRUCTURE_SES, percent, range, starting_list};
 use super::nonlinear::{MAD_TO_SD, Param};
 use super::residuals::{
-    COPY_R2, CovariateLink, GAUSSIAN_TAIL_4SD, NoiseFloor, SetAside, TAIL_SDS, is_time_like, line,
+    COPY_R2, CovariateLink, GAUSSIAN_TAIL_4SD, NoiseFloor, SetAside, TAIL_SDS, is_time_like, links,
     median, robust_sd, slow_structure,
 };
 use super::sphere::{self, SphereCoverage};
@@ -53,12 +55,6 @@ use crate::sample::Dataset3;
 
 pub use super::diagnose::EXTREME_SDS;
 
-/// A pattern over direction (or a wander in time) counts as structure in
-/// the verdict when it exceeds this many times what Gaussian noise gives
-/// (as the 2-D verdict's 5 standard errors of a harmonic).
-const STRUCTURE_SES: f64 = 5.0;
-/// An rms below this is rounding, not noise or structure.
-const NUMERICAL_RMS: f64 = 1e-12;
 /// The 2-D fold rule ([`FOLD_DEG`] of a 360° turn) as a share of the
 /// sphere: a candidate whose calibrated samples cover this share of the
 /// sphere's regions less than the model without it folded the sphere onto
@@ -107,12 +103,7 @@ pub struct Candidate3 {
     pub evidence: String,
 }
 
-/// An effect of the catalogue this recording cannot determine, and why.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct NotDetermined {
-    pub effect: Effect,
-    pub reason: String,
-}
+pub use super::ladder::NotDetermined;
 
 /// One model of the ladder.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -152,6 +143,8 @@ pub struct Diagnosis3 {
     pub criterion: String,
 }
 
+ladder::ladder_types!(Ellipsoid3EffectsFit, Residuals3, Candidate3);
+
 /// The criterion, as the report states it.
 pub fn criterion() -> String {
     format!(
@@ -163,10 +156,7 @@ pub fn criterion() -> String {
 }
 
 fn bic(fit: &Ellipsoid3EffectsFit) -> f64 {
-    let n = fit.n.max(1) as f64;
-    let p = (fit.unknowns + fit.flagged.len()) as f64;
-    let rss = fit.rss.max(n * 1e-30);
-    n * (rss / n).ln() + p * n.ln()
+    ladder::bic(fit.n, fit.unknowns + fit.flagged.len(), fit.rss)
 }
 
 fn step_of(fit: &Ellipsoid3EffectsFit) -> Step3 {
@@ -179,10 +169,6 @@ fn step_of(fit: &Ellipsoid3EffectsFit) -> Step3 {
         flagged: fit.flagged.len(),
         params: fit.params.clone(),
     }
-}
-
-fn percent(fraction: f64) -> String {
-    format!("{:.2} %", fraction * 100.0)
 }
 
 /// R² of `u` on `[1, x, y, z]`; None when `u` is constant.
@@ -324,27 +310,7 @@ pub fn analyse(data: &Dataset3, fit: &Ellipsoid3EffectsFit, aside: &[SetAside]) 
     let column = |values: &[f64]| -> Option<Vec<f64>> {
         (values.len() == n_all).then(|| order.iter().map(|&i| values[i]).collect())
     };
-    let time_trend = data
-        .t
-        .as_deref()
-        .and_then(column)
-        .and_then(|t| line(&t, &e))
-        .map(|(slope, _)| slope);
-    let covariates = data
-        .covariates
-        .iter()
-        .filter(|c| !aside.iter().any(|a| a.column == c.name))
-        .filter_map(|c| {
-            let values = column(&c.values)?;
-            let (slope, correlation) = line(&values, &e)?;
-            Some(CovariateLink {
-                column: c.name.clone(),
-                slope,
-                correlation,
-                explained: correlation * correlation,
-            })
-        })
-        .collect();
+    let (time_trend, covariates) = links(data.t.as_deref(), &data.covariates, aside, column, &e);
     let m = median(&e);
     let sd = robust_sd(&e);
     let z: Vec<f64> = if sd > 0.0 {
@@ -367,32 +333,8 @@ pub fn analyse(data: &Dataset3, fit: &Ellipsoid3EffectsFit, aside: &[SetAside]) 
     }
 }
 
-fn tails_heavy(res: &Residuals3) -> bool {
-    let n = res.tail_expected / GAUSSIAN_TAIL_4SD;
-    res.tail_count >= tail_threshold(res.tail_expected)
-        || (res.tail_count >= 1 && res.tail_max_sd > EXTREME_SDS && n < 100_000.0)
-}
-
-fn with_effect(model: &[Effect], effect: &Effect) -> Vec<Effect> {
-    let mut effects = model.to_vec();
-    if !effects.contains(effect) {
-        effects.push(effect.clone());
-    }
-    effects.sort();
-    effects
-}
-
 fn fit_list(data: &Dataset3, effects: &[Effect]) -> Result<Ellipsoid3EffectsFit, Effects3Error> {
     fit_effects(data, Ellipsoid3Model::Offset, effects)
-}
-
-fn range(values: &[f64]) -> f64 {
-    let (lo, hi) = values
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
-            (lo.min(*v), hi.max(*v))
-        });
-    if hi >= lo { hi - lo } else { 0.0 }
 }
 
 /// The candidates of the catalogue for a model, and those the recording
@@ -467,24 +409,8 @@ struct Trial<'a> {
     effect: &'a Effect,
     fit: &'a Ellipsoid3EffectsFit,
     current: &'a Ellipsoid3EffectsFit,
-    res: &'a Residuals3,
+    /// The effect's own parameters.
     params: &'a [Param],
-    delta_bic: f64,
-}
-
-struct Judgement {
-    supported: bool,
-    evidence: String,
-}
-
-fn explained(rms_before: f64, rms_after: f64) -> (f64, f64) {
-    let (before, after) = (rms_before * rms_before, rms_after * rms_after);
-    let share = if before > 0.0 {
-        1.0 - after / before
-    } else {
-        0.0
-    };
-    (share, (before - after).max(0.0).sqrt())
 }
 
 /// The largest swing of a moving offset over the recording, in calibrated
@@ -520,69 +446,55 @@ fn offset_swing(t: &Trial<'_>) -> Option<(f64, String)> {
     (t.fit.r > 0.0).then(|| (moved * span / t.fit.r, over))
 }
 
-fn judge(t: &Trial<'_>) -> Judgement {
-    let (rms0, rms1) = (t.current.rms, t.fit.rms);
-    let (share, amplitude) = explained(rms0, rms1);
-    let numbers = format!(
-        "rms {} → {}, {:.1} % of the residual variance, ΔBIC {:.1}",
-        percent(rms0),
-        percent(rms1),
-        share * 100.0,
-        t.delta_bic
-    );
-    let with_params = if t.params.is_empty() {
-        numbers.clone()
-    } else {
-        format!("{numbers}; {}", params_text(t.params))
-    };
-    let refuse = |evidence: String| Judgement {
-        supported: false,
-        evidence,
-    };
-    let (before, after) = (t.current.coverage.covered, t.fit.coverage.covered);
-    let fold = (FOLD_SHARE * sphere::REGIONS as f64).round() as usize;
-    if after + fold < before {
-        return refuse(format!(
+impl Gates for Trial<'_> {
+    fn fold(&self) -> Option<String> {
+        let (before, after) = (self.current.coverage.covered, self.fit.coverage.covered);
+        let fold = (FOLD_SHARE * sphere::REGIONS as f64).round() as usize;
+        (after + fold < before).then(|| format!(
             "not an effect: the fit folds the sphere onto {after} of its {} regions (the model without it covers {before}), a larger sphere through a cap of the samples",
             sphere::REGIONS
-        ));
+        ))
     }
-    if *t.effect == Effect::Cubic
-        && let Some(p) = t.params.iter().find(|p| p.value.abs() > MAX_CUBIC)
-    {
-        return refuse(format!(
-            "not a physical cubic: {} = {} ± {} bends the reading by {:.1} % at full scale, beyond what any sensor does (limit {:.0} %; datasheets give 0.1–0.5 %: HMC5883L, MPU-6050, ADXL345); {numbers}",
-            p.name,
-            crate::report::significant(p.value, 3),
-            crate::report::significant(p.se, 2),
-            p.value.abs() * 100.0,
-            MAX_CUBIC * 100.0
-        ));
-    }
-    if *t.effect == Effect::CrossAxis {
-        let w = &t.fit.matrix;
-        for (i, j) in [(0, 1), (0, 2), (1, 2)] {
-            let shear = w[i][j] / (w[i][i] * w[j][j]).sqrt();
-            if shear.abs() > MAX_CROSS_AXIS_SHEAR {
-                return refuse(format!(
-                    "not a physical cross-axis: W couples axes {i} and {j} by {:.1}°, beyond the 20° limit (datasheets give ±2 % cross-axis sensitivity, ≈ 1°); {numbers}",
-                    shear.atan().to_degrees().abs()
-                ));
+
+    fn physical(&self, numbers: &str, with_params: &str) -> Option<String> {
+        if *self.effect == Effect::Cubic
+            && let Some(p) = self.params.iter().find(|p| p.value.abs() > MAX_CUBIC)
+        {
+            return Some(format!(
+                "not a physical cubic: {} = {} ± {} bends the reading by {:.1} % at full scale, beyond what any sensor does (limit {:.0} %; datasheets give 0.1–0.5 %: HMC5883L, MPU-6050, ADXL345); {numbers}",
+                p.name,
+                crate::report::significant(p.value, 3),
+                crate::report::significant(p.se, 2),
+                p.value.abs() * 100.0,
+                MAX_CUBIC * 100.0
+            ));
+        }
+        if *self.effect == Effect::CrossAxis {
+            let w = &self.fit.matrix;
+            for (i, j) in [(0, 1), (0, 2), (1, 2)] {
+                let shear = w[i][j] / (w[i][i] * w[j][j]).sqrt();
+                if shear.abs() > MAX_CROSS_AXIS_SHEAR {
+                    return Some(format!(
+                        "not a physical cross-axis: W couples axes {i} and {j} by {:.1}°, beyond the 20° limit (datasheets give ±2 % cross-axis sensitivity, ≈ 1°); {numbers}",
+                        shear.atan().to_degrees().abs()
+                    ));
+                }
             }
         }
-    }
-    if let Some((fraction, over)) = offset_swing(t)
-        && fraction > MAX_OFFSET_SWING
-    {
-        return refuse(format!(
+        let (fraction, over) = offset_swing(self).filter(|(f, _)| *f > MAX_OFFSET_SWING)?;
+        Some(format!(
             "not a physical {}: it moves the offset by {:.0} % of the field over {over}, more than the {:.0} % ArduPilot's CompassMot accepts for motor interference; {with_params}",
-            t.effect,
+            self.effect,
             fraction * 100.0,
             MAX_OFFSET_SWING * 100.0
-        ));
+        ))
     }
-    if *t.effect != Effect::Scale {
-        let (w0, w1) = (&t.current.matrix, &t.fit.matrix);
+
+    fn gain(&self, with_params: &str) -> Option<String> {
+        if *self.effect == Effect::Scale {
+            return None;
+        }
+        let (w0, w1) = (&self.current.matrix, &self.fit.matrix);
         let factor = (0..3)
             .map(|i| {
                 let (a, b) = (w0[i][i], w1[i][i]);
@@ -593,159 +505,96 @@ fn judge(t: &Trial<'_>) -> Judgement {
                 }
             })
             .fold(1.0, f64::max);
-        if factor > MAX_GAIN_CHANGE {
-            return refuse(format!(
-                "not a physical {}: it moves a gain of W by ×{factor:.2}, more than any effect of the catalogue at its limit (×{MAX_GAIN_CHANGE}); {with_params}",
-                t.effect
-            ));
-        }
+        (factor > MAX_GAIN_CHANGE).then(|| format!(
+            "not a physical {}: it moves a gain of W by ×{factor:.2}, more than any effect of the catalogue at its limit (×{MAX_GAIN_CHANGE}); {with_params}",
+            self.effect
+        ))
     }
-    if !t.params.is_empty() && t.params.iter().all(|p| !(p.value.abs() > p.se)) {
-        return refuse(format!(
-            "not resolved: no parameter of {} stands above its standard error ({}); {numbers}",
-            t.effect,
-            params_text(t.params)
-        ));
+
+    fn candidate_floor(&self) -> f64 {
+        let order = used_in_time_order(self.data, self.fit);
+        let e: Vec<f64> = order.iter().map(|&i| self.fit.residuals[i]).collect();
+        noise_floor_of(&e, self.data.t.is_some()).rms
     }
-    if !(t.delta_bic < -BIC_MARGIN) {
-        return refuse(format!(
-            "not detectable: ΔBIC {:.1} does not reach -{BIC_MARGIN}; {with_params}",
-            t.delta_bic
-        ));
+
+    fn squeeze_note(&self) -> &'static str {
+        ""
     }
-    if *t.effect == Effect::Outliers && !tails_heavy(t.res) {
-        return refuse(format!(
-            "no outliers: {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}; {numbers}",
-            crate::sample::count(t.res.tail_count as u64, "sample"),
-            t.res.tail_max_sd,
-            t.res.tail_expected
-        ));
-    }
-    let drop = if rms0 > 0.0 { 1.0 - rms1 / rms0 } else { 0.0 };
-    if drop < MIN_RMS_DROP {
-        return refuse(format!(
-            "too small to matter: it lowers the rms by {:.2} % (under {:.0} %); {with_params}",
-            drop * 100.0,
-            MIN_RMS_DROP * 100.0
-        ));
-    }
-    let floor = t.res.noise_floor.rms;
-    if amplitude < MIN_EXPLAINED_NOISE * floor {
-        return refuse(format!(
-            "too small to matter: it explains {} of the field, under a quarter of the noise floor {}; {with_params}",
-            percent(amplitude),
-            percent(floor)
-        ));
-    }
-    if *t.effect != Effect::Outliers {
-        let order = used_in_time_order(t.data, t.fit);
-        let e: Vec<f64> = order.iter().map(|&i| t.fit.residuals[i]).collect();
-        let floor1 = noise_floor_of(&e, t.data.t.is_some()).rms;
-        let total = rms0 * rms0 - rms1 * rms1;
-        let from_noise = floor * floor - floor1 * floor1;
-        if total > 0.0 && total - from_noise < MIN_STRUCTURE_SHARE * total {
-            return refuse(format!(
-                "not an effect: it lowers the rms by squeezing the noise, not by removing structure ({:.0} % of what it explains comes out of the noise floor, {} → {}); {with_params}",
-                (from_noise / total * 100.0).min(100.0),
-                percent(floor),
-                percent(floor1)
-            ));
-        }
-    }
-    let extra = if *t.effect == Effect::Outliers {
-        format!(
-            "; {} flagged, {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}",
-            crate::sample::count(t.fit.flagged.len() as u64, "sample"),
-            t.res.tail_count,
-            t.res.tail_max_sd,
-            t.res.tail_expected
-        )
-    } else {
-        String::new()
-    };
-    Judgement {
-        supported: true,
-        evidence: format!(
-            "explains {} of the field: {with_params}{extra}",
-            percent(amplitude)
-        ),
+
+    fn heading(&self, _rms0: f64, _rms1: f64, _with_params: &str) -> Option<String> {
+        None
     }
 }
 
-/// The parameters `fit` has that `current` lacks: the added effect's own.
-fn own_params(fit: &Ellipsoid3EffectsFit, current: &Ellipsoid3EffectsFit) -> Vec<Param> {
-    fit.params
-        .iter()
-        .filter(|p| current.param(&p.name).is_none())
-        .cloned()
-        .collect()
+/// The sphere of a tumble: the 3-D geometry of the diagnosis ladder.
+struct Sphere<'a> {
+    data: &'a Dataset3,
+    aside: &'a [SetAside],
 }
 
-fn rank(
-    data: &Dataset3,
-    model: &[Effect],
-    current: &Ellipsoid3EffectsFit,
-    res: &Residuals3,
-    aside: &[SetAside],
-) -> (Vec<Candidate3>, Vec<NotDetermined>) {
-    let base_bic = bic(current);
-    let (offered, mut refused) = candidate_effects(data, model, current, aside);
-    let mut candidates: Vec<Candidate3> = Vec::new();
-    for effect in offered {
-        let fit = match fit_list(data, &with_effect(model, &effect)) {
-            Ok(fit) if fit.rms.is_finite() && fit.rss.is_finite() => fit,
-            Ok(_) => continue,
-            Err(err) => {
-                refused.push(NotDetermined {
-                    effect,
-                    reason: format!("no fit: {err}"),
-                });
-                continue;
-            }
-        };
-        let delta_bic = bic(&fit) - base_bic;
-        let params = own_params(&fit, current);
-        let judged = judge(&Trial {
-            data,
-            effect: &effect,
-            fit: &fit,
-            current,
-            res,
-            params: &params,
-            delta_bic,
-        });
-        candidates.push(Candidate3 {
-            rms: fit.rms,
-            rms_before: current.rms,
-            explained: explained(current.rms, fit.rms).0,
-            unknowns_added: (fit.unknowns + fit.flagged.len())
-                .saturating_sub(current.unknowns + current.flagged.len()),
-            params,
+impl Geometry for Sphere<'_> {
+    type Fit = Ellipsoid3EffectsFit;
+    type Residuals = Residuals3;
+    type Step = Step3;
+    type Candidate = Candidate3;
+    type Error = Effects3Error;
+
+    fn fit(&self, effects: &[Effect]) -> Result<Ellipsoid3EffectsFit, Effects3Error> {
+        fit_list(self.data, effects)
+    }
+
+    fn analyse(&self, fit: &Ellipsoid3EffectsFit) -> Residuals3 {
+        analyse(self.data, fit, self.aside)
+    }
+
+    fn bic(&self, fit: &Ellipsoid3EffectsFit) -> f64 {
+        bic(fit)
+    }
+
+    /// The step of the fit's own list of effects (the model it was fitted
+    /// to).
+    fn step(&self, fit: &Ellipsoid3EffectsFit, _model: &[Effect]) -> Step3 {
+        step_of(fit)
+    }
+
+    fn offered(
+        &self,
+        model: &[Effect],
+        current: &Ellipsoid3EffectsFit,
+    ) -> (Vec<Effect>, Vec<NotDetermined>) {
+        candidate_effects(self.data, model, current, self.aside)
+    }
+
+    fn no_fit(&self, effect: Effect, err: Effects3Error) -> Option<NotDetermined> {
+        Some(NotDetermined {
             effect,
-            delta_bic,
+            reason: format!("no fit: {err}"),
+        })
+    }
+
+    fn candidate(&self, offer: Offer<'_, Self>) -> Candidate3 {
+        let judged = ladder::judge(
+            &offer.scores(),
+            &Trial {
+                data: self.data,
+                effect: &offer.effect,
+                fit: offer.fit,
+                current: offer.current,
+                params: &offer.params,
+            },
+        );
+        Candidate3 {
+            rms: offer.fit.rms,
+            rms_before: offer.current.rms,
+            explained: offer.explained(),
+            unknowns_added: offer.unknowns_added(),
+            delta_bic: offer.delta_bic,
             supported: judged.supported,
             evidence: judged.evidence,
-        });
-    }
-    candidates.sort_by(|a, b| {
-        b.supported
-            .cmp(&a.supported)
-            .then(a.delta_bic.total_cmp(&b.delta_bic))
-    });
-    (candidates, refused)
-}
-
-/// The model a list of effects asks for, always with the paper's
-/// `offset+scale`.
-fn starting_list(baseline: &[Effect]) -> Vec<Effect> {
-    let mut model = super::effects::PAPER.to_vec();
-    for e in baseline {
-        if !model.contains(e) {
-            model.push(e.clone());
+            params: offer.params,
+            effect: offer.effect,
         }
     }
-    model.sort();
-    model
 }
 
 /// Diagnoses a 3-axis recording, starting from `baseline` (the paper's
@@ -775,56 +624,26 @@ pub fn diagnose3(data: &Dataset3, baseline: &[Effect]) -> Result<Diagnosis3, Eff
         Err(err) => return Err(err),
     };
     let baseline_residuals = analyse(data, &base_fit, &aside);
-    let baseline_step = step_of(&base_fit);
     let coverage = base_fit.coverage.clone();
-    let (candidates, not_determined) = rank(data, &model, &base_fit, &baseline_residuals, &aside);
-    let suggested = candidates
-        .first()
-        .filter(|c| c.supported)
-        .map(|c| c.effect.clone());
-    let close_second = match candidates.as_slice() {
-        [first, second, ..] if first.supported && second.supported => {
-            (second.delta_bic - first.delta_bic < BIC_MARGIN).then(|| second.effect.clone())
-        }
-        _ => None,
+    let sphere = Sphere {
+        data,
+        aside: &aside,
     };
-
-    let mut ladder = vec![baseline_step.clone()];
-    let mut current = base_fit;
-    let mut current_res = baseline_residuals.clone();
-    let mut next = suggested.clone();
-    while let Some(effect) = next.take() {
-        if ladder.len() > MAX_STEPS {
-            break;
-        }
-        let effects = with_effect(&model, &effect);
-        let Ok(fit) = fit_list(data, &effects) else {
-            break;
-        };
-        model = effects;
-        current_res = analyse(data, &fit, &aside);
-        next = rank(data, &model, &fit, &current_res, &aside)
-            .0
-            .into_iter()
-            .find(|c| c.supported)
-            .map(|c| c.effect);
-        ladder.push(step_of(&fit));
-        current = fit;
-    }
-    let noise_floor = current_res.noise_floor.clone();
-    let used = current.n - current.flagged.len();
-    let verdict = verdict(current.rms, &current_res, &noise_floor, used);
+    let climb = ladder::climb(&sphere, model, base_fit, &baseline_residuals);
+    let noise_floor = climb.final_residuals.noise_floor.clone();
+    let used = climb.last.n - climb.last.flagged.len();
+    let verdict = verdict(climb.last.rms, &climb.final_residuals, &noise_floor, used);
     Ok(Diagnosis3 {
-        baseline: baseline_step,
+        baseline: climb.baseline,
         baseline_note,
         set_aside: aside,
         baseline_residuals,
-        candidates,
-        not_determined,
-        suggested,
-        close_second,
-        ladder,
-        final_residuals: current_res,
+        candidates: climb.candidates,
+        not_determined: climb.not_determined,
+        suggested: climb.suggested,
+        close_second: climb.close_second,
+        ladder: climb.ladder,
+        final_residuals: climb.final_residuals,
         noise_floor,
         coverage,
         verdict,
@@ -834,85 +653,48 @@ pub fn diagnose3(data: &Dataset3, baseline: &[Effect]) -> Result<Diagnosis3, Eff
 
 /// Noise, or where structure remains (the 2-D verdict's rule and words).
 pub fn verdict(rms: f64, res: &Residuals3, floor: &NoiseFloor, n: usize) -> String {
-    if rms < NUMERICAL_RMS {
-        return format!(
-            "what remains is noise: the rms {rms:.1e} is at the level of rounding; the data has no measurable noise"
-        );
-    }
-    let excess = if floor.rms > 0.0 {
-        rms / floor.rms - 1.0
-    } else {
-        f64::INFINITY
-    };
-    if excess <= NOISE_TOLERANCE {
-        let relation = if excess <= 0.0 {
-            "at or below".to_string()
-        } else {
-            format!("within {:.0} % of", excess * 100.0)
-        };
-        return format!(
-            "what remains is noise: the rms {} is {relation} the noise floor {}",
-            percent(rms),
-            percent(floor.rms)
-        );
-    }
-    // Under noise σ, the rms of a fitted part of k functions is about
-    // σ·√(k/n). σ is the residual's own rms, not the floor: the residual
-    // of a moving sensor is correlated from sample to sample, and a
-    // pattern over direction must stand out of all of it, as the BIC of
-    // the candidates that would remove it (offset, W) judges it. Degree 1
-    // and 2 are what o and W absorb: the candidates above say whether a
-    // richer W does; here the pattern is only named.
-    let noise_part = |k: f64| rms * (k / n.max(1) as f64).sqrt();
-    let mut places = Vec::new();
-    for (amplitude, k, what) in [
-        (
-            res.direction_degree1,
-            3.0,
-            "a pattern of degree 1 over direction",
-        ),
-        (
-            res.direction_degree2,
-            5.0,
-            "a pattern of degree 2 over direction",
-        ),
-    ] {
-        if amplitude > STRUCTURE_SES * noise_part(k) {
-            places.push(format!("{what}, {} of the field", percent(amplitude)));
+    let patterns = || {
+        // Under noise σ, the rms of a fitted part of k functions is about
+        // σ·√(k/n). σ is the residual's own rms, not the floor: the residual
+        // of a moving sensor is correlated from sample to sample, and a
+        // pattern over direction must stand out of all of it, as the BIC of
+        // the candidates that would remove it (offset, W) judges it. Degree 1
+        // and 2 are what o and W absorb: the candidates above say whether a
+        // richer W does; here the pattern is only named.
+        let noise_part = |k: f64| rms * (k / n.max(1) as f64).sqrt();
+        let mut places = Vec::new();
+        for (amplitude, k, what) in [
+            (
+                res.direction_degree1,
+                3.0,
+                "a pattern of degree 1 over direction",
+            ),
+            (
+                res.direction_degree2,
+                5.0,
+                "a pattern of degree 2 over direction",
+            ),
+        ] {
+            if amplitude > STRUCTURE_SES * noise_part(k) {
+                places.push(format!("{what}, {} of the field", percent(amplitude)));
+            }
         }
-    }
-    if let Some(s) = res.time_structure.filter(|s| *s > 0.3) {
-        places.push(format!(
-            "slow wander in time ({:.0} % of the variance)",
-            s * 100.0
-        ));
-    }
-    for c in res.covariates.iter().filter(|c| c.correlation.abs() > 0.5) {
-        places.push(format!("{} (correlation {:.2})", c.column, c.correlation));
-    }
-    if tails_heavy(res) {
-        places.push(format!(
-            "{} beyond 4 robust SD",
-            crate::sample::count(res.tail_count as u64, "sample")
-        ));
-    }
+        places
+    };
     // The rest of what the floor does not explain: a residual correlated
     // from sample to sample (the noise floor comes from neighbours'
     // differences, so it leaves this out).
-    let smooth = "the residual moves smoothly from one sample to the next, slower than white noise, as the sensor's own motion does (the linear acceleration of a hand-held accelerometer, a magnetometer carried through a field that is not uniform), which no calibration removes";
-    let where_ = match (places.is_empty(), excess > 1.0) {
-        (true, _) => {
-            format!("no pattern over direction, trend, covariate or tail to blame: {smooth}")
+    let blame = |places: Vec<String>, excess: f64| {
+        let smooth = "the residual moves smoothly from one sample to the next, slower than white noise, as the sensor's own motion does (the linear acceleration of a hand-held accelerometer, a magnetometer carried through a field that is not uniform), which no calibration removes";
+        match (places.is_empty(), excess > 1.0) {
+            (true, _) => {
+                format!("no pattern over direction, trend, covariate or tail to blame: {smooth}")
+            }
+            (false, true) => format!("{}; beyond these, {smooth}", places.join(", ")),
+            (false, false) => places.join(", "),
         }
-        (false, true) => format!("{}; beyond these, {smooth}", places.join(", ")),
-        (false, false) => places.join(", "),
     };
-    format!(
-        "structure remains that no effect in the catalogue explains: {where_} (rms {} is {:.0} % above the noise floor {})",
-        percent(rms),
-        excess * 100.0,
-        percent(floor.rms)
-    )
+    ladder::verdict(rms, res, floor, patterns, blame)
 }
 
 #[cfg(test)]

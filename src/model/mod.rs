@@ -11,6 +11,7 @@
 //!   Levenberg-Marquardt.
 //! - [`residuals`]: what a fit's residual still holds, and its noise floor.
 //! - [`diagnose`]: which effect the data supports, step by step.
+//! - [`ladder`]: the diagnosis ladder both geometries share.
 //! - [`check`]: whether a stored calibration holds on another recording.
 //! - [`check3`]: the same for a 3-D calibration.
 //! - [`turn`]: whether the readings show a turn at all, before any fit.
@@ -30,6 +31,7 @@ pub mod ellipsoid_effects;
 pub mod fit;
 pub mod gyro;
 pub mod heading;
+pub mod ladder;
 pub mod nonlinear;
 pub mod paper;
 pub mod residuals;

@@ -10,7 +10,7 @@ use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
 use super::nonlinear::ModelFit;
-use crate::sample::Dataset;
+use crate::sample::{Covariate, Dataset};
 
 /// Highest harmonic of heading analysed: cross-axis coupling shows at 2,
 /// cubic non-linearity at 2 and 4; 1 and 3 catch leftover offsets.
@@ -461,6 +461,37 @@ fn noise_floor_of(e: &[f64], timed: bool) -> NoiseFloor {
     }
 }
 
+/// The residual `e`'s links to time and to the logged columns not set
+/// aside: its slope against time, and each column's line. `column` puts a
+/// column of every sample into `e`'s order (None when its length differs).
+pub fn links(
+    t: Option<&[f64]>,
+    covariates: &[Covariate],
+    aside: &[SetAside],
+    column: impl Fn(&[f64]) -> Option<Vec<f64>>,
+    e: &[f64],
+) -> (Option<f64>, Vec<CovariateLink>) {
+    let time_trend = t
+        .and_then(&column)
+        .and_then(|t| line(&t, e))
+        .map(|(slope, _)| slope);
+    let covariates = covariates
+        .iter()
+        .filter(|c| !aside.iter().any(|a| a.column == c.name))
+        .filter_map(|c| {
+            let u = column(&c.values)?;
+            let (slope, correlation) = line(&u, e)?;
+            Some(CovariateLink {
+                column: c.name.clone(),
+                slope,
+                correlation,
+                explained: correlation * correlation,
+            })
+        })
+        .collect();
+    (time_trend, covariates)
+}
+
 /// All the residual diagnostics of a fit. Flagged samples (the `outliers`
 /// effect) are left out of every statistic, the tail count included: they
 /// are already explained.
@@ -476,29 +507,8 @@ pub fn analyse(data: &Dataset, fit: &ModelFit) -> Residuals {
         (values.len() == n_all).then(|| order.iter().map(|&i| values[i]).collect())
     };
 
-    let time_trend = data
-        .t
-        .as_deref()
-        .and_then(column)
-        .and_then(|t| line(&t, &e))
-        .map(|(slope, _)| slope);
-
     let aside = set_aside(data);
-    let covariates = data
-        .covariates
-        .iter()
-        .filter(|c| !aside.iter().any(|a| a.column == c.name))
-        .filter_map(|c| {
-            let u = column(&c.values)?;
-            let (slope, correlation) = line(&u, &e)?;
-            Some(CovariateLink {
-                column: c.name.clone(),
-                slope,
-                correlation,
-                explained: correlation * correlation,
-            })
-        })
-        .collect();
+    let (time_trend, covariates) = links(data.t.as_deref(), &data.covariates, &aside, column, &e);
 
     let sd = robust_sd(&e);
     let z = standardized(&e, &theta);

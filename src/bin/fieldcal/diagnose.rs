@@ -121,6 +121,65 @@ fn pct(fraction: f64) -> String {
     format!("{:.3} %", fraction * 100.0)
 }
 
+/// One candidate's row: its effect, rms, what `heading` says (empty
+/// without a gyro), ΔBIC, whether it is supported, and why.
+fn candidate_row(
+    effect: &Effect,
+    rms: f64,
+    heading: &str,
+    delta_bic: f64,
+    supported: bool,
+    evidence: &str,
+) -> String {
+    format!(
+        "  {:<22} rms {:>9}  {heading}ΔBIC {:>9.1}  {}  {}\n",
+        effect.to_string(),
+        pct(rms),
+        delta_bic,
+        if supported {
+            "supported    "
+        } else {
+            "not supported"
+        },
+        evidence
+    )
+}
+
+/// The candidates' rows, best first, and the suggestion (with a close
+/// second, `undecided` is what follows "cannot tell them apart").
+fn candidates_and_suggestion(
+    out: &mut String,
+    rows: Vec<String>,
+    (suggested, close_second): (&Option<Effect>, &Option<Effect>),
+    undecided: &str,
+) {
+    if rows.is_empty() {
+        out.push_str("candidates: none could be fitted\n");
+    } else {
+        out.push_str("candidates, best first:\n");
+        for row in rows {
+            out.push_str(&row);
+        }
+    }
+    match (suggested, close_second) {
+        (Some(effect), Some(second)) => out.push_str(&format!(
+            "suggested: {effect}, though {second} explains the residual about as well (BIC within {margin}): this recording cannot tell them apart{undecided}\n\n",
+            margin = fieldcal::model::diagnose::BIC_MARGIN
+        )),
+        (Some(effect), None) => out.push_str(&format!("suggested: {effect}\n\n")),
+        (None, _) => out.push_str("suggested: none (the model is enough)\n\n"),
+    }
+}
+
+/// A step's rms against the noise floor, for the ladder.
+fn noise_ratio(rms: f64, floor: f64) -> String {
+    if floor > 0.0 {
+        format!("{:.2}× the noise floor", rms / floor)
+    } else {
+        String::from("no noise floor")
+    }
+}
+
 fn render_text(d: &Diagnosis, file: &str) -> String {
     let mut out = String::new();
     out.push_str(&format!("{file}\n"));
@@ -141,43 +200,28 @@ fn render_text(d: &Diagnosis, file: &str) -> String {
     if !d.set_aside.is_empty() {
         out.push('\n');
     }
-    if d.candidates.is_empty() {
-        out.push_str("candidates: none could be fitted\n");
-    } else {
-        out.push_str("candidates, best first:\n");
-        for c in &d.candidates {
-            let heading = c.heading_vs_gyro.as_ref().map_or(String::new(), |h| {
-                format!("heading {:.2}° rms  ", h.rms_deg)
-            });
-            out.push_str(&format!(
-                "  {:<22} rms {:>9}  {heading}ΔBIC {:>9.1}  {}  {}\n",
-                c.effect.to_string(),
-                pct(c.rms),
-                c.delta_bic,
-                if c.supported {
-                    "supported    "
-                } else {
-                    "not supported"
-                },
-                c.evidence
-            ));
-        }
-    }
-    match (&d.suggested, &d.close_second) {
-        (Some(effect), Some(second)) => out.push_str(&format!(
-            "suggested: {effect}, though {second} explains the residual about as well (BIC within {margin}): this recording cannot tell them apart; more turns, or the cause varying at other headings, would\n\n",
-            margin = fieldcal::model::diagnose::BIC_MARGIN
-        )),
-        (Some(effect), None) => out.push_str(&format!("suggested: {effect}\n\n")),
-        (None, _) => out.push_str("suggested: none (the model is enough)\n\n"),
-    }
+    let rows = d.candidates.iter().map(|c| {
+        let heading = c.heading_vs_gyro.as_ref().map_or(String::new(), |h| {
+            format!("heading {:.2}° rms  ", h.rms_deg)
+        });
+        candidate_row(
+            &c.effect,
+            c.rms,
+            &heading,
+            c.delta_bic,
+            c.supported,
+            &c.evidence,
+        )
+    });
+    candidates_and_suggestion(
+        &mut out,
+        rows.collect(),
+        (&d.suggested, &d.close_second),
+        "; more turns, or the cause varying at other headings, would",
+    );
     out.push_str("ladder:\n");
     for (i, step) in d.ladder.iter().enumerate() {
-        let ratio = if d.noise_floor.rms > 0.0 {
-            format!("{:.2}× the noise floor", step.rms / d.noise_floor.rms)
-        } else {
-            String::from("no noise floor")
-        };
+        let ratio = noise_ratio(step.rms, d.noise_floor.rms);
         let heading = step.heading_vs_gyro.as_ref().map_or(String::new(), |h| {
             format!(
                 "  heading {:.2}° rms, {:.2}° peak to peak against {}",
@@ -346,40 +390,19 @@ fn render_text3(d: &Diagnosis3, file: &str, data: &fieldcal::sample::Dataset3) -
     if !d.set_aside.is_empty() || !d.not_determined.is_empty() {
         out.push('\n');
     }
-    if d.candidates.is_empty() {
-        out.push_str("candidates: none could be fitted\n");
-    } else {
-        out.push_str("candidates, best first:\n");
-        for c in &d.candidates {
-            out.push_str(&format!(
-                "  {:<22} rms {:>9}  ΔBIC {:>9.1}  {}  {}\n",
-                c.effect.to_string(),
-                pct(c.rms),
-                c.delta_bic,
-                if c.supported {
-                    "supported    "
-                } else {
-                    "not supported"
-                },
-                c.evidence
-            ));
-        }
-    }
-    match (&d.suggested, &d.close_second) {
-        (Some(effect), Some(second)) => out.push_str(&format!(
-            "suggested: {effect}, though {second} explains the residual about as well (BIC within {margin}): this recording cannot tell them apart\n\n",
-            margin = fieldcal::model::diagnose::BIC_MARGIN
-        )),
-        (Some(effect), None) => out.push_str(&format!("suggested: {effect}\n\n")),
-        (None, _) => out.push_str("suggested: none (the model is enough)\n\n"),
-    }
+    let rows = d
+        .candidates
+        .iter()
+        .map(|c| candidate_row(&c.effect, c.rms, "", c.delta_bic, c.supported, &c.evidence));
+    candidates_and_suggestion(
+        &mut out,
+        rows.collect(),
+        (&d.suggested, &d.close_second),
+        "",
+    );
     out.push_str("ladder:\n");
     for (i, step) in d.ladder.iter().enumerate() {
-        let ratio = if d.noise_floor.rms > 0.0 {
-            format!("{:.2}× the noise floor", step.rms / d.noise_floor.rms)
-        } else {
-            String::from("no noise floor")
-        };
+        let ratio = noise_ratio(step.rms, d.noise_floor.rms);
         let flagged = if step.flagged > 0 {
             format!(", {} flagged", step.flagged)
         } else {
