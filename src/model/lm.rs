@@ -29,8 +29,7 @@ pub trait LeastSquares {
 
     /// The residual of sample `i` at `p`; with `row`, also its derivative
     /// in each parameter into `row` (`p.len()` entries, every one written).
-    fn residual(&self, shared: &Self::Shared, p: &[f64], i: usize, row: Option<&mut [f64]>)
-    -> f64;
+    fn residual(&self, shared: &Self::Shared, p: &[f64], i: usize, row: Option<&mut [f64]>) -> f64;
 }
 
 /// How the weights enter the cost and the normal equations.

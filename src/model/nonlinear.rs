@@ -598,7 +598,11 @@ fn rss_without(residuals: &[f64], flagged: &[usize]) -> f64 {
 
 /// The parameters at `p` with their standard errors, from the curvature at
 /// the minimum; refused when a parameter is undetermined or not finite.
-fn standard_errors(layout: &Layout<'_>, p: &[f64], weights: &[f64]) -> Result<Vec<Param>, FitError> {
+fn standard_errors(
+    layout: &Layout<'_>,
+    p: &[f64],
+    weights: &[f64],
+) -> Result<Vec<Param>, FitError> {
     let n = weights.len();
     let unknowns = layout.unknowns();
     let lm::NormalEquations {
