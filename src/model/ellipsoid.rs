@@ -26,9 +26,10 @@
 //!    covered sphere, never a hyperboloid;
 //! 2. the coverage rule ([`supports`]): the directions of the points from
 //!    the closed-form centre must determine the model's parameters;
-//! 3. Levenberg–Marquardt on the magnitude residual |A(raw − o)| − 1 (the
-//!    magnitude error as a fraction of r, as the 2-D rms), with an
-//!    iteration cap, and standard errors σ²(JᵀJ)⁻¹ propagated to o, W, r.
+//! 3. Levenberg–Marquardt ([`super::lm`]) on the magnitude residual
+//!    |A(raw − o)| − 1 (the magnitude error as a fraction of r, as the 2-D
+//!    rms), with an iteration cap, and standard errors σ²(JᵀJ)⁻¹ propagated
+//!    to o, W, r.
 
 use std::fmt;
 use std::str::FromStr;

@@ -23,10 +23,11 @@
 //! acceptable). `cubic-centred` has no 3-D form here: the 2-D term is
 //! defined about a turn's centre in its plane.
 //!
-//! Levenberg–Marquardt on the magnitude error |A(p − o)| − 1 (A = W/r),
-//! on data centred on their mean and scaled by their rms spread (so raw
-//! counts in the tens of thousands fit as gauss do), with an iteration cap,
-//! and standard errors σ²(JᵀJ)⁻¹ propagated to the reported parameters.
+//! Levenberg–Marquardt ([`super::lm`]) on the magnitude error
+//! |A(p − o)| − 1 (A = W/r), on data centred on their mean and scaled by
+//! their rms spread (so raw counts in the tens of thousands fit as gauss
+//! do), with an iteration cap, and standard errors σ²(JᵀJ)⁻¹ propagated to
+//! the reported parameters.
 
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use serde::Serialize;
@@ -637,12 +638,7 @@ fn robust_outliers(
             *e = layout.evaluate(v, &a, i, None);
         }
         scale = robust_sd(&residuals);
-        let mut largest = 0.0f64;
-        for (w, e) in weights.iter_mut().zip(&residuals) {
-            let new = huber_weight(*e, scale);
-            largest = largest.max((new - *w).abs());
-            *w = new;
-        }
+        let largest = lm::reweight(&mut weights, &residuals, |e| huber_weight(e, scale));
         if largest < 1e-5 {
             settled = true;
         }

@@ -153,6 +153,19 @@ pub fn cost<P: LeastSquares>(problem: &P, p: &[f64], weights: &[f64], weighting:
     sum
 }
 
+/// One round of iteratively reweighted least squares: each weight set to
+/// `weight` of its residual, in place; returns the largest change of a
+/// weight (the fits stop reweighting below 1e-5).
+pub fn reweight(weights: &mut [f64], residuals: &[f64], weight: impl Fn(f64) -> f64) -> f64 {
+    let mut largest_change = 0.0f64;
+    for (w, e) in weights.iter_mut().zip(residuals) {
+        let new = weight(*e);
+        largest_change = largest_change.max((new - *w).abs());
+        *w = new;
+    }
+    largest_change
+}
+
 /// Runs Levenberg–Marquardt with fixed weights from `p`, in place; returns
 /// the iterations it took. `lambda` is the damping to start from (at least
 /// 1e-6) and is left where the run ended, for a later run on the same fit;

@@ -1,5 +1,6 @@
 //! The general model: the paper's model plus any effects of the catalogue,
-//! fitted by Levenberg-Marquardt from the paper's closed form.
+//! fitted by Levenberg-Marquardt ([`super::lm`]) from the paper's closed
+//! form.
 //!
 //! Per sample i (raw x, y; time t; covariates c_k):
 //! - moving offsets: `x1 = x - drift_x*(t - mean t) - Σ g_xk*(c_k - mean c_k)`,
@@ -557,12 +558,7 @@ fn fit_weighted(
             *e = layout.evaluate(p, i, None).2;
         }
         scale = robust_sd(&residuals);
-        let mut largest_change = 0.0f64;
-        for (w, e) in weights.iter_mut().zip(&residuals) {
-            let new = huber_weight(*e, scale);
-            largest_change = largest_change.max((new - *w).abs());
-            *w = new;
-        }
+        let largest_change = lm::reweight(&mut weights, &residuals, |e| huber_weight(e, scale));
         // Weights settled to 1e-5 move the parameters by far less than
         // their standard errors.
         if largest_change < 1e-5 {
