@@ -37,7 +37,7 @@ use super::ellipsoid::{
     self, Ellipsoid, Ellipsoid3Error, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se,
 };
 use super::lm::{self, LeastSquares, Weighting};
-use super::nonlinear::{FLAG_THRESHOLD_SD, HUBER_TUNING, Param};
+use super::nonlinear::{FLAG_THRESHOLD_SD, HUBER_TUNING, Param, first_not_finite};
 use super::residuals::robust_sd;
 use super::sphere::{self, SphereCoverage};
 use crate::sample::{Covariate, Dataset3};
@@ -736,13 +736,8 @@ fn named_params(
             se: se_of(13 + j - base_k),
         });
     }
-    if let Some(bad) = params
-        .iter()
-        .find(|p| !p.value.is_finite() || !p.se.is_finite())
-    {
-        return Err(Effects3Error::Undetermined {
-            parameter: bad.name.clone(),
-        });
+    if let Some(parameter) = first_not_finite(&params) {
+        return Err(Effects3Error::Undetermined { parameter });
     }
     Ok(params)
 }

@@ -640,15 +640,19 @@ fn standard_errors(
         })
         .collect();
 
-    if let Some(bad) = params
-        .iter()
-        .find(|q| !q.value.is_finite() || !q.se.is_finite())
-    {
-        return Err(FitError::NotFinite {
-            parameter: bad.name.clone(),
-        });
+    if let Some(parameter) = first_not_finite(&params) {
+        return Err(FitError::NotFinite { parameter });
     }
     Ok(params)
+}
+
+/// The name of the first parameter whose value or standard error is not
+/// finite.
+pub(super) fn first_not_finite(params: &[Param]) -> Option<String> {
+    params
+        .iter()
+        .find(|q| !q.value.is_finite() || !q.se.is_finite())
+        .map(|q| q.name.clone())
 }
 
 /// Where Levenberg-Marquardt starts: the paper's closed form, or, when
