@@ -37,7 +37,7 @@ use super::ellipsoid::{
     self, Ellipsoid, Ellipsoid3Error, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se,
 };
 use super::lm::{self, LeastSquares, Weighting};
-use super::nonlinear::{FLAG_THRESHOLD_SD, HUBER_TUNING, Param, first_not_finite};
+use super::nonlinear::{FLAG_THRESHOLD_SD, HUBER_TUNING, Param, covariate_names, first_not_finite};
 use super::residuals::robust_sd;
 use super::sphere::{self, SphereCoverage};
 use crate::sample::{Covariate, Dataset3};
@@ -202,12 +202,7 @@ fn covariate<'d>(data: &'d Dataset3, column: &str) -> Result<&'d Covariate, Effe
     data.covariate(column)
         .ok_or_else(|| Effects3Error::MissingCovariate {
             column: column.to_string(),
-            available: data
-                .covariates
-                .iter()
-                .map(|c| c.name.clone())
-                .collect::<Vec<_>>()
-                .join(", "),
+            available: covariate_names(&data.covariates),
         })
 }
 

@@ -34,7 +34,7 @@ use super::fit::DEFAULT_MIN_COVERAGE_DEG;
 use super::heading::{circle_centre, coverage};
 use super::lm::{self, LeastSquares, Weighting};
 use super::paper::{PaperCalibration, closed_form};
-use crate::sample::Dataset;
+use crate::sample::{Covariate, Dataset};
 
 /// Huber's tuning constant: 95 % efficiency on Gaussian noise.
 pub const HUBER_TUNING: f64 = 1.345;
@@ -221,12 +221,7 @@ impl<'a> Layout<'a> {
                     .covariate(column)
                     .ok_or_else(|| FitError::MissingCovariate {
                         column: column.clone(),
-                        available: data
-                            .covariates
-                            .iter()
-                            .map(|c| c.name.clone())
-                            .collect::<Vec<_>>()
-                            .join(", "),
+                        available: covariate_names(&data.covariates),
                     })?;
                 let index = push(format!("{column}_x"));
                 push(format!("{column}_y"));
@@ -644,6 +639,16 @@ fn standard_errors(
         return Err(FitError::NotFinite { parameter });
     }
     Ok(params)
+}
+
+/// The names of a recording's covariate columns, for the message of a
+/// missing one.
+pub(super) fn covariate_names(covariates: &[Covariate]) -> String {
+    covariates
+        .iter()
+        .map(|c| c.name.clone())
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// The name of the first parameter whose value or standard error is not
