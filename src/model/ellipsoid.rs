@@ -26,9 +26,10 @@
 //!    covered sphere, never a hyperboloid;
 //! 2. the coverage rule ([`supports`]): the directions of the points from
 //!    the closed-form centre must determine the model's parameters;
-//! 3. Levenberg–Marquardt on the magnitude residual |A(raw − o)| − 1 (the
-//!    magnitude error as a fraction of r, as the 2-D rms), with an
-//!    iteration cap, and standard errors σ²(JᵀJ)⁻¹ propagated to o, W, r.
+//! 3. Levenberg–Marquardt ([`super::lm`]) on the magnitude residual
+//!    |A(raw − o)| − 1 (the magnitude error as a fraction of r, as the 2-D
+//!    rms), with an iteration cap, and standard errors σ²(JᵀJ)⁻¹ propagated
+//!    to o, W, r.
 
 use std::fmt;
 use std::str::FromStr;
@@ -37,6 +38,7 @@ use std::sync::OnceLock;
 use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
 
+use super::lm::{self, LeastSquares, Weighting};
 use super::sphere::{self, SphereCoverage};
 use crate::sample::{MAX_MAGNITUDE, too_large};
 
@@ -235,9 +237,9 @@ pub enum Ellipsoid3Error {
 /// A quadric's ellipsoid in the scaled frame: centre `o`, map `a` onto the
 /// unit sphere.
 #[derive(Debug, Clone, Copy)]
-struct Ellipsoid {
-    o: Vector3<f64>,
-    a: Matrix3<f64>,
+pub(super) struct Ellipsoid {
+    pub(super) o: Vector3<f64>,
+    pub(super) a: Matrix3<f64>,
 }
 
 /// Points centred and scaled, with the mean m and the scale s.
@@ -276,6 +278,17 @@ fn normalise(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Normalised, 
     if points.iter().all(|p| p == &points[0]) {
         return Err(Ellipsoid3Error::Degenerate);
     }
+    let (mean, spread) = mean_and_spread(points)?;
+    let scaled = points
+        .iter()
+        .map(|p| (Vector3::from(*p) - mean) / spread)
+        .collect();
+    Ok((scaled, mean, spread))
+}
+
+/// The points' mean m and their rms distance s from it: the frame the fit
+/// works in, p = (raw − m)/s. Degenerate when s is zero or not finite.
+pub(super) fn mean_and_spread(points: &[[f64; 3]]) -> Result<(Vector3<f64>, f64), Ellipsoid3Error> {
     let n = points.len() as f64;
     let mut mean = Vector3::zeros();
     for p in points {
@@ -290,11 +303,7 @@ fn normalise(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Normalised, 
     if !(spread > 0.0) || !spread.is_finite() {
         return Err(Ellipsoid3Error::Degenerate);
     }
-    let scaled = points
-        .iter()
-        .map(|p| (Vector3::from(*p) - mean) / spread)
-        .collect();
-    Ok((scaled, mean, spread))
+    Ok((mean, spread))
 }
 
 /// Sphere fit: |p|² = 2c·p + k, linear least squares.
@@ -483,7 +492,7 @@ fn to_rows(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
 }
 
 /// The parameter vector of a model: o (3), then A's free entries.
-fn pack(model: Ellipsoid3Model, e: &Ellipsoid) -> Vec<f64> {
+pub(super) fn pack(model: Ellipsoid3Model, e: &Ellipsoid) -> Vec<f64> {
     let mut v = vec![e.o[0], e.o[1], e.o[2]];
     match model {
         Ellipsoid3Model::Offset => v.push(e.a.trace() / 3.0),
@@ -502,12 +511,20 @@ fn pack(model: Ellipsoid3Model, e: &Ellipsoid) -> Vec<f64> {
 
 fn unpack(model: Ellipsoid3Model, v: &[f64]) -> Ellipsoid {
     let o = Vector3::new(v[0], v[1], v[2]);
-    let a = match model {
+    Ellipsoid {
+        o,
+        a: packed_matrix(model, v),
+    }
+}
+
+/// A of a packed parameter vector (its entries after the 3 offsets; any
+/// parameters past the model's are ignored).
+pub(super) fn packed_matrix(model: Ellipsoid3Model, v: &[f64]) -> Matrix3<f64> {
+    match model {
         Ellipsoid3Model::Offset => Matrix3::identity() * v[3],
         Ellipsoid3Model::OffsetScale => Matrix3::from_diagonal(&Vector3::new(v[3], v[4], v[5])),
         Ellipsoid3Model::Full => Matrix3::new(v[3], v[8], v[7], v[8], v[4], v[6], v[7], v[6], v[5]),
-    };
-    Ellipsoid { o, a }
+    }
 }
 
 /// Residual |A(p − o)| − 1 and, when asked, its gradient in the packed
@@ -525,110 +542,77 @@ fn residual(
         let safe = norm.max(f64::MIN_POSITIVE);
         let g_o = -(e.a * v) / safe;
         row[..3].copy_from_slice(g_o.as_slice());
-        match model {
-            Ellipsoid3Model::Offset => row[3] = d.norm(),
-            Ellipsoid3Model::OffsetScale => {
-                for j in 0..3 {
-                    row[3 + j] = v[j] * d[j] / safe;
-                }
-            }
-            Ellipsoid3Model::Full => {
-                for j in 0..3 {
-                    row[3 + j] = v[j] * d[j] / safe;
-                }
-                // (1,2), (0,2), (0,1)
-                for (slot, (j, k)) in [(1, 2), (0, 2), (0, 1)].into_iter().enumerate() {
-                    row[6 + slot] = (v[j] * d[k] + v[k] * d[j]) / safe;
-                }
-            }
-        }
+        gradient_in_matrix(model, &v, &d, safe, &mut row[3..]);
     }
     norm - 1.0
 }
 
-fn cost(model: Ellipsoid3Model, v: &[f64], p: &[Vector3<f64>]) -> f64 {
-    let e = unpack(model, v);
-    p.iter()
-        .map(|pi| residual(model, &e, pi, None).powi(2))
-        .sum()
-}
-
-fn normal_equations(
+/// The derivatives of |A d| in A's free entries (in packed order), into
+/// `row`: `v` = A d, `safe` = |A d| kept off zero.
+pub(super) fn gradient_in_matrix(
     model: Ellipsoid3Model,
-    v: &[f64],
-    p: &[Vector3<f64>],
-) -> (DMatrix<f64>, DVector<f64>, f64) {
-    let k = v.len();
-    let e = unpack(model, v);
-    let mut jtj = DMatrix::zeros(k, k);
-    let mut jte = DVector::zeros(k);
-    let mut sum = 0.0;
-    let mut row = vec![0.0; k];
-    for pi in p {
-        let r = residual(model, &e, pi, Some(&mut row));
-        sum += r * r;
-        for a in 0..k {
-            jte[a] += row[a] * r;
-            for b in 0..k {
-                jtj[(a, b)] += row[a] * row[b];
+    v: &Vector3<f64>,
+    d: &Vector3<f64>,
+    safe: f64,
+    row: &mut [f64],
+) {
+    match model {
+        Ellipsoid3Model::Offset => row[0] = d.norm(),
+        Ellipsoid3Model::OffsetScale => {
+            for j in 0..3 {
+                row[j] = v[j] * d[j] / safe;
+            }
+        }
+        Ellipsoid3Model::Full => {
+            for j in 0..3 {
+                row[j] = v[j] * d[j] / safe;
+            }
+            // (1,2), (0,2), (0,1)
+            for (slot, (j, k)) in [(1, 2), (0, 2), (0, 1)].into_iter().enumerate() {
+                row[3 + slot] = (v[j] * d[k] + v[k] * d[j]) / safe;
             }
         }
     }
-    (jtj, jte, sum)
 }
 
-/// Levenberg–Marquardt with Marquardt's diagonal scaling.
-fn levenberg_marquardt(
+/// The fit of one model to scaled points, as a least-squares problem.
+struct Refinement<'a> {
     model: Ellipsoid3Model,
-    v: &mut [f64],
-    p: &[Vector3<f64>],
-) -> Result<(usize, DMatrix<f64>, f64), Ellipsoid3Error> {
-    let k = v.len();
-    let mut lambda = 1e-3;
-    let (mut jtj, mut jte, mut c) = normal_equations(model, v, p);
-    let mut trial = vec![0.0; k];
-    for iteration in 1..=MAX_ITERATIONS {
-        if c == 0.0 {
-            return Ok((iteration, jtj, c));
-        }
-        let mut damped = jtj.clone();
-        for j in 0..k {
-            damped[(j, j)] += lambda * jtj[(j, j)].max(f64::MIN_POSITIVE);
-        }
-        let step = damped.cholesky().map(|ch| ch.solve(&(-&jte)));
-        let mut accepted = false;
-        if let Some(step) = step {
-            for j in 0..k {
-                trial[j] = v[j] + step[j];
-            }
-            let new = cost(model, &trial, p);
-            if new.is_finite() && new <= c {
-                let relative = (c - new) / c;
-                v.copy_from_slice(&trial);
-                accepted = true;
-                (jtj, jte, c) = normal_equations(model, v, p);
-                lambda = (lambda / 10.0).max(1e-15);
-                if relative < RELATIVE_COST_TOLERANCE {
-                    return Ok((iteration, jtj, c));
-                }
-            }
-        }
-        if !accepted {
-            lambda *= 10.0;
-            // No step lowers the cost: v is the minimum to the arithmetic's
-            // precision.
-            if lambda > 1e12 {
-                return Ok((iteration, jtj, c));
-            }
-        }
-    }
-    Err(Ellipsoid3Error::NoConvergence {
-        iterations: MAX_ITERATIONS,
-    })
+    points: &'a [Vector3<f64>],
 }
+
+impl LeastSquares for Refinement<'_> {
+    type Shared = Ellipsoid;
+
+    fn shared(&self, v: &[f64]) -> Ellipsoid {
+        unpack(self.model, v)
+    }
+
+    fn residual(&self, e: &Ellipsoid, _: &[f64], i: usize, row: Option<&mut [f64]>) -> f64 {
+        residual(self.model, e, &self.points[i], row)
+    }
+}
+
+/// Levenberg–Marquardt as the 3-D base fit runs it: unweighted, from the
+/// closed form, every curvature damped by at least λ·[`f64::MIN_POSITIVE`].
+const LM_OPTIONS: lm::Options = lm::Options {
+    max_iterations: MAX_ITERATIONS,
+    tolerance: RELATIVE_COST_TOLERANCE,
+    weighting: Weighting::EverySample,
+    require_curvature: false,
+    damping_floor: Some(f64::MIN_POSITIVE),
+    step_tolerance: None,
+    positive: None,
+    lower_damping_on_stop: true,
+};
 
 /// The reported parameters (o[3], W row-major[9], r) of packed scaled ones.
-fn report(model: Ellipsoid3Model, v: &[f64], mean: &Vector3<f64>, spread: f64) -> Option<Vec<f64>> {
+pub(super) fn report(
+    model: Ellipsoid3Model,
+    v: &[f64],
+    mean: &Vector3<f64>,
+    spread: f64,
+) -> Option<Vec<f64>> {
     let e = unpack(model, v);
     let a = e.a / spread;
     let det = a.determinant();
@@ -812,7 +796,20 @@ pub fn fit(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Ellipsoid3Fit,
         return Err(not_covered(model, &dirs, &p));
     }
     let mut v = pack(model, &start);
-    let (iterations, jtj, rss) = levenberg_marquardt(model, &mut v, &p)?;
+    let refinement = Refinement { model, points: &p };
+    let weights = vec![1.0; p.len()];
+    let iterations =
+        lm::solve(&refinement, &mut v, &weights, &mut 1e-3, 0, &LM_OPTIONS).map_err(|failure| {
+            match failure {
+                lm::Failure::NoConvergence { iterations } => {
+                    Ellipsoid3Error::NoConvergence { iterations }
+                }
+                // Not asked for: LM_OPTIONS.require_curvature is false.
+                lm::Failure::Undetermined { .. } => Ellipsoid3Error::Degenerate,
+            }
+        })?;
+    let lm::NormalEquations { jtj, cost: rss, .. } =
+        lm::normal_equations(&refinement, &v, &weights, Weighting::EverySample);
     let n = points.len();
     let k = model.unknowns();
     let out = report(model, &v, &mean, spread).ok_or(Ellipsoid3Error::Degenerate)?;
@@ -823,36 +820,14 @@ pub fn fit(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Ellipsoid3Fit,
     // propagated to the reported ones by central differences of `report`.
     let sigma2 = rss / (n - k) as f64;
     let cov = jtj.try_inverse().ok_or(Ellipsoid3Error::Degenerate)? * sigma2;
-    let m = out.len();
-    let mut g = DMatrix::<f64>::zeros(m, k);
-    for j in 0..k {
-        let h = 1e-6 * v[j].abs().max(1e-3);
-        let mut plus = v.clone();
-        let mut minus = v.clone();
-        plus[j] += h;
-        minus[j] -= h;
-        if let (Some(a), Some(b)) = (
-            report(model, &plus, &mean, spread),
-            report(model, &minus, &mean, spread),
-        ) {
-            for i in 0..m {
-                g[(i, j)] = (a[i] - b[i]) / (2.0 * h);
-            }
-        }
-    }
-    let cov_out = &g * cov * g.transpose();
-    let se_of = |i: usize| cov_out[(i, i)].max(0.0).sqrt();
-    let se = Ellipsoid3Se {
-        offset: [se_of(0), se_of(1), se_of(2)],
-        matrix: [0, 1, 2].map(|i| [0, 1, 2].map(|j| se_of(3 + 3 * i + j))),
-        r: se_of(12),
-    };
+    let cov_out = propagate(&v, cov, out.len(), |v| report(model, v, &mean, spread));
+    let se = base_se(&cov_out);
     let fitted = unpack(model, &v);
     let coverage = sphere::coverage(directions_about(&p, &fitted));
     Ok(Ellipsoid3Fit {
         model,
         offset: [out[0], out[1], out[2]],
-        matrix: [0, 1, 2].map(|i| [0, 1, 2].map(|j| out[3 + 3 * i + j])),
+        matrix: reported_matrix(&out),
         r: out[12],
         rms: (rss / n as f64).sqrt(),
         n,
@@ -860,6 +835,52 @@ pub fn fit(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Ellipsoid3Fit,
         coverage,
         iterations,
     })
+}
+
+/// The covariance `cov` of the packed parameters `v` propagated to the
+/// `m` reported ones, by central differences of `report`.
+pub(super) fn propagate(
+    v: &[f64],
+    cov: DMatrix<f64>,
+    m: usize,
+    report: impl Fn(&[f64]) -> Option<Vec<f64>>,
+) -> DMatrix<f64> {
+    let k = v.len();
+    let mut g = DMatrix::<f64>::zeros(m, k);
+    for j in 0..k {
+        let h = 1e-6 * v[j].abs().max(1e-3);
+        let mut plus = v.to_vec();
+        let mut minus = v.to_vec();
+        plus[j] += h;
+        minus[j] -= h;
+        if let (Some(a), Some(b)) = (report(&plus), report(&minus)) {
+            for i in 0..m {
+                g[(i, j)] = (a[i] - b[i]) / (2.0 * h);
+            }
+        }
+    }
+    &g * cov * g.transpose()
+}
+
+/// The standard error of reported parameter i (o, W row-major, r, ...) of
+/// the reported covariance.
+pub(super) fn reported_se(cov_out: &DMatrix<f64>, i: usize) -> f64 {
+    cov_out[(i, i)].max(0.0).sqrt()
+}
+
+/// The standard errors of o, W and r of the reported covariance.
+pub(super) fn base_se(cov_out: &DMatrix<f64>) -> Ellipsoid3Se {
+    let se_of = |i: usize| reported_se(cov_out, i);
+    Ellipsoid3Se {
+        offset: [se_of(0), se_of(1), se_of(2)],
+        matrix: [0, 1, 2].map(|i| [0, 1, 2].map(|j| se_of(3 + 3 * i + j))),
+        r: se_of(12),
+    }
+}
+
+/// W, row-major, of the reported parameters (o, W row-major, r, ...).
+pub(super) fn reported_matrix(out: &[f64]) -> [[f64; 3]; 3] {
+    [0, 1, 2].map(|i| [0, 1, 2].map(|j| out[3 + 3 * i + j]))
 }
 
 fn not_covered(model: Ellipsoid3Model, dirs: &[[f64; 3]], p: &[Vector3<f64>]) -> Ellipsoid3Error {
@@ -937,8 +958,8 @@ fn plane_of(p: &[Vector3<f64>]) -> Option<String> {
 }
 
 #[cfg(test)]
-#[allow(clippy::needless_range_loop)] // indices pair fit, truth and se
 mod tests {
+    #![allow(clippy::needless_range_loop)] // indices pair fit, truth and se
     use super::*;
     use crate::sim3::{Motion3, SimSensor3};
 

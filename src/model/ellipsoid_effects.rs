@@ -23,20 +23,24 @@
 //! acceptable). `cubic-centred` has no 3-D form here: the 2-D term is
 //! defined about a turn's centre in its plane.
 //!
-//! Levenberg–Marquardt on the magnitude error |A(p − o)| − 1 (A = W/r),
-//! on data centred on their mean and scaled by their rms spread (so raw
-//! counts in the tens of thousands fit as gauss do), with an iteration cap,
-//! and standard errors σ²(JᵀJ)⁻¹ propagated to the reported parameters.
+//! Levenberg–Marquardt ([`super::lm`]) on the magnitude error
+//! |A(p − o)| − 1 (A = W/r), on data centred on their mean and scaled by
+//! their rms spread (so raw counts in the tens of thousands fit as gauss
+//! do), with an iteration cap, and standard errors σ²(JᵀJ)⁻¹ propagated to
+//! the reported parameters.
 
-use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+use nalgebra::{DMatrix, Matrix3, Vector3};
 use serde::Serialize;
 
 use super::effects::Effect;
-use super::ellipsoid::{self, Ellipsoid3Error, Ellipsoid3Model, Ellipsoid3Se};
-use super::nonlinear::{FLAG_THRESHOLD_SD, HUBER_TUNING, Param};
+use super::ellipsoid::{
+    self, Ellipsoid, Ellipsoid3Error, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se,
+};
+use super::lm::{self, LeastSquares, Weighting};
+use super::nonlinear::{FLAG_THRESHOLD_SD, HUBER_TUNING, Param, covariate_names, first_not_finite};
 use super::residuals::robust_sd;
 use super::sphere::{self, SphereCoverage};
-use crate::sample::Dataset3;
+use crate::sample::{Covariate, Dataset3};
 
 /// Levenberg–Marquardt iterations over all IRLS rounds before giving up
 /// (as the 2-D [`super::nonlinear::MAX_ITERATIONS`]).
@@ -160,17 +164,7 @@ impl Ellipsoid3EffectsFit {
             moving.push((t, t_mean, rate));
         }
         for (column, mean) in &self.reference.covariate_means {
-            let found = data
-                .covariate(column)
-                .ok_or_else(|| Effects3Error::MissingCovariate {
-                    column: column.clone(),
-                    available: data
-                        .covariates
-                        .iter()
-                        .map(|c| c.name.clone())
-                        .collect::<Vec<_>>()
-                        .join(", "),
-                })?;
+            let found = covariate(data, column)?;
             let gain = AXES.map(|a| self.value(&format!("{column}_{a}")));
             moving.push((&found.values, *mean, gain));
         }
@@ -202,6 +196,15 @@ impl Ellipsoid3EffectsFit {
 }
 
 const AXES: [&str; 3] = ["x", "y", "z"];
+
+/// The recording's covariate `column`, or which columns it has.
+fn covariate<'d>(data: &'d Dataset3, column: &str) -> Result<&'d Covariate, Effects3Error> {
+    data.covariate(column)
+        .ok_or_else(|| Effects3Error::MissingCovariate {
+            column: column.to_string(),
+            available: covariate_names(&data.covariates),
+        })
+}
 
 /// The base model a list of effects asks for, at least `base`: `scale`
 /// asks for `offset+scale`, `cross-axis` for the full W.
@@ -293,17 +296,7 @@ impl<'a> Layout<'a> {
                     names.extend(AXES.map(|a| format!("drift_{a}")));
                 }
                 Effect::Covariate(column) => {
-                    let found =
-                        data.covariate(column)
-                            .ok_or_else(|| Effects3Error::MissingCovariate {
-                                column: column.clone(),
-                                available: data
-                                    .covariates
-                                    .iter()
-                                    .map(|c| c.name.clone())
-                                    .collect::<Vec<_>>()
-                                    .join(", "),
-                            })?;
+                    let found = covariate(data, column)?;
                     let (gamma, sd) =
                         standardised(&found.values).ok_or_else(|| Effects3Error::Undetermined {
                             parameter: format!("{column}_x"),
@@ -348,13 +341,7 @@ impl<'a> Layout<'a> {
     }
 
     fn a_of(&self, v: &[f64]) -> Matrix3<f64> {
-        match self.model {
-            Ellipsoid3Model::Offset => Matrix3::identity() * v[3],
-            Ellipsoid3Model::OffsetScale => Matrix3::from_diagonal(&Vector3::new(v[3], v[4], v[5])),
-            Ellipsoid3Model::Full => {
-                Matrix3::new(v[3], v[8], v[7], v[8], v[4], v[6], v[7], v[6], v[5])
-            }
-        }
+        ellipsoid::packed_matrix(self.model, v)
     }
 
     /// (q', p, d = p − o, v = A d) of sample i: raw units, then scaled.
@@ -395,22 +382,7 @@ impl<'a> Layout<'a> {
             for j in 0..3 {
                 row[j] = -g[j];
             }
-            match self.model {
-                Ellipsoid3Model::Offset => row[3] = d.norm(),
-                Ellipsoid3Model::OffsetScale => {
-                    for j in 0..3 {
-                        row[3 + j] = av[j] * d[j] / safe;
-                    }
-                }
-                Ellipsoid3Model::Full => {
-                    for j in 0..3 {
-                        row[3 + j] = av[j] * d[j] / safe;
-                    }
-                    for (slot, (j, k)) in [(1, 2), (0, 2), (0, 1)].into_iter().enumerate() {
-                        row[6 + slot] = (av[j] * d[k] + av[k] * d[j]) / safe;
-                    }
-                }
-            }
+            ellipsoid::gradient_in_matrix(self.model, &av, &d, safe, &mut row[3..]);
             // ∂p_j/∂q_j.
             let h: [f64; 3] = match self.cubic {
                 Some((index, inv_s2)) => {
@@ -432,60 +404,10 @@ impl<'a> Layout<'a> {
         norm - 1.0
     }
 
-    fn cost(&self, v: &[f64], weights: &[f64]) -> f64 {
-        let a = self.a_of(v);
-        (0..self.raw.len())
-            .filter(|&i| weights[i] > 0.0)
-            .map(|i| weights[i] * self.evaluate(v, &a, i, None).powi(2))
-            .sum()
-    }
-
-    fn normal_equations(&self, v: &[f64], weights: &[f64]) -> (DMatrix<f64>, DVector<f64>, f64) {
-        let k = v.len();
-        let a = self.a_of(v);
-        let mut jtj = DMatrix::zeros(k, k);
-        let mut jte = DVector::zeros(k);
-        let mut sum = 0.0;
-        let mut row = vec![0.0; k];
-        for (i, &w) in weights.iter().enumerate() {
-            if w <= 0.0 {
-                continue;
-            }
-            let e = self.evaluate(v, &a, i, Some(&mut row));
-            sum += w * e * e;
-            for p in 0..k {
-                jte[p] += w * row[p] * e;
-                for q in p..k {
-                    jtj[(p, q)] += w * row[p] * row[q];
-                }
-            }
-        }
-        for p in 0..k {
-            for q in 0..p {
-                jtj[(p, q)] = jtj[(q, p)];
-            }
-        }
-        (jtj, jte, sum)
-    }
-
     /// Reported values: o (3), W row-major (9), r, then every extra in its
     /// own units. `None` when A is not positive definite.
     fn report(&self, v: &[f64]) -> Option<Vec<f64>> {
-        let a = self.a_of(v) / self.spread;
-        let det = a.determinant();
-        if !(det > 0.0) {
-            return None;
-        }
-        let c = det.cbrt();
-        let w = a / c;
-        let o = self.mean + Vector3::new(v[0], v[1], v[2]) * self.spread;
-        let mut out = vec![o[0], o[1], o[2]];
-        for i in 0..3 {
-            for j in 0..3 {
-                out.push(w[(i, j)]);
-            }
-        }
-        out.push(1.0 / c);
+        let mut out = ellipsoid::report(self.model, v, &self.mean, self.spread)?;
         let base = self.model.unknowns();
         for (j, value) in v.iter().enumerate().skip(base) {
             let unit = self
@@ -499,8 +421,23 @@ impl<'a> Layout<'a> {
     }
 }
 
+/// The 3-D model with effects as a least-squares problem: the magnitude
+/// error of every sample of positive weight.
+impl LeastSquares for Layout<'_> {
+    type Shared = Matrix3<f64>;
+
+    fn shared(&self, v: &[f64]) -> Matrix3<f64> {
+        self.a_of(v)
+    }
+
+    fn residual(&self, a: &Matrix3<f64>, v: &[f64], i: usize, row: Option<&mut [f64]>) -> f64 {
+        self.evaluate(v, a, i, row)
+    }
+}
+
 /// Levenberg–Marquardt with Marquardt's scaling and fixed weights, in
-/// place; returns the iterations it took. `done` counts those already spent.
+/// place; returns the iterations it took. `done` counts those already
+/// spent; `lambda` carries over between runs.
 fn levenberg_marquardt(
     layout: &Layout<'_>,
     v: &mut [f64],
@@ -509,59 +446,28 @@ fn levenberg_marquardt(
     tolerance: f64,
     done: usize,
 ) -> Result<usize, Effects3Error> {
-    let k = v.len();
-    *lambda = lambda.max(1e-6);
-    let (mut jtj, mut jte, mut c) = layout.normal_equations(v, weights);
-    for j in 0..k {
-        if !(jtj[(j, j)] > 0.0) {
-            return Err(Effects3Error::Undetermined {
-                parameter: layout.names[j].clone(),
-            });
-        }
-    }
-    let mut trial = vec![0.0; k];
-    let mut iterations = 0;
-    loop {
-        if done + iterations >= MAX_ITERATIONS {
-            return Err(Effects3Error::NoConvergence {
-                iterations: done + iterations,
-                what: "Levenberg–Marquardt",
-            });
-        }
-        iterations += 1;
-        if c == 0.0 {
-            return Ok(iterations);
-        }
-        let mut damped = jtj.clone();
-        for j in 0..k {
-            damped[(j, j)] += *lambda * jtj[(j, j)];
-        }
-        let mut accepted = false;
-        if let Some(step) = damped.cholesky().map(|ch| ch.solve(&(-&jte))) {
-            for j in 0..k {
-                trial[j] = v[j] + step[j];
-            }
-            let new = layout.cost(&trial, weights);
-            if new.is_finite() && new <= c {
-                let relative = (c - new) / c;
-                v.copy_from_slice(&trial);
-                accepted = true;
-                (jtj, jte, c) = layout.normal_equations(v, weights);
-                *lambda = (*lambda / 10.0).max(1e-15);
-                if relative < tolerance {
-                    return Ok(iterations);
-                }
-            }
-        }
-        if !accepted {
-            *lambda *= 10.0;
-            // No step lowers the cost: v is the minimum to the arithmetic's
-            // precision.
-            if *lambda > 1e12 {
-                return Ok(iterations);
-            }
-        }
-    }
+    let options = lm::Options {
+        max_iterations: MAX_ITERATIONS,
+        tolerance,
+        weighting: Weighting::PositiveOnly,
+        require_curvature: true,
+        damping_floor: None,
+        step_tolerance: None,
+        positive: None,
+        lower_damping_on_stop: true,
+    };
+    lm::solve(layout, v, weights, lambda, done, &options).map_err(|failure| match failure {
+        lm::Failure::Undetermined { jtj } => Effects3Error::Undetermined {
+            parameter: (0..v.len())
+                .find(|&j| !(jtj[(j, j)] > 0.0))
+                .map(|j| layout.names[j].clone())
+                .unwrap_or_default(),
+        },
+        lm::Failure::NoConvergence { iterations } => Effects3Error::NoConvergence {
+            iterations,
+            what: "Levenberg–Marquardt",
+        },
+    })
 }
 
 fn huber_weight(e: f64, scale: f64) -> f64 {
@@ -589,106 +495,23 @@ pub fn fit_effects(
     let start = ellipsoid::fit(&data.points, model)?;
     let n = data.len();
     // The same normalisation as the base fit: mean and rms spread.
-    let nf = n as f64;
-    let mut mean = Vector3::zeros();
-    for p in &data.points {
-        mean += Vector3::from(*p) / nf;
-    }
-    let spread = (data
-        .points
-        .iter()
-        .map(|p| (Vector3::from(*p) - mean).norm_squared())
-        .sum::<f64>()
-        / nf)
-        .sqrt();
-    if !(spread > 0.0) || !spread.is_finite() {
-        return Err(Ellipsoid3Error::Degenerate.into());
-    }
+    let (mean, spread) = ellipsoid::mean_and_spread(&data.points)?;
     let layout = Layout::new(data, model, extras, mean, spread)?;
     let unknowns = layout.unknowns();
-    if n < unknowns + 1 {
-        return Err(Ellipsoid3Error::TooFewSamples {
-            model,
-            found: n,
-            unknowns,
-            needed: unknowns + 1,
-        }
-        .into());
-    }
-    // The start: the base fit in the scaled frame, every effect at zero.
-    let w = Matrix3::from_fn(|i, j| start.matrix[i][j]);
-    let a = w / start.r * spread;
-    let o = (Vector3::from(start.offset) - mean) / spread;
-    let mut v = vec![0.0; unknowns];
-    v[..3].copy_from_slice(o.as_slice());
-    match model {
-        Ellipsoid3Model::Offset => v[3] = a.trace() / 3.0,
-        Ellipsoid3Model::OffsetScale => v[3..6].copy_from_slice(&[a[(0, 0)], a[(1, 1)], a[(2, 2)]]),
-        Ellipsoid3Model::Full => v[3..9].copy_from_slice(&[
-            a[(0, 0)],
-            a[(1, 1)],
-            a[(2, 2)],
-            a[(1, 2)],
-            a[(0, 2)],
-            a[(0, 1)],
-        ]),
-    }
+    enough_samples(model, n, unknowns)?;
+    let mut v = start_vector(&start, model, mean, spread, unknowns);
 
-    let robust = extras.contains(&Effect::Outliers);
-    let mut weights = vec![1.0; n];
     let mut iterations = 0;
     let mut lambda = 1e-3;
-    let mut flagged = Vec::new();
-    if robust {
-        let mut residuals = vec![0.0; n];
-        let mut settled = false;
-        let mut scale = 0.0;
-        for round in 0.. {
-            iterations += levenberg_marquardt(
-                &layout,
-                &mut v,
-                &weights,
-                &mut lambda,
-                LOOSE_COST_TOLERANCE,
-                iterations,
-            )?;
-            let a = layout.a_of(&v);
-            for (i, e) in residuals.iter_mut().enumerate() {
-                *e = layout.evaluate(&v, &a, i, None);
-            }
-            scale = robust_sd(&residuals);
-            let mut largest = 0.0f64;
-            for (w, e) in weights.iter_mut().zip(&residuals) {
-                let new = huber_weight(*e, scale);
-                largest = largest.max((new - *w).abs());
-                *w = new;
-            }
-            if largest < 1e-5 {
-                settled = true;
-            }
-            if settled {
-                break;
-            }
-            if round + 1 >= MAX_IRLS_ROUNDS {
-                return Err(Effects3Error::NoConvergence {
-                    iterations,
-                    what: "the robust weights did not settle",
-                });
-            }
-        }
-        if scale > 0.0 {
-            flagged = residuals
-                .iter()
-                .enumerate()
-                .filter(|(_, e)| e.abs() > FLAG_THRESHOLD_SD * scale)
-                .map(|(i, _)| i)
-                .collect();
-        }
-        // The parameters from the inliers alone.
-        weights = vec![1.0; n];
-        for &i in &flagged {
-            weights[i] = 0.0;
-        }
+    let flagged = if extras.contains(&Effect::Outliers) {
+        robust_outliers(&layout, &mut v, &mut lambda, &mut iterations)?
+    } else {
+        Vec::new()
+    };
+    // The parameters from the inliers alone.
+    let mut weights = vec![1.0; n];
+    for &i in &flagged {
+        weights[i] = 0.0;
     }
     iterations += levenberg_marquardt(
         &layout,
@@ -700,98 +523,11 @@ pub fn fit_effects(
     )?;
 
     let used = n - flagged.len();
-    if used < unknowns + 1 {
-        return Err(Ellipsoid3Error::TooFewSamples {
-            model,
-            found: used,
-            unknowns,
-            needed: unknowns + 1,
-        }
-        .into());
-    }
-    let (jtj, _, rss) = layout.normal_equations(&v, &weights);
-    let cov = jtj.clone().cholesky().map(|c| c.inverse()).ok_or_else(|| {
-        let largest = (0..unknowns).map(|j| jtj[(j, j)]).fold(0.0, f64::max);
-        let j = (0..unknowns)
-            .min_by(|&p, &q| jtj[(p, p)].total_cmp(&jtj[(q, q)]))
-            .filter(|&j| jtj[(j, j)] < largest)
-            .unwrap_or(unknowns - 1);
-        Effects3Error::Undetermined {
-            parameter: layout.names[j].clone(),
-        }
-    })?;
-    let sigma2 = rss / (used - unknowns) as f64;
-    let cov = cov * sigma2;
-    let out = layout.report(&v).ok_or(Ellipsoid3Error::Degenerate)?;
-    if out.iter().any(|x| !x.is_finite()) {
-        return Err(Ellipsoid3Error::Degenerate.into());
-    }
-    // Propagate to the reported parameters by central differences.
-    let m = out.len();
-    let mut g = DMatrix::<f64>::zeros(m, unknowns);
-    for j in 0..unknowns {
-        let h = 1e-6 * v[j].abs().max(1e-3);
-        let mut plus = v.clone();
-        let mut minus = v.clone();
-        plus[j] += h;
-        minus[j] -= h;
-        if let (Some(a), Some(b)) = (layout.report(&plus), layout.report(&minus)) {
-            for i in 0..m {
-                g[(i, j)] = (a[i] - b[i]) / (2.0 * h);
-            }
-        }
-    }
-    let cov_out = &g * cov * g.transpose();
-    let se_of = |i: usize| cov_out[(i, i)].max(0.0).sqrt();
-    let se = Ellipsoid3Se {
-        offset: [se_of(0), se_of(1), se_of(2)],
-        matrix: [0, 1, 2].map(|i| [0, 1, 2].map(|j| se_of(3 + 3 * i + j))),
-        r: se_of(12),
-    };
-    let matrix: [[f64; 3]; 3] = [0, 1, 2].map(|i| [0, 1, 2].map(|j| out[3 + 3 * i + j]));
+    enough_samples(model, used, unknowns)?;
+    let (out, rss, cov_out) = reported(&layout, &v, &weights, used)?;
+    let matrix = ellipsoid::reported_matrix(&out);
     let r = out[12];
-
-    // Parameters by name: o, W's free entries, r, the extras.
-    let mut params: Vec<Param> = (0..3)
-        .map(|j| Param {
-            name: format!("o_{}", AXES[j]),
-            value: out[j],
-            se: se_of(j),
-        })
-        .collect();
-    let entries: &[(usize, usize)] = match model {
-        Ellipsoid3Model::Offset => &[],
-        Ellipsoid3Model::OffsetScale => &[(0, 0), (1, 1), (2, 2)],
-        Ellipsoid3Model::Full => &[(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)],
-    };
-    for &(i, j) in entries {
-        params.push(Param {
-            name: format!("W_{}{}", AXES[i], AXES[j]),
-            value: matrix[i][j],
-            se: se_of(3 + 3 * i + j),
-        });
-    }
-    params.push(Param {
-        name: "r".into(),
-        value: r,
-        se: se.r,
-    });
-    let base_k = model.unknowns();
-    for j in base_k..unknowns {
-        params.push(Param {
-            name: layout.names[j].clone(),
-            value: out[13 + j - base_k] + 0.0,
-            se: se_of(13 + j - base_k),
-        });
-    }
-    if let Some(bad) = params
-        .iter()
-        .find(|p| !p.value.is_finite() || !p.se.is_finite())
-    {
-        return Err(Effects3Error::Undetermined {
-            parameter: bad.name.clone(),
-        });
-    }
+    let params = named_params(&layout, &out, &cov_out)?;
 
     // Everything per sample, at the final parameters.
     let a = layout.a_of(&v);
@@ -813,30 +549,14 @@ pub fn fit_effects(
         }
     }
     effects.sort();
-    let mean_of = |values: &[f64]| values.iter().sum::<f64>() / values.len().max(1) as f64;
-    let reference = Effects3Reference {
-        t_mean: extras
-            .contains(&Effect::Drift)
-            .then(|| data.t.as_deref().map(mean_of))
-            .flatten(),
-        covariate_means: effects
-            .iter()
-            .filter_map(|e| match e {
-                Effect::Covariate(column) => data
-                    .covariate(column)
-                    .map(|c| (column.clone(), mean_of(&c.values))),
-                _ => None,
-            })
-            .collect(),
-        cubic_scale: layout.cubic.map(|(_, inv_s2)| inv_s2.sqrt().recip()),
-    };
+    let reference = reference(data, extras, &effects, &layout);
     Ok(Ellipsoid3EffectsFit {
         model,
         effects,
         offset: [out[0], out[1], out[2]],
         matrix,
         r,
-        se,
+        se: ellipsoid::base_se(&cov_out),
         params,
         rms: (rss / used as f64).sqrt(),
         rss,
@@ -851,9 +571,202 @@ pub fn fit_effects(
     })
 }
 
+/// One sample more than unknowns, so the residual has a variance.
+fn enough_samples(
+    model: Ellipsoid3Model,
+    found: usize,
+    unknowns: usize,
+) -> Result<(), Effects3Error> {
+    if found < unknowns + 1 {
+        return Err(Ellipsoid3Error::TooFewSamples {
+            model,
+            found,
+            unknowns,
+            needed: unknowns + 1,
+        }
+        .into());
+    }
+    Ok(())
+}
+
+/// The start: the base fit in the scaled frame, every effect at zero.
+fn start_vector(
+    start: &Ellipsoid3Fit,
+    model: Ellipsoid3Model,
+    mean: Vector3<f64>,
+    spread: f64,
+    unknowns: usize,
+) -> Vec<f64> {
+    let w = Matrix3::from_fn(|i, j| start.matrix[i][j]);
+    let a = w / start.r * spread;
+    let o = (Vector3::from(start.offset) - mean) / spread;
+    let mut v = ellipsoid::pack(model, &Ellipsoid { o, a });
+    v.resize(unknowns, 0.0);
+    v
+}
+
+/// IRLS with Huber weights from `v`, in place, until the weights settle
+/// (`iterations` and `lambda` carry over); returns the samples beyond
+/// [`FLAG_THRESHOLD_SD`] robust SDs of the last round, ascending.
+fn robust_outliers(
+    layout: &Layout<'_>,
+    v: &mut [f64],
+    lambda: &mut f64,
+    iterations: &mut usize,
+) -> Result<Vec<usize>, Effects3Error> {
+    let n = layout.raw.len();
+    let mut weights = vec![1.0; n];
+    let mut residuals = vec![0.0; n];
+    let mut settled = false;
+    let mut scale = 0.0;
+    for round in 0.. {
+        *iterations += levenberg_marquardt(
+            layout,
+            v,
+            &weights,
+            lambda,
+            LOOSE_COST_TOLERANCE,
+            *iterations,
+        )?;
+        let a = layout.a_of(v);
+        for (i, e) in residuals.iter_mut().enumerate() {
+            *e = layout.evaluate(v, &a, i, None);
+        }
+        scale = robust_sd(&residuals);
+        let largest = lm::reweight(&mut weights, &residuals, |e| huber_weight(e, scale));
+        if largest < 1e-5 {
+            settled = true;
+        }
+        if settled {
+            break;
+        }
+        if round + 1 >= MAX_IRLS_ROUNDS {
+            return Err(Effects3Error::NoConvergence {
+                iterations: *iterations,
+                what: "the robust weights did not settle",
+            });
+        }
+    }
+    if !(scale > 0.0) {
+        return Ok(Vec::new());
+    }
+    Ok(residuals
+        .iter()
+        .enumerate()
+        .filter(|(_, e)| e.abs() > FLAG_THRESHOLD_SD * scale)
+        .map(|(i, _)| i)
+        .collect())
+}
+
+/// The reported parameters at `v` ([`Layout::report`]), Σ e² over the
+/// samples used, and the covariance σ²(JᵀJ)⁻¹ propagated to the reported
+/// parameters.
+fn reported(
+    layout: &Layout<'_>,
+    v: &[f64],
+    weights: &[f64],
+    used: usize,
+) -> Result<(Vec<f64>, f64, DMatrix<f64>), Effects3Error> {
+    let unknowns = layout.unknowns();
+    let lm::NormalEquations { jtj, cost: rss, .. } =
+        lm::normal_equations(layout, v, weights, Weighting::PositiveOnly);
+    let cov = jtj.clone().cholesky().map(|c| c.inverse()).ok_or_else(|| {
+        let largest = (0..unknowns).map(|j| jtj[(j, j)]).fold(0.0, f64::max);
+        let j = (0..unknowns)
+            .min_by(|&p, &q| jtj[(p, p)].total_cmp(&jtj[(q, q)]))
+            .filter(|&j| jtj[(j, j)] < largest)
+            .unwrap_or(unknowns - 1);
+        Effects3Error::Undetermined {
+            parameter: layout.names[j].clone(),
+        }
+    })?;
+    let sigma2 = rss / (used - unknowns) as f64;
+    let cov = cov * sigma2;
+    let out = layout.report(v).ok_or(Ellipsoid3Error::Degenerate)?;
+    if out.iter().any(|x| !x.is_finite()) {
+        return Err(Ellipsoid3Error::Degenerate.into());
+    }
+    // Propagate to the reported parameters by central differences.
+    let cov_out = ellipsoid::propagate(v, cov, out.len(), |v| layout.report(v));
+    Ok((out, rss, cov_out))
+}
+
+/// Parameters by name: o, W's free entries, r, the extras; refused when a
+/// value or a standard error is not finite.
+fn named_params(
+    layout: &Layout<'_>,
+    out: &[f64],
+    cov_out: &DMatrix<f64>,
+) -> Result<Vec<Param>, Effects3Error> {
+    let se_of = |i: usize| ellipsoid::reported_se(cov_out, i);
+    let mut params: Vec<Param> = (0..3)
+        .map(|j| Param {
+            name: format!("o_{}", AXES[j]),
+            value: out[j],
+            se: se_of(j),
+        })
+        .collect();
+    let entries: &[(usize, usize)] = match layout.model {
+        Ellipsoid3Model::Offset => &[],
+        Ellipsoid3Model::OffsetScale => &[(0, 0), (1, 1), (2, 2)],
+        Ellipsoid3Model::Full => &[(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)],
+    };
+    for &(i, j) in entries {
+        params.push(Param {
+            name: format!("W_{}{}", AXES[i], AXES[j]),
+            value: out[3 + 3 * i + j],
+            se: se_of(3 + 3 * i + j),
+        });
+    }
+    params.push(Param {
+        name: "r".into(),
+        value: out[12],
+        se: se_of(12),
+    });
+    let base_k = layout.model.unknowns();
+    for j in base_k..layout.unknowns() {
+        params.push(Param {
+            name: layout.names[j].clone(),
+            value: out[13 + j - base_k] + 0.0,
+            se: se_of(13 + j - base_k),
+        });
+    }
+    if let Some(parameter) = first_not_finite(&params) {
+        return Err(Effects3Error::Undetermined { parameter });
+    }
+    Ok(params)
+}
+
+/// Where the fit's moving offsets and cubic are referred to: the fitted
+/// samples' mean time and covariate means, and the cubic's full scale.
+fn reference(
+    data: &Dataset3,
+    extras: &[Effect],
+    effects: &[Effect],
+    layout: &Layout<'_>,
+) -> Effects3Reference {
+    let mean_of = |values: &[f64]| values.iter().sum::<f64>() / values.len().max(1) as f64;
+    Effects3Reference {
+        t_mean: extras
+            .contains(&Effect::Drift)
+            .then(|| data.t.as_deref().map(mean_of))
+            .flatten(),
+        covariate_means: effects
+            .iter()
+            .filter_map(|e| match e {
+                Effect::Covariate(column) => data
+                    .covariate(column)
+                    .map(|c| (column.clone(), mean_of(&c.values))),
+                _ => None,
+            })
+            .collect(),
+        cubic_scale: layout.cubic.map(|(_, inv_s2)| inv_s2.sqrt().recip()),
+    }
+}
+
 #[cfg(test)]
-#[allow(clippy::needless_range_loop)] // indices pair fit, truth and se
 mod tests {
+    #![allow(clippy::needless_range_loop)] // indices pair fit, truth and se
     use super::*;
     use crate::sample::Covariate;
     use crate::sim3::{Motion3, SimSensor3};

@@ -9,6 +9,7 @@
 //! - [`effects`]: the catalogue of physical effects a model can add.
 //! - [`nonlinear`]: the paper's model plus any effects, fitted by
 //!   Levenberg-Marquardt.
+//! - [`lm`]: the one Levenberg–Marquardt solver the 2-D and 3-D fits share.
 //! - [`residuals`]: what a fit's residual still holds, and its noise floor.
 //! - [`diagnose`]: which effect the data supports, step by step.
 //! - [`ladder`]: the diagnosis ladder both geometries share.
@@ -32,6 +33,7 @@ pub mod fit;
 pub mod gyro;
 pub mod heading;
 pub mod ladder;
+pub mod lm;
 pub mod nonlinear;
 pub mod paper;
 pub mod residuals;

@@ -1,5 +1,6 @@
 //! The general model: the paper's model plus any effects of the catalogue,
-//! fitted by Levenberg-Marquardt from the paper's closed form.
+//! fitted by Levenberg-Marquardt ([`super::lm`]) from the paper's closed
+//! form.
 //!
 //! Per sample i (raw x, y; time t; covariates c_k):
 //! - moving offsets: `x1 = x - drift_x*(t - mean t) - Σ g_xk*(c_k - mean c_k)`,
@@ -24,15 +25,16 @@
 //! `outliers` adds no unknowns: it turns the fit robust (IRLS with Huber
 //! weights) and flags samples far outside the robust spread.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use super::FitError;
 use super::effects::Effect;
 use super::fit::DEFAULT_MIN_COVERAGE_DEG;
 use super::heading::{circle_centre, coverage};
+use super::lm::{self, LeastSquares, Weighting};
 use super::paper::{PaperCalibration, closed_form};
-use crate::sample::Dataset;
+use crate::sample::{Covariate, Dataset};
 
 /// Huber's tuning constant: 95 % efficiency on Gaussian noise.
 pub const HUBER_TUNING: f64 = 1.345;
@@ -219,12 +221,7 @@ impl<'a> Layout<'a> {
                     .covariate(column)
                     .ok_or_else(|| FitError::MissingCovariate {
                         column: column.clone(),
-                        available: data
-                            .covariates
-                            .iter()
-                            .map(|c| c.name.clone())
-                            .collect::<Vec<_>>()
-                            .join(", "),
+                        available: covariate_names(&data.covariates),
                     })?;
                 let index = push(format!("{column}_x"));
                 push(format!("{column}_y"));
@@ -350,49 +347,6 @@ impl<'a> Layout<'a> {
         }
         (sx, sy, e)
     }
-
-    /// Σ w e², or None when a residual is not finite (a step too far).
-    fn cost(&self, p: &[f64], weights: &[f64]) -> Option<f64> {
-        let mut sum = 0.0;
-        for (i, w) in weights.iter().enumerate() {
-            let (_, _, e) = self.evaluate(p, i, None);
-            sum += w * e * e;
-        }
-        sum.is_finite().then_some(sum)
-    }
-
-    /// JᵀWJ, JᵀWe and Σ w e² at p, in one pass.
-    fn normal_equations(
-        &self,
-        p: &[f64],
-        weights: &[f64],
-        row: &mut [f64],
-    ) -> (DMatrix<f64>, DVector<f64>, f64) {
-        let k = self.unknowns();
-        // Flat row-major accumulators: the hot loop of the fit, kept free of
-        // matrix indexing and allocation.
-        let mut upper = vec![0.0; k * k];
-        let mut gradient = vec![0.0; k];
-        let mut cost = 0.0;
-        for (i, &w) in weights.iter().enumerate() {
-            let (_, _, e) = self.evaluate(p, i, Some(row));
-            cost += w * e * e;
-            for (u, &ru) in row.iter().enumerate() {
-                let wu = w * ru;
-                gradient[u] += wu * e;
-                let target = &mut upper[u * k + u..(u + 1) * k];
-                for (acc, &rv) in target.iter_mut().zip(&row[u..]) {
-                    *acc += wu * rv;
-                }
-            }
-        }
-        let jtj = DMatrix::from_fn(k, k, |u, v| {
-            let (lo, hi) = if u <= v { (u, v) } else { (v, u) };
-            upper[lo * k + hi]
-        });
-        let jte = DVector::from_vec(gradient);
-        (jtj, jte, cost)
-    }
 }
 
 /// Applies the stored parameters of the model `effects` to a recording:
@@ -430,6 +384,34 @@ pub fn apply_model(
         .collect())
 }
 
+/// The 2-D model as a least-squares problem: e of every sample.
+impl LeastSquares for Layout<'_> {
+    type Shared = ();
+
+    fn shared(&self, _: &[f64]) {}
+
+    #[inline]
+    fn residual(&self, _: &(), p: &[f64], i: usize, row: Option<&mut [f64]>) -> f64 {
+        self.evaluate(p, i, row).2
+    }
+}
+
+/// Levenberg–Marquardt as the 2-D fit runs it: every sample weighted, r
+/// kept positive, a stop on a negligible step as well as on a negligible
+/// gain, and the step that stops leaves the damping where it was.
+fn lm_options(tolerance: f64) -> lm::Options {
+    lm::Options {
+        max_iterations: MAX_ITERATIONS,
+        tolerance,
+        weighting: Weighting::EverySample,
+        require_curvature: true,
+        damping_floor: None,
+        step_tolerance: Some(1e-12),
+        positive: Some(3),
+        lower_damping_on_stop: false,
+    }
+}
+
 /// Fits the model made of `effects` (the paper's plus any others) to the
 /// recording, by Levenberg-Marquardt started from the paper's closed form.
 pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitError> {
@@ -449,8 +431,90 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
     p[..4].copy_from_slice(&[start.a, start.b, start.d, start.r]);
 
     let robust = effects.contains(&Effect::Outliers);
+    let Weighted {
+        weights,
+        iterations,
+        scale,
+    } = fit_weighted(&layout, &mut p, robust, data, &start)?;
+
+    // Everything the caller sees, at the final parameters.
+    let mut residuals = Vec::with_capacity(n);
+    let mut calibrated = Vec::with_capacity(n);
+    let mut headings = Vec::with_capacity(n);
+    for i in 0..n {
+        let (sx, sy, err) = layout.evaluate(&p, i, None);
+        residuals.push(err);
+        calibrated.push((sx, sy));
+        headings.push(sy.atan2(sx));
+    }
+    let flagged: Vec<usize> = if robust && scale > 0.0 {
+        residuals
+            .iter()
+            .enumerate()
+            .filter(|(_, e)| e.abs() > FLAG_THRESHOLD_SD * scale)
+            .map(|(i, _)| i)
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let rss = rss_without(&residuals, &flagged);
+    let used = n - flagged.len();
+    let rms = (rss / used.max(1) as f64).sqrt();
+
+    let params = standard_errors(&layout, &p, &weights)?;
+    for (name, value) in [("a", p[0]), ("r", p[3])] {
+        if !(value > 0.0) {
+            return Err(FitError::NonPositive {
+                parameter: name,
+                value,
+            });
+        }
+    }
+    if !rms.is_finite() || residuals.iter().any(|e| !e.is_finite()) {
+        return Err(FitError::NotFinite {
+            parameter: "rms".into(),
+        });
+    }
+
+    Ok(ModelFit {
+        effects: effects.to_vec(),
+        params,
+        rms,
+        n,
+        unknowns,
+        residuals,
+        headings,
+        calibrated,
+        flagged,
+        weights,
+        iterations,
+        rss,
+    })
+}
+
+/// Where the (robust) Levenberg-Marquardt ended, besides the parameters.
+struct Weighted {
+    /// Final IRLS weights (all 1.0 without outliers).
+    weights: Vec<f64>,
+    /// Levenberg-Marquardt iterations, over all IRLS rounds.
+    iterations: usize,
+    /// The robust SD of the last round's residuals (0 without outliers).
+    scale: f64,
+}
+
+/// Levenberg-Marquardt from `p`, in place: once, or with `robust` in IRLS
+/// rounds with Huber weights until the weights settle, then once more to
+/// the last digit. A failure of Levenberg-Marquardt itself is explained
+/// ([`explain_failure`]) against the turn of the start.
+fn fit_weighted(
+    layout: &Layout<'_>,
+    p: &mut [f64],
+    robust: bool,
+    data: &Dataset,
+    start: &PaperCalibration,
+) -> Result<Weighted, FitError> {
+    let n = data.len();
     let mut weights = vec![1.0; n];
-    let mut row = vec![0.0; unknowns];
     let mut residuals = vec![0.0; n];
     let mut iterations = 0;
     let mut scale = 0.0;
@@ -466,29 +530,30 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
         } else {
             LOOSE_COST_TOLERANCE
         };
-        iterations += levenberg_marquardt(
-            &layout,
-            &mut p,
+        iterations += lm::solve(
+            layout,
+            p,
             &weights,
-            &mut row,
             &mut lambda,
-            tolerance,
             iterations,
+            &lm_options(tolerance),
         )
-        .map_err(|e| explain_failure(e, data, &start))?;
+        .map_err(|failure| match failure {
+            lm::Failure::Undetermined { jtj } => undetermined(layout, &jtj),
+            lm::Failure::NoConvergence { iterations } => FitError::NoConvergence {
+                iterations,
+                what: "Levenberg-Marquardt did not converge",
+            },
+        })
+        .map_err(|e| explain_failure(e, data, start))?;
         if settled {
             break;
         }
         for (i, e) in residuals.iter_mut().enumerate() {
-            *e = layout.evaluate(&p, i, None).2;
+            *e = layout.evaluate(p, i, None).2;
         }
         scale = robust_sd(&residuals);
-        let mut largest_change = 0.0f64;
-        for (w, e) in weights.iter_mut().zip(&residuals) {
-            let new = huber_weight(*e, scale);
-            largest_change = largest_change.max((new - *w).abs());
-            *w = new;
-        }
+        let largest_change = lm::reweight(&mut weights, &residuals, |e| huber_weight(e, scale));
         // Weights settled to 1e-5 move the parameters by far less than
         // their standard errors.
         if largest_change < 1e-5 {
@@ -501,26 +566,15 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
             });
         }
     }
+    Ok(Weighted {
+        weights,
+        iterations,
+        scale,
+    })
+}
 
-    // Everything the caller sees, at the final parameters.
-    let mut calibrated = Vec::with_capacity(n);
-    let mut headings = Vec::with_capacity(n);
-    for (i, e) in residuals.iter_mut().enumerate() {
-        let (sx, sy, err) = layout.evaluate(&p, i, None);
-        *e = err;
-        calibrated.push((sx, sy));
-        headings.push(sy.atan2(sx));
-    }
-    let flagged: Vec<usize> = if robust && scale > 0.0 {
-        residuals
-            .iter()
-            .enumerate()
-            .filter(|(_, e)| e.abs() > FLAG_THRESHOLD_SD * scale)
-            .map(|(i, _)| i)
-            .collect()
-    } else {
-        Vec::new()
-    };
+/// Σ e² over the samples not flagged (`flagged` ascending).
+fn rss_without(residuals: &[f64], flagged: &[usize]) -> f64 {
     let mut rss = 0.0;
     let mut next_flagged = flagged.iter().peekable();
     for (i, e) in residuals.iter().enumerate() {
@@ -530,16 +584,28 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
         }
         rss += e * e;
     }
-    let used = n - flagged.len();
-    let rms = (rss / used.max(1) as f64).sqrt();
+    rss
+}
 
-    // Standard errors from the curvature at the minimum.
-    let (jtj, _, weighted_cost) = layout.normal_equations(&p, &weights, &mut row);
+/// The parameters at `p` with their standard errors, from the curvature at
+/// the minimum; refused when a parameter is undetermined or not finite.
+fn standard_errors(
+    layout: &Layout<'_>,
+    p: &[f64],
+    weights: &[f64],
+) -> Result<Vec<Param>, FitError> {
+    let n = weights.len();
+    let unknowns = layout.unknowns();
+    let lm::NormalEquations {
+        jtj,
+        cost: weighted_cost,
+        ..
+    } = lm::normal_equations(layout, p, weights, Weighting::EverySample);
     let covariance = jtj
         .clone()
         .cholesky()
         .map(|c| c.inverse())
-        .ok_or_else(|| undetermined(&layout, &jtj))?;
+        .ok_or_else(|| undetermined(layout, &jtj))?;
     let sigma_sq = weighted_cost / (n - unknowns) as f64;
     if let Some(kc) = layout.centred.filter(|_| layout.cubic.is_some()) {
         // The centre's standard errors: x's is b's over a, y's is d's.
@@ -569,42 +635,29 @@ pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitErro
         })
         .collect();
 
-    if let Some(bad) = params
+    if let Some(parameter) = first_not_finite(&params) {
+        return Err(FitError::NotFinite { parameter });
+    }
+    Ok(params)
+}
+
+/// The names of a recording's covariate columns, for the message of a
+/// missing one.
+pub(super) fn covariate_names(covariates: &[Covariate]) -> String {
+    covariates
+        .iter()
+        .map(|c| c.name.clone())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The name of the first parameter whose value or standard error is not
+/// finite.
+pub(super) fn first_not_finite(params: &[Param]) -> Option<String> {
+    params
         .iter()
         .find(|q| !q.value.is_finite() || !q.se.is_finite())
-    {
-        return Err(FitError::NotFinite {
-            parameter: bad.name.clone(),
-        });
-    }
-    for (name, value) in [("a", p[0]), ("r", p[3])] {
-        if !(value > 0.0) {
-            return Err(FitError::NonPositive {
-                parameter: name,
-                value,
-            });
-        }
-    }
-    if !rms.is_finite() || residuals.iter().any(|e| !e.is_finite()) {
-        return Err(FitError::NotFinite {
-            parameter: "rms".into(),
-        });
-    }
-
-    Ok(ModelFit {
-        effects: effects.to_vec(),
-        params,
-        rms,
-        n,
-        unknowns,
-        residuals,
-        headings,
-        calibrated,
-        flagged,
-        weights,
-        iterations,
-        rss,
-    })
+        .map(|q| q.name.clone())
 }
 
 /// Where Levenberg-Marquardt starts: the paper's closed form, or, when
@@ -672,80 +725,6 @@ fn undetermined(layout: &Layout<'_>, jtj: &DMatrix<f64>) -> FitError {
         .unwrap_or(jtj.nrows().saturating_sub(1));
     FitError::Undetermined {
         parameter: layout.names.get(index).cloned().unwrap_or_default(),
-    }
-}
-
-/// Runs Levenberg-Marquardt with fixed weights from `p`, in place; returns
-/// the iterations it took. `done` counts iterations already spent (cap).
-fn levenberg_marquardt(
-    layout: &Layout<'_>,
-    p: &mut [f64],
-    weights: &[f64],
-    row: &mut [f64],
-    lambda: &mut f64,
-    tolerance: f64,
-    done: usize,
-) -> Result<usize, FitError> {
-    let k = p.len();
-    *lambda = lambda.max(1e-6);
-    let mut trial = vec![0.0; k];
-    let (mut jtj, mut jte, mut cost) = layout.normal_equations(p, weights, row);
-    for j in 0..k {
-        if !(jtj[(j, j)] > 0.0) {
-            return Err(undetermined(layout, &jtj));
-        }
-    }
-    let mut iterations = 0;
-    loop {
-        if done + iterations >= MAX_ITERATIONS {
-            return Err(FitError::NoConvergence {
-                iterations: done + iterations,
-                what: "Levenberg-Marquardt did not converge",
-            });
-        }
-        iterations += 1;
-        if cost == 0.0 {
-            return Ok(iterations);
-        }
-        // Marquardt's scaling: damping proportional to each curvature, so
-        // parameters of very different units step alike.
-        let mut damped = jtj.clone();
-        for j in 0..k {
-            damped[(j, j)] += *lambda * jtj[(j, j)];
-        }
-        let step = damped.cholesky().map(|c| c.solve(&(-&jte)));
-        let accepted = match step {
-            Some(step) => {
-                for j in 0..k {
-                    trial[j] = p[j] + step[j];
-                }
-                match layout.cost(&trial, weights) {
-                    Some(new_cost) if trial[3] > 0.0 && new_cost <= cost => {
-                        let relative = (cost - new_cost) / cost;
-                        p.copy_from_slice(&trial);
-                        let small_step =
-                            (0..k).all(|j| step[j].abs() <= 1e-12 * p[j].abs().max(1e-300));
-                        if relative < tolerance || small_step {
-                            return Ok(iterations);
-                        }
-                        Some(())
-                    }
-                    _ => None,
-                }
-            }
-            None => None,
-        };
-        if accepted.is_some() {
-            *lambda = (*lambda / 10.0).max(1e-15);
-            (jtj, jte, cost) = layout.normal_equations(p, weights, row);
-        } else {
-            *lambda *= 10.0;
-            // No step, however short, lowers the cost: p is the minimum to
-            // the precision of the arithmetic.
-            if *lambda > 1e12 {
-                return Ok(iterations);
-            }
-        }
     }
 }
 

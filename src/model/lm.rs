@@ -1,0 +1,247 @@
+//! One Levenberg–Marquardt solver for the three least-squares fits of the
+//! crate: the 2-D model with effects ([`super::nonlinear`]), the 3-D
+//! ellipsoid ([`super::ellipsoid`]) and the 3-D ellipsoid with effects
+//! ([`super::ellipsoid_effects`]).
+//!
+//! A fit describes its residuals by [`LeastSquares`]; the solver forms the
+//! weighted normal equations JᵀWJ, JᵀWe and Σ w e² in one pass over the
+//! samples ([`normal_equations`]), damps them by Marquardt's scaling (λ
+//! times each diagonal entry, so parameters of very different units step
+//! alike), solves them by Cholesky, accepts a step that does not raise the
+//! cost and then divides λ by 10, and otherwise multiplies λ by 10 and tries
+//! again ([`solve`]).
+//!
+//! The three fits were written apart and differ in details that change
+//! results in the last bit; [`Options`] holds those differences, so each fit
+//! keeps its arithmetic exactly.
+
+use nalgebra::{DMatrix, DVector};
+
+/// A least-squares problem: residuals of samples, and their derivatives in
+/// the parameters.
+pub trait LeastSquares {
+    /// What every residual at one parameter vector shares (a matrix built
+    /// from the parameters, say): computed once per pass over the samples.
+    type Shared;
+
+    /// The shared part at the parameters `p`.
+    fn shared(&self, p: &[f64]) -> Self::Shared;
+
+    /// The residual of sample `i` at `p`; with `row`, also its derivative
+    /// in each parameter into `row` (`p.len()` entries, every one written).
+    fn residual(&self, shared: &Self::Shared, p: &[f64], i: usize, row: Option<&mut [f64]>) -> f64;
+}
+
+/// How the weights enter the cost and the normal equations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Weighting {
+    /// Every sample counts, its cost `(w·e)·e` (the 2-D fit; the 3-D base
+    /// fit with every weight 1, where this is `e²`).
+    EverySample,
+    /// Only samples of positive weight count (the 3-D fit with effects,
+    /// whose flagged outliers get weight 0), the trial cost summing
+    /// `w·(e·e)`. The normal equations leave out samples of weight `<= 0`
+    /// and the trial cost keeps those of weight `> 0`, as the fit always
+    /// did (they differ only on a NaN weight).
+    PositiveOnly,
+}
+
+/// What the three fits do differently.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Options {
+    /// Iterations (counting those of earlier runs, `done` of [`solve`])
+    /// before giving up.
+    pub max_iterations: usize,
+    /// Stop when an accepted step lowers the cost by less than this
+    /// fraction.
+    pub tolerance: f64,
+    pub weighting: Weighting,
+    /// Refuse to start when a diagonal entry of JᵀWJ is not positive (a
+    /// parameter the data do not touch): [`Failure::Undetermined`].
+    pub require_curvature: bool,
+    /// Damp each diagonal entry by λ·max(entry, floor) instead of λ·entry,
+    /// so a zero curvature is damped too.
+    pub damping_floor: Option<f64>,
+    /// Also stop when every component of an accepted step is within this
+    /// fraction of its parameter.
+    pub step_tolerance: Option<f64>,
+    /// Refuse a trial whose parameter at this index is not positive (the
+    /// field's magnitude).
+    pub positive: Option<usize>,
+    /// Whether the accepted step that meets a stop rule still divides λ by
+    /// 10: the damping a later run on the same fit starts from.
+    pub lower_damping_on_stop: bool,
+}
+
+/// JᵀWJ, JᵀWe and Σ w e² at one parameter vector.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NormalEquations {
+    pub jtj: DMatrix<f64>,
+    pub jte: DVector<f64>,
+    pub cost: f64,
+}
+
+/// Why Levenberg–Marquardt gave no parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Failure {
+    /// A diagonal entry of JᵀWJ at the start is not positive (with
+    /// [`Options::require_curvature`]); the caller names the parameter.
+    Undetermined { jtj: DMatrix<f64> },
+    /// The iteration cap was reached; `iterations` counts earlier runs too.
+    NoConvergence { iterations: usize },
+}
+
+/// JᵀWJ, JᵀWe and Σ w e² at `p`, in one pass over the samples (one per
+/// weight).
+pub fn normal_equations<P: LeastSquares>(
+    problem: &P,
+    p: &[f64],
+    weights: &[f64],
+    weighting: Weighting,
+) -> NormalEquations {
+    let k = p.len();
+    let shared = problem.shared(p);
+    let mut row = vec![0.0; k];
+    // Flat row-major accumulators of the upper triangle: the hot loop of
+    // the fits, kept free of matrix indexing and allocation.
+    let mut upper = vec![0.0; k * k];
+    let mut gradient = vec![0.0; k];
+    let mut cost = 0.0;
+    for (i, &w) in weights.iter().enumerate() {
+        if weighting == Weighting::PositiveOnly && w <= 0.0 {
+            continue;
+        }
+        let e = problem.residual(&shared, p, i, Some(&mut row));
+        cost += w * e * e;
+        for (u, &ru) in row.iter().enumerate() {
+            let wu = w * ru;
+            gradient[u] += wu * e;
+            let target = &mut upper[u * k + u..(u + 1) * k];
+            for (acc, &rv) in target.iter_mut().zip(&row[u..]) {
+                *acc += wu * rv;
+            }
+        }
+    }
+    let jtj = DMatrix::from_fn(k, k, |u, v| {
+        let (lo, hi) = if u <= v { (u, v) } else { (v, u) };
+        upper[lo * k + hi]
+    });
+    NormalEquations {
+        jtj,
+        jte: DVector::from_vec(gradient),
+        cost,
+    }
+}
+
+/// Σ w e² at `p`: the cost a trial step is judged by.
+pub fn cost<P: LeastSquares>(problem: &P, p: &[f64], weights: &[f64], weighting: Weighting) -> f64 {
+    let shared = problem.shared(p);
+    let mut sum = 0.0;
+    for (i, &w) in weights.iter().enumerate() {
+        match weighting {
+            Weighting::EverySample => {
+                let e = problem.residual(&shared, p, i, None);
+                sum += w * e * e;
+            }
+            Weighting::PositiveOnly => {
+                if w > 0.0 {
+                    sum += w * problem.residual(&shared, p, i, None).powi(2);
+                }
+            }
+        }
+    }
+    sum
+}
+
+/// One round of iteratively reweighted least squares: each weight set to
+/// `weight` of its residual, in place; returns the largest change of a
+/// weight (the fits stop reweighting below 1e-5).
+pub fn reweight(weights: &mut [f64], residuals: &[f64], weight: impl Fn(f64) -> f64) -> f64 {
+    let mut largest_change = 0.0f64;
+    for (w, e) in weights.iter_mut().zip(residuals) {
+        let new = weight(*e);
+        largest_change = largest_change.max((new - *w).abs());
+        *w = new;
+    }
+    largest_change
+}
+
+/// Runs Levenberg–Marquardt with fixed weights from `p`, in place; returns
+/// the iterations it took. `lambda` is the damping to start from (at least
+/// 1e-6) and is left where the run ended, for a later run on the same fit;
+/// `done` counts iterations already spent towards the cap.
+pub fn solve<P: LeastSquares>(
+    problem: &P,
+    p: &mut [f64],
+    weights: &[f64],
+    lambda: &mut f64,
+    done: usize,
+    options: &Options,
+) -> Result<usize, Failure> {
+    let k = p.len();
+    *lambda = lambda.max(1e-6);
+    let mut trial = vec![0.0; k];
+    let NormalEquations {
+        mut jtj,
+        mut jte,
+        mut cost,
+    } = normal_equations(problem, p, weights, options.weighting);
+    if options.require_curvature && (0..k).any(|j| !(jtj[(j, j)] > 0.0)) {
+        return Err(Failure::Undetermined { jtj });
+    }
+    let mut iterations = 0;
+    loop {
+        if done + iterations >= options.max_iterations {
+            return Err(Failure::NoConvergence {
+                iterations: done + iterations,
+            });
+        }
+        iterations += 1;
+        if cost == 0.0 {
+            return Ok(iterations);
+        }
+        // Marquardt's scaling: damping proportional to each curvature, so
+        // parameters of very different units step alike.
+        let mut damped = jtj.clone();
+        for j in 0..k {
+            let curvature = match options.damping_floor {
+                Some(floor) => jtj[(j, j)].max(floor),
+                None => jtj[(j, j)],
+            };
+            damped[(j, j)] += *lambda * curvature;
+        }
+        let mut accepted = false;
+        if let Some(step) = damped.cholesky().map(|c| c.solve(&(-&jte))) {
+            for j in 0..k {
+                trial[j] = p[j] + step[j];
+            }
+            let new_cost = self::cost(problem, &trial, weights, options.weighting);
+            let admissible = options.positive.is_none_or(|j| trial[j] > 0.0);
+            if new_cost.is_finite() && admissible && new_cost <= cost {
+                let relative = (cost - new_cost) / cost;
+                p.copy_from_slice(&trial);
+                let small_step = options.step_tolerance.is_some_and(|tolerance| {
+                    (0..k).all(|j| step[j].abs() <= tolerance * p[j].abs().max(1e-300))
+                });
+                let stop = relative < options.tolerance || small_step;
+                if !stop || options.lower_damping_on_stop {
+                    *lambda = (*lambda / 10.0).max(1e-15);
+                }
+                if stop {
+                    return Ok(iterations);
+                }
+                accepted = true;
+                NormalEquations { jtj, jte, cost } =
+                    normal_equations(problem, p, weights, options.weighting);
+            }
+        }
+        if !accepted {
+            *lambda *= 10.0;
+            // No step, however short, lowers the cost: p is the minimum to
+            // the precision of the arithmetic.
+            if *lambda > 1e12 {
+                return Ok(iterations);
+            }
+        }
+    }
+}
