@@ -566,6 +566,7 @@ mod spans;
 
 use columns::Columns;
 use raw::*;
+use sensors::PlaneSensor;
 use sources::*;
 use spans::*;
 
@@ -892,29 +893,16 @@ impl Checker<'_> {
             };
             let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
             let gyro = self.check_gyro(&key, &s, axes, stream, src_name, stream_list)?;
-            if let Err(problem) = s.rotation.validate() {
-                return Err(self.error(&format!("{key}.rotation"), problem));
-            }
-            if let Err(problem) = s.limits.validate() {
-                return Err(self.error(&format!("{key}.limits"), problem));
-            }
-            Ok((
-                SensorConfig {
-                    name: s.name,
-                    source: s.source,
-                    stream: stream.id,
-                    field,
-                    axes,
-                    effects,
-                    rotation: s.rotation,
-                    limits: s.limits,
-                    gyro,
-                    columns: None,
-                    three: None,
-                    north,
-                },
-                None,
-            ))
+            let plane = PlaneSensor {
+                stream: stream.id,
+                field,
+                axes,
+                effects,
+                gyro,
+                columns: None,
+                north,
+            };
+            Ok((self.plane_sensor(key, s, plane)?, None))
         }
     }
 }

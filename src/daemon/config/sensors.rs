@@ -98,29 +98,46 @@ impl Checker<'_> {
         let names = [axes[0].1.clone(), axes[1].1.clone()];
         let gyro = self.check_csv_gyro(key, &s, &columns, &names, file_of_axes)?;
         let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
+        let plane = PlaneSensor {
+            stream: 0,
+            field: Field::Mag,
+            axes: [Axis::X, Axis::Y],
+            effects,
+            gyro,
+            columns: Some(names),
+            north: None,
+        };
+        Ok((self.plane_sensor(key, s, plane)?, None))
+    }
+
+    /// A 2-axis sensor: its `[sensor.rotation]` and `[sensor.limits]`
+    /// checked, and the sensor built from what was checked before.
+    pub(super) fn plane_sensor(
+        &self,
+        key: &str,
+        s: RawSensor,
+        plane: PlaneSensor,
+    ) -> Result<SensorConfig, ConfigError> {
         if let Err(problem) = s.rotation.validate() {
             return Err(self.error(&format!("{key}.rotation"), problem));
         }
         if let Err(problem) = s.limits.validate() {
             return Err(self.error(&format!("{key}.limits"), problem));
         }
-        Ok((
-            SensorConfig {
-                name: s.name,
-                source: s.source,
-                stream: 0,
-                field: Field::Mag,
-                axes: [Axis::X, Axis::Y],
-                effects,
-                rotation: s.rotation,
-                limits: s.limits,
-                gyro,
-                columns: Some(names),
-                three: None,
-                north: None,
-            },
-            None,
-        ))
+        Ok(SensorConfig {
+            name: s.name,
+            source: s.source,
+            stream: plane.stream,
+            field: plane.field,
+            axes: plane.axes,
+            effects: plane.effects,
+            rotation: s.rotation,
+            limits: s.limits,
+            gyro: plane.gyro,
+            columns: plane.columns,
+            three: None,
+            north: plane.north,
+        })
     }
 
     /// A csv sensor's gyro column (in the axes' file, not one of `axes`)
@@ -814,4 +831,15 @@ pub(super) fn gyro_lsb_per_deg_s(stream: StreamDesc) -> Option<f64> {
         Some((Chip::Mpu6050, _)) => Some(crate::protocol::chips::mpu6050::GYRO_LSB_PER_DEG_S),
         Some(_) => None,
     }
+}
+
+/// What a 2-axis sensor's own checks found, for [`Checker::plane_sensor`].
+pub(super) struct PlaneSensor {
+    pub(super) stream: u8,
+    pub(super) field: Field,
+    pub(super) axes: [Axis; 2],
+    pub(super) effects: Vec<String>,
+    pub(super) gyro: GyroChoice,
+    pub(super) columns: Option<[String; 2]>,
+    pub(super) north: Option<North>,
 }

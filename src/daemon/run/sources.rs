@@ -226,10 +226,7 @@ fn spawn_bridge(
         start.counters.clone(),
         start.stop_flag.clone(),
     )
-    .map_err(|e| DaemonError::Source {
-        name: source.name.clone(),
-        source: e,
-    })?;
+    .map_err(|e| cannot_start(source, e))?;
     Ok(SourceTask::Thread(thread).into())
 }
 
@@ -310,12 +307,17 @@ fn spawn_csv(
         start.counters.clone(),
         start.stop_flag.clone(),
     )
-    .map_err(|e| DaemonError::Source {
-        name: source.name.clone(),
-        source: e,
-    })?;
+    .map_err(|e| cannot_start(source, e))?;
     Ok(Started {
         task: SourceTask::Thread(thread),
         csv_layout,
     })
+}
+
+/// A source whose thread could not be started.
+fn cannot_start(source: &SourceConfig, e: std::io::Error) -> DaemonError {
+    DaemonError::Source {
+        name: source.name.clone(),
+        source: e,
+    }
 }
