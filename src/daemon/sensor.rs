@@ -13,7 +13,6 @@ use super::messages::{
     to_line,
 };
 use super::publish::Lane;
-use super::rotation::{RotationBuffer, RotationEvent};
 use super::{Calibration, Terms};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::model::diagnose::diagnose;
@@ -22,6 +21,7 @@ use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper};
 use crate::model::gyro::{GyroUnits, HeadingReference};
 use crate::model::heading::coverage;
 use crate::model::nonlinear::{cubic_scale, fit_model, turn_frame};
+use crate::model::rotation::{RotationBuffer, RotationEvent};
 use crate::model::turn::check_turn;
 use crate::sample::Dataset;
 use crate::sample::Reading;

@@ -10,6 +10,8 @@
 //! - [`nonlinear`]: the paper's model plus any effects, fitted by
 //!   Levenberg-Marquardt.
 //! - [`residuals`]: what a fit's residual still holds, and its noise floor.
+//! - [`rotation`]: the rotation buffer of a 2-axis sensor: samples kept
+//!   until they make one full turn.
 //! - [`diagnose`]: which effect the data supports, step by step.
 //! - [`check`]: whether a stored calibration holds on another recording.
 //! - [`check3`]: the same for a 3-D calibration.
@@ -33,6 +35,7 @@ pub mod heading;
 pub mod nonlinear;
 pub mod paper;
 pub mod residuals;
+pub mod rotation;
 pub mod sphere;
 pub mod still;
 pub mod still_stream;
