@@ -18,6 +18,8 @@
 //! - [`turn`]: whether the readings show a turn at all, before any fit.
 //! - [`ellipsoid`]: the 3-D model (offset, gains, soft iron) and its fit.
 //! - [`sphere`]: coverage of the sphere of directions, for 3-axis sensors.
+//! - [`sphere_buffer`]: the samples a 3-axis sensor collects until their
+//!   directions cover the sphere.
 //! - [`still`]: still segments (poses at rest) of a 3-axis recording.
 //! - [`tilt`]: the tilt-compensated heading from a magnetometer and an
 //!   accelerometer on one board.
@@ -37,6 +39,7 @@ pub mod paper;
 pub mod residuals;
 pub mod rotation;
 pub mod sphere;
+pub mod sphere_buffer;
 pub mod still;
 pub mod still_stream;
 pub mod tilt;
