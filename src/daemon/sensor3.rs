@@ -16,7 +16,8 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::config::{Axis, Field, SensorConfig};
-use super::messages::{SensorState, to_line};
+use super::lifecycle::Lifecycle;
+use super::messages::to_line;
 use super::north::{Earth, MeasuredDip, North, earth};
 use super::publish::Lane;
 use super::sensor::Emit;
@@ -321,7 +322,9 @@ struct Calibration3Message<'a> {
     poses: Option<usize>,
 }
 
-/// One 3-axis sensor: its buffer, its calibration and its counts.
+/// The sphere geometry of a 3-axis sensor: its buffer, its tilt source and
+/// its true north. Its state, calibration and counts are the
+/// [`Lifecycle`] its [`super::sensor::Sensor`] lends it.
 pub struct Sensor3 {
     name: String,
     stream: u8,
@@ -329,13 +332,6 @@ pub struct Sensor3 {
     config: Sensor3Config,
     /// The samples collected, their coverage and (with `still`) poses.
     buffer: SphereBuffer,
-    state: SensorState,
-    current: Option<Calibration>,
-    next_id: u64,
-    readings: u64,
-    fits_accepted: u64,
-    fits_rejected: u64,
-    last_rejection: Option<String>,
     /// The tilt source's current calibration, as [`Sensor3::set_tilt`] gave it.
     tilt_calibration: Option<Calibration>,
     /// The tilt source's last raw reading, with its time.
@@ -377,26 +373,13 @@ pub fn apply3(p: &Ellipsoid3Params, raw: [f64; 3]) -> [f64; 3] {
 }
 
 impl Sensor3 {
-    /// A 3-axis sensor of `config` (whose `three` is set), starting from
-    /// its stored calibration if that is a 3-D one.
-    pub fn new(config: &SensorConfig, three: Sensor3Config, stored: Option<Calibration>) -> Self {
-        let stored = stored.filter(|c| c.ellipsoid.is_some());
+    /// The sphere of a 3-axis sensor of `config` (whose `three` is set).
+    pub fn new(config: &SensorConfig, three: Sensor3Config) -> Self {
         Sensor3 {
             name: config.name.clone(),
             stream: config.stream,
             field: config.field,
             buffer: SphereBuffer::new(three.model, three.sphere.clone(), three.lsb_per_unit),
-            state: if stored.is_some() {
-                SensorState::Calibrated
-            } else {
-                SensorState::Collecting
-            },
-            next_id: stored.as_ref().map_or(1, |c| c.id + 1),
-            current: stored,
-            readings: 0,
-            fits_accepted: 0,
-            fits_rejected: 0,
-            last_rejection: None,
             tilt_calibration: None,
             last_accel: None,
             north: config.north.clone(),
@@ -404,10 +387,6 @@ impl Sensor3 {
             csv: None,
             config: three,
         }
-    }
-
-    pub fn calibration(&self) -> Option<&Calibration> {
-        self.current.as_ref()
     }
 
     /// The samples held while collecting.
@@ -435,17 +414,10 @@ impl Sensor3 {
     }
 
     /// Takes over what the same sensor earned under the settings before a
-    /// reload: its calibration (when a 3-D one), next id and counts.
-    pub fn carry_over(&mut self, old: Sensor3) {
-        if old.current.is_some() {
-            self.current = old.current;
-        }
-        self.next_id = self.next_id.max(old.next_id);
-        self.readings = old.readings;
-        self.fits_accepted = old.fits_accepted;
-        self.fits_rejected = old.fits_rejected;
-        self.last_rejection = old.last_rejection;
-        self.tilt_calibration = old.tilt_calibration;
+    /// reload beyond its [`Lifecycle`]: its tilt source's calibration and
+    /// the count of stale headings.
+    pub fn carry_over(&mut self, old: &Sensor3) {
+        self.tilt_calibration = old.tilt_calibration.clone();
         self.headings_stale = old.headings_stale;
         self.recalibrate();
     }
@@ -455,31 +427,14 @@ impl Sensor3 {
         self.north = north;
     }
 
+    /// Starts a new buffer (the [`Lifecycle`] restarts beside it).
     pub fn recalibrate(&mut self) {
         self.buffer.reset();
-        self.state = if self.current.is_some() {
-            SensorState::Recalibrating
-        } else {
-            SensorState::Collecting
-        };
     }
 
-    pub fn state(&self) -> SensorState {
-        self.state
-    }
-
-    pub fn counts(&self) -> (u64, u64, u64, Option<&str>) {
-        (
-            self.readings,
-            self.fits_accepted,
-            self.fits_rejected,
-            self.last_rejection.as_deref(),
-        )
-    }
-
-    /// Progress while collecting.
-    pub fn progress(&self) -> Option<SphereProgress> {
-        (self.state != SensorState::Calibrated).then(|| self.buffer.progress())
+    /// Progress of the buffer being collected.
+    pub fn progress(&self) -> SphereProgress {
+        self.buffer.progress()
     }
 
     /// Readings whose tilt-compensated heading was left out because the
@@ -541,6 +496,7 @@ impl Sensor3 {
     /// without numbers in its columns, the row is ignored.
     pub fn on_row(
         &mut self,
+        life: &mut Lifecycle,
         row: &crate::io::csv::CsvRow,
         emit: &mut Emit<'_>,
     ) -> Option<Calibration> {
@@ -564,17 +520,22 @@ impl Sensor3 {
             return None;
         }
         let raw = values(at)?;
-        self.readings += 1;
-        let line = self.reading_line(row.time, raw);
+        life.readings += 1;
+        let line = self.reading_line(life, row.time, raw);
         emit(Lane::Reading, line);
-        self.collect(row.time, raw, emit)
+        self.collect(life, row.time, raw, emit)
     }
 
     /// Handles one reading: keeps the tilt source's accelerometer, and for
     /// the sensor's own stream publishes the reading (corrected when
     /// calibrated, with the tilt-compensated heading when it has a tilt
     /// source) and collects. Returns a newly accepted calibration.
-    pub fn on_reading(&mut self, reading: &Reading, emit: &mut Emit<'_>) -> Option<Calibration> {
+    pub fn on_reading(
+        &mut self,
+        life: &mut Lifecycle,
+        reading: &Reading,
+        emit: &mut Emit<'_>,
+    ) -> Option<Calibration> {
         if let Some(tilt) = &self.config.tilt
             && reading.stream == tilt.stream
             && let Some(triad) = reading.accel
@@ -585,14 +546,14 @@ impl Sensor3 {
             return None;
         }
         let raw = pick(field_of(reading, self.field)?, self.config.axes);
-        self.readings += 1;
-        let line = self.reading_line(reading.time, raw);
+        life.readings += 1;
+        let line = self.reading_line(life, reading.time, raw);
         emit(Lane::Reading, line);
-        self.collect(reading.time, raw, emit)
+        self.collect(life, reading.time, raw, emit)
     }
 
-    fn reading_line(&mut self, time: f64, raw: [f64; 3]) -> String {
-        let corrected = self
+    fn reading_line(&mut self, life: &Lifecycle, time: f64, raw: [f64; 3]) -> String {
+        let corrected = life
             .current
             .as_ref()
             .and_then(|c| Some((c.id, apply3(c.ellipsoid.as_ref()?, raw))));
@@ -671,8 +632,14 @@ impl Sensor3 {
     /// Keeps a sample while collecting, thinning the most crowded region
     /// when the buffer is full, and fits once the coverage supports the
     /// model.
-    fn collect(&mut self, time: f64, raw: [f64; 3], emit: &mut Emit<'_>) -> Option<Calibration> {
-        if self.state == SensorState::Calibrated || raw.iter().any(|v| !v.is_finite()) {
+    fn collect(
+        &mut self,
+        life: &mut Lifecycle,
+        time: f64,
+        raw: [f64; 3],
+        emit: &mut Emit<'_>,
+    ) -> Option<Calibration> {
+        if !life.collecting() || raw.iter().any(|v| !v.is_finite()) {
             return None;
         }
         // The accelerometer beside this sample, unless it is stale.
@@ -684,12 +651,12 @@ impl Sensor3 {
         if !self.buffer.push(time, raw, accel) {
             return None;
         }
-        let fitted = self.fit(time, emit);
+        let fitted = self.fit(life, time, emit);
         self.buffer.after_fit();
         fitted
     }
 
-    fn fit(&mut self, time: f64, emit: &mut Emit<'_>) -> Option<Calibration> {
+    fn fit(&mut self, life: &mut Lifecycle, time: f64, emit: &mut Emit<'_>) -> Option<Calibration> {
         let started = Instant::now();
         let fitted = ellipsoid::fit(self.buffer.points(), self.config.model);
         let fit_ms = started.elapsed().as_secs_f64() * 1e3;
@@ -705,18 +672,18 @@ impl Sensor3 {
                 return None;
             }
             Err(e) => {
-                self.reject(time, format!("no fit: {e}"), n, fit_ms, None, emit);
+                self.reject(life, time, format!("no fit: {e}"), n, fit_ms, None, emit);
                 return None;
             }
         };
         let max_rms = self.config.sphere.max_rms;
         if let Err(reason) = check_limits(&fit, self.field, self.config.lsb_per_unit, max_rms) {
-            self.reject(time, reason, n, fit_ms, Some(&fit), emit);
+            self.reject(life, time, reason, n, fit_ms, Some(&fit), emit);
             return None;
         }
         let calibration = Calibration {
             sensor: self.name.clone(),
-            id: self.next_id,
+            id: life.next_id,
             model: fit.model.name().to_string(),
             // The 2-D parameters of a 3-D calibration: the identity, r.
             params: PaperCalibration {
@@ -754,11 +721,8 @@ impl Sensor3 {
             fit.n,
             fit.coverage.fraction * 100.0
         );
-        self.next_id += 1;
-        self.fits_accepted += 1;
-        self.state = SensorState::Calibrated;
+        life.accept(calibration.clone());
         self.buffer.accepted();
-        self.current = Some(calibration.clone());
         Some(calibration)
     }
 
@@ -860,8 +824,8 @@ impl Sensor3 {
 
     /// The `CALIBRATION` line of a calibration loaded from the state
     /// directory.
-    pub fn loaded_line(&self) -> Option<String> {
-        let c = self.current.as_ref()?;
+    pub fn loaded_line(&self, life: &Lifecycle) -> Option<String> {
+        let c = life.current.as_ref()?;
         let earth = match (&self.north, &c.ellipsoid) {
             (Some(north), Some(p)) if self.field == Field::Mag => earth(
                 north,
@@ -880,8 +844,10 @@ impl Sensor3 {
         Some(to_line(&self.message(c, None, 0.0, "state", earth)))
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn reject(
         &mut self,
+        life: &mut Lifecycle,
         time: f64,
         reason: String,
         n: usize,
@@ -920,8 +886,7 @@ impl Sensor3 {
         };
         emit(Lane::Control, to_line(&message));
         tracing::warn!(sensor = %self.name, "3-D calibration rejected: {reason}");
-        self.fits_rejected += 1;
-        self.last_rejection = Some(reason);
+        life.reject(reason);
         // Collect anew; the previous calibration (if any) keeps correcting.
         self.buffer.rejected();
     }
@@ -931,6 +896,7 @@ impl Sensor3 {
 mod tests {
     use super::*;
     use crate::daemon::config::parse;
+    use crate::daemon::messages::SensorState;
     use crate::daemon::reload::{RunningSource, apply};
     use crate::daemon::sensor::Sensor;
     use crate::sim3::{ImuMotion, Motion3, SimAxes3, SimImu3, SimSensor3};
