@@ -16,9 +16,9 @@
 use serde::Serialize;
 
 use super::Calibration;
-use super::rotation::Progress;
 use crate::model::gyro::HeadingCheck;
 use crate::model::paper::PaperCalibration;
+use crate::model::rotation::Progress;
 use crate::source::CountersSnapshot;
 
 /// A sample of one sensor, raw and (once calibrated) corrected.

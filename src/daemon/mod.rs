@@ -9,9 +9,11 @@
 
 pub mod acceptance;
 pub mod config;
+pub mod lifecycle;
 pub mod messages;
 pub mod north;
 pub mod notify;
+pub mod plane;
 pub mod progress;
 pub mod publish;
 pub mod reload;

@@ -21,8 +21,8 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::rotation::Progress;
 use super::sensor::Sensor;
+use crate::model::rotation::Progress;
 
 /// How often the live lines are redrawn and the loop takes a snapshot:
 /// ten times a second is as fast as a person reads a changing number.

@@ -13,41 +13,28 @@
 
 use std::time::Instant;
 
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use super::config::{Axis, Field, SensorConfig};
-use super::messages::{SensorState, to_line};
+use super::lifecycle::Lifecycle;
+use super::messages::to_line;
 use super::north::{Earth, MeasuredDip, North, earth};
 use super::publish::Lane;
 use super::sensor::Emit;
 use super::{Calibration, Ellipsoid3Params};
 use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
 use crate::model::paper::PaperCalibration;
-use crate::model::sphere::{self, MissingDirections, SphereCoverage};
-use crate::model::still_stream::{StillState, StillStream};
+use crate::model::sphere::SphereCoverage;
+use crate::model::sphere_buffer::SphereBuffer;
 use crate::model::tilt::{inclination_deg, robust_spread, tilt_heading_or_why};
 use crate::sample::Reading;
 
-/// ArduPilot's compass calibrator collects `COMPASS_CAL_NUM_SAMPLES` = 300
-/// samples before it fits (AP_Compass/CompassCalibrator.h): the default
-/// fewest samples a 3-D fit is tried on.
-pub const DEFAULT_MIN_SAMPLES: usize = 300;
-
-/// Default cap on the samples held while collecting: ten times
-/// [`DEFAULT_MIN_SAMPLES`]. When full, the most crowded direction region
-/// gives up its older half, so a hand that dwells on some directions
-/// cannot crowd out the rest and memory stays bounded (ArduPilot thins its
-/// buffer likewise, `thin_samples`).
-pub const DEFAULT_MAX_SAMPLES: usize = 3000;
-
-/// Hard bounds of the two settings above.
-pub const SAMPLES_RANGE: (usize, usize) = (20, 1_000_000);
-
-/// The coverage is judged (a closed-form fit for the directions, then
-/// [`ellipsoid::supports`]) once every this many samples: at 20 Hz four
-/// times a second, and the cost of a judgement (linear in the samples
-/// held) stays a small share of the readings' path.
-pub const CHECK_EVERY: usize = 5;
+// The sphere buffer's settings and progress, at the paths they had before
+// the buffer moved to [`crate::model::sphere_buffer`].
+pub use crate::model::sphere_buffer::{
+    CHECK_EVERY, DEFAULT_MAX_SAMPLES, DEFAULT_MIN_SAMPLES, SAMPLES_RANGE, SphereProgress,
+    SphereSettings, StillProgress,
+};
 
 /// ArduPilot's field radius bounds, milligauss: `FIELD_RADIUS_MIN` 150 and
 /// `FIELD_RADIUS_MAX` 950 (CompassCalibrator.cpp, "Earth's magnetic field
@@ -74,65 +61,6 @@ pub const ACCEL_DIAGONAL: (f64, f64) = (0.8, 1.2);
 /// ArduPilot's 16 mG is 2-6 % of the Earth's field).
 pub const RELATIVE_MAX_OFFSET: f64 = 5.0;
 pub const RELATIVE_MAX_RMS: f64 = 0.05;
-
-/// `[sensor.sphere]`: how a 3-axis sensor collects, and its rms limit.
-#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct SphereSettings {
-    /// Fewest samples a fit is tried on.
-    pub min_samples: usize,
-    /// Most samples held (see [`DEFAULT_MAX_SAMPLES`]).
-    pub max_samples: usize,
-    /// Largest rms of |calibrated|/r − 1, a fraction of the field; when
-    /// absent, ArduPilot's 16 mG for a magnetometer whose units are known,
-    /// 5 % otherwise.
-    pub max_rms: Option<f64>,
-    /// An accelerometer fitted on poses held still
-    /// ([`crate::model::still_stream`]) instead of every reading of a
-    /// tumble, whose hand accelerations spoil the fit: ArduPilot's
-    /// six-position calibration. `min_samples` is then not used: a fit
-    /// needs as many poses as the model has unknowns (6 for
-    /// `offset+scale`), and directions that determine it.
-    pub still: bool,
-}
-
-impl Default for SphereSettings {
-    fn default() -> Self {
-        SphereSettings {
-            min_samples: DEFAULT_MIN_SAMPLES,
-            max_samples: DEFAULT_MAX_SAMPLES,
-            max_rms: None,
-            still: false,
-        }
-    }
-}
-
-impl SphereSettings {
-    /// Checks the settings; the message names the key.
-    pub fn validate(&self) -> Result<(), String> {
-        let (lo, hi) = SAMPLES_RANGE;
-        if !(lo..=hi).contains(&self.min_samples) {
-            return Err(format!(
-                "min_samples must be between {lo} and {hi}, got {}",
-                self.min_samples
-            ));
-        }
-        if !(self.min_samples..=hi).contains(&self.max_samples) {
-            return Err(format!(
-                "max_samples must be between min_samples ({}) and {hi}, got {}",
-                self.min_samples, self.max_samples
-            ));
-        }
-        if let Some(v) = self.max_rms
-            && !(v.is_finite() && v > 0.0 && v <= 1.0)
-        {
-            return Err(format!(
-                "max_rms must be a fraction of the field above 0 and at most 1 (0.05 = 5 %), got {v}"
-            ));
-        }
-        Ok(())
-    }
-}
 
 /// The oldest accelerometer reading a heading is tilt-compensated with,
 /// seconds before the magnetometer's reading: 0.1 s. A hand turns a board
@@ -306,44 +234,6 @@ pub fn check_limits(
     }
 }
 
-/// A 3-axis sensor's progress in `STATUS`, while collecting.
-#[derive(Debug, Clone, Serialize)]
-pub struct SphereProgress {
-    /// Samples held.
-    pub samples: usize,
-    /// The share of the sphere's 100 equal-area regions reached, percent,
-    /// about the current closed-form estimate.
-    pub coverage_pct: f64,
-    pub regions: usize,
-    pub covered: usize,
-    /// The missing directions, in words ("missing: -z (...)").
-    pub missing_text: String,
-    /// The missing directions, largest first.
-    pub missing: Vec<MissingDirections>,
-    /// The indices of the regions no direction reached yet (the regions'
-    /// geometry is `sphere_regions` of `/api/config`): the live page's map.
-    pub missing_regions: Vec<usize>,
-    /// The model being collected for.
-    pub model: &'static str,
-    /// The richest model the directions so far support, if any.
-    pub supported: Option<&'static str>,
-    /// With `still`: the poses held so far and the detector's state.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub still: Option<StillProgress>,
-}
-
-/// A still-pose sensor's progress in `STATUS`.
-#[derive(Debug, Clone, Serialize)]
-pub struct StillProgress {
-    /// Poses held still so far (the one being held included, once it
-    /// spans a window).
-    pub poses: usize,
-    /// Poses the model needs at least: its unknowns.
-    pub poses_needed: usize,
-    #[serde(flatten)]
-    pub state: StillState,
-}
-
 #[derive(Serialize)]
 struct TiltFields<'a> {
     /// The accelerometer sensor.
@@ -432,36 +322,20 @@ struct Calibration3Message<'a> {
     poses: Option<usize>,
 }
 
-/// One 3-axis sensor: its buffer, its calibration and its counts.
+/// The sphere geometry of a 3-axis sensor: its buffer, its tilt source and
+/// its true north. Its state, calibration and counts are the
+/// [`Lifecycle`] its [`super::sensor::Sensor`] lends it.
 pub struct Sensor3 {
     name: String,
     stream: u8,
     field: Field,
     config: Sensor3Config,
-    points: Vec<[f64; 3]>,
-    /// The closed-form estimate the directions are judged about: (o, A),
-    /// A(raw − o) on the unit sphere.
-    estimate: Option<([f64; 3], [[f64; 3]; 3])>,
-    since_check: usize,
-    coverage: SphereCoverage,
-    supported: Option<Ellipsoid3Model>,
-    /// After a fit refused for coverage, samples to take before the next
-    /// try (so a refusal is not repeated every check).
-    wait: usize,
-    state: SensorState,
-    current: Option<Calibration>,
-    next_id: u64,
-    readings: u64,
-    fits_accepted: u64,
-    fits_rejected: u64,
-    last_rejection: Option<String>,
+    /// The samples collected, their coverage and (with `still`) poses.
+    buffer: SphereBuffer,
     /// The tilt source's current calibration, as [`Sensor3::set_tilt`] gave it.
     tilt_calibration: Option<Calibration>,
     /// The tilt source's last raw reading, with its time.
     last_accel: Option<(f64, [f64; 3])>,
-    /// The tilt source's raw reading beside each of `points` (a sensor
-    /// with `tilt`; else empty), for the measured inclination.
-    accel_at: Vec<Option<[f64; 3]>>,
     /// True north (`declination_deg` or a location).
     north: Option<North>,
     /// Readings whose heading was left out for a stale accelerometer.
@@ -469,10 +343,6 @@ pub struct Sensor3 {
     /// A sensor of a csv source: where its values (and its tilt source's)
     /// are in the rows, resolved by [`Sensor3::bind_csv`].
     csv: Option<Csv3Binding>,
-    /// With `[sensor.sphere] still`: the still-pose detector, and the
-    /// poses `points` were last built from.
-    still: Option<StillStream>,
-    poses: usize,
 }
 
 /// Where a 3-axis csv sensor's values are: (file, column indices of x, y,
@@ -503,48 +373,25 @@ pub fn apply3(p: &Ellipsoid3Params, raw: [f64; 3]) -> [f64; 3] {
 }
 
 impl Sensor3 {
-    /// A 3-axis sensor of `config` (whose `three` is set), starting from
-    /// its stored calibration if that is a 3-D one.
-    pub fn new(config: &SensorConfig, three: Sensor3Config, stored: Option<Calibration>) -> Self {
-        let stored = stored.filter(|c| c.ellipsoid.is_some());
+    /// The sphere of a 3-axis sensor of `config` (whose `three` is set).
+    pub fn new(config: &SensorConfig, three: Sensor3Config) -> Self {
         Sensor3 {
             name: config.name.clone(),
             stream: config.stream,
             field: config.field,
-            points: Vec::new(),
-            estimate: None,
-            since_check: 0,
-            coverage: sphere::coverage(std::iter::empty()),
-            supported: None,
-            wait: 0,
-            state: if stored.is_some() {
-                SensorState::Calibrated
-            } else {
-                SensorState::Collecting
-            },
-            next_id: stored.as_ref().map_or(1, |c| c.id + 1),
-            current: stored,
-            readings: 0,
-            fits_accepted: 0,
-            fits_rejected: 0,
-            last_rejection: None,
+            buffer: SphereBuffer::new(three.model, three.sphere.clone(), three.lsb_per_unit),
             tilt_calibration: None,
             last_accel: None,
-            accel_at: Vec::new(),
             north: config.north.clone(),
             headings_stale: 0,
             csv: None,
-            still: three
-                .sphere
-                .still
-                .then(|| StillStream::new(three.lsb_per_unit)),
-            poses: 0,
             config: three,
         }
     }
 
-    pub fn calibration(&self) -> Option<&Calibration> {
-        self.current.as_ref()
+    /// The samples held while collecting.
+    pub fn points(&self) -> &[[f64; 3]] {
+        self.buffer.points()
     }
 
     /// The name of the accelerometer sensor this one takes its tilt from.
@@ -567,17 +414,10 @@ impl Sensor3 {
     }
 
     /// Takes over what the same sensor earned under the settings before a
-    /// reload: its calibration (when a 3-D one), next id and counts.
-    pub fn carry_over(&mut self, old: Sensor3) {
-        if old.current.is_some() {
-            self.current = old.current;
-        }
-        self.next_id = self.next_id.max(old.next_id);
-        self.readings = old.readings;
-        self.fits_accepted = old.fits_accepted;
-        self.fits_rejected = old.fits_rejected;
-        self.last_rejection = old.last_rejection;
-        self.tilt_calibration = old.tilt_calibration;
+    /// reload beyond its [`Lifecycle`]: its tilt source's calibration and
+    /// the count of stale headings.
+    pub fn carry_over(&mut self, old: &Sensor3) {
+        self.tilt_calibration = old.tilt_calibration.clone();
         self.headings_stale = old.headings_stale;
         self.recalibrate();
     }
@@ -587,59 +427,14 @@ impl Sensor3 {
         self.north = north;
     }
 
+    /// Starts a new buffer (the [`Lifecycle`] restarts beside it).
     pub fn recalibrate(&mut self) {
-        self.points.clear();
-        self.accel_at.clear();
-        if let Some(still) = &mut self.still {
-            still.clear_poses();
-        }
-        self.poses = 0;
-        self.estimate = None;
-        self.since_check = 0;
-        self.wait = 0;
-        self.coverage = sphere::coverage(std::iter::empty());
-        self.supported = None;
-        self.state = if self.current.is_some() {
-            SensorState::Recalibrating
-        } else {
-            SensorState::Collecting
-        };
+        self.buffer.reset();
     }
 
-    pub fn state(&self) -> SensorState {
-        self.state
-    }
-
-    pub fn counts(&self) -> (u64, u64, u64, Option<&str>) {
-        (
-            self.readings,
-            self.fits_accepted,
-            self.fits_rejected,
-            self.last_rejection.as_deref(),
-        )
-    }
-
-    /// Progress while collecting.
-    pub fn progress(&self) -> Option<SphereProgress> {
-        (self.state != SensorState::Calibrated).then(|| SphereProgress {
-            samples: self.points.len(),
-            coverage_pct: self.coverage.fraction * 100.0,
-            regions: self.coverage.regions,
-            covered: self.coverage.covered,
-            missing_text: self.coverage.missing_text(),
-            missing: self.coverage.missing.clone(),
-            missing_regions: (0..self.coverage.counts.len())
-                .filter(|&k| self.coverage.counts[k] == 0)
-                .collect(),
-            model: self.config.model.name(),
-            supported: self.supported.map(Ellipsoid3Model::name),
-            still: self.still.as_ref().map(|still| StillProgress {
-                // Judged now: a later noise estimate may drop a pose.
-                poses: still.pose_count(),
-                poses_needed: self.config.model.unknowns(),
-                state: still.state(),
-            }),
-        })
+    /// Progress of the buffer being collected.
+    pub fn progress(&self) -> SphereProgress {
+        self.buffer.progress()
     }
 
     /// Readings whose tilt-compensated heading was left out because the
@@ -701,6 +496,7 @@ impl Sensor3 {
     /// without numbers in its columns, the row is ignored.
     pub fn on_row(
         &mut self,
+        life: &mut Lifecycle,
         row: &crate::io::csv::CsvRow,
         emit: &mut Emit<'_>,
     ) -> Option<Calibration> {
@@ -724,17 +520,22 @@ impl Sensor3 {
             return None;
         }
         let raw = values(at)?;
-        self.readings += 1;
-        let line = self.reading_line(row.time, raw);
+        life.readings += 1;
+        let line = self.reading_line(life, row.time, raw);
         emit(Lane::Reading, line);
-        self.collect(row.time, raw, emit)
+        self.collect(life, row.time, raw, emit)
     }
 
     /// Handles one reading: keeps the tilt source's accelerometer, and for
     /// the sensor's own stream publishes the reading (corrected when
     /// calibrated, with the tilt-compensated heading when it has a tilt
     /// source) and collects. Returns a newly accepted calibration.
-    pub fn on_reading(&mut self, reading: &Reading, emit: &mut Emit<'_>) -> Option<Calibration> {
+    pub fn on_reading(
+        &mut self,
+        life: &mut Lifecycle,
+        reading: &Reading,
+        emit: &mut Emit<'_>,
+    ) -> Option<Calibration> {
         if let Some(tilt) = &self.config.tilt
             && reading.stream == tilt.stream
             && let Some(triad) = reading.accel
@@ -745,14 +546,14 @@ impl Sensor3 {
             return None;
         }
         let raw = pick(field_of(reading, self.field)?, self.config.axes);
-        self.readings += 1;
-        let line = self.reading_line(reading.time, raw);
+        life.readings += 1;
+        let line = self.reading_line(life, reading.time, raw);
         emit(Lane::Reading, line);
-        self.collect(reading.time, raw, emit)
+        self.collect(life, reading.time, raw, emit)
     }
 
-    fn reading_line(&mut self, time: f64, raw: [f64; 3]) -> String {
-        let corrected = self
+    fn reading_line(&mut self, life: &Lifecycle, time: f64, raw: [f64; 3]) -> String {
+        let corrected = life
             .current
             .as_ref()
             .and_then(|c| Some((c.id, apply3(c.ellipsoid.as_ref()?, raw))));
@@ -831,196 +632,35 @@ impl Sensor3 {
     /// Keeps a sample while collecting, thinning the most crowded region
     /// when the buffer is full, and fits once the coverage supports the
     /// model.
-    fn collect(&mut self, time: f64, raw: [f64; 3], emit: &mut Emit<'_>) -> Option<Calibration> {
-        if self.state == SensorState::Calibrated || raw.iter().any(|v| !v.is_finite()) {
-            return None;
-        }
-        if self.still.is_some() {
-            return self.collect_still(time, raw, emit);
-        }
-        if self.points.len() >= self.config.sphere.max_samples {
-            self.thin();
-        }
-        self.points.push(raw);
-        if self.config.tilt.is_some() {
-            // The accelerometer beside this sample, unless it is stale.
-            let fresh = self
-                .last_accel
-                .filter(|(t, _)| (time - t).abs() <= MAX_TILT_AGE_S)
-                .map(|(_, a)| a);
-            self.accel_at.push(fresh);
-        }
-        self.wait = self.wait.saturating_sub(1);
-        self.since_check += 1;
-        if self.since_check < CHECK_EVERY {
-            return None;
-        }
-        self.since_check = 0;
-        self.judge();
-        let n = self.points.len();
-        if n < self.config.sphere.min_samples
-            || self.wait > 0
-            || self
-                .supported
-                .is_none_or(|m| m.unknowns() < self.config.model.unknowns())
-        {
-            return None;
-        }
-        self.fit(time, emit)
-    }
-
-    /// [`Sensor3::collect`] of a still-pose sensor: the points are the
-    /// poses' samples, judged again when a pose ends and, while one is
-    /// held, every [`CHECK_EVERY`] samples.
-    fn collect_still(
+    fn collect(
         &mut self,
+        life: &mut Lifecycle,
         time: f64,
         raw: [f64; 3],
         emit: &mut Emit<'_>,
     ) -> Option<Calibration> {
-        let still = self.still.as_mut()?;
-        let ended = still.push(time, raw).is_some();
-        self.since_check += 1;
-        let held = still.still_now() && self.since_check >= CHECK_EVERY;
-        if !(ended || held) {
+        if !life.collecting() || raw.iter().any(|v| !v.is_finite()) {
             return None;
         }
-        self.since_check = 0;
-        let poses = still.poses();
-        self.poses = poses.len();
-        self.points = poses
-            .iter()
-            .flat_map(|p| p.samples.iter().copied())
-            .collect();
-        if self.poses < self.config.model.unknowns() {
-            // Too few poses to fit a centre: their directions about zero
-            // (a resting accelerometer reads g plus a zero-g offset far
-            // below g), for the progress's missing directions.
-            self.estimate = Some((
-                [0.0; 3],
-                [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            ));
-            self.coverage = sphere::coverage(self.directions());
-            self.supported = None;
+        // The accelerometer beside this sample, unless it is stale.
+        let accel = self.config.tilt.is_some().then(|| {
+            self.last_accel
+                .filter(|(t, _)| (time - t).abs() <= MAX_TILT_AGE_S)
+                .map(|(_, a)| a)
+        });
+        if !self.buffer.push(time, raw, accel) {
             return None;
         }
-        self.judge();
-        if self.poses < self.config.model.unknowns()
-            || self
-                .supported
-                .is_none_or(|m| m.unknowns() < self.config.model.unknowns())
-        {
-            return None;
-        }
-        let fitted = self.fit(time, emit);
-        // Accepted or rejected, the points are gone and the next
-        // calibration starts from new poses; a fit refused for coverage
-        // keeps them.
-        if self.points.is_empty()
-            && let Some(still) = &mut self.still
-        {
-            still.clear_poses();
-            self.poses = 0;
-        }
+        let fitted = self.fit(life, time, emit);
+        self.buffer.after_fit();
         fitted
     }
 
-    /// The directions of the points about the current estimate.
-    fn directions(&self) -> Vec<[f64; 3]> {
-        let (o, a) = self.estimate.unwrap_or_else(|| {
-            // Before a closed form: the centre of the readings' box.
-            let mut lo = [f64::INFINITY; 3];
-            let mut hi = [f64::NEG_INFINITY; 3];
-            for p in &self.points {
-                for i in 0..3 {
-                    lo[i] = lo[i].min(p[i]);
-                    hi[i] = hi[i].max(p[i]);
-                }
-            }
-            let o = [0, 1, 2].map(|i| (lo[i] + hi[i]) / 2.0);
-            (o, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-        });
-        self.points
-            .iter()
-            .map(|p| {
-                let d = [0, 1, 2].map(|i| p[i] - o[i]);
-                [0, 1, 2].map(|i| a[i][0] * d[0] + a[i][1] * d[1] + a[i][2] * d[2])
-            })
-            .collect()
-    }
-
-    /// Updates the estimate, the coverage and the supported model.
-    fn judge(&mut self) {
-        if self.points.len() >= 4 * self.config.model.unknowns()
-            && let Ok(estimate) = ellipsoid::closed_form(&self.points, self.config.model)
-            && estimate
-                .0
-                .iter()
-                .chain(estimate.1.iter().flatten())
-                .all(|v| v.is_finite())
-        {
-            self.estimate = Some(estimate);
-        }
-        let dirs = self.directions();
-        self.coverage = sphere::coverage(dirs.iter().copied());
-        self.supported = if self.estimate.is_some() {
-            ellipsoid::best_supported(&dirs)
-        } else {
-            None
-        };
-    }
-
-    /// Drops the older half of the most crowded region's samples.
-    fn thin(&mut self) {
-        let regions: Vec<Option<usize>> = self
-            .directions()
-            .into_iter()
-            .map(sphere::region_of)
-            .collect();
-        let mut counts = [0usize; sphere::REGIONS];
-        for k in regions.iter().flatten() {
-            if let Some(c) = counts.get_mut(*k) {
-                *c += 1;
-            }
-        }
-        let Some((crowded, &most)) = counts.iter().enumerate().max_by_key(|(_, c)| **c) else {
-            return;
-        };
-        let mut drop = (most / 2).max(1);
-        let keep: Vec<bool> = regions
-            .iter()
-            .map(|r| {
-                let keep = !(drop > 0 && *r == Some(crowded));
-                if !keep {
-                    drop -= 1;
-                }
-                keep
-            })
-            .collect();
-        let mut i = 0;
-        self.points.retain(|_| {
-            i += 1;
-            keep.get(i - 1).copied().unwrap_or(true)
-        });
-        let mut i = 0;
-        self.accel_at.retain(|_| {
-            i += 1;
-            keep.get(i - 1).copied().unwrap_or(true)
-        });
-        if self.points.len() >= self.config.sphere.max_samples {
-            // No direction (a degenerate estimate): drop the oldest.
-            self.points.remove(0);
-            if !self.accel_at.is_empty() {
-                self.accel_at.remove(0);
-            }
-        }
-    }
-
-    fn fit(&mut self, time: f64, emit: &mut Emit<'_>) -> Option<Calibration> {
+    fn fit(&mut self, life: &mut Lifecycle, time: f64, emit: &mut Emit<'_>) -> Option<Calibration> {
         let started = Instant::now();
-        let fitted = ellipsoid::fit(&self.points, self.config.model);
+        let fitted = ellipsoid::fit(self.buffer.points(), self.config.model);
         let fit_ms = started.elapsed().as_secs_f64() * 1e3;
-        let n = self.points.len();
+        let n = self.buffer.points().len();
         let fit = match fitted {
             Ok(fit) => fit,
             Err(e @ ellipsoid::Ellipsoid3Error::NotCovered { .. }) => {
@@ -1028,22 +668,22 @@ impl Sensor3 {
                 // not: collect on, and try again a quarter (at least
                 // min_samples / 4) further on.
                 tracing::info!(sensor = %self.name, "not yet: {e}");
-                self.wait = (n / 4).max(self.config.sphere.min_samples / 4);
+                self.buffer.not_yet();
                 return None;
             }
             Err(e) => {
-                self.reject(time, format!("no fit: {e}"), n, fit_ms, None, emit);
+                self.reject(life, time, format!("no fit: {e}"), n, fit_ms, None, emit);
                 return None;
             }
         };
         let max_rms = self.config.sphere.max_rms;
         if let Err(reason) = check_limits(&fit, self.field, self.config.lsb_per_unit, max_rms) {
-            self.reject(time, reason, n, fit_ms, Some(&fit), emit);
+            self.reject(life, time, reason, n, fit_ms, Some(&fit), emit);
             return None;
         }
         let calibration = Calibration {
             sensor: self.name.clone(),
-            id: self.next_id,
+            id: life.next_id,
             model: fit.model.name().to_string(),
             // The 2-D parameters of a 3-D calibration: the identity, r.
             params: PaperCalibration {
@@ -1081,12 +721,8 @@ impl Sensor3 {
             fit.n,
             fit.coverage.fraction * 100.0
         );
-        self.next_id += 1;
-        self.fits_accepted += 1;
-        self.state = SensorState::Calibrated;
-        self.points = Vec::new();
-        self.accel_at = Vec::new();
-        self.current = Some(calibration.clone());
+        life.accept(calibration.clone());
+        self.buffer.accepted();
         Some(calibration)
     }
 
@@ -1126,7 +762,7 @@ impl Sensor3 {
             declination_source: self.north.as_ref().map(|n| n.source.as_str()),
             declination_uncertainty_deg: self.north.as_ref().and_then(North::uncertainty_deg),
             earth,
-            poses: (origin == "sphere" && self.still.is_some()).then_some(self.poses),
+            poses: self.buffer.still_poses().filter(|_| origin == "sphere"),
         }
     }
 
@@ -1165,9 +801,10 @@ impl Sensor3 {
             .as_ref()
             .and_then(|c| c.ellipsoid.as_ref());
         let values: Vec<f64> = self
-            .points
+            .buffer
+            .points()
             .iter()
-            .zip(&self.accel_at)
+            .zip(self.buffer.accel_at())
             .filter_map(|(raw, accel)| {
                 let accel = (*accel)?;
                 let accel = match accel_cal {
@@ -1187,8 +824,8 @@ impl Sensor3 {
 
     /// The `CALIBRATION` line of a calibration loaded from the state
     /// directory.
-    pub fn loaded_line(&self) -> Option<String> {
-        let c = self.current.as_ref()?;
+    pub fn loaded_line(&self, life: &Lifecycle) -> Option<String> {
+        let c = life.current.as_ref()?;
         let earth = match (&self.north, &c.ellipsoid) {
             (Some(north), Some(p)) if self.field == Field::Mag => earth(
                 north,
@@ -1207,8 +844,10 @@ impl Sensor3 {
         Some(to_line(&self.message(c, None, 0.0, "state", earth)))
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn reject(
         &mut self,
+        life: &mut Lifecycle,
         time: f64,
         reason: String,
         n: usize,
@@ -1243,19 +882,13 @@ impl Sensor3 {
             declination_source: self.north.as_ref().map(|n| n.source.as_str()),
             declination_uncertainty_deg: self.north.as_ref().and_then(North::uncertainty_deg),
             earth: fit.and_then(|f| self.earth_of(f)),
-            poses: self.still.is_some().then_some(self.poses),
+            poses: self.buffer.still_poses(),
         };
         emit(Lane::Control, to_line(&message));
         tracing::warn!(sensor = %self.name, "3-D calibration rejected: {reason}");
-        self.fits_rejected += 1;
-        self.last_rejection = Some(reason);
+        life.reject(reason);
         // Collect anew; the previous calibration (if any) keeps correcting.
-        self.points.clear();
-        self.accel_at.clear();
-        self.estimate = None;
-        self.wait = 0;
-        self.coverage = sphere::coverage(std::iter::empty());
-        self.supported = None;
+        self.buffer.rejected();
     }
 }
 
@@ -1263,6 +896,7 @@ impl Sensor3 {
 mod tests {
     use super::*;
     use crate::daemon::config::parse;
+    use crate::daemon::messages::SensorState;
     use crate::daemon::reload::{RunningSource, apply};
     use crate::daemon::sensor::Sensor;
     use crate::sim3::{ImuMotion, Motion3, SimAxes3, SimImu3, SimSensor3};
@@ -1469,7 +1103,7 @@ mod tests {
                 }
             };
             sensor.on_reading(&r, &mut |_, _| {});
-            let held = sensor.three().unwrap().points.len();
+            let held = sensor.three().unwrap().points().len();
             assert!(held <= 400, "{held} at {i}");
         }
     }

@@ -11,6 +11,8 @@
 //!   Levenberg-Marquardt.
 //! - [`lm`]: the one Levenberg–Marquardt solver the 2-D and 3-D fits share.
 //! - [`residuals`]: what a fit's residual still holds, and its noise floor.
+//! - [`rotation`]: the rotation buffer of a 2-axis sensor: samples kept
+//!   until they make one full turn.
 //! - [`diagnose`]: which effect the data supports, step by step.
 //! - [`ladder`]: the diagnosis ladder both geometries share.
 //! - [`check`]: whether a stored calibration holds on another recording.
@@ -18,6 +20,8 @@
 //! - [`turn`]: whether the readings show a turn at all, before any fit.
 //! - [`ellipsoid`]: the 3-D model (offset, gains, soft iron) and its fit.
 //! - [`sphere`]: coverage of the sphere of directions, for 3-axis sensors.
+//! - [`sphere_buffer`]: the samples a 3-axis sensor collects until their
+//!   directions cover the sphere.
 //! - [`still`]: still segments (poses at rest) of a 3-axis recording.
 //! - [`tilt`]: the tilt-compensated heading from a magnetometer and an
 //!   accelerometer on one board.
@@ -37,7 +41,9 @@ pub mod lm;
 pub mod nonlinear;
 pub mod paper;
 pub mod residuals;
+pub mod rotation;
 pub mod sphere;
+pub mod sphere_buffer;
 pub mod still;
 pub mod still_stream;
 pub mod tilt;

@@ -1,0 +1,92 @@
+//! What every sensor of the daemon keeps whatever its geometry (a 2-axis
+//! sensor's plane or a 3-axis sensor's sphere): its state, the calibration
+//! correcting its readings, the id the next one gets, and its counts.
+//! Held once per sensor by [`super::sensor::Sensor`] and lent to its
+//! geometry for each reading.
+
+use super::Calibration;
+use super::messages::SensorState;
+
+/// A sensor's state, current calibration, ids and counts.
+#[derive(Debug, Clone)]
+pub struct Lifecycle {
+    /// Collecting, calibrated, or calibrated and collecting anew.
+    pub state: SensorState,
+    /// The calibration correcting the readings, if any.
+    pub current: Option<Calibration>,
+    /// The id the next accepted calibration gets.
+    pub next_id: u64,
+    /// Readings published.
+    pub readings: u64,
+    pub fits_accepted: u64,
+    pub fits_rejected: u64,
+    /// Why the last fit was refused.
+    pub last_rejection: Option<String>,
+}
+
+impl Lifecycle {
+    /// A sensor starting from its stored calibration, if any: it corrects
+    /// at once and collects nothing until asked to.
+    pub fn new(stored: Option<Calibration>) -> Self {
+        Lifecycle {
+            state: if stored.is_some() {
+                SensorState::Calibrated
+            } else {
+                SensorState::Collecting
+            },
+            next_id: stored.as_ref().map_or(1, |c| c.id + 1),
+            current: stored,
+            readings: 0,
+            fits_accepted: 0,
+            fits_rejected: 0,
+            last_rejection: None,
+        }
+    }
+
+    /// Whether the sensor collects (it has no calibration, or was asked
+    /// to recalibrate).
+    pub fn collecting(&self) -> bool {
+        self.state != SensorState::Calibrated
+    }
+
+    /// Collects anew; the current calibration keeps correcting until a
+    /// new one is accepted.
+    pub fn restart(&mut self) {
+        self.state = if self.current.is_some() {
+            SensorState::Recalibrating
+        } else {
+            SensorState::Collecting
+        };
+    }
+
+    /// A fit was accepted as `calibration`: it corrects from now on, and
+    /// the sensor stops collecting.
+    pub fn accept(&mut self, calibration: Calibration) {
+        self.next_id += 1;
+        self.fits_accepted += 1;
+        self.state = SensorState::Calibrated;
+        self.current = Some(calibration);
+    }
+
+    /// A fit (or a rotation) was refused for `reason`: counted, and the
+    /// previous calibration (if any) keeps correcting.
+    pub fn reject(&mut self, reason: String) {
+        self.fits_rejected += 1;
+        self.last_rejection = Some(reason);
+    }
+
+    /// Takes over what `old` (the same sensor under the settings before a
+    /// reload) had earned: its calibration (when it had one), the next id
+    /// and its counts; then collects anew.
+    pub fn carry_over(&mut self, old: Lifecycle) {
+        if old.current.is_some() {
+            self.current = old.current;
+        }
+        self.next_id = self.next_id.max(old.next_id);
+        self.readings = old.readings;
+        self.fits_accepted = old.fits_accepted;
+        self.fits_rejected = old.fits_rejected;
+        self.last_rejection = old.last_rejection;
+        self.restart();
+    }
+}

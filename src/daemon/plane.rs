@@ -1,0 +1,701 @@
+//! The plane geometry of a 2-axis sensor (`axes = ["x", "y"]`): readings
+//! are collected by the rotation buffer ([`crate::model::rotation`]) until
+//! the sensor has turned once round, then fitted with the paper's model
+//! (and the effects the configuration adds), checked against the
+//! [`acceptance`] limits, and from then on every reading carries the
+//! corrected x, y and heading. A gyro beside it checks each fit's heading.
+//!
+//! A plain state machine as [`super::sensor::Sensor`] (which holds one of
+//! these, or a sphere, beside the sensor's [`Lifecycle`]): readings in,
+//! lines to publish and calibrations to store out, no I/O, no clock.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use super::acceptance::{self, Limits};
+use super::config::{Axis, Field, GyroChoice, SensorConfig};
+use super::lifecycle::Lifecycle;
+use super::messages::{CalibrationMessage, ColumnValues, HeadingVsGyro, ReadingMessage, to_line};
+use super::publish::Lane;
+use super::sensor::Emit;
+use super::{Calibration, Terms};
+use crate::io::csv::{CsvError, CsvLayout, CsvRow};
+use crate::model::diagnose::diagnose;
+use crate::model::effects::{Effect, parse_list};
+use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper};
+use crate::model::gyro::{GyroUnits, HeadingReference};
+use crate::model::heading::coverage;
+use crate::model::nonlinear::{cubic_scale, fit_model, turn_frame};
+use crate::model::rotation::{Progress, RotationBuffer, RotationEvent};
+use crate::model::turn::check_turn;
+use crate::sample::Dataset;
+use crate::sample::Reading;
+
+/// A 2-axis sensor's rotation buffer, model and gyro.
+pub struct Plane {
+    config: SensorConfig,
+    effects: Vec<Effect>,
+    limits: Limits,
+    model: String,
+    buffer: RotationBuffer,
+    /// The gyro rate kept beside the rotation, for its heading check.
+    pub(super) gyro: Option<GyroTrack>,
+    /// A sensor of a csv source: its columns, resolved once against the
+    /// file's header by [`Plane::bind_csv`].
+    csv: Option<CsvBinding>,
+}
+
+/// Where a csv sensor's values are in each row: indices into
+/// [`CsvRow::values`], resolved once, never looked up by name per row.
+#[derive(Debug, Clone)]
+struct CsvBinding {
+    /// The file of its source the columns are in ([`CsvRow::file`]).
+    file: usize,
+    layout: Arc<CsvLayout>,
+    axes: [usize; 2],
+    gyro: Option<usize>,
+    /// The other columns, published with each reading.
+    others: Vec<usize>,
+}
+
+/// The angular rate about the turn's axis, in degrees/second, with its
+/// times, kept while the sensor collects a rotation: one push per reading;
+/// integrated and compared once per rotation.
+#[derive(Debug, Clone)]
+pub(super) struct GyroTrack {
+    stream: u8,
+    /// Index of the axis in the reading's gyro triad.
+    axis: usize,
+    lsb_per_deg_s: f64,
+    /// `gyro_x`, `gyro_y` or `gyro_z`, as the messages name it.
+    column: String,
+    pub(super) t: Vec<f64>,
+    pub(super) rate: Vec<f64>,
+    /// Most entries held: the older half is dropped when full, so memory
+    /// stays bounded however long the sensor collects.
+    cap: usize,
+    /// The rate integrated (trapezoids) over every reading kept, in
+    /// degrees from an arbitrary origin: the rotation buffer takes its
+    /// change since a rotation's first sample.
+    angle_deg: f64,
+}
+
+impl GyroTrack {
+    fn new(choice: &GyroChoice, max_samples: usize) -> Option<Self> {
+        let (stream, axis, lsb_per_deg_s, column) = match choice {
+            GyroChoice::Rate {
+                stream,
+                axis,
+                lsb_per_deg_s,
+            } => (
+                *stream,
+                axis.index(),
+                *lsb_per_deg_s,
+                format!("gyro_{}", axis.name()),
+            ),
+            // A column's value in its units: one deg/s is 1 deg/s, or
+            // pi/180 rad/s.
+            GyroChoice::Column { name, units } => (
+                0,
+                0,
+                match units {
+                    GyroUnits::DegPerSecond => 1.0,
+                    GyroUnits::RadPerSecond => std::f64::consts::PI / 180.0,
+                },
+                name.clone(),
+            ),
+            GyroChoice::Off(_) => return None,
+        };
+        Some(GyroTrack {
+            stream,
+            axis,
+            lsb_per_deg_s,
+            column,
+            t: Vec::new(),
+            rate: Vec::new(),
+            // A rotation holds at most max_samples readings of the sensor;
+            // a gyro polled beside it adds as many.
+            cap: 2 * max_samples.max(1),
+            angle_deg: 0.0,
+        })
+    }
+
+    /// Keeps the rate of a reading that carries this gyro. O(1) amortised.
+    fn keep(&mut self, reading: &Reading) {
+        let Some(triad) = reading.gyro.filter(|_| reading.stream == self.stream) else {
+            return;
+        };
+        self.keep_value(reading.time, f64::from(triad[self.axis]));
+    }
+
+    /// Keeps a rate at `time` in the gyro's units (counts, or a column's
+    /// deg/s or rad/s). O(1) amortised.
+    fn keep_value(&mut self, time: f64, value: f64) {
+        if !value.is_finite() {
+            return;
+        }
+        // The integration needs increasing times; a repeated or earlier
+        // time (as the rotation buffer also ignores) is left out.
+        if !time.is_finite() || self.t.last().is_some_and(|&last| time <= last) {
+            return;
+        }
+        if self.t.len() >= self.cap {
+            let half = self.cap / 2;
+            self.t.drain(..half);
+            self.rate.drain(..half);
+        }
+        let rate = value / self.lsb_per_deg_s;
+        if let (Some(&t0), Some(&r0)) = (self.t.last(), self.rate.last()) {
+            self.angle_deg += (time - t0) * (rate + r0) / 2.0;
+        }
+        self.t.push(time);
+        self.rate.push(rate);
+    }
+
+    /// The integrated angle, once a rate has been kept.
+    fn angle(&self) -> Option<f64> {
+        (!self.t.is_empty()).then_some(self.angle_deg)
+    }
+
+    fn clear(&mut self) {
+        self.t.clear();
+        self.rate.clear();
+    }
+
+    /// Drops the rates of a rotation that was given up, keeping the last
+    /// one at or before `time` (where the new rotation starts) and after.
+    fn forget_before(&mut self, time: f64) {
+        let keep_from = self.t.partition_point(|&g| g < time).saturating_sub(1);
+        self.t.drain(..keep_from);
+        self.rate.drain(..keep_from);
+    }
+
+    /// The heading check of a rotation: samples at times `t` whose model
+    /// headings are `headings_rad`. Uses the rates from the last one at or
+    /// before the rotation's first sample to the first at or after its last.
+    fn check(&self, t: &[f64], headings_rad: &[f64]) -> Result<HeadingVsGyro, String> {
+        let (Some(&first), Some(&last)) = (t.first(), t.last()) else {
+            return Err("no samples to check".into());
+        };
+        let lo = self.t.partition_point(|&g| g <= first).saturating_sub(1);
+        let hi = (self.t.partition_point(|&g| g < last) + 1).min(self.t.len());
+        let (gyro_t, rate) = match (self.t.get(lo..hi), self.rate.get(lo..hi)) {
+            (Some(gt), Some(r)) if !gt.is_empty() => (gt, r),
+            _ => {
+                return Err(format!("no {} readings during the rotation", self.column));
+            }
+        };
+        let reference =
+            HeadingReference::from_rates(&self.column, t, gyro_t, rate, GyroUnits::DegPerSecond)
+                .map_err(|e| e.to_string())?;
+        let check = reference
+            .check(headings_rad, &[])
+            .map_err(|e| e.to_string())?;
+        Ok(HeadingVsGyro::from(&check))
+    }
+}
+
+impl Plane {
+    /// The plane of a 2-axis sensor of `config`.
+    pub fn new(config: SensorConfig) -> Self {
+        let limits = config.limits.clone();
+        let buffer = RotationBuffer::new(config.rotation.clone());
+        let gyro = GyroTrack::new(&config.gyro, buffer.config().max_samples);
+        // The configuration checked the names; an unparsable list (not
+        // possible from a checked file) falls back to the paper's model.
+        let effects = parse_list(&config.effects.join(","))
+            .unwrap_or_else(|_| crate::model::effects::PAPER.to_vec());
+        Plane {
+            model: crate::model::effects::model_name(&effects),
+            effects,
+            config,
+            limits,
+            buffer,
+            gyro,
+            csv: None,
+        }
+    }
+
+    /// The `CALIBRATION` line of the calibration loaded from the state
+    /// directory, if any.
+    pub fn loaded_line(&self, life: &Lifecycle) -> Option<String> {
+        life.current
+            .as_ref()
+            .map(|c| to_line(&CalibrationMessage::loaded(c).with_north(self.config.north.as_ref())))
+    }
+
+    /// Resolves a csv sensor's columns against the headers of the files
+    /// its source plays (`files[k]` has `layouts[k]`; one file, or several
+    /// on one clock), once before the first row: all its columns must be in
+    /// one file. Returns the (file, column) pairs it needs a number in, for
+    /// the source to skip rows without. A sensor of another source needs
+    /// none.
+    pub fn bind_csv(
+        &mut self,
+        layouts: &[Arc<CsvLayout>],
+        files: &[std::path::PathBuf],
+    ) -> Result<Vec<(usize, usize)>, CsvError> {
+        let refs: Vec<&CsvLayout> = layouts.iter().map(Arc::as_ref).collect();
+        let Some(columns) = &self.config.columns else {
+            return Ok(Vec::new());
+        };
+        let mut names = vec![
+            (columns[0].as_str(), "the sensor's x axis"),
+            (columns[1].as_str(), "the sensor's y axis"),
+        ];
+        if let GyroChoice::Column { name, .. } = &self.config.gyro {
+            names.push((name.as_str(), "the sensor's gyro"));
+        }
+        let (file, found) = crate::source::csv::locate_columns(files, &refs, &names)?;
+        let Some(layout) = layouts.get(file) else {
+            return Ok(Vec::new());
+        };
+        let axes = [found[0], found[1]];
+        let gyro = found.get(2).copied();
+        let others = (0..layout.names.len())
+            .filter(|i| !axes.contains(i) && Some(*i) != layout.time_index())
+            .collect();
+        let required = found.iter().map(|&i| (file, i)).collect();
+        self.csv = Some(CsvBinding {
+            file,
+            layout: layout.clone(),
+            axes,
+            gyro,
+            others,
+        });
+        Ok(required)
+    }
+
+    /// Handles one row of the sensor's csv source, as
+    /// [`Sensor::on_reading`] a reading: the row's other columns travel
+    /// with the published reading. A sensor not bound to a csv source, a
+    /// row of another file of the source, or a row without numbers in its
+    /// axes, is ignored.
+    pub fn on_row(
+        &mut self,
+        life: &mut Lifecycle,
+        row: &CsvRow,
+        emit: &mut Emit<'_>,
+    ) -> Option<Calibration> {
+        let binding = self.csv.as_ref()?;
+        if row.file != binding.file {
+            return None;
+        }
+        let (x, y) = (
+            *row.values.get(binding.axes[0])?,
+            *row.values.get(binding.axes[1])?,
+        );
+        if !(x.is_finite() && y.is_finite()) {
+            return None;
+        }
+        if life.collecting()
+            && let (Some(gyro), Some(i)) = (&mut self.gyro, binding.gyro)
+            && let Some(&rate) = row.values.get(i)
+        {
+            gyro.keep_value(row.time, rate);
+        }
+        life.readings += 1;
+        let columns = ColumnValues {
+            names: &binding.layout.names,
+            indices: &binding.others,
+            values: &row.values,
+        };
+        let line = self.reading_line(life, row.time, x, y, Some(columns));
+        emit(Lane::Reading, line);
+        self.collect(life, row.time, x, y, emit)
+    }
+
+    /// Takes a new true north (a reload that changed only
+    /// `declination_deg` or the location): the calibration and the
+    /// rotation being collected are kept.
+    pub fn set_north(&mut self, north: Option<super::north::North>) {
+        self.config.north = north;
+    }
+
+    /// Whether a reading from `stream` of the sensor's source belongs to it
+    /// (its own stream, or the stream of the gyro its heading is checked by).
+    pub fn wants(&self, stream: u8) -> bool {
+        self.config.stream == stream || self.gyro.as_ref().is_some_and(|g| g.stream == stream)
+    }
+
+    /// The two turning axes of a reading, if it carries the sensor's field.
+    pub fn axes_of(&self, reading: &Reading) -> Option<(f64, f64)> {
+        axes_of(&self.config, reading)
+    }
+
+    /// Starts a new rotation (the [`Lifecycle`] restarts beside it).
+    pub fn recalibrate(&mut self) {
+        self.buffer.reset();
+        if let Some(gyro) = &mut self.gyro {
+            gyro.clear();
+        }
+    }
+
+    /// Handles one reading: publishes it (corrected when a calibration
+    /// exists), feeds the rotation buffer while collecting, and fits when the
+    /// rotation is complete. Returns a newly accepted calibration, to store.
+    pub fn on_reading(
+        &mut self,
+        life: &mut Lifecycle,
+        reading: &Reading,
+        emit: &mut Emit<'_>,
+    ) -> Option<Calibration> {
+        if life.collecting()
+            && let Some(gyro) = &mut self.gyro
+        {
+            gyro.keep(reading);
+        }
+        if reading.stream != self.config.stream {
+            // Only the gyro of another chip: kept above, nothing to publish.
+            return None;
+        }
+        let (x, y) = self.axes_of(reading)?;
+        life.readings += 1;
+        emit(
+            Lane::Reading,
+            self.reading_line(life, reading.time, x, y, None),
+        );
+        self.collect(life, reading.time, x, y, emit)
+    }
+
+    /// Feeds a published sample to the rotation buffer while collecting,
+    /// and fits when the rotation is complete.
+    fn collect(
+        &mut self,
+        life: &mut Lifecycle,
+        time: f64,
+        x: f64,
+        y: f64,
+        emit: &mut Emit<'_>,
+    ) -> Option<Calibration> {
+        if !life.collecting() {
+            return None;
+        }
+        // The gyro's integrated angle lets the buffer check the turn.
+        let turned = self.gyro.as_ref().and_then(GyroTrack::angle);
+        match self.buffer.push_turned(time, x, y, turned) {
+            RotationEvent::Collecting => None,
+            RotationEvent::Rejected { reason } => {
+                if let Some(gyro) = &mut self.gyro {
+                    gyro.forget_before(time);
+                }
+                tracing::warn!(sensor = %self.config.name, "{reason}");
+                self.reject(life, time, reason, 0, 0.0, 0.0, emit);
+                None
+            }
+            RotationEvent::Complete => self.fit(life, time, emit),
+        }
+    }
+
+    fn reading_line(
+        &self,
+        life: &Lifecycle,
+        time: f64,
+        x: f64,
+        y: f64,
+        columns: Option<ColumnValues<'_>>,
+    ) -> String {
+        let corrected = life.current.as_ref().map(|c| {
+            let (sx, sy) = c.apply(x, y);
+            (c.id, [sx, sy], sy.atan2(sx).to_degrees().rem_euclid(360.0))
+        });
+        to_line(&ReadingMessage {
+            class: "READING",
+            sensor: &self.config.name,
+            time,
+            raw: [x, y],
+            corrected: corrected.map(|c| c.1),
+            heading_deg: corrected.map(|c| c.2),
+            true_heading_deg: corrected
+                .zip(self.config.north.as_ref())
+                .map(|(c, n)| n.true_heading(c.2)),
+            calibration: corrected.map(|c| c.0),
+            calibrated: corrected.is_some(),
+            columns: columns.filter(|c| !c.is_empty()),
+        })
+    }
+
+    fn fit(&mut self, life: &mut Lifecycle, time: f64, emit: &mut Emit<'_>) -> Option<Calibration> {
+        let (t, x, y) = self.buffer.take();
+        let started = Instant::now();
+        let fitted = self.fit_rotation(t, x, y);
+        let fit_ms = started.elapsed().as_secs_f64() * 1e3;
+        let (report, terms, rotation) = match fitted {
+            Ok(found) => found,
+            Err((reason, n)) => {
+                self.reject(
+                    life,
+                    time,
+                    format!("no fit: {reason}"),
+                    n,
+                    0.0,
+                    fit_ms,
+                    emit,
+                );
+                return None;
+            }
+        };
+        // What the rotation's residual says beyond the fit: its noise floor,
+        // and an effect the model lacks, so the user beside the robot learns
+        // that the configuration should add it.
+        let insight = diagnose(&rotation, &self.effects, None).ok();
+        let noise_floor = insight.as_ref().map(|d| d.noise_floor.rms);
+        let (suggested, close_second) = match insight {
+            Some(d) => (
+                d.suggested.map(|e| e.to_string()),
+                d.close_second.map(|e| e.to_string()),
+            ),
+            None => (None, None),
+        };
+        let heading = self.heading_check(&rotation, &report, &terms);
+        let (heading_vs_gyro, heading_check) = match heading {
+            Ok(check) => (Some(check), None),
+            Err(why) => (None, Some(why)),
+        };
+        if let Err(reason) = acceptance::check(&report, &self.limits) {
+            // A fit outside the limits is published with its numbers, so the
+            // user sees how far off it was.
+            let message = CalibrationMessage {
+                params: Some(report.calibration),
+                rms: Some(report.rms),
+                terms: (!terms.is_none()).then_some(terms),
+                noise_floor,
+                suggested,
+                close_second,
+                heading_vs_gyro,
+                heading_check,
+                ..self.rejection(time, &reason, report.n, report.coverage.covered_deg, fit_ms)
+            };
+            emit(Lane::Control, to_line(&message));
+            self.note_rejection(life, reason);
+            return None;
+        }
+        let calibration = Calibration {
+            sensor: self.config.name.clone(),
+            id: life.next_id,
+            model: self.model.clone(),
+            params: report.calibration,
+            rms: report.rms,
+            coverage_deg: report.coverage.covered_deg,
+            n: report.n,
+            time,
+            terms,
+            ellipsoid: None,
+        };
+        let message = CalibrationMessage {
+            fit_ms,
+            origin: "rotation",
+            noise_floor,
+            suggested,
+            close_second,
+            heading_vs_gyro,
+            heading_check,
+            ..CalibrationMessage::loaded(&calibration).with_north(self.config.north.as_ref())
+        };
+        emit(Lane::Control, to_line(&message));
+        match (&message.heading_vs_gyro, &message.heading_check) {
+            (Some(h), _) => tracing::info!(
+                sensor = %self.config.name,
+                id = calibration.id,
+                rms = calibration.rms,
+                heading_rms_deg = h.rms_deg,
+                heading_peak_to_peak_deg = h.peak_to_peak_deg,
+                "calibration accepted; heading against {}: {:.2}° rms",
+                h.gyro_column,
+                h.rms_deg
+            ),
+            (None, why) => tracing::info!(
+                sensor = %self.config.name,
+                id = calibration.id,
+                rms = calibration.rms,
+                "calibration accepted; heading not checked: {}",
+                why.as_deref().unwrap_or("no gyro")
+            ),
+        }
+        life.accept(calibration.clone());
+        Some(calibration)
+    }
+
+    /// The fitted model's heading against the gyro kept beside the
+    /// rotation, or why there is none. Information only: it never rejects a
+    /// fit. O(n) in the rotation's samples; empties the gyro track.
+    fn heading_check(
+        &mut self,
+        rotation: &Dataset,
+        report: &FitReport,
+        terms: &Terms,
+    ) -> Result<HeadingVsGyro, String> {
+        let Some(gyro) = &mut self.gyro else {
+            return Err(match &self.config.gyro {
+                GyroChoice::Off(why) => why.clone(),
+                GyroChoice::Rate { .. } | GyroChoice::Column { .. } => {
+                    "no heading check: no gyro".into()
+                }
+            });
+        };
+        let t = rotation.t.as_deref().unwrap_or(&[]);
+        let headings: Vec<f64> = rotation
+            .x
+            .iter()
+            .zip(&rotation.y)
+            .map(|(&x, &y)| {
+                let (cx, cy) = super::apply(&report.calibration, terms, x, y);
+                cy.atan2(cx)
+            })
+            .collect();
+        let checked = gyro
+            .check(t, &headings)
+            .map_err(|e| format!("no heading check against {}: {e}", gyro.column));
+        gyro.clear();
+        checked
+    }
+
+    /// Fits the rotation with the sensor's model: the paper's closed form,
+    /// or the general model when the configuration adds effects. Returns
+    /// the report the acceptance limits judge, the extra terms, and the
+    /// rotation as a recording (for the diagnosis).
+    fn fit_rotation(
+        &self,
+        t: Vec<f64>,
+        x: Vec<f64>,
+        y: Vec<f64>,
+    ) -> Result<(FitReport, Terms, Dataset), (String, usize)> {
+        let n = x.len();
+        let rotation =
+            Dataset::new("x", "y", Some(t), x, y, Vec::new()).map_err(|e| (e.to_string(), n))?;
+        let options = FitOptions {
+            min_coverage_deg: self.limits.min_coverage_deg,
+            ..FitOptions::default()
+        };
+        if self.effects.iter().all(Effect::is_paper) {
+            let report = fit_paper(&rotation.x, &rotation.y, &options, &mut |_| {})
+                .map_err(|e| (e.to_string(), n))?;
+            return Ok((report, Terms::default(), rotation));
+        }
+        // fit_paper runs the turn gate itself; the general model must too.
+        check_turn(&rotation.x, &rotation.y, options.min_coverage_deg)
+            .map_err(|e| (e.to_string(), n))?;
+        let started = Instant::now();
+        let fit = fit_model(&rotation, &self.effects).map_err(|e| (e.to_string(), n))?;
+        let covered = coverage(fit.headings.iter().copied());
+        covered
+            .require(options.min_coverage_deg)
+            .map_err(|e| (e.to_string(), n))?;
+        let calibration = fit.paper();
+        let terms = Terms {
+            c: fit.value("c"),
+            k: [fit.value("k_x"), fit.value("k_y")],
+            cubic_scale: if self.effects.contains(&Effect::Cubic) {
+                cubic_scale(&rotation)
+            } else {
+                0.0
+            },
+            ..Terms::default()
+        };
+        let terms = if self.effects.contains(&Effect::CubicCentred) {
+            // The frame the fit held fixed; the fit above succeeded, so the
+            // same starting point does.
+            let frame = turn_frame(&rotation).map_err(|e| (e.to_string(), n))?;
+            Terms {
+                kc: [fit.value("kc"); 2],
+                centre: frame.centre,
+                turn_radius: frame.radius,
+                ..terms
+            }
+        } else {
+            terms
+        };
+        let report = FitReport {
+            solver: Solver::Lsq,
+            calibration,
+            theta: calibration.to_theta(),
+            rms: fit.rms,
+            n: fit.n,
+            iterations: None,
+            coverage: covered,
+            elapsed: started.elapsed(),
+        };
+        Ok((report, terms, rotation))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn reject(
+        &mut self,
+        life: &mut Lifecycle,
+        time: f64,
+        reason: String,
+        n: usize,
+        coverage_deg: f64,
+        fit_ms: f64,
+        emit: &mut Emit<'_>,
+    ) {
+        let message = self.rejection(time, &reason, n, coverage_deg, fit_ms);
+        emit(Lane::Control, to_line(&message));
+        self.note_rejection(life, reason);
+    }
+
+    /// A `CALIBRATION` line for a rotation that produced no accepted fit.
+    fn rejection(
+        &self,
+        time: f64,
+        reason: &str,
+        n: usize,
+        coverage_deg: f64,
+        fit_ms: f64,
+    ) -> CalibrationMessage<'_> {
+        CalibrationMessage {
+            class: "CALIBRATION",
+            sensor: &self.config.name,
+            accepted: false,
+            id: None,
+            reason: Some(reason.to_string()),
+            model: &self.model,
+            params: None,
+            rms: None,
+            coverage_deg,
+            n,
+            fit_ms,
+            time,
+            origin: "rotation",
+            terms: None,
+            noise_floor: None,
+            suggested: None,
+            close_second: None,
+            heading_vs_gyro: None,
+            heading_check: None,
+            declination_deg: None,
+            declination_source: None,
+            declination_uncertainty_deg: None,
+        }
+        .with_north(self.config.north.as_ref())
+    }
+
+    fn note_rejection(&self, life: &mut Lifecycle, reason: String) {
+        tracing::warn!(sensor = %self.config.name, "calibration rejected: {reason}");
+        life.reject(reason);
+        // Collect again; the previous calibration (if any) keeps correcting.
+    }
+
+    /// Progress of the rotation being collected.
+    pub fn progress(&self) -> Progress {
+        self.buffer.progress()
+    }
+}
+
+/// The two turning axes (`config.axes`) of a reading, if it carries the
+/// sensor's field.
+pub fn axes_of(config: &SensorConfig, reading: &Reading) -> Option<(f64, f64)> {
+    let triad = match config.field {
+        Field::Mag => reading.mag,
+        Field::Accel => reading.accel,
+        Field::Gyro => reading.gyro,
+    }?;
+    let pick = |axis: Axis| {
+        f64::from(match axis {
+            Axis::X => triad[0],
+            Axis::Y => triad[1],
+            Axis::Z => triad[2],
+        })
+    };
+    Some((pick(config.axes[0]), pick(config.axes[1])))
+}

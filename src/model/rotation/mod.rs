@@ -1,0 +1,1594 @@
+//! The rotation buffer: one per sensor, it collects samples until the
+//! sensor has turned one full rotation in a constant field, the way
+//! ArduPilot's compass calibration collects until its completion mask is
+//! full. Pure: no I/O, no clock; time (and, optionally, a gyro's integrated
+//! angle) comes in with each sample.
+//!
+//! # How a full rotation is judged
+//! A rotation is complete when, around the running centre (below), all of
+//! these hold:
+//! - **every heading is covered**: a heading counts as covered by any one
+//!   sample on the circle (within [`RING_BAND`] of its radius), as
+//!   ArduPilot's completion mask counts a section with one sample; the
+//!   largest gap between covered headings is at most `max_gap_deg`
+//!   (default [`DEFAULT_MAX_GAP_DEG`], 30°);
+//! - **the sensor turned once round in one direction**: the net heading
+//!   swept, the sum of the increments between consecutive samples on the
+//!   circle (each wrapped to [-180°, 180°)), reaches 360° less the allowed
+//!   gap (330° by default) in absolute value, both since the first sample
+//!   and since the last reversal (a retreat of more than [`REVERSAL_DEG`]).
+//!   Going back and forth adds and takes away: a swing about where the
+//!   buffer started never gets there, however many headings it covers; a
+//!   half turn gets to 180°; a wandering reading that happens to circle
+//!   turns back on its way;
+//! - **around a plausible offset**: the circle's centre lies within
+//!   [`MAX_CENTRE_OVER_RADIUS`] radii of the zero reading (a sensor that
+//!   slides without turning sees its readings wander by a small part of
+//!   their value, so any loop they make is far from zero);
+//! - **enough samples**: at least [`MIN_TURN_SAMPLES`] on the circle (the
+//!   turn gate's own minimum), and at least [`MIN_RING_FRACTION`] of all
+//!   samples on the circle;
+//! - **the readings moved**: their spread exceeds `still_ratio` times their
+//!   noise (a still sensor's noise cloud has "headings" too);
+//! - **the gyro agrees**, only when `use_gyro` is on (it is off by default)
+//!   and the sensor passes a gyro angle (see
+//!   [`RotationBuffer::push_turned`]): its integrated angle since the first
+//!   sample has also reached the net turn needed. The gyro alone never
+//!   completes a rotation (an uncalibrated MEMS gyro drifts by up to ±20°/s,
+//!   MPU-6050 datasheet, so a swing plus drift could integrate to a turn):
+//!   it can only hold one back, e.g. when a magnet is carried round a still
+//!   sensor. Off by default because a gyro whose axis or scale is
+//!   configured wrong would then hold back every rotation, while the heading
+//!   check of each CALIBRATION (information only) already tells the user;
+//!   the readings' own net turn completes the recorded turns at one turn
+//!   with or without it.
+//!
+//! None of this counts samples per sector, so it does not depend on the
+//! sample rate: a 10 Hz robot turn with a few samples per 10° completes as
+//! a 100 Hz hand turn does, on one turn.
+//!
+//! Headings are measured around a running centre: the circle that fits the
+//! samples best in Kåsa's algebraic sense (the same fit as
+//! [`crate::model::heading::circle_centre`]), kept as running sums so each
+//! sample updates it in O(1). Why this centre and not the others:
+//! - the min/max box is exact only once the turn is complete: on a partial
+//!   arc it puts the centre near the chord and inflates the coverage (a
+//!   quarter turn reads as half), so the progress a person watches would lie;
+//! - Kåsa's centre of a circular arc is exact on any arc, so progress is
+//!   right during the turn; on a full turn of an ellipse of the paper's
+//!   family it is exact by symmetry, and on a partial ellipse arc it is off
+//!   by a fraction of (gain ratio - 1) of the radius, which the recount fixes
+//!   once the turn closes;
+//! - the paper's ellipse fit itself is unstable on short arcs (it turns
+//!   into hyperbolas).
+//!
+//! Samples are placed (into 1° heading bins and the net turn) around a
+//! reference centre. When the running centre (or radius) moves by more than
+//! [`RECOUNT_MOVE`] of the radius, every held sample is recounted around it,
+//! at most once per max(16, n/8) samples so the cost stays O(1) amortised;
+//! before the rotation is declared complete the counts are always redone
+//! around a centre within [`EXACT_MOVE`] of the current one. So headings
+//! covered, or a turn swept, around a wrong early centre never count.
+
+use serde::{Deserialize, Serialize};
+
+mod circle;
+
+use circle::{Frame, Moments, wrap_deg};
+
+pub use crate::model::turn::MIN_TURN_SAMPLES;
+
+/// Samples whose distance from the centre is within this band of the
+/// circle's rms radius count as "on the circle". Wide enough for an
+/// ellipse of gain ratio 2 (its radii span 0.63 to 1.26 of the rms), narrow
+/// enough that most of a noise cloud falls outside.
+pub const RING_BAND: (f64, f64) = (0.5, 1.5);
+/// At least this fraction of the samples must lie on the circle: a noise
+/// cloud puts about 2/3 there, a real turn all of them.
+pub const MIN_RING_FRACTION: f64 = 0.8;
+/// Recount when the centre or radius moved by this fraction of the radius
+/// (a centre off by 5 % of the radius shifts headings by at most ~3°, a
+/// tenth of the default gap).
+pub const RECOUNT_MOVE: f64 = 0.05;
+/// A rotation is only declared complete with counts made around a centre
+/// within this fraction of the radius of the current one (< 0.6° of heading).
+pub const EXACT_MOVE: f64 = 0.01;
+/// A heading that retreats this far from its furthest point is a reversal;
+/// large enough that noise on the circle never makes one.
+pub const REVERSAL_DEG: f64 = 30.0;
+/// Headings are counted only once the arc held bends beyond its noise: its
+/// sagitta (the largest distance of a sample from the chord through the
+/// first and the latest sample) must be at least this many noise
+/// deviations. On a shorter, flatter arc the circle's centre is set by the
+/// noise rather than by the curvature (Kåsa's centre of a 10° arc with
+/// noise of a few counts lands anywhere along its axis), and headings
+/// counted around it would show more of the turn done than is, then fall
+/// back once the centre settles. Ten deviations put the centre's error on
+/// the arc's axis at a few percent of the radius for the dozen samples such
+/// an arc holds, within [`RECOUNT_MOVE`].
+pub const ARC_SAGITTA_NOISE: f64 = 10.0;
+/// Default largest gap between covered headings, in degrees. The fit needs
+/// its samples all round: its coverage check (and the acceptance's
+/// `min_coverage_deg`) asks for 300° of the fitted headings, a largest gap
+/// of 60° ([`crate::model::fit::DEFAULT_MIN_COVERAGE_DEG`]). The buffer sees
+/// raw headings around a circle's centre; the fitted model maps them onto
+/// its own with a local stretch of at most the gain ratio, which the
+/// acceptance bounds by 2 (`max_scale_ratio`). So a raw gap of 60° / 2 =
+/// 30° still leaves the fit its 300°. It is also 360° / 12, the spacing of
+/// the turn gate's fewest samples ([`MIN_TURN_SAMPLES`]) spread evenly.
+pub const DEFAULT_MAX_GAP_DEG: f64 = 30.0;
+/// Farthest the circle's centre may lie from the zero reading, in radii.
+/// A sensor turned in a field traces a circle around its offset; the offset
+/// of a real sensor is bounded: ArduPilot accepts compass offsets up to
+/// 1800 mGauss (COMPASS_OFFS_MAX) and fields down to 150 mGauss
+/// (FIELD_RADIUS_MIN), a ratio of 12. A loop of readings much farther out
+/// than that is a sensor that slid through a field that changes (readings
+/// wandering by a fraction of their value), not one that turned.
+pub const MAX_CENTRE_OVER_RADIUS: f64 = 12.0;
+/// Bounds of `max_gap_deg`: 2° is twice the resolution of the heading bins;
+/// beyond 60° the fit's default coverage check could never pass.
+const MAX_GAP_BOUNDS: (f64, f64) = (2.0, 60.0);
+/// Headings are kept as 1° bins: enough to measure gaps of a few degrees.
+const HEADING_BINS: usize = 360;
+/// E|d2| / sigma for white noise: the second difference of white noise of
+/// standard deviation sigma is N(0, 6 sigma^2), whose mean absolute value is
+/// sqrt(6) * sqrt(2/pi) * sigma.
+const D2_PER_SIGMA: f64 = 1.954_410_047_611_31;
+
+/// How the rotation buffer decides a rotation is complete or rejected.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RotationConfig {
+    /// Largest gap between covered headings, in degrees; the net turn needed
+    /// is 360° less this.
+    pub max_gap_deg: f64,
+    /// Most samples held; a rotation not complete by then is rejected.
+    pub max_samples: usize,
+    /// Seconds from the first sample within which the rotation must complete.
+    pub timeout_s: f64,
+    /// Seconds after which readings that have not moved beyond their noise
+    /// are rejected as "not turning" and the buffer restarts, so a sensor
+    /// that waits before it turns does not spend the whole timeout waiting.
+    pub still_timeout_s: f64,
+    /// The readings "move" when their spread on some axis exceeds this many
+    /// standard deviations of their noise.
+    pub still_ratio: f64,
+    /// When the sensor has a heading-check gyro, a rotation also needs the
+    /// gyro's integrated angle to reach the net turn.
+    pub use_gyro: bool,
+}
+
+impl Default for RotationConfig {
+    /// - 30° gap: see [`DEFAULT_MAX_GAP_DEG`]; so 330° of net turn.
+    /// - 20000 samples: a 60 s turn at 3 ms, 320 kB per axis.
+    /// - 60 s: a person turning a robot by hand needs 10-20 s, a robot
+    ///   turning slowly with stops 30 s; 60 s gives a second try without
+    ///   restarting.
+    /// - 10 s still: the time someone needs to pick the robot up; after it,
+    ///   a still buffer restarts so the turn gets its full timeout.
+    /// - 20 noise deviations: n white-noise readings spread over about
+    ///   2*sqrt(2 ln n) deviations, ~9 for 20000; and a field below 10
+    ///   deviations (radius) could not meet the acceptance's 5 % rms anyway.
+    /// - use_gyro: off; see the module documentation.
+    fn default() -> Self {
+        RotationConfig {
+            max_gap_deg: DEFAULT_MAX_GAP_DEG,
+            max_samples: 20_000,
+            timeout_s: 60.0,
+            still_timeout_s: 10.0,
+            still_ratio: 20.0,
+            use_gyro: false,
+        }
+    }
+}
+
+impl RotationConfig {
+    /// Checks the configuration; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        let (lo, hi) = MAX_GAP_BOUNDS;
+        if !(self.max_gap_deg.is_finite() && (lo..=hi).contains(&self.max_gap_deg)) {
+            return Err(format!(
+                "max_gap_deg must be between {lo} and {hi} degrees, got {}",
+                self.max_gap_deg
+            ));
+        }
+        if !(MIN_TURN_SAMPLES..=10_000_000).contains(&self.max_samples) {
+            return Err(format!(
+                "max_samples must be between {MIN_TURN_SAMPLES} and 10000000, got {}",
+                self.max_samples
+            ));
+        }
+        if !(self.timeout_s.is_finite() && self.timeout_s > 0.0) {
+            return Err(format!(
+                "timeout_s must be a positive number of seconds, got {}",
+                self.timeout_s
+            ));
+        }
+        if !(self.still_timeout_s.is_finite() && self.still_timeout_s > 0.0) {
+            return Err(format!(
+                "still_timeout_s must be a positive number of seconds, got {}",
+                self.still_timeout_s
+            ));
+        }
+        if !(self.still_ratio.is_finite() && self.still_ratio >= 1.0) {
+            return Err(format!(
+                "still_ratio must be at least 1 (noise standard deviations), got {}",
+                self.still_ratio
+            ));
+        }
+        Ok(())
+    }
+
+    /// The net heading a rotation must sweep, in degrees: 360° less the
+    /// largest gap allowed (a turn that stops that short of its start has
+    /// left exactly that gap).
+    pub fn turn_needed_deg(&self) -> f64 {
+        360.0 - self.max_gap_deg
+    }
+}
+
+/// Where the buffer is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RotationState {
+    /// No samples yet.
+    Empty,
+    /// Collecting a rotation.
+    Collecting,
+    /// A full rotation is held, waiting for [`RotationBuffer::take`].
+    Complete,
+}
+
+/// How far the rotation has got, as ArduPilot reports its completion mask.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Progress {
+    /// Headings covered, as a percentage of the circle: 100 less the gaps
+    /// between covered headings wider than `max_gap_deg`.
+    pub coverage_pct: f64,
+    /// Headings still missing (the gaps wider than `max_gap_deg`), as
+    /// [start, end] in degrees counter-clockwise from the raw +x axis around
+    /// the running centre; a range whose end is smaller than its start wraps
+    /// through 0° (e.g. [350, 20]).
+    pub missing_sectors: Vec<[f64; 2]>,
+    /// Samples held.
+    pub samples: usize,
+    /// Seconds from the first sample held to the last.
+    pub elapsed_s: f64,
+    pub state: RotationState,
+    /// Samples ignored since the buffer was made: non-finite values, or a
+    /// time earlier than the previous sample's.
+    pub ignored: u64,
+    /// Heading swept by the readings in one direction, in degrees,
+    /// counter-clockwise from raw x to raw y positive: since the first
+    /// sample, or since the last reversal of more than [`REVERSAL_DEG`].
+    pub turned_deg: f64,
+    /// The net turn a rotation needs, in degrees (either direction).
+    pub turn_needed_deg: f64,
+    /// The largest gap between covered headings, in degrees (360 when none
+    /// or one is covered).
+    pub largest_gap_deg: f64,
+    /// The gyro's integrated angle since the first sample, in degrees, when
+    /// the sensor passes one.
+    pub gyro_turned_deg: Option<f64>,
+}
+
+/// What a sample did to the buffer.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RotationEvent {
+    Collecting,
+    /// A full rotation is held: call [`RotationBuffer::take`].
+    Complete,
+    /// The rotation failed for the reason given, in words for a person;
+    /// the buffer has already restarted.
+    Rejected {
+        reason: String,
+    },
+}
+
+/// Which limit ended a rotation that did not complete.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Limit {
+    Timeout,
+    Samples,
+}
+
+/// The gaps between neighbouring covered 1° bins: (the covered bin a gap
+/// starts after, its width in degrees from bin to bin). A single covered
+/// bin has one gap of 360°; none, no gaps.
+fn bin_gaps(bins: &[u32]) -> Vec<(usize, usize)> {
+    let covered: Vec<usize> = (0..bins.len()).filter(|&i| bins[i] > 0).collect();
+    let (Some(&first), Some(&last)) = (covered.first(), covered.last()) else {
+        return Vec::new();
+    };
+    let mut gaps: Vec<(usize, usize)> = covered.windows(2).map(|w| (w[0], w[1] - w[0])).collect();
+    gaps.push((last, first + bins.len() - last));
+    gaps
+}
+
+/// Collects one sensor's samples until they make a full rotation.
+#[derive(Debug, Clone)]
+pub struct RotationBuffer {
+    config: RotationConfig,
+    t: Vec<f64>,
+    x: Vec<f64>,
+    y: Vec<f64>,
+    anchor: (f64, f64),
+    moments: Moments,
+    /// xmin, xmax, ymin, ymax.
+    bounds: [f64; 4],
+    /// Sums of |second difference| per axis, and how many.
+    d2_sum: [f64; 2],
+    d2_n: usize,
+    /// Samples on the circle per 1° of heading, around `reference`.
+    bins: Vec<u32>,
+    /// Samples on the circle around `reference`.
+    on_ring: usize,
+    /// Net heading swept around `reference` (the unwrapped heading, 0 at
+    /// the first sample on the circle), and the last heading on the circle
+    /// it was summed to.
+    net_deg: f64,
+    last_heading: Option<f64>,
+    /// The current sweep: its direction (0 until the heading first moved
+    /// [`REVERSAL_DEG`] from where it started), where it started (the last
+    /// reversal, or the lowest/highest point before the first), and its
+    /// furthest point.
+    direction: i8,
+    sweep_from: f64,
+    extreme: f64,
+    reference: Option<Frame>,
+    since_recount: usize,
+    /// The sample count at which [`RotationBuffer::arc_determined`] looks
+    /// again (every n/16 samples: O(1) amortised).
+    next_arc_check: usize,
+    /// The gyro's integrated angle at the first and the last sample that
+    /// carried one.
+    gyro: Option<(f64, f64)>,
+    complete: bool,
+    ignored: u64,
+}
+
+impl RotationBuffer {
+    /// A buffer for `config`. An invalid configuration (see
+    /// [`RotationConfig::validate`]) is clamped into range rather than
+    /// panicking; callers validate first to tell the user.
+    pub fn new(config: RotationConfig) -> Self {
+        let mut config = config;
+        let defaults = RotationConfig::default();
+        config.max_gap_deg = if config.max_gap_deg.is_finite() {
+            config.max_gap_deg.clamp(MAX_GAP_BOUNDS.0, MAX_GAP_BOUNDS.1)
+        } else {
+            defaults.max_gap_deg
+        };
+        config.max_samples = config.max_samples.clamp(MIN_TURN_SAMPLES, 10_000_000);
+        if !(config.timeout_s.is_finite() && config.timeout_s > 0.0) {
+            config.timeout_s = defaults.timeout_s;
+        }
+        if !(config.still_timeout_s.is_finite() && config.still_timeout_s > 0.0) {
+            config.still_timeout_s = defaults.still_timeout_s;
+        }
+        if !(config.still_ratio.is_finite() && config.still_ratio >= 1.0) {
+            config.still_ratio = defaults.still_ratio;
+        }
+        RotationBuffer {
+            config,
+            t: Vec::new(),
+            x: Vec::new(),
+            y: Vec::new(),
+            anchor: (0.0, 0.0),
+            moments: Moments::default(),
+            bounds: [0.0; 4],
+            d2_sum: [0.0; 2],
+            d2_n: 0,
+            bins: vec![0; HEADING_BINS],
+            on_ring: 0,
+            net_deg: 0.0,
+            last_heading: None,
+            direction: 0,
+            sweep_from: 0.0,
+            extreme: 0.0,
+            reference: None,
+            since_recount: 0,
+            next_arc_check: 0,
+            gyro: None,
+            complete: false,
+            ignored: 0,
+        }
+    }
+
+    /// The configuration in use (after clamping).
+    pub fn config(&self) -> &RotationConfig {
+        &self.config
+    }
+
+    /// Adds a sample (time in seconds, raw x and y counts) without a gyro.
+    /// O(1) amortised. See [`push_turned`](Self::push_turned).
+    pub fn push(&mut self, time: f64, x: f64, y: f64) -> RotationEvent {
+        self.push_turned(time, x, y, None)
+    }
+
+    /// Adds a sample with, when the sensor has a gyro about the turn's
+    /// axis, the gyro's integrated angle at the sample's time in degrees
+    /// (from any origin, either sign: only its change since the buffer's
+    /// first sample counts). O(1) amortised.
+    ///
+    /// Non-finite values and times earlier than the previous sample's are
+    /// ignored (counted in [`Progress::ignored`]); a non-finite angle is
+    /// taken as none. Once `Complete` is returned the buffer holds that
+    /// rotation and ignores further samples, still answering `Complete`,
+    /// until [`take`](Self::take) or [`reset`](Self::reset).
+    pub fn push_turned(
+        &mut self,
+        time: f64,
+        x: f64,
+        y: f64,
+        gyro_deg: Option<f64>,
+    ) -> RotationEvent {
+        if self.complete {
+            return RotationEvent::Complete;
+        }
+        if !(time.is_finite() && x.is_finite() && y.is_finite()) {
+            self.ignored += 1;
+            return RotationEvent::Collecting;
+        }
+        let gyro_deg = gyro_deg.filter(|g| g.is_finite());
+        if let (Some(&first), Some(&last)) = (self.t.first(), self.t.last()) {
+            if time < last {
+                self.ignored += 1;
+                return RotationEvent::Collecting;
+            }
+            let elapsed = time - first;
+            if elapsed > self.config.timeout_s {
+                // A rotation that completes on its last samples but was not
+                // yet recounted exactly still counts.
+                if self.try_complete(true) {
+                    self.complete = true;
+                    return RotationEvent::Complete;
+                }
+                let reason = self.failure(Limit::Timeout);
+                self.restart_with(time, x, y, gyro_deg);
+                return RotationEvent::Rejected { reason };
+            }
+            if elapsed >= self.config.still_timeout_s && !self.turning() {
+                let reason = self.not_turning();
+                self.restart_with(time, x, y, gyro_deg);
+                return RotationEvent::Rejected { reason };
+            }
+        }
+        self.ingest(time, x, y, gyro_deg);
+        if self.try_complete(false) {
+            self.complete = true;
+            return RotationEvent::Complete;
+        }
+        if self.t.len() >= self.config.max_samples {
+            let reason = self.failure(Limit::Samples);
+            self.clear();
+            return RotationEvent::Rejected { reason };
+        }
+        RotationEvent::Collecting
+    }
+
+    /// How far the rotation has got. O(360).
+    pub fn progress(&self) -> Progress {
+        let max_gap = self.config.max_gap_deg;
+        let gaps = if self.reference.is_some() {
+            bin_gaps(&self.bins)
+        } else {
+            Vec::new()
+        };
+        let largest = gaps.iter().map(|g| g.1).max().unwrap_or(HEADING_BINS) as f64;
+        let (missing, missing_deg) = if gaps.is_empty() {
+            (vec![[0.0, 360.0]], 360.0)
+        } else {
+            let mut ranges = Vec::new();
+            let mut width = 0.0;
+            for &(after, gap) in &gaps {
+                if gap as f64 > max_gap {
+                    let start = ((after + 1) % HEADING_BINS) as f64;
+                    let end = match (after + gap) % HEADING_BINS {
+                        0 => 360.0,
+                        e => e as f64,
+                    };
+                    ranges.push([start, end]);
+                    width += (gap - 1) as f64;
+                }
+            }
+            // Ranges in order of their start, so a gap through 0° comes last.
+            ranges.sort_by(|a, b| a[0].total_cmp(&b[0]));
+            (ranges, width)
+        };
+        Progress {
+            coverage_pct: 100.0 * (1.0 - missing_deg / 360.0),
+            missing_sectors: missing,
+            samples: self.t.len(),
+            elapsed_s: self.elapsed(),
+            state: if self.complete {
+                RotationState::Complete
+            } else if self.t.is_empty() {
+                RotationState::Empty
+            } else {
+                RotationState::Collecting
+            },
+            ignored: self.ignored,
+            turned_deg: self.swept(),
+            turn_needed_deg: self.config.turn_needed_deg(),
+            largest_gap_deg: largest,
+            gyro_turned_deg: self.gyro_turned(),
+        }
+    }
+
+    /// The samples held (t, x, y) — on `Complete`, those of the rotation —
+    /// and the buffer restarts empty.
+    pub fn take(&mut self) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        let taken = (
+            std::mem::take(&mut self.t),
+            std::mem::take(&mut self.x),
+            std::mem::take(&mut self.y),
+        );
+        self.clear();
+        taken
+    }
+
+    /// Drops every sample and starts collecting anew (keeps the count of
+    /// ignored samples, which describes the stream, not the rotation).
+    pub fn reset(&mut self) {
+        self.clear();
+    }
+
+    fn clear(&mut self) {
+        self.t.clear();
+        self.x.clear();
+        self.y.clear();
+        self.anchor = (0.0, 0.0);
+        self.moments = Moments::default();
+        self.bounds = [0.0; 4];
+        self.d2_sum = [0.0; 2];
+        self.d2_n = 0;
+        self.bins.iter_mut().for_each(|c| *c = 0);
+        self.on_ring = 0;
+        self.net_deg = 0.0;
+        self.last_heading = None;
+        self.direction = 0;
+        self.sweep_from = 0.0;
+        self.extreme = 0.0;
+        self.reference = None;
+        self.since_recount = 0;
+        self.next_arc_check = 0;
+        self.gyro = None;
+        self.complete = false;
+    }
+
+    fn restart_with(&mut self, time: f64, x: f64, y: f64, gyro_deg: Option<f64>) {
+        self.clear();
+        self.ingest(time, x, y, gyro_deg);
+    }
+
+    fn elapsed(&self) -> f64 {
+        match (self.t.first(), self.t.last()) {
+            (Some(first), Some(last)) => last - first,
+            _ => 0.0,
+        }
+    }
+
+    fn gyro_turned(&self) -> Option<f64> {
+        self.gyro.map(|(first, last)| last - first)
+    }
+
+    fn ingest(&mut self, time: f64, x: f64, y: f64, gyro_deg: Option<f64>) {
+        let n = self.t.len();
+        if n == 0 {
+            self.anchor = (x, y);
+            self.bounds = [x, x, y, y];
+        } else {
+            self.bounds[0] = self.bounds[0].min(x);
+            self.bounds[1] = self.bounds[1].max(x);
+            self.bounds[2] = self.bounds[2].min(y);
+            self.bounds[3] = self.bounds[3].max(y);
+        }
+        if n >= 2 {
+            self.d2_sum[0] += (x - 2.0 * self.x[n - 1] + self.x[n - 2]).abs();
+            self.d2_sum[1] += (y - 2.0 * self.y[n - 1] + self.y[n - 2]).abs();
+            self.d2_n += 1;
+        }
+        if let Some(g) = gyro_deg {
+            self.gyro = Some(match self.gyro {
+                Some((first, _)) => (first, g),
+                None => (g, g),
+            });
+        }
+        self.t.push(time);
+        self.x.push(x);
+        self.y.push(y);
+        self.moments.add(x - self.anchor.0, y - self.anchor.1);
+        self.since_recount += 1;
+
+        let Some(frame) = self.frame() else {
+            return;
+        };
+        if self.reference.is_none() && !self.arc_determined() {
+            return;
+        }
+        match self.reference {
+            Some(reference)
+                if reference.distance(&frame) <= RECOUNT_MOVE
+                    || self.since_recount < (self.t.len() / 8).max(16) =>
+            {
+                self.place(&reference, x, y);
+            }
+            _ => self.recount(frame),
+        }
+    }
+
+    /// Whether the arc held bends enough beyond its noise for its centre
+    /// to mean something (see [`ARC_SAGITTA_NOISE`]). Looked at every n/16
+    /// samples, so O(1) amortised; false until then.
+    fn arc_determined(&mut self) -> bool {
+        let n = self.t.len();
+        if n < self.next_arc_check || self.d2_n == 0 {
+            return false;
+        }
+        self.next_arc_check = n + (n / 16).max(1);
+        let (Some(&x0), Some(&y0), Some(&x1), Some(&y1)) =
+            (self.x.first(), self.y.first(), self.x.last(), self.y.last())
+        else {
+            return false;
+        };
+        let [sx, sy] = self.noise();
+        let sigma = sx.max(sy);
+        let (dx, dy) = (x1 - x0, y1 - y0);
+        let chord = dx.hypot(dy);
+        // Distance from the chord's line; from the first sample when the
+        // latest has come back to it (a closed turn).
+        let sagitta = self
+            .x
+            .iter()
+            .zip(&self.y)
+            .map(|(&x, &y)| {
+                let (u, v) = (x - x0, y - y0);
+                if chord > sigma {
+                    (u * dy - v * dx).abs() / chord
+                } else {
+                    u.hypot(v)
+                }
+            })
+            .fold(0.0, f64::max);
+        sagitta.is_finite() && sagitta > ARC_SAGITTA_NOISE * sigma
+    }
+
+    /// The running centre, in absolute coordinates.
+    fn frame(&self) -> Option<Frame> {
+        let (cu, cv, radius) = self.moments.circle()?;
+        Some(Frame {
+            cx: self.anchor.0 + cu,
+            cy: self.anchor.1 + cv,
+            radius,
+        })
+    }
+
+    fn place(&mut self, frame: &Frame, x: f64, y: f64) {
+        if let Some(h) = frame.heading_deg(x, y) {
+            let i = (h as usize).min(HEADING_BINS - 1);
+            self.bins[i] = self.bins[i].saturating_add(1);
+            self.on_ring += 1;
+            if let Some(last) = self.last_heading {
+                self.net_deg += wrap_deg(h - last);
+                self.follow_sweep();
+            }
+            self.last_heading = Some(h);
+        }
+    }
+
+    /// Moves the current sweep on to `net_deg`: a retreat of
+    /// [`REVERSAL_DEG`] from the furthest point starts a new sweep there.
+    fn follow_sweep(&mut self) {
+        let u = self.net_deg;
+        match self.direction {
+            0 => {
+                // Before the first sweep: it starts from the furthest point
+                // on the side it then leaves.
+                if u - self.sweep_from.min(self.extreme) >= REVERSAL_DEG {
+                    self.sweep_from = self.sweep_from.min(self.extreme);
+                    self.direction = 1;
+                    self.extreme = u;
+                } else if self.sweep_from.max(self.extreme) - u >= REVERSAL_DEG {
+                    self.sweep_from = self.sweep_from.max(self.extreme);
+                    self.direction = -1;
+                    self.extreme = u;
+                } else {
+                    // Keep the lowest in sweep_from, the highest in extreme.
+                    self.sweep_from = self.sweep_from.min(u);
+                    self.extreme = self.extreme.max(u);
+                }
+            }
+            1 if u > self.extreme => self.extreme = u,
+            1 if self.extreme - u >= REVERSAL_DEG => {
+                self.sweep_from = self.extreme;
+                self.direction = -1;
+                self.extreme = u;
+            }
+            -1 if u < self.extreme => self.extreme = u,
+            -1 if u - self.extreme >= REVERSAL_DEG => {
+                self.sweep_from = self.extreme;
+                self.direction = 1;
+                self.extreme = u;
+            }
+            _ => {}
+        }
+    }
+
+    /// The heading swept in one direction since the last reversal (or the
+    /// start), signed.
+    fn swept(&self) -> f64 {
+        if self.direction == 0 {
+            // Either way from the start; the larger is the sweep so far.
+            let (down, up) = (self.net_deg - self.sweep_from, self.net_deg - self.extreme);
+            if down.abs() >= up.abs() { down } else { up }
+        } else {
+            self.net_deg - self.sweep_from
+        }
+    }
+
+    /// Recounts every held sample around `frame`: O(n), rare (see the
+    /// module documentation).
+    fn recount(&mut self, frame: Frame) {
+        self.bins.iter_mut().for_each(|c| *c = 0);
+        self.on_ring = 0;
+        self.net_deg = 0.0;
+        self.last_heading = None;
+        self.direction = 0;
+        self.sweep_from = 0.0;
+        self.extreme = 0.0;
+        for i in 0..self.t.len() {
+            let (x, y) = (self.x[i], self.y[i]);
+            self.place(&frame, x, y);
+        }
+        self.reference = Some(frame);
+        self.since_recount = 0;
+    }
+
+    /// Noise standard deviation per axis, from second differences (which a
+    /// smooth turn barely moves, unlike first differences).
+    fn noise(&self) -> [f64; 2] {
+        if self.d2_n == 0 {
+            return [0.0; 2];
+        }
+        let n = self.d2_n as f64;
+        [
+            self.d2_sum[0] / n / D2_PER_SIGMA,
+            self.d2_sum[1] / n / D2_PER_SIGMA,
+        ]
+    }
+
+    fn spread(&self) -> [f64; 2] {
+        if self.t.is_empty() {
+            return [0.0; 2];
+        }
+        [
+            self.bounds[1] - self.bounds[0],
+            self.bounds[3] - self.bounds[2],
+        ]
+    }
+
+    /// Whether the readings moved well beyond their noise on some axis.
+    fn turning(&self) -> bool {
+        let noise = self.noise();
+        let spread = self.spread();
+        (0..2).any(|k| spread[k] > 0.0 && spread[k] > self.config.still_ratio * noise[k])
+    }
+
+    /// Whether the held samples make a full rotation; recounts around the
+    /// current centre first if the counts were made around an older one
+    /// (always when `force`, else at most once per max(1, n/32) samples).
+    fn try_complete(&mut self, force: bool) -> bool {
+        if !self.complete_around_reference() || !self.turning() {
+            return false;
+        }
+        let Some(frame) = self.frame() else {
+            return false;
+        };
+        let exact = self
+            .reference
+            .is_some_and(|r| r.distance(&frame) <= EXACT_MOVE);
+        if exact {
+            return true;
+        }
+        if !force && self.since_recount < (self.t.len() / 32).max(1) {
+            return false;
+        }
+        self.recount(frame);
+        self.complete_around_reference()
+    }
+
+    /// Whether the gyro, if it is used and the sensor passed one, turned as
+    /// far as the readings must.
+    fn gyro_agrees(&self) -> bool {
+        !self.config.use_gyro
+            || self
+                .gyro_turned()
+                .is_none_or(|g| g.abs() >= self.config.turn_needed_deg())
+    }
+
+    /// The rule of the module documentation, on the counts around the
+    /// reference; the O(360) gap last, once the O(1) parts hold.
+    fn complete_around_reference(&self) -> bool {
+        self.reference
+            .is_some_and(|r| r.offset_ratio() <= MAX_CENTRE_OVER_RADIUS)
+            && self.on_ring >= MIN_TURN_SAMPLES
+            && self.on_ring as f64 >= MIN_RING_FRACTION * self.t.len() as f64
+            && self.net_deg.abs() >= self.config.turn_needed_deg()
+            && self.swept().abs() >= self.config.turn_needed_deg()
+            && self.gyro_agrees()
+            && bin_gaps(&self.bins)
+                .iter()
+                .all(|&(_, gap)| gap as f64 <= self.config.max_gap_deg)
+    }
+
+    fn not_turning(&self) -> String {
+        let spread = self.spread();
+        let noise = self.noise();
+        format!(
+            "the sensor is not turning: readings spread over only {:.1} counts in {:.1} s (noise about {:.1} counts); turn it a full rotation",
+            spread[0].max(spread[1]),
+            self.elapsed(),
+            noise[0].max(noise[1]),
+        )
+    }
+
+    /// Why the held samples are not a rotation, once a limit ended them.
+    fn failure(&mut self, limit: Limit) -> String {
+        if !self.turning() {
+            return self.not_turning();
+        }
+        if let Some(frame) = self.frame() {
+            self.recount(frame);
+        }
+        let progress = self.progress();
+        let elapsed = self.elapsed();
+        let (span, reversals) = self.sweep();
+        let needed = self.config.turn_needed_deg();
+        let turned = self.swept().abs();
+        let ended = match limit {
+            Limit::Timeout => format!("within {} s", self.config.timeout_s),
+            Limit::Samples => format!(
+                "within {} samples ({elapsed:.1} s; raise max_samples for a sensor this fast)",
+                self.config.max_samples
+            ),
+        };
+        let covered = progress.missing_sectors.is_empty();
+        if reversals > 0 && turned < needed {
+            return format!(
+                "the sensor turned back and forth over {span:.0}° and never completed a rotation {ended} ({:.0} % of headings covered, net turn {turned:.0}° of {needed:.0}°); turn it once all the way round in one direction",
+                progress.coverage_pct
+            );
+        }
+        let on_ring = self.on_ring as f64 / self.t.len().max(1) as f64;
+        if let Some(far) = self
+            .reference
+            .map(|r| r.offset_ratio())
+            .filter(|&r| r > MAX_CENTRE_OVER_RADIUS)
+        {
+            return format!(
+                "no full rotation {ended}: the readings circle a point {far:.0} times their radius away from zero (at most {MAX_CENTRE_OVER_RADIUS:.0}): they wandered by a small part of their value, as when the sensor slides through a field that changes, rather than turned; turn it in place"
+            );
+        }
+        if covered && on_ring < MIN_RING_FRACTION {
+            return format!(
+                "no full rotation {ended}: every heading was seen but only {:.0} % of the readings lie near one circle (at least {:.0} % must); the field changed during the turn, or the sensor moved rather than turned: turn it in place, away from motors and metal",
+                on_ring * 100.0,
+                MIN_RING_FRACTION * 100.0
+            );
+        }
+        if covered
+            && turned >= needed
+            && let Some(gyro) = self.gyro_turned().filter(|_| !self.gyro_agrees())
+        {
+            return format!(
+                "no full rotation {ended}: the readings turned {turned:.0}° but the gyro only {:.0}° (at least {needed:.0}° needed); the field moved rather than the sensor, or the gyro's axis or scale is wrong: check gyro and gyro_lsb_per_deg_s, or set use_gyro = false in [sensor.rotation]",
+                gyro.abs()
+            );
+        }
+        if covered {
+            return format!(
+                "no full rotation {ended}: every heading was seen but the sensor turned only {turned:.0}° in one direction ({needed:.0}° needed); turn it once all the way round in one direction"
+            );
+        }
+        let missing: Vec<String> = progress
+            .missing_sectors
+            .iter()
+            .map(|[a, b]| format!("{a:.0}° to {b:.0}°"))
+            .collect();
+        format!(
+            "no full rotation {ended}: {:.0} % of headings covered, missing {}; turn the sensor once all the way round, steadily",
+            progress.coverage_pct,
+            missing.join(", ")
+        )
+    }
+
+    /// The heading swept, unwrapped, around the current centre: its span in
+    /// degrees and how many times it reversed by more than
+    /// [`REVERSAL_DEG`]. O(n); only used to explain a failure.
+    fn sweep(&self) -> (f64, usize) {
+        let Some(frame) = self.frame() else {
+            return (0.0, 0);
+        };
+        let mut previous: Option<f64> = None;
+        let (mut unwrapped, mut lo, mut hi) = (0.0f64, 0.0f64, 0.0f64);
+        let (mut direction, mut extreme, mut reversals) = (0i8, 0.0f64, 0usize);
+        for i in 0..self.t.len() {
+            let Some(h) = frame.heading_deg(self.x[i], self.y[i]) else {
+                continue;
+            };
+            if let Some(p) = previous {
+                unwrapped += (h - p + 540.0).rem_euclid(360.0) - 180.0;
+                lo = lo.min(unwrapped);
+                hi = hi.max(unwrapped);
+                match direction {
+                    0 if unwrapped.abs() >= REVERSAL_DEG => {
+                        direction = if unwrapped > 0.0 { 1 } else { -1 };
+                        extreme = unwrapped;
+                    }
+                    1 if unwrapped > extreme => extreme = unwrapped,
+                    1 if extreme - unwrapped >= REVERSAL_DEG => {
+                        reversals += 1;
+                        direction = -1;
+                        extreme = unwrapped;
+                    }
+                    -1 if unwrapped < extreme => extreme = unwrapped,
+                    -1 if unwrapped - extreme >= REVERSAL_DEG => {
+                        reversals += 1;
+                        direction = 1;
+                        extreme = unwrapped;
+                    }
+                    _ => {}
+                }
+            }
+            previous = Some(h);
+        }
+        (hi - lo, reversals)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::SimSensor;
+
+    /// Deterministic Gaussian noise (xorshift + Box-Muller), so tests need
+    /// no generator state from elsewhere.
+    struct Noise(u64);
+    impl Noise {
+        fn uniform(&mut self) -> f64 {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 7;
+            self.0 ^= self.0 << 17;
+            ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        }
+        fn gauss(&mut self, sigma: f64) -> f64 {
+            let (u1, u2) = (self.uniform(), self.uniform());
+            sigma * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        }
+    }
+
+    /// Samples every `period` s for `seconds` of a circle of radius 1000
+    /// around (cx, cy), heading(t) in degrees.
+    fn track(
+        seconds: f64,
+        period: f64,
+        centre: (f64, f64),
+        noise: f64,
+        heading: impl Fn(f64) -> f64,
+    ) -> Vec<(f64, f64, f64)> {
+        let mut rng = Noise(0x9E37_79B9_7F4A_7C15);
+        let n = (seconds / period).round() as usize;
+        (0..n)
+            .map(|i| {
+                let t = i as f64 * period;
+                let h = heading(t).to_radians();
+                (
+                    t,
+                    centre.0 + 1000.0 * h.cos() + rng.gauss(noise),
+                    centre.1 + 1000.0 * h.sin() + rng.gauss(noise),
+                )
+            })
+            .collect()
+    }
+
+    /// Pushes until something other than Collecting; returns its index.
+    fn run(
+        buffer: &mut RotationBuffer,
+        samples: &[(f64, f64, f64)],
+    ) -> Option<(usize, RotationEvent)> {
+        for (i, &(t, x, y)) in samples.iter().enumerate() {
+            match buffer.push(t, x, y) {
+                RotationEvent::Collecting => {}
+                event => return Some((i, event)),
+            }
+        }
+        None
+    }
+
+    fn sim_samples(sim: &SimSensor) -> Vec<(f64, f64, f64)> {
+        let d = sim.simulate().unwrap();
+        let t = d.t.clone().unwrap();
+        (0..d.len()).map(|i| (t[i], d.x[i], d.y[i])).collect()
+    }
+
+    /// Fraction of a turn at which the buffer completed.
+    fn completes_at(sim: &SimSensor) -> f64 {
+        let samples = sim_samples(sim);
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let (i, event) = run(&mut buffer, &samples).expect("no event");
+        assert_eq!(event, RotationEvent::Complete, "{sim:?}");
+        i as f64 * sim.period / sim.turn_seconds
+    }
+
+    /// What a person watches must not run ahead of the turn and fall back:
+    /// on the first short, noisy arc the centre is not yet known, so no
+    /// heading counts until the arc bends beyond its noise.
+    #[test]
+    fn coverage_never_runs_ahead_of_the_turn_nor_falls_back() {
+        for (i, start) in [0.0, 33.0, 90.0, 200.0, 311.0].into_iter().enumerate() {
+            for noise in [1.0, 3.0, 8.0] {
+                let rate = 36.0 + 4.0 * i as f64;
+                let samples = track(12.0, 0.05, (-400.0, 250.0), noise, |t| start + rate * t);
+                let mut buffer = RotationBuffer::new(RotationConfig::default());
+                let mut best: f64 = 0.0;
+                for &(t, x, y) in &samples {
+                    if buffer.push(t, x, y) != RotationEvent::Collecting {
+                        break;
+                    }
+                    let shown = buffer.progress().coverage_pct;
+                    let turned = rate * t / 360.0 * 100.0;
+                    // A gap up to max_gap_deg counts as covered.
+                    let slack = DEFAULT_MAX_GAP_DEG / 360.0 * 100.0 + 1.0;
+                    assert!(
+                        shown <= turned + slack,
+                        "start {start}, noise {noise}: {shown:.1} % shown at {turned:.1} % turned"
+                    );
+                    assert!(
+                        shown >= best - 5.0,
+                        "start {start}, noise {noise}: fell from {best:.1} % to {shown:.1} % at t = {t}"
+                    );
+                    best = best.max(shown);
+                }
+                assert!(
+                    best > 80.0,
+                    "start {start}, noise {noise}: reached {best:.1} %"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_clean_turn_completes_at_its_end_and_not_before() {
+        let sim = SimSensor {
+            turns: 1.5,
+            noise: 2.0,
+            ..Default::default()
+        };
+        let at = completes_at(&sim);
+        assert!((0.9..=1.0).contains(&at), "completed at {at} turns");
+    }
+
+    #[test]
+    fn a_turn_from_any_heading_completes() {
+        for start in [0.0, 4.0, 37.0, 90.0, 123.4, 181.0, 269.0, 333.3, 359.0] {
+            let sim = SimSensor {
+                turns: 1.5,
+                noise: 2.0,
+                start_heading_deg: start,
+                seed: start as u64 + 7,
+                ..Default::default()
+            };
+            let at = completes_at(&sim);
+            // At worst the last sector needs its samples from the second pass.
+            assert!(
+                (0.9..=1.03).contains(&at),
+                "start {start}: completed at {at} turns"
+            );
+        }
+    }
+
+    #[test]
+    fn a_turn_far_from_the_origin_and_with_unequal_gains_completes() {
+        for (gain_x, period) in [(1.0, 0.05), (1.4, 0.05), (0.6, 0.03)] {
+            let sim = SimSensor {
+                turns: 1.5,
+                noise: 3.0,
+                offset_x: 5000.0,
+                offset_y: -5000.0,
+                gain_x,
+                period,
+                start_heading_deg: 200.0,
+                ..Default::default()
+            };
+            let at = completes_at(&sim);
+            // The raw headings of an ellipse of gain ratio a run ahead of or
+            // behind the true ones by up to asin((a - 1)/(a + 1)) (9.6° at
+            // 1.4), so the raw net of 330° may be a true 311° (0.86 turn);
+            // the fit still sees no gap above 30° x 1.4 = 42°.
+            assert!(
+                (0.85..=1.05).contains(&at),
+                "gain {gain_x}: completed at {at} turns"
+            );
+        }
+    }
+
+    #[test]
+    fn clockwise_turn_completes() {
+        let samples = track(15.0, 0.05, (-300.0, 800.0), 2.0, |t| 50.0 - 36.0 * t);
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let (i, event) = run(&mut buffer, &samples).unwrap();
+        assert_eq!(event, RotationEvent::Complete);
+        let at = i as f64 * 0.05 / 10.0;
+        assert!((0.9..=1.03).contains(&at), "{at}");
+    }
+
+    #[test]
+    fn waiting_before_turning_then_turning_completes() {
+        // 8 s still, then one turn in 10 s: the wait must not spoil it.
+        let samples = track(25.0, 0.05, (2000.0, 0.0), 2.0, |t| {
+            if t < 8.0 {
+                120.0
+            } else {
+                120.0 + 36.0 * (t - 8.0)
+            }
+        });
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let (i, event) = run(&mut buffer, &samples).unwrap();
+        assert_eq!(event, RotationEvent::Complete);
+        let turned = (i as f64 * 0.05 - 8.0) / 10.0;
+        assert!((0.9..=1.03).contains(&turned), "{turned}");
+        let (t, x, y) = buffer.take();
+        assert_eq!((t.len(), x.len(), y.len()), (i + 1, i + 1, i + 1));
+        assert_eq!(buffer.progress().state, RotationState::Empty);
+    }
+
+    #[test]
+    fn half_a_turn_times_out_with_the_missing_headings() {
+        // From 5° to 185° in 5 s, then held still at 185°.
+        let samples = track(61.0, 0.05, (100.0, 100.0), 2.0, |t| 5.0 + 36.0 * t.min(5.0));
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let mut last = None;
+        for &(t, x, y) in &samples {
+            match buffer.push(t, x, y) {
+                RotationEvent::Collecting => last = Some(buffer.progress()),
+                RotationEvent::Complete => panic!("half a turn completed at {t}"),
+                RotationEvent::Rejected { reason } => {
+                    // The first sample past 60 s.
+                    assert!((t - 60.05).abs() < 1e-9, "{t}");
+                    assert_eq!(
+                        reason,
+                        "no full rotation within 60 s: 50 % of headings covered, missing 186° to 5°; turn the sensor once all the way round, steadily"
+                    );
+                    let p = last.take().unwrap();
+                    // Headings 5° to 185° are covered, 186° to 5° missing
+                    // (to a 1° bin: this progress is around the centre
+                    // before the failure's exact recount).
+                    assert!((p.coverage_pct - 50.0).abs() < 0.6, "{p:?}");
+                    let [[from, to]] = p.missing_sectors[..] else {
+                        panic!("{p:?}");
+                    };
+                    assert!(
+                        (from - 186.0).abs() <= 1.0 && (to - 5.0).abs() <= 1.0,
+                        "{p:?}"
+                    );
+                    assert!((p.turned_deg - 180.0).abs() < 2.0, "{p:?}");
+                    assert!((p.largest_gap_deg - 180.0).abs() <= 1.0, "{p:?}");
+                    // Restarted with the rejected sample as its first.
+                    assert_eq!(buffer.progress().samples, 1);
+                    return;
+                }
+            }
+        }
+        panic!("no rejection");
+    }
+
+    #[test]
+    fn a_gap_through_zero_is_one_range() {
+        // From 20° to 340° in about 9 s; stop before the timeout.
+        let samples = track(9.0, 0.05, (0.0, 0.0), 1.0, |t| {
+            20.0 + 36.0 * t.min(320.0 / 36.0)
+        });
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        assert_eq!(run(&mut buffer, &samples), None);
+        let p = buffer.progress();
+        // The first sample fell in the 19° bin (20° less noise).
+        assert_eq!(p.missing_sectors, vec![[340.0, 19.0]], "{p:?}");
+        assert!(
+            (p.coverage_pct - (1.0 - 39.0 / 360.0) * 100.0).abs() < 1e-9,
+            "{p:?}"
+        );
+        assert!((p.turned_deg - 320.0).abs() < 1.0, "{p:?}");
+        assert_eq!(p.largest_gap_deg, 40.0);
+        assert_eq!(p.samples, samples.len());
+        assert!((p.elapsed_s - samples[samples.len() - 1].0).abs() < 1e-12);
+        assert_eq!(p.state, RotationState::Collecting);
+    }
+
+    #[test]
+    fn back_and_forth_is_rejected_as_such() {
+        // Swings between 0° and 170°, 6 s per sweep, for over a minute.
+        let samples = track(62.0, 0.05, (-4000.0, 2500.0), 2.0, |t| {
+            let phase = (t / 6.0).rem_euclid(2.0);
+            170.0 * if phase < 1.0 { phase } else { 2.0 - phase }
+        });
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let (i, event) = run(&mut buffer, &samples).unwrap();
+        assert!((i as f64 * 0.05 - 60.05).abs() < 1e-9, "{i}");
+        let RotationEvent::Rejected { reason } = event else {
+            panic!("{event:?}");
+        };
+        assert!(
+            reason.starts_with("the sensor turned back and forth over 170° and never completed a rotation within 60 s"),
+            "{reason}"
+        );
+        assert!(
+            reason.ends_with("turn it once all the way round in one direction"),
+            "{reason}"
+        );
+    }
+
+    #[test]
+    fn a_still_sensor_is_rejected_as_not_turning() {
+        let samples = track(12.0, 0.05, (700.0, -300.0), 3.0, |_| 40.0);
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let (i, event) = run(&mut buffer, &samples).unwrap();
+        // The first sample 10 s after the first.
+        assert_eq!(i, 200);
+        let RotationEvent::Rejected { reason } = event else {
+            panic!("{event:?}");
+        };
+        assert!(
+            reason.starts_with("the sensor is not turning: readings spread over only "),
+            "{reason}"
+        );
+        assert!(
+            reason.contains("counts in 10.0 s (noise about "),
+            "{reason}"
+        );
+        assert!(reason.ends_with("; turn it a full rotation"), "{reason}");
+        // And it never completes on noise, however long it sits.
+        let samples = track(300.0, 0.01, (0.0, 0.0), 5.0, |_| 0.0);
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        for &(t, x, y) in &samples {
+            assert_ne!(buffer.push(t, x, y), RotationEvent::Complete, "at {t}");
+        }
+    }
+
+    #[test]
+    fn memory_stays_bounded() {
+        let config = RotationConfig {
+            max_samples: 150,
+            ..Default::default()
+        };
+        // A slow turn (a tenth of a turn in 10 s) that is clearly turning.
+        let samples = track(20.0, 0.05, (0.0, 0.0), 1.0, |t| 3.6 * t);
+        let mut buffer = RotationBuffer::new(config);
+        let mut rejected = 0;
+        for &(t, x, y) in &samples {
+            if let RotationEvent::Rejected { reason } = buffer.push(t, x, y) {
+                assert!(reason.contains("within 150 samples"), "{reason}");
+                rejected += 1;
+            }
+            assert!(buffer.progress().samples < 150);
+        }
+        assert_eq!(rejected, samples.len() / 150);
+    }
+
+    #[test]
+    fn bad_samples_are_ignored_without_harm() {
+        let sim = SimSensor {
+            turns: 1.5,
+            noise: 2.0,
+            ..Default::default()
+        };
+        let clean = sim_samples(&sim);
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let mut done = None;
+        for (i, &(t, x, y)) in clean.iter().enumerate() {
+            for (bt, bx, by) in [
+                (t, f64::NAN, y),
+                (t, x, f64::INFINITY),
+                (f64::NAN, x, y),
+                (t, f64::NEG_INFINITY, f64::NAN),
+            ] {
+                assert_eq!(buffer.push(bt, bx, by), RotationEvent::Collecting);
+            }
+            if i > 0 {
+                // Out of order: earlier than the last sample.
+                assert_eq!(buffer.push(t - 1.0, x, y), RotationEvent::Collecting);
+            }
+            if buffer.push(t, x, y) == RotationEvent::Complete {
+                done = Some(i);
+                break;
+            }
+        }
+        let i = done.unwrap();
+        let at = i as f64 * sim.period / sim.turn_seconds;
+        assert!((0.9..=1.0).contains(&at), "{at}");
+        let p = buffer.progress();
+        assert_eq!(p.samples, i + 1);
+        assert_eq!(p.ignored, 5 * i as u64 + 4);
+        assert_eq!(p.state, RotationState::Complete);
+        assert_eq!(p.coverage_pct, 100.0);
+        assert!(p.missing_sectors.is_empty());
+        // Frozen until taken.
+        assert_eq!(buffer.push(1e6, 0.0, 0.0), RotationEvent::Complete);
+        let (t, _, _) = buffer.take();
+        assert_eq!(t.len(), i + 1);
+        assert_eq!(buffer.progress().samples, 0);
+    }
+
+    #[test]
+    fn the_samples_of_a_turn_fit() {
+        let sim = SimSensor {
+            turns: 1.5,
+            noise: 2.0,
+            gain_x: 1.2,
+            offset_x: 3000.0,
+            ..Default::default()
+        };
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        assert_eq!(
+            run(&mut buffer, &sim_samples(&sim)).unwrap().1,
+            RotationEvent::Complete
+        );
+        let (_, x, y) = buffer.take();
+        let fit = crate::model::fit::fit_paper(
+            &x,
+            &y,
+            &crate::model::fit::FitOptions::default(),
+            &mut |_| {},
+        )
+        .unwrap();
+        assert!(
+            crate::daemon::acceptance::check(&fit, &Default::default()).is_ok(),
+            "{fit:?}"
+        );
+        assert!((fit.calibration.a - sim.truth().a).abs() < 0.01, "{fit:?}");
+    }
+
+    /// A heading that turns at `speeds[i]` deg/s for `durations[i]` s in
+    /// turn (0 for a pause), from `start`.
+    fn profile(start: f64, legs: &[(f64, f64)]) -> impl Fn(f64) -> f64 + '_ {
+        move |t| {
+            let (mut h, mut t0) = (start, 0.0);
+            for &(speed, duration) in legs {
+                let dt = (t - t0).clamp(0.0, duration);
+                h += speed * dt;
+                t0 += duration;
+            }
+            h
+        }
+    }
+
+    /// Index and turned angle (per the heading function) at completion.
+    fn completion(samples: &[(f64, f64, f64)], heading: &dyn Fn(f64) -> f64) -> (usize, f64) {
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let (i, event) = run(&mut buffer, samples).expect("no event");
+        assert_eq!(event, RotationEvent::Complete);
+        (i, heading(samples[i].0) - heading(0.0))
+    }
+
+    #[test]
+    fn a_10_hz_robot_turn_with_stops_completes_on_one_turn() {
+        // 10 Hz, 9° to 15° a sample (one to two samples per 10° sector,
+        // where 36 sectors x 3 samples never fill), two stops of 3 s.
+        let legs = [
+            (90.0, 1.5),
+            (0.0, 3.0),
+            (150.0, 0.7),
+            (120.0, 0.5),
+            (0.0, 3.0),
+            (100.0, 0.6),
+            (0.0, 5.0),
+        ];
+        let heading = profile(77.0, &legs);
+        assert!((heading(100.0) - 77.0 - 360.0).abs() < 1e-9);
+        for direction in [1.0, -1.0] {
+            let h = |t: f64| direction * heading(t);
+            let samples = track(15.0, 0.1, (2500.0, -4000.0), 5.0, h);
+            let (_, turned) = completion(&samples, &h);
+            assert!(
+                (330.0..=360.0).contains(&turned.abs()),
+                "direction {direction}: completed at {turned}°"
+            );
+        }
+    }
+
+    #[test]
+    fn a_swing_that_covers_every_heading_never_completes() {
+        // Swinging about where the buffer starts: every heading is covered
+        // at ±180° and beyond, but the net turn never passes the amplitude.
+        for amplitude in [180.0, 200.0] {
+            for period in [4.0, 8.0, 13.0] {
+                let samples = track(60.0, 0.05, (300.0, 300.0), 3.0, |t: f64| {
+                    30.0 + amplitude * (std::f64::consts::TAU * t / period).sin()
+                });
+                let mut buffer = RotationBuffer::new(RotationConfig::default());
+                assert_eq!(
+                    run(&mut buffer, &samples),
+                    None,
+                    "±{amplitude}° every {period} s"
+                );
+                let p = buffer.progress();
+                assert!(p.largest_gap_deg <= 30.0, "{p:?}");
+                assert!(p.turned_deg.abs() <= 2.0 * amplitude + 2.0, "{p:?}");
+            }
+        }
+        // Swings narrower than a turn never complete, whatever the phase the
+        // buffer restarts at after each timeout.
+        for amplitude in [90.0, 150.0] {
+            let samples = track(300.0, 0.05, (0.0, 0.0), 3.0, |t: f64| {
+                amplitude * (std::f64::consts::TAU * t / 7.0).sin()
+            });
+            let mut buffer = RotationBuffer::new(RotationConfig::default());
+            for &(t, x, y) in &samples {
+                assert_ne!(
+                    buffer.push(t, x, y),
+                    RotationEvent::Complete,
+                    "±{amplitude}° at {t}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_sensor_that_slides_never_completes() {
+        let mut rng = Noise(0x5EED_5EED_5EED_5EED);
+        for seed in 0..20 {
+            // Along a line, slowly (a sensor carried past iron), or wandering
+            // by small steps (a random walk a few noise deviations a step).
+            let mut buffer = RotationBuffer::new(RotationConfig::default());
+            let (mut x, mut y) = (1200.0, -300.0);
+            let angle = rng.uniform() * std::f64::consts::TAU;
+            for i in 0..3000 {
+                let t = f64::from(i) * 0.04;
+                if seed % 2 == 0 {
+                    x += 0.5 * angle.cos();
+                    y += 0.5 * angle.sin();
+                } else {
+                    x += rng.gauss(4.0);
+                    y += rng.gauss(4.0);
+                }
+                let event = buffer.push(t, x + rng.gauss(2.0), y + rng.gauss(2.0));
+                assert_ne!(event, RotationEvent::Complete, "seed {seed} at {t} s");
+            }
+        }
+    }
+
+    #[test]
+    fn the_gyro_confirms_or_holds_back_a_turn() {
+        let heading = |t: f64| 10.0 + 36.0 * t;
+        let samples = track(15.0, 0.05, (400.0, -900.0), 2.0, heading);
+        // Without a gyro, with one that agrees (either sign), or with one
+        // that is not used: the same sample completes.
+        let mut plain = RotationBuffer::new(RotationConfig::default());
+        let (i, _) = run(&mut plain, &samples).unwrap();
+        let with_gyro = RotationConfig {
+            use_gyro: true,
+            ..Default::default()
+        };
+        for (sign, use_gyro) in [(1.0, true), (-1.0, true), (0.0, false)] {
+            let config = RotationConfig {
+                use_gyro,
+                ..Default::default()
+            };
+            let mut buffer = RotationBuffer::new(config);
+            let done = samples.iter().position(|&(t, x, y)| {
+                buffer.push_turned(t, x, y, Some(sign * heading(t) + 1000.0))
+                    == RotationEvent::Complete
+            });
+            assert_eq!(done, Some(i), "sign {sign}");
+        }
+        // A gyro that saw no turn (a magnet carried round a still sensor)
+        // holds it back when used, and the rejection says so.
+        let mut buffer = RotationBuffer::new(with_gyro);
+        let samples = track(61.0, 0.05, (400.0, -900.0), 2.0, heading);
+        for &(t, x, y) in &samples {
+            match buffer.push_turned(t, x, y, Some(5.0 + 0.01 * t)) {
+                RotationEvent::Collecting => {}
+                RotationEvent::Complete => panic!("completed at {t} s"),
+                RotationEvent::Rejected { reason } => {
+                    assert!(
+                        reason.starts_with("no full rotation within 60 s: the readings turned "),
+                        "{reason}"
+                    );
+                    assert!(reason.contains("but the gyro only 1°"), "{reason}");
+                    return;
+                }
+            }
+        }
+        panic!("no rejection");
+    }
+
+    #[test]
+    fn progress_reports_the_turn_and_the_gap() {
+        let samples = track(5.0, 0.05, (0.0, 0.0), 1.0, |t| 90.0 - 36.0 * t);
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        assert_eq!(run(&mut buffer, &samples), None);
+        let p = buffer.progress();
+        // Clockwise: a negative turn, a bit under 180° (the last sample is
+        // at 4.95 s).
+        assert!((p.turned_deg + 178.2).abs() < 0.5, "{p:?}");
+        assert_eq!(p.turn_needed_deg, 330.0);
+        assert!((p.largest_gap_deg - 181.8).abs() <= 1.0, "{p:?}");
+        assert_eq!(p.gyro_turned_deg, None);
+        let json = serde_json::to_value(&p).unwrap();
+        for key in [
+            "coverage_pct",
+            "missing_sectors",
+            "turned_deg",
+            "largest_gap_deg",
+        ] {
+            assert!(json.get(key).is_some(), "{json}");
+        }
+    }
+
+    #[test]
+    fn config_validation_names_the_key() {
+        assert_eq!(RotationConfig::default().validate(), Ok(()));
+        let bad = RotationConfig {
+            max_gap_deg: 90.0,
+            ..Default::default()
+        };
+        assert_eq!(
+            bad.validate().unwrap_err(),
+            "max_gap_deg must be between 2 and 60 degrees, got 90"
+        );
+        let cases = [
+            (
+                RotationConfig {
+                    max_gap_deg: f64::NAN,
+                    ..Default::default()
+                },
+                "max_gap_deg",
+            ),
+            (
+                RotationConfig {
+                    max_samples: 11,
+                    ..Default::default()
+                },
+                "max_samples",
+            ),
+            (
+                RotationConfig {
+                    timeout_s: f64::NAN,
+                    ..Default::default()
+                },
+                "timeout_s",
+            ),
+            (
+                RotationConfig {
+                    still_timeout_s: -1.0,
+                    ..Default::default()
+                },
+                "still_timeout_s",
+            ),
+            (
+                RotationConfig {
+                    still_ratio: 0.5,
+                    ..Default::default()
+                },
+                "still_ratio",
+            ),
+        ];
+        for (config, key) in cases {
+            let err = config.validate().unwrap_err();
+            assert!(err.starts_with(key), "{err}");
+            // An invalid configuration still makes a working buffer.
+            let mut buffer = RotationBuffer::new(config);
+            buffer.push(0.0, 1.0, 2.0);
+            assert_eq!(buffer.progress().samples, 1);
+            assert!(buffer.config().validate().is_ok(), "{:?}", buffer.config());
+        }
+        let c: RotationConfig =
+            toml::from_str("max_gap_deg = 20.0\ntimeout_s = 30.0\nuse_gyro = true").unwrap();
+        assert_eq!((c.max_gap_deg, c.timeout_s, c.use_gyro), (20.0, 30.0, true));
+        assert_eq!(c.turn_needed_deg(), 340.0);
+        assert_eq!(c.max_samples, 20_000);
+        // The per-sector keys are gone: named, not ignored.
+        let err = toml::from_str::<RotationConfig>("sectors = 24").unwrap_err();
+        assert!(err.to_string().contains("sectors"), "{err}");
+    }
+}
