@@ -25,6 +25,8 @@
 //! - [`still`]: still segments (poses at rest) of a 3-axis recording.
 //! - [`tilt`]: the tilt-compensated heading from a magnetometer and an
 //!   accelerometer on one board.
+//! - [`heading_analysis`]: what `fieldcal heading` makes of those headings:
+//!   their summary, the field against the model, the check against a gyro.
 
 pub mod check;
 pub mod check3;
@@ -36,6 +38,7 @@ pub mod ellipsoid_effects;
 pub mod fit;
 pub mod gyro;
 pub mod heading;
+pub mod heading_analysis;
 pub mod ladder;
 pub mod lm;
 pub mod nonlinear;

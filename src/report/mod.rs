@@ -4,6 +4,7 @@ pub mod diagnosis;
 pub mod diagnosis3;
 pub mod fit;
 pub mod fit3;
+pub mod heading;
 pub mod html;
 pub mod plots;
 pub mod plots3;

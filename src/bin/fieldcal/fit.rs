@@ -367,22 +367,7 @@ fn still_gyro(args: &FitArgs, data: &Dataset3, file: &str) -> Result<Option<Gyro
 
 /// `fit` on three axes.
 fn fit3(args: &FitArgs, z: &str) -> Result<()> {
-    if args.solver != fieldcal::model::fit::Solver::Lsq {
-        anyhow::bail!(
-            "--solver {} fits the paper's 2-axis model; the 3-axis fit is the ellipsoid's (drop --solver, or fit two axes without --z)",
-            args.solver.name()
-        );
-    }
-    if args.input.gyro.is_some() {
-        anyhow::bail!(
-            "--gyro checks a 2-axis heading against the gyro; with three axes the heading needs an accelerometer (for still poses, the gyro's columns go to --still-gyro)"
-        );
-    }
-    if args.min_coverage != DEFAULT_MIN_COVERAGE_DEG {
-        anyhow::bail!(
-            "--min-coverage is the heading coverage of a 2-axis turn; a 3-axis fit follows the sphere's coverage rule (docs/three-axes.md)"
-        );
-    }
+    refuse_2d_options(args)?;
     let data = args.input.read3(z)?;
     let file = args.input.file.display().to_string();
     let (base, extra) = match &args.effects {
@@ -394,20 +379,7 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
         .clone()
         .or_else(|| infer_units([&data.x_name, &data.y_name, &data.z_name]).map(String::from));
 
-    let (still_data, still) = if args.still {
-        let gyro = still_gyro(args, &data, &file)?;
-        let poses = find_still(
-            &data.points,
-            data.t.as_deref(),
-            gyro.as_ref().map(|(_, r)| r.as_slice()),
-        )
-        .with_context(|| format!("{file}: no still poses"))?;
-        let indices: Vec<usize> = poses.indices().collect();
-        let summary = StillSummary::new(&poses, data.len(), gyro.map(|(names, _)| names));
-        (Some(select3(&data, &indices)), Some(summary))
-    } else {
-        (None, None)
-    };
+    let (still_data, still) = still_selection(args, &data, &file)?;
     // The samples fitted: the still ones with --still, else every one.
     let fitted: &Dataset3 = still_data.as_ref().unwrap_or(&data);
     let points = &fitted.points;
@@ -417,30 +389,7 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
         fit_model3(fitted, base, &extra).map_err(|e| refusal(e, &file, still.as_ref(), &extra))?;
     let elapsed = started.elapsed().as_secs_f64();
 
-    let models: Vec<ModelRms> = Ellipsoid3Model::ALL
-        .into_iter()
-        .map(|m| {
-            let result = if m == fit.model && effects_fit.is_none() {
-                Ok(fit.clone())
-            } else {
-                ellipsoid::fit(points, m)
-            };
-            match result {
-                Ok(f) => ModelRms {
-                    model: m.name(),
-                    rms: Some(f.rms),
-                    r: Some(f.r),
-                    refused: None,
-                },
-                Err(e) => ModelRms {
-                    model: m.name(),
-                    rms: None,
-                    r: None,
-                    refused: Some(e.to_string()),
-                },
-            }
-        })
-        .collect();
+    let models = model_table(points, &fit, effects_fit.is_none());
     let directions: Vec<[f64; 3]> = match &effects_fit {
         // The samples used (not the flagged ones), with the extras removed.
         Some(e) => e
@@ -456,50 +405,10 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
         .into_iter()
         .filter(|&m| ellipsoid::supports(m, &directions))
         .collect();
-    let extras: Option<Extras3> = effects_fit.as_ref().map(|e| Extras3 {
-        effects: e.effects.clone(),
-        // o, W's entries and r (listed first, r last) are the base report's;
-        // the parameters after r are the extras' own.
-        params: e
-            .params
-            .iter()
-            .skip_while(|p| p.name != "r")
-            .skip(1)
-            .cloned()
-            .collect(),
-        flagged: extra.contains(&Effect::Outliers).then(|| e.flagged.clone()),
-        cubic_scale: e.reference.cubic_scale,
-        unknowns: e.unknowns,
-        base_rms: models
-            .iter()
-            .find(|m| m.model == e.model.name())
-            .and_then(|m| m.rms),
-        t_span: match (e.reference.t_mean, fitted.t.as_deref()) {
-            (Some(_), Some(t)) => {
-                let (lo, hi) = t
-                    .iter()
-                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
-                        (lo.min(v), hi.max(v))
-                    });
-                (hi > lo).then_some(hi - lo)
-            }
-            _ => None,
-        },
-    });
+    let extras = extras3(effects_fit.as_ref(), &extra, &models, fitted);
 
     if let Some(output) = &args.output {
-        let calibrated: Vec<[f64; 3]> = match &effects_fit {
-            Some(e) => e
-                .calibrate(&data)
-                .with_context(|| format!("{file}: cannot calibrate every sample"))?,
-            None => data.points.iter().map(|&p| fit.apply(p)).collect(),
-        };
-        write_calibrated3(output, data.t.as_deref(), &calibrated).with_context(|| {
-            format!(
-                "cannot write the calibrated samples to {}",
-                output.display()
-            )
-        })?;
+        write_output3(output, &data, &fit, effects_fit.as_ref(), &file)?;
     }
     let source = Fit3Source {
         file: &file,
@@ -530,6 +439,142 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
         )
     };
     write_stdout(text.as_bytes())
+}
+
+/// The options of a 2-axis fit, refused with three axes.
+fn refuse_2d_options(args: &FitArgs) -> Result<()> {
+    if args.solver != fieldcal::model::fit::Solver::Lsq {
+        anyhow::bail!(
+            "--solver {} fits the paper's 2-axis model; the 3-axis fit is the ellipsoid's (drop --solver, or fit two axes without --z)",
+            args.solver.name()
+        );
+    }
+    if args.input.gyro.is_some() {
+        anyhow::bail!(
+            "--gyro checks a 2-axis heading against the gyro; with three axes the heading needs an accelerometer (for still poses, the gyro's columns go to --still-gyro)"
+        );
+    }
+    if args.min_coverage != DEFAULT_MIN_COVERAGE_DEG {
+        anyhow::bail!(
+            "--min-coverage is the heading coverage of a 2-axis turn; a 3-axis fit follows the sphere's coverage rule (docs/three-axes.md)"
+        );
+    }
+    Ok(())
+}
+
+/// With --still: the still poses' samples (the ones fitted) and their
+/// summary; without it, none.
+fn still_selection(
+    args: &FitArgs,
+    data: &Dataset3,
+    file: &str,
+) -> Result<(Option<Dataset3>, Option<StillSummary>)> {
+    if args.still {
+        let gyro = still_gyro(args, data, file)?;
+        let poses = find_still(
+            &data.points,
+            data.t.as_deref(),
+            gyro.as_ref().map(|(_, r)| r.as_slice()),
+        )
+        .with_context(|| format!("{file}: no still poses"))?;
+        let indices: Vec<usize> = poses.indices().collect();
+        let summary = StillSummary::new(&poses, data.len(), gyro.map(|(names, _)| names));
+        Ok((Some(select3(data, &indices)), Some(summary)))
+    } else {
+        Ok((None, None))
+    }
+}
+
+/// Every base model's rms and r on the fitted samples `points` (the fit
+/// itself for its own model when `fit_is_base`: no extra effects), or why
+/// it was refused.
+fn model_table(points: &[[f64; 3]], fit: &Ellipsoid3Fit, fit_is_base: bool) -> Vec<ModelRms> {
+    Ellipsoid3Model::ALL
+        .into_iter()
+        .map(|m| {
+            let result = if m == fit.model && fit_is_base {
+                Ok(fit.clone())
+            } else {
+                ellipsoid::fit(points, m)
+            };
+            match result {
+                Ok(f) => ModelRms {
+                    model: m.name(),
+                    rms: Some(f.rms),
+                    r: Some(f.r),
+                    refused: None,
+                },
+                Err(e) => ModelRms {
+                    model: m.name(),
+                    rms: None,
+                    r: None,
+                    refused: Some(e.to_string()),
+                },
+            }
+        })
+        .collect()
+}
+
+/// What a fit with extra effects adds to the report: the extras' own
+/// parameters, the flagged samples, and the base model's rms beside it.
+fn extras3(
+    effects_fit: Option<&Ellipsoid3EffectsFit>,
+    extra: &[Effect],
+    models: &[ModelRms],
+    fitted: &Dataset3,
+) -> Option<Extras3> {
+    effects_fit.map(|e| Extras3 {
+        effects: e.effects.clone(),
+        // o, W's entries and r (listed first, r last) are the base report's;
+        // the parameters after r are the extras' own.
+        params: e
+            .params
+            .iter()
+            .skip_while(|p| p.name != "r")
+            .skip(1)
+            .cloned()
+            .collect(),
+        flagged: extra.contains(&Effect::Outliers).then(|| e.flagged.clone()),
+        cubic_scale: e.reference.cubic_scale,
+        unknowns: e.unknowns,
+        base_rms: models
+            .iter()
+            .find(|m| m.model == e.model.name())
+            .and_then(|m| m.rms),
+        t_span: match (e.reference.t_mean, fitted.t.as_deref()) {
+            (Some(_), Some(t)) => {
+                let (lo, hi) = t
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                        (lo.min(v), hi.max(v))
+                    });
+                (hi > lo).then_some(hi - lo)
+            }
+            _ => None,
+        },
+    })
+}
+
+/// `--output`: every sample of `data` calibrated.
+fn write_output3(
+    output: &std::path::Path,
+    data: &Dataset3,
+    fit: &Ellipsoid3Fit,
+    effects_fit: Option<&Ellipsoid3EffectsFit>,
+    file: &str,
+) -> Result<()> {
+    let calibrated: Vec<[f64; 3]> = match effects_fit {
+        Some(e) => e
+            .calibrate(data)
+            .with_context(|| format!("{file}: cannot calibrate every sample"))?,
+        None => data.points.iter().map(|&p| fit.apply(p)).collect(),
+    };
+    write_calibrated3(output, data.t.as_deref(), &calibrated).with_context(|| {
+        format!(
+            "cannot write the calibrated samples to {}",
+            output.display()
+        )
+    })
 }
 
 /// A 3-D fit's refusal, naming the file and, when the coverage supports a

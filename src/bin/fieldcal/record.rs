@@ -38,29 +38,7 @@ pub fn record(args: RecordArgs) -> Result<()> {
         })?;
 
     let poll_period = Duration::from_millis(args.poll_ms);
-    let (streams, nominal) = match args.device {
-        DeviceKind::Falcon => (
-            vec![StreamInfo {
-                id: 0,
-                kind: StreamKind::Falcon,
-            }],
-            NOMINAL_PERIOD,
-        ),
-        DeviceKind::UsbIss => (
-            args.chip
-                .iter()
-                .enumerate()
-                .map(|(i, &(chip, address))| StreamInfo {
-                    id: i as u8,
-                    kind: StreamKind::Chip { chip, address },
-                })
-                .collect(),
-            poll_period,
-        ),
-    };
-    if streams.len() > u8::MAX as usize {
-        bail!("at most 255 chips can be recorded at once");
-    }
+    let (streams, nominal) = streams(&args, poll_period)?;
     let started_unix = unix_now();
     let started = std::time::Instant::now();
     let header = CaptureHeader {
@@ -141,21 +119,7 @@ pub fn record(args: RecordArgs) -> Result<()> {
         // was created by this run (create_new above), so removing it loses
         // nothing.
         drop(writer);
-        let file = args.output.display();
-        let left = match std::fs::remove_file(&args.output) {
-            Ok(()) => format!("removed the empty capture {file}"),
-            Err(e) => format!("left the empty capture {file} (cannot remove it: {e})"),
-        };
-        let this_run = match (&nothing, args.device) {
-            (NothingRecorded::NoBytes { .. }, DeviceKind::Falcon) => {
-                format!(" (this run: --device falcon --baud {})", args.baud)
-            }
-            (NothingRecorded::NoBytes { .. }, DeviceKind::UsbIss) => {
-                " (this run: --device usb-iss)".to_string()
-            }
-            _ => String::new(),
-        };
-        bail!("{nothing}{this_run}; {left}");
+        return Err(nothing_recorded(&args, nothing));
     }
     eprintln!(
         "recorded {} ({}, {}) to {}; frames good {}, bad {}, lost {}, reconnects {}",
@@ -173,6 +137,55 @@ pub fn record(args: RecordArgs) -> Result<()> {
         crate::output::write_stdout(format!("{line}\n").as_bytes())?;
     }
     Ok(())
+}
+
+/// The capture's streams and their nominal period: the Falcon's one
+/// stream, or one per `--chip` polled every `poll_period`.
+fn streams(args: &RecordArgs, poll_period: Duration) -> Result<(Vec<StreamInfo>, Duration)> {
+    let (streams, nominal) = match args.device {
+        DeviceKind::Falcon => (
+            vec![StreamInfo {
+                id: 0,
+                kind: StreamKind::Falcon,
+            }],
+            NOMINAL_PERIOD,
+        ),
+        DeviceKind::UsbIss => (
+            args.chip
+                .iter()
+                .enumerate()
+                .map(|(i, &(chip, address))| StreamInfo {
+                    id: i as u8,
+                    kind: StreamKind::Chip { chip, address },
+                })
+                .collect(),
+            poll_period,
+        ),
+    };
+    if streams.len() > u8::MAX as usize {
+        bail!("at most 255 chips can be recorded at once");
+    }
+    Ok((streams, nominal))
+}
+
+/// The error of a run that recorded nothing, once its empty capture is
+/// removed (or why it could not be).
+fn nothing_recorded(args: &RecordArgs, nothing: NothingRecorded) -> anyhow::Error {
+    let file = args.output.display();
+    let left = match std::fs::remove_file(&args.output) {
+        Ok(()) => format!("removed the empty capture {file}"),
+        Err(e) => format!("left the empty capture {file} (cannot remove it: {e})"),
+    };
+    let this_run = match (&nothing, args.device) {
+        (NothingRecorded::NoBytes { .. }, DeviceKind::Falcon) => {
+            format!(" (this run: --device falcon --baud {})", args.baud)
+        }
+        (NothingRecorded::NoBytes { .. }, DeviceKind::UsbIss) => {
+            " (this run: --device usb-iss)".to_string()
+        }
+        _ => String::new(),
+    };
+    anyhow::anyhow!("{nothing}{this_run}; {left}")
 }
 
 enum Source {
