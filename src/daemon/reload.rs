@@ -534,39 +534,8 @@ fn apply_plan(
     store: Option<&StateStore>,
 ) -> Result<Outcome, CsvError> {
     let file = running.path.display().to_string();
-    let source_of = |name: &str| sources.iter().position(|s| s.name == name);
     // Built and bound before anything running is touched.
-    let mut built: HashMap<&str, (usize, Sensor)> = HashMap::new();
-    for entry in &plan.sensors {
-        let (name, added) = match entry {
-            SensorPlan::Changed { name, .. } => (name, false),
-            SensorPlan::Added(name) => (name, true),
-            _ => continue,
-        };
-        let Some(config) = new.sensors.iter().find(|s| &s.name == name) else {
-            continue;
-        };
-        let Some(index) = source_of(&config.source) else {
-            continue;
-        };
-        let stored = if added {
-            store.and_then(|store| match store.load(name) {
-                Ok(found) => found,
-                Err(e) => {
-                    tracing::warn!("{e}; the sensor starts uncalibrated");
-                    None
-                }
-            })
-        } else {
-            None
-        };
-        let mut sensor = Sensor::new(config.clone(), stored);
-        // A live source is as it runs: its file is the running one's.
-        if let Some((files, layouts)) = sources[index].csv {
-            sensor.bind_csv(layouts, files)?;
-        }
-        built.insert(name.as_str(), (index, sensor));
-    }
+    let mut built = build_sensors(plan, new, sources, store)?;
 
     // Nothing below can fail.
     let mut old: HashMap<String, ((usize, Sensor), SensorConfig)> = sensors
@@ -602,18 +571,7 @@ fn apply_plan(
                 let Some(config) = new.sensors.iter().find(|s| &s.name == name) else {
                     continue;
                 };
-                let (model_was, model_now) = (model_of(&was), model_of(config));
-                let what = if keys.contains(&"model") {
-                    let others: Vec<&str> =
-                        keys.iter().copied().filter(|k| *k != "model").collect();
-                    let mut what = format!("model {model_was} -> {model_now}");
-                    if !others.is_empty() {
-                        what.push_str(&format!("; {} changed", others.join(", ")));
-                    }
-                    what
-                } else {
-                    format!("{} changed", keys.join(", "))
-                };
+                let what = what_changed(keys, &was, config);
                 let keeps = match before.1.calibration() {
                     Some(c) => format!(
                         "calibration #{} ({}) keeps correcting until one under them is accepted",
@@ -640,17 +598,13 @@ fn apply_plan(
                 ) else {
                     continue;
                 };
-                let describe = |n: &Option<super::north::North>| match n {
-                    Some(n) => format!("declination {:+.2}° ({})", n.declination_deg, n.source),
-                    None => "no declination".to_string(),
-                };
                 sensor.set_north(config.north.clone());
                 info(
                     &mut lines,
                     format!(
                         "sensor '{name}': {} -> {}: applied; its calibration and rotation are kept",
-                        describe(&was.north),
-                        describe(&config.north)
+                        declination(&was.north),
+                        declination(&config.north)
                     ),
                     Some(name),
                 );
@@ -704,15 +658,7 @@ fn apply_plan(
                 source,
                 added,
             } => {
-                let message = if *added {
-                    format!(
-                        "sensor '{name}' is on source '{source}', which is new or changed: restart fieldcal to start it"
-                    )
-                } else {
-                    format!(
-                        "sensor '{name}' changed, on source '{source}', which is new or changed: restart fieldcal to apply; it keeps running as it was"
-                    )
-                };
+                let message = held(name, source, *added);
                 tracing::warn!("{message}");
                 lines.push(reload_line(&file, &message, Some(name), true));
                 if let Some((s, c)) = old.remove(name) {
@@ -722,28 +668,125 @@ fn apply_plan(
             }
         }
     }
+    apply_daemon_changes(plan, running, &file, &mut lines);
+    info(&mut lines, summary(plan, &file, counts), None);
+    Ok(Outcome {
+        lines,
+        status_interval: plan.status_interval,
+    })
+}
+
+/// The sensors a reload changes or adds, built and bound to their running
+/// source's files, by name; nothing running is touched.
+fn build_sensors<'a>(
+    plan: &'a ReloadPlan,
+    new: &Config,
+    sources: &[RunningSource<'_>],
+    store: Option<&StateStore>,
+) -> Result<HashMap<&'a str, (usize, Sensor)>, CsvError> {
+    let source_of = |name: &str| sources.iter().position(|s| s.name == name);
+    let mut built: HashMap<&str, (usize, Sensor)> = HashMap::new();
+    for entry in &plan.sensors {
+        let (name, added) = match entry {
+            SensorPlan::Changed { name, .. } => (name, false),
+            SensorPlan::Added(name) => (name, true),
+            _ => continue,
+        };
+        let Some(config) = new.sensors.iter().find(|s| &s.name == name) else {
+            continue;
+        };
+        let Some(index) = source_of(&config.source) else {
+            continue;
+        };
+        let stored = if added {
+            store.and_then(|store| match store.load(name) {
+                Ok(found) => found,
+                Err(e) => {
+                    tracing::warn!("{e}; the sensor starts uncalibrated");
+                    None
+                }
+            })
+        } else {
+            None
+        };
+        let mut sensor = Sensor::new(config.clone(), stored);
+        // A live source is as it runs: its file is the running one's.
+        if let Some((files, layouts)) = sources[index].csv {
+            sensor.bind_csv(layouts, files)?;
+        }
+        built.insert(name.as_str(), (index, sensor));
+    }
+    Ok(built)
+}
+
+/// The `[daemon]` changes a reload applies (the STATUS interval), and the
+/// ones that need a restart, each said in a line.
+fn apply_daemon_changes(
+    plan: &ReloadPlan,
+    running: &mut Config,
+    file: &str,
+    lines: &mut Vec<String>,
+) {
     if let Some(interval) = plan.status_interval {
-        info(
-            &mut lines,
-            format!(
-                "[daemon] status_interval_s changed from {} s to {} s: applied",
-                running.daemon.status_interval.as_secs_f64(),
-                interval.as_secs_f64()
-            ),
-            None,
+        let message = format!(
+            "[daemon] status_interval_s changed from {} s to {} s: applied",
+            running.daemon.status_interval.as_secs_f64(),
+            interval.as_secs_f64()
         );
+        tracing::info!("{message}");
+        lines.push(reload_line(file, &message, None, false));
         running.daemon.status_interval = interval;
     }
     for message in &plan.restart {
         tracing::warn!("{message}");
-        lines.push(reload_line(&file, message, None, true));
+        lines.push(reload_line(file, message, None, true));
     }
+}
+
+/// A sensor's declination, as a reload line names it.
+fn declination(north: &Option<super::north::North>) -> String {
+    match north {
+        Some(n) => format!("declination {:+.2}° ({})", n.declination_deg, n.source),
+        None => "no declination".to_string(),
+    }
+}
+
+/// Why a sensor on a new or changed source waits for a restart.
+fn held(name: &str, source: &str, added: bool) -> String {
+    if added {
+        format!(
+            "sensor '{name}' is on source '{source}', which is new or changed: restart fieldcal to start it"
+        )
+    } else {
+        format!(
+            "sensor '{name}' changed, on source '{source}', which is new or changed: restart fieldcal to apply; it keeps running as it was"
+        )
+    }
+}
+
+/// What changed in a sensor's settings, the model first.
+fn what_changed(keys: &[&str], was: &SensorConfig, now: &SensorConfig) -> String {
+    let (model_was, model_now) = (model_of(was), model_of(now));
+    if keys.contains(&"model") {
+        let others: Vec<&str> = keys.iter().copied().filter(|k| *k != "model").collect();
+        let mut what = format!("model {model_was} -> {model_now}");
+        if !others.is_empty() {
+            what.push_str(&format!("; {} changed", others.join(", ")));
+        }
+        what
+    } else {
+        format!("{} changed", keys.join(", "))
+    }
+}
+
+/// The last line of a reload: what it applied, or that nothing changed.
+fn summary(plan: &ReloadPlan, file: &str, counts: [usize; 4]) -> String {
     let held = plan
         .sensors
         .iter()
         .filter(|s| matches!(s, SensorPlan::Held { .. }))
         .count();
-    let summary = if plan.is_empty() {
+    if plan.is_empty() {
         format!("reload of {file}: no change")
     } else {
         let restarts = plan.restart.len() + held;
@@ -755,12 +798,7 @@ fn apply_plan(
             counts[3],
             plural(restarts, "change needs a restart", "changes need a restart"),
         )
-    };
-    info(&mut lines, summary, None);
-    Ok(Outcome {
-        lines,
-        status_interval: plan.status_interval,
-    })
+    }
 }
 
 /// What [`Reloader::next`] brings.
