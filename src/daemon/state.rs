@@ -27,8 +27,9 @@ use serde::{Deserialize, Serialize};
 use crate::daemon::Calibration;
 use crate::io::atomic::AtomicFile;
 
-/// The version of the file layout this module reads and writes.
-pub const FORMAT_VERSION: u32 = 1;
+/// The version of the file layout this module reads and writes (kept in
+/// the model, which `fieldcal check` reads the file with).
+pub use crate::model::calibration::FORMAT_VERSION;
 
 /// A calibration file is a few hundred bytes; anything far larger is not
 /// one of ours, and is not read whole into memory.

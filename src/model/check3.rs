@@ -115,11 +115,11 @@ pub fn parse_stored3(root: &Value) -> Result<Stored3, CheckError> {
         .filter(|_| root.get("format").is_some())
     {
         let format = root.get("format").and_then(Value::as_u64);
-        if format != Some(u64::from(crate::daemon::state::FORMAT_VERSION)) {
+        if format != Some(u64::from(super::calibration::FORMAT_VERSION)) {
             return Err(unknown(format!(
                 "a state file of format {}, this fieldcal reads format {}",
                 root["format"],
-                crate::daemon::state::FORMAT_VERSION
+                super::calibration::FORMAT_VERSION
             )));
         }
         let e = cal

@@ -22,6 +22,7 @@
 //! - [`tilt`]: the tilt-compensated heading from a magnetometer and an
 //!   accelerometer on one board.
 
+pub mod calibration;
 pub mod check;
 pub mod check3;
 pub mod diagnose;
@@ -44,7 +45,7 @@ pub mod tilt;
 pub mod turn;
 pub mod vertical;
 
-use crate::report::significant;
+use crate::numfmt::significant;
 
 /// Why a fit could not produce a calibration. Messages say what was found
 /// and what to do; the caller adds which file or sensor it was.
