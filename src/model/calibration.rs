@@ -7,6 +7,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::calibration3::{Calibration3D, correct3};
 use super::nonlinear::Param;
 use super::paper::PaperCalibration;
 
@@ -58,6 +59,22 @@ pub struct Ellipsoid3Params {
     pub r: f64,
     /// The share of the sphere's regions the fitted samples reached.
     pub coverage: f64,
+}
+
+impl Ellipsoid3Params {
+    /// The calibration itself (o, W, r), without the coverage.
+    pub fn calibration(&self) -> Calibration3D {
+        Calibration3D {
+            offset: self.offset,
+            matrix: self.matrix,
+            r: self.r,
+        }
+    }
+
+    /// W·(raw − o).
+    pub fn correct(&self, raw: [f64; 3]) -> [f64; 3] {
+        correct3(&self.offset, &self.matrix, raw)
+    }
 }
 
 /// The live-correctable effects' terms: cross-axis coupling `c`, the odd
@@ -117,7 +134,6 @@ pub fn apply(p: &PaperCalibration, t: &Terms, x: f64, y: f64) -> (f64, f64) {
     }
     (p.a * x2 + p.b + t.c * (y2 + p.d), y2 + p.d)
 }
-
 
 /// The paper's parameters with their standard errors, by name.
 pub fn paper_parameters(c: &PaperCalibration, se: Option<&PaperCalibration>) -> Vec<Param> {

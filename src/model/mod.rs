@@ -23,6 +23,7 @@
 //!   accelerometer on one board.
 
 pub mod calibration;
+pub mod calibration3;
 pub mod check;
 pub mod check3;
 pub mod diagnose;

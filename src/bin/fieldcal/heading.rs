@@ -333,7 +333,7 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
             .and_then(MagUnits::from_name)
     });
     let magnitude = match &mag_cal {
-        Some(c) => c.r,
+        Some(c) => c.calibration.r,
         None => {
             let norms: Vec<f64> = mag_sensor
                 .points
