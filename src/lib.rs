@@ -8,6 +8,7 @@
 //! - [`model`]: the paper's model and the ellipsoid, their solvers,
 //!   coverage of the turn and of the sphere, diagnosis and checks;
 //! - [`report`]: what a fit tells a person or a program;
+//! - [`numfmt`]: numbers with significant digits, for the models and reports;
 //! - [`protocol`]: wire protocols, sans-IO (Falcon-GX frames, USB-ISS, chips);
 //! - [`i2c`]: the I2C bus trait and its backends (USB-ISS bridge, Linux);
 //! - [`capture`]: the file format that keeps raw bytes with their timing;
@@ -29,6 +30,7 @@ pub mod i2c;
 pub mod io;
 pub mod mock;
 pub mod model;
+pub mod numfmt;
 pub mod protocol;
 pub mod record;
 pub mod report;

@@ -367,9 +367,7 @@ fn field_of(reading: &Reading, field: Field) -> Option<[i16; 3]> {
 
 /// W·(raw − o) of a stored 3-D calibration.
 pub fn apply3(p: &Ellipsoid3Params, raw: [f64; 3]) -> [f64; 3] {
-    let d = [0, 1, 2].map(|i| raw[i] - p.offset[i]);
-    let w = &p.matrix;
-    [0, 1, 2].map(|i| w[i][0] * d[0] + w[i][1] * d[1] + w[i][2] * d[2])
+    p.correct(raw)
 }
 
 impl Sensor3 {

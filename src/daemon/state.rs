@@ -27,8 +27,9 @@ use serde::{Deserialize, Serialize};
 use crate::daemon::Calibration;
 use crate::io::atomic::AtomicFile;
 
-/// The version of the file layout this module reads and writes.
-pub const FORMAT_VERSION: u32 = 1;
+/// The version of the file layout this module reads and writes (kept in
+/// the model, which `fieldcal check` reads the file with).
+pub use crate::model::calibration::FORMAT_VERSION;
 
 /// A calibration file is a few hundred bytes; anything far larger is not
 /// one of ours, and is not read whole into memory.
@@ -499,9 +500,20 @@ fn calibration_problem(c: &Calibration) -> Option<String> {
         return Some(format!("rms is {}, it cannot be negative", c.rms));
     }
     if let Some(e) = &c.ellipsoid {
-        let values = e.offset.iter().chain(e.matrix.iter().flatten());
-        if values.clone().any(|v| !v.is_finite()) || !(e.r > 0.0 && e.r.is_finite()) {
-            return Some("ellipsoid holds a non-finite number or a radius not above zero".into());
+        use crate::model::calibration3::Calibration3Invalid;
+        match e.calibration().validate() {
+            Err(
+                Calibration3Invalid::NotFinite { .. }
+                | Calibration3Invalid::RadiusNotPositive { .. },
+            ) => {
+                return Some(
+                    "ellipsoid holds a non-finite number or a radius not above zero".into(),
+                );
+            }
+            // A W that is not symmetric positive definite still loads, as
+            // it always has.
+            Err(Calibration3Invalid::NotSymmetric | Calibration3Invalid::NotPositiveDefinite)
+            | Ok(()) => {}
         }
         if !(0.0..=1.0).contains(&e.coverage) {
             return Some(format!(

@@ -119,14 +119,14 @@ pub fn parse_stored(bytes: &[u8]) -> Result<StoredCalibration, CheckError> {
         .filter(|_| root.get("format").is_some())
     {
         let format = root.get("format").and_then(Value::as_u64);
-        if format != Some(u64::from(crate::daemon::state::FORMAT_VERSION)) {
+        if format != Some(u64::from(super::calibration::FORMAT_VERSION)) {
             return Err(unknown(format!(
                 "a state file of format {}, this fieldcal reads format {}",
                 root["format"],
-                crate::daemon::state::FORMAT_VERSION
+                super::calibration::FORMAT_VERSION
             )));
         }
-        let calibration: crate::daemon::Calibration = serde_json::from_value(cal.clone())
+        let calibration: super::calibration::Calibration = serde_json::from_value(cal.clone())
             .map_err(|e| unknown(format!("a state file whose calibration does not read: {e}")))?;
         let effects = parse_list(&calibration.model).map_err(unknown)?;
         let p = calibration.params;
@@ -384,7 +384,7 @@ pub fn moved_text(parameters: &[ParamShift], meaning: impl Fn(&str) -> String) -
                 p.name,
                 sig(p.stored),
                 sig(p.refitted),
-                crate::report::significant(p.refitted_se, 2),
+                crate::numfmt::significant(p.refitted_se, 2),
                 meaning(&p.name)
             )
         })
@@ -466,7 +466,7 @@ pub fn inflation_note(
                 format!(
                     "{} {}",
                     p.name,
-                    crate::report::significant(z_threshold * inflation * se, 2)
+                    crate::numfmt::significant(z_threshold * inflation * se, 2)
                 )
             })
             .collect();
@@ -524,7 +524,7 @@ fn meaning(name: &str) -> String {
 
 /// Formats a number with 4 significant digits.
 fn sig(v: f64) -> String {
-    crate::report::significant(v, 4)
+    crate::numfmt::significant(v, 4)
 }
 
 /// The stored model refitted on the new recording.
@@ -563,7 +563,7 @@ fn refit(
             r: f64::NAN,
         });
         let c = report.calibration;
-        let params = crate::report::fit::paper_parameters(&c, Some(&se));
+        let params = super::calibration::paper_parameters(&c, Some(&se));
         let headings = data
             .x
             .iter()
@@ -767,7 +767,7 @@ mod tests {
         StoredCalibration {
             source: StoredSource::FitPaper,
             effects: crate::model::effects::PAPER.to_vec(),
-            params: crate::report::fit::paper_parameters(&report.calibration, se.as_ref()),
+            params: crate::model::calibration::paper_parameters(&report.calibration, se.as_ref()),
             cubic_scale: None,
             rms: Some(report.rms),
         }

@@ -20,6 +20,7 @@
 use serde::Serialize;
 use serde_json::Value;
 
+use super::calibration3::{self, Calibration3D, Calibration3JsonError};
 use super::check::{
     CheckError, FAMILY_FALSE_ALARM, ParamShift, StoredSource, lag1_autocorrelation, moved_text,
     moved_threshold, se_inflation, se_note,
@@ -35,10 +36,8 @@ const AXES: [&str; 3] = ["x", "y", "z"];
 pub struct Stored3 {
     pub source: StoredSource,
     pub model: Ellipsoid3Model,
-    pub offset: [f64; 3],
-    /// W, row-major, symmetric.
-    pub matrix: [[f64; 3]; 3],
-    pub r: f64,
+    /// o, W (row-major, symmetric) and r.
+    pub calibration: Calibration3D,
     /// The fit's standard errors, when the file holds them.
     pub se: Option<Ellipsoid3Se>,
     /// The rms the file reports on its own recording.
@@ -52,9 +51,7 @@ pub struct Stored3 {
 impl Stored3 {
     /// W·(raw − o).
     pub fn apply(&self, raw: [f64; 3]) -> [f64; 3] {
-        let d = [0, 1, 2].map(|i| raw[i] - self.offset[i]);
-        let w = &self.matrix;
-        [0, 1, 2].map(|i| w[i][0] * d[0] + w[i][1] * d[1] + w[i][2] * d[2])
+        self.calibration.correct(raw)
     }
 }
 
@@ -70,30 +67,9 @@ fn invalid(problem: impl Into<String>) -> CheckError {
     }
 }
 
-fn triple(v: Option<&Value>, field: &str) -> Result<[f64; 3], CheckError> {
-    let list = v
-        .and_then(Value::as_array)
-        .filter(|l| l.len() == 3)
-        .ok_or_else(|| unknown(format!("{field} is not a list of three numbers")))?;
-    let mut out = [0.0; 3];
-    for (o, x) in out.iter_mut().zip(list) {
-        *o = x
-            .as_f64()
-            .ok_or_else(|| unknown(format!("{field} is not a list of three numbers")))?;
-    }
-    Ok(out)
-}
-
-fn matrix(v: Option<&Value>, field: &str) -> Result<[[f64; 3]; 3], CheckError> {
-    let rows = v
-        .and_then(Value::as_array)
-        .filter(|m| m.len() == 3)
-        .ok_or_else(|| unknown(format!("{field} is not a 3 × 3 list of rows")))?;
-    Ok([
-        triple(rows.first(), field)?,
-        triple(rows.get(1), field)?,
-        triple(rows.get(2), field)?,
-    ])
+/// A JSON shape error of the stored offset or matrix, in `check`'s words.
+fn shape(e: Calibration3JsonError) -> CheckError {
+    unknown(e.to_string())
 }
 
 /// Whether a parsed JSON document holds a 3-D calibration: `fit --json`
@@ -115,11 +91,11 @@ pub fn parse_stored3(root: &Value) -> Result<Stored3, CheckError> {
         .filter(|_| root.get("format").is_some())
     {
         let format = root.get("format").and_then(Value::as_u64);
-        if format != Some(u64::from(crate::daemon::state::FORMAT_VERSION)) {
+        if format != Some(u64::from(super::calibration::FORMAT_VERSION)) {
             return Err(unknown(format!(
                 "a state file of format {}, this fieldcal reads format {}",
                 root["format"],
-                crate::daemon::state::FORMAT_VERSION
+                super::calibration::FORMAT_VERSION
             )));
         }
         let e = cal
@@ -130,12 +106,19 @@ pub fn parse_stored3(root: &Value) -> Result<Stored3, CheckError> {
             .get("model")
             .and_then(Value::as_str)
             .ok_or_else(|| unknown("no calibration.model"))?;
+        let model = model_name.parse().map_err(invalid)?;
+        let calibration = Calibration3D::from_json(
+            e,
+            [
+                "calibration.ellipsoid.offset",
+                "calibration.ellipsoid.matrix",
+            ],
+        )
+        .map_err(shape)?;
         Stored3 {
             source: StoredSource::DaemonState,
-            model: model_name.parse().map_err(invalid)?,
-            offset: triple(e.get("offset"), "calibration.ellipsoid.offset")?,
-            matrix: matrix(e.get("matrix"), "calibration.ellipsoid.matrix")?,
-            r: e.get("r").and_then(Value::as_f64).unwrap_or(f64::NAN),
+            model,
+            calibration,
             se: None,
             rms: cal.get("rms").and_then(Value::as_f64),
             columns: None,
@@ -171,8 +154,8 @@ pub fn parse_stored3(root: &Value) -> Result<Stored3, CheckError> {
             .ok_or_else(|| unknown("no 'model'"))?;
         let se = match root.get("se").filter(|s| !s.is_null()) {
             Some(s) => Some(Ellipsoid3Se {
-                offset: triple(s.get("offset"), "se.offset")?,
-                matrix: matrix(s.get("matrix"), "se.matrix")?,
+                offset: calibration3::triple(s.get("offset"), "se.offset").map_err(shape)?,
+                matrix: calibration3::matrix(s.get("matrix"), "se.matrix").map_err(shape)?,
                 r: s.get("r")
                     .and_then(Value::as_f64)
                     .ok_or_else(|| unknown("se.r is not a number"))?,
@@ -184,12 +167,13 @@ pub fn parse_stored3(root: &Value) -> Result<Stored3, CheckError> {
             (Some(x), Some(y), Some(z)) => Some([x, y, z]),
             _ => None,
         };
+        let model = model_name.parse().map_err(invalid)?;
+        let calibration =
+            Calibration3D::from_json(params, ["params.offset", "params.matrix"]).map_err(shape)?;
         Stored3 {
             source: StoredSource::FitEffects,
-            model: model_name.parse().map_err(invalid)?,
-            offset: triple(params.get("offset"), "params.offset")?,
-            matrix: matrix(params.get("matrix"), "params.matrix")?,
-            r: params.get("r").and_then(Value::as_f64).unwrap_or(f64::NAN),
+            model,
+            calibration,
             se,
             rms: root.get("rms").and_then(Value::as_f64),
             columns,
@@ -204,30 +188,10 @@ pub fn parse_stored3(root: &Value) -> Result<Stored3, CheckError> {
 }
 
 /// A calibration that cannot be what a fit stored: non-finite numbers, a
-/// radius not above zero, W not symmetric positive definite.
+/// radius not above zero, W not symmetric positive definite
+/// ([`Calibration3D::validate`]).
 fn validate(s: &Stored3) -> Result<(), CheckError> {
-    let all = s
-        .offset
-        .iter()
-        .chain(s.matrix.iter().flatten())
-        .chain(std::iter::once(&s.r));
-    if all.clone().any(|v| !v.is_finite()) {
-        return Err(invalid(
-            "its offset, matrix or r holds a number that is not finite",
-        ));
-    }
-    if !(s.r > 0.0) {
-        return Err(invalid(format!("r = {} must be positive", s.r)));
-    }
-    let m = nalgebra::Matrix3::from_fn(|i, j| s.matrix[i][j]);
-    let scale = m.abs().max().max(f64::MIN_POSITIVE);
-    if (m - m.transpose()).abs().max() > 1e-6 * scale {
-        return Err(invalid("its matrix W is not symmetric"));
-    }
-    if m.symmetric_eigenvalues().iter().any(|&l| !(l > 0.0)) {
-        return Err(invalid("its matrix W is not positive definite"));
-    }
-    Ok(())
+    s.calibration.validate().map_err(|e| invalid(e.to_string()))
 }
 
 /// The stored model refitted on the new recording.
@@ -298,7 +262,7 @@ fn parameters(
     for (i, axis) in AXES.iter().enumerate() {
         out.push((
             format!("o_{axis}"),
-            stored.offset[i],
+            stored.calibration.offset[i],
             stored_se.offset[i],
             fit.offset[i],
             fit.se.offset[i],
@@ -307,7 +271,7 @@ fn parameters(
     let mut entry = |i: usize, j: usize| {
         out.push((
             format!("W_{}{}", AXES[i], AXES[j]),
-            stored.matrix[i][j],
+            stored.calibration.matrix[i][j],
             stored_se.matrix[i][j],
             fit.matrix[i][j],
             fit.se.matrix[i][j],
@@ -323,7 +287,13 @@ fn parameters(
             entry(i, j);
         }
     }
-    out.push(("r".into(), stored.r, stored_se.r, fit.r, fit.se.r));
+    out.push((
+        "r".into(),
+        stored.calibration.r,
+        stored_se.r,
+        fit.r,
+        fit.se.r,
+    ));
     out
 }
 
@@ -353,7 +323,7 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
     let mut sum = 0.0;
     let calibrated: Vec<[f64; 3]> = points.iter().map(|&p| stored.apply(p)).collect();
     for c in &calibrated {
-        let m = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt() / stored.r;
+        let m = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt() / stored.calibration.r;
         ss += (m - 1.0) * (m - 1.0);
         sum += m;
     }
@@ -501,9 +471,7 @@ mod tests {
         Stored3 {
             source: StoredSource::FitEffects,
             model: fit.model,
-            offset: fit.offset,
-            matrix: fit.matrix,
-            r: fit.r,
+            calibration: fit.calibration(),
             se: Some(fit.se),
             rms: Some(fit.rms),
             columns: None,
@@ -518,7 +486,7 @@ mod tests {
         let same = check3(&tumble(2, base), &stored).unwrap();
         assert_eq!(same.holds, Some(true), "{}", same.verdict);
         assert_eq!(same.refit.as_ref().unwrap().parameters.len(), 10);
-        let moved = check3(&tumble(2, base + 0.03 * stored.r), &stored).unwrap();
+        let moved = check3(&tumble(2, base + 0.03 * stored.calibration.r), &stored).unwrap();
         assert_eq!(moved.holds, Some(false), "{}", moved.verdict);
         let names: Vec<&str> = moved
             .refit
@@ -542,7 +510,7 @@ mod tests {
         let stored = stored_of(&tumble(1, OFFSET_X));
         let upper: Vec<[f64; 3]> = tumble(3, OFFSET_X)
             .into_iter()
-            .filter(|p| stored.apply(*p)[2] > 0.2 * stored.r)
+            .filter(|p| stored.apply(*p)[2] > 0.2 * stored.calibration.r)
             .collect();
         let report = check3(&upper, &stored).unwrap();
         assert_eq!(report.holds, None, "{}", report.verdict);
@@ -613,13 +581,13 @@ mod tests {
     #[test]
     fn a_matrix_that_is_no_calibration_is_refused() {
         let mut stored = stored_of(&tumble(1, 0.0));
-        stored.matrix[0][1] += 0.5;
+        stored.calibration.matrix[0][1] += 0.5;
         assert!(matches!(validate(&stored), Err(CheckError::Invalid { .. })));
         let mut stored = stored_of(&tumble(1, 0.0));
-        stored.matrix[2][2] = -1.0;
+        stored.calibration.matrix[2][2] = -1.0;
         assert!(validate(&stored).is_err());
         let mut stored = stored_of(&tumble(1, 0.0));
-        stored.r = 0.0;
+        stored.calibration.r = 0.0;
         assert!(validate(&stored).is_err());
     }
 }

@@ -427,7 +427,7 @@ fn offset_swing(t: &Trial<'_>) -> Option<(f64, String)> {
                 span,
                 format!(
                     "{column}'s range of {}",
-                    crate::report::significant(span, 3)
+                    crate::numfmt::significant(span, 3)
                 ),
                 column.clone(),
             )
@@ -463,8 +463,8 @@ impl Gates for Trial<'_> {
             return Some(format!(
                 "not a physical cubic: {} = {} ± {} bends the reading by {:.1} % at full scale, beyond what any sensor does (limit {:.0} %; datasheets give 0.1–0.5 %: HMC5883L, MPU-6050, ADXL345); {numbers}",
                 p.name,
-                crate::report::significant(p.value, 3),
-                crate::report::significant(p.se, 2),
+                crate::numfmt::significant(p.value, 3),
+                crate::numfmt::significant(p.se, 2),
                 p.value.abs() * 100.0,
                 MAX_CUBIC * 100.0
             ));

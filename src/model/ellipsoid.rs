@@ -38,6 +38,7 @@ use std::sync::OnceLock;
 use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
 
+use super::calibration3::{Calibration3D, correct3};
 use super::lm::{self, LeastSquares, Weighting};
 use super::sphere::{self, SphereCoverage};
 use crate::sample::{MAX_MAGNITUDE, too_large};
@@ -158,13 +159,16 @@ pub struct Ellipsoid3Fit {
 impl Ellipsoid3Fit {
     /// W·(raw − o).
     pub fn apply(&self, raw: [f64; 3]) -> [f64; 3] {
-        let d = [
-            raw[0] - self.offset[0],
-            raw[1] - self.offset[1],
-            raw[2] - self.offset[2],
-        ];
-        let w = &self.matrix;
-        [0, 1, 2].map(|i| w[i][0] * d[0] + w[i][1] * d[1] + w[i][2] * d[2])
+        correct3(&self.offset, &self.matrix, raw)
+    }
+
+    /// The calibration the fit found (o, W, r), without the fit's report.
+    pub fn calibration(&self) -> Calibration3D {
+        Calibration3D {
+            offset: self.offset,
+            matrix: self.matrix,
+            r: self.r,
+        }
     }
 
     /// |W(raw − o)|/r − 1.

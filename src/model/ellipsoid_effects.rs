@@ -32,6 +32,7 @@
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use serde::Serialize;
 
+use super::calibration3::correct3;
 use super::effects::Effect;
 use super::ellipsoid::{
     self, Ellipsoid, Ellipsoid3Error, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se,
@@ -188,8 +189,7 @@ impl Ellipsoid3EffectsFit {
                 if let Some((k, inv_s2)) = cubic {
                     q = [0, 1, 2].map(|j| q[j] + k[j] * q[j].powi(3) * inv_s2);
                 }
-                let d = [0, 1, 2].map(|j| q[j] - self.offset[j]);
-                [0, 1, 2].map(|i| w[i][0] * d[0] + w[i][1] * d[1] + w[i][2] * d[2])
+                correct3(&self.offset, w, q)
             })
             .collect())
     }

@@ -235,7 +235,7 @@ impl FieldMagnitude {
                 .and_then(MagUnits::from_name)
         });
         let magnitude = match mag_cal {
-            Some(c) => c.r,
+            Some(c) => c.calibration.r,
             None => {
                 let norms: Vec<f64> = mag
                     .iter()

@@ -28,6 +28,8 @@
 //! - [`heading_analysis`]: what `fieldcal heading` makes of those headings:
 //!   their summary, the field against the model, the check against a gyro.
 
+pub mod calibration;
+pub mod calibration3;
 pub mod check;
 pub mod check3;
 pub mod diagnose;
@@ -53,7 +55,7 @@ pub mod tilt;
 pub mod turn;
 pub mod vertical;
 
-use crate::report::significant;
+use crate::numfmt::significant;
 
 /// Why a fit could not produce a calibration. Messages say what was found
 /// and what to do; the caller adds which file or sensor it was.

@@ -222,14 +222,11 @@ pub fn coverage_about(
     centre: [f64; 3],
     matrix: [[f64; 3]; 3],
 ) -> SphereCoverage {
-    coverage(points.iter().map(|p| {
-        let d = [p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]];
-        let mut v = [0.0; 3];
-        for (i, vi) in v.iter_mut().enumerate() {
-            *vi = matrix[i][0] * d[0] + matrix[i][1] * d[1] + matrix[i][2] * d[2];
-        }
-        v
-    }))
+    coverage(
+        points
+            .iter()
+            .map(|p| super::calibration3::correct3(&centre, &matrix, *p)),
+    )
 }
 
 fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {

@@ -15,6 +15,8 @@
 
 use nalgebra::Vector3;
 
+use super::calibration3::{Calibration3D, Calibration3Invalid, Calibration3JsonError};
+
 /// Fewest of the field's magnitude that its horizontal component must keep
 /// for a heading to mean anything: near the magnetic poles (or when the
 /// accelerometer sees motion along the field) the horizontal part vanishes
@@ -706,10 +708,8 @@ pub fn board_reading(
 pub struct Calibration3 {
     /// The columns it was fitted to: x, y, z.
     pub columns: [String; 3],
-    pub offset: [f64; 3],
-    /// W, row-major.
-    pub matrix: [[f64; 3]; 3],
-    pub r: f64,
+    /// o, W (row-major) and r.
+    pub calibration: Calibration3D,
     /// The raw readings' units, when known.
     pub units: Option<String>,
 }
@@ -780,46 +780,40 @@ impl Calibration3 {
             field: "params",
             what: "object of offset, matrix and r",
         })?;
-        let triple = |value: Option<&serde_json::Value>, field: &'static str| {
-            let missing = Calibration3Error::Missing {
-                field,
-                what: "list of three finite numbers",
-            };
-            let list = value.and_then(|l| l.as_array()).ok_or(missing.clone())?;
-            if list.len() != 3 {
-                return Err(missing);
-            }
-            let mut out = [0.0; 3];
-            for (o, x) in out.iter_mut().zip(list) {
-                *o = x
-                    .as_f64()
-                    .filter(|x| x.is_finite())
-                    .ok_or(missing.clone())?;
-            }
-            Ok(out)
-        };
-        let offset = triple(params.get("offset"), "params.offset")?;
-        let rows = params
-            .get("matrix")
-            .and_then(|m| m.as_array())
-            .filter(|m| m.len() == 3)
-            .ok_or(Calibration3Error::Missing {
-                field: "params.matrix",
-                what: "3 × 3 list of rows",
+        let calibration = Calibration3D::from_json(params, ["params.offset", "params.matrix"])
+            .map_err(|e| match e {
+                Calibration3JsonError::NotTriple { field } => Calibration3Error::Missing {
+                    field,
+                    what: "list of three finite numbers",
+                },
+                Calibration3JsonError::NotRows { field } => Calibration3Error::Missing {
+                    field,
+                    what: "3 × 3 list of rows",
+                },
             })?;
-        let matrix = [
-            triple(rows.first(), "params.matrix")?,
-            triple(rows.get(1), "params.matrix")?,
-            triple(rows.get(2), "params.matrix")?,
-        ];
-        let r = params
-            .get("r")
-            .and_then(|r| r.as_f64())
-            .filter(|r| *r > 0.0 && r.is_finite())
-            .ok_or(Calibration3Error::Missing {
-                field: "params.r",
-                what: "positive number",
-            })?;
+        match calibration.validate() {
+            Err(Calibration3Invalid::NotFinite { field: "r" })
+            | Err(Calibration3Invalid::RadiusNotPositive { .. }) => {
+                return Err(Calibration3Error::Missing {
+                    field: "params.r",
+                    what: "positive number",
+                });
+            }
+            Err(Calibration3Invalid::NotFinite { field }) => {
+                return Err(Calibration3Error::Missing {
+                    field: if field == "offset" {
+                        "params.offset"
+                    } else {
+                        "params.matrix"
+                    },
+                    what: "list of three finite numbers",
+                });
+            }
+            // A W that is not symmetric positive definite is applied as it
+            // is, as the heading always has.
+            Err(Calibration3Invalid::NotSymmetric | Calibration3Invalid::NotPositiveDefinite)
+            | Ok(()) => {}
+        }
         // `fit --effects full+drift` (covariate, cubic) adds the extras'
         // parameters: applying o and W alone would drop them silently.
         if let Some(extra) = params
@@ -842,18 +836,14 @@ impl Calibration3 {
         let units = v.get("units").and_then(|u| u.as_str()).map(str::to_string);
         Ok(Calibration3 {
             columns,
-            offset,
-            matrix,
-            r,
+            calibration,
             units,
         })
     }
 
     /// W·(raw − o).
     pub fn apply(&self, raw: [f64; 3]) -> [f64; 3] {
-        let d = [0, 1, 2].map(|i| raw[i] - self.offset[i]);
-        let w = &self.matrix;
-        [0, 1, 2].map(|i| w[i][0] * d[0] + w[i][1] * d[1] + w[i][2] * d[2])
+        self.calibration.correct(raw)
     }
 }
 

@@ -13,6 +13,10 @@ use crate::model::heading::Coverage;
 use crate::model::nonlinear::{ModelFit, Param};
 use crate::model::paper::PaperCalibration;
 
+// The paper's parameters by name are the calibration's; also here, at
+// the path the reports have always used.
+pub use crate::model::calibration::paper_parameters;
+
 /// Where the fitted samples came from, for the report.
 #[derive(Debug, Clone, Copy)]
 pub struct FitSource<'a> {
@@ -44,29 +48,6 @@ pub struct FitJson<'a> {
     pub fit_seconds: f64,
     /// The heading error against a gyro (null without --gyro).
     pub heading_vs_gyro: Option<&'a HeadingCheck>,
-}
-
-/// The paper's parameters with their standard errors, by name.
-pub fn paper_parameters(c: &PaperCalibration, se: Option<&PaperCalibration>) -> Vec<Param> {
-    let se = se.copied().unwrap_or(PaperCalibration {
-        a: f64::NAN,
-        b: f64::NAN,
-        d: f64::NAN,
-        r: f64::NAN,
-    });
-    [
-        ("a", c.a, se.a),
-        ("b", c.b, se.b),
-        ("d", c.d, se.d),
-        ("r", c.r, se.r),
-    ]
-    .into_iter()
-    .map(|(name, value, se)| Param {
-        name: name.into(),
-        value,
-        se,
-    })
-    .collect()
 }
 
 impl<'a> FitJson<'a> {

@@ -1,0 +1,204 @@
+//! The calibration values of the 2-D model, as the daemon publishes and
+//! stores them and `fieldcal check` reads them back: [`Calibration`] (the
+//! paper's parameters and the live-correctable [`Terms`], with a 3-axis
+//! sensor's [`Ellipsoid3Params`]), the corrector [`apply`], and the state
+//! file's [`FORMAT_VERSION`]. Here in the model, below the daemon and the
+//! reports, so that `check` needs neither.
+
+use serde::{Deserialize, Serialize};
+
+use super::calibration3::{Calibration3D, correct3};
+use super::nonlinear::Param;
+use super::paper::PaperCalibration;
+
+/// The version of the daemon's state file layout (one JSON file a sensor),
+/// which `fieldcal check` also reads.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// An accepted calibration of one sensor: what is published in a
+/// `CALIBRATION` message, what is stored, and what corrects readings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Calibration {
+    /// The sensor's name, from the configuration.
+    pub sensor: String,
+    /// Increases by one with every accepted calibration of the sensor,
+    /// across restarts; readings name the id that corrected them.
+    pub id: u64,
+    /// The model as effect names joined by `+` (the paper's: `offset+scale`).
+    pub model: String,
+    /// The model's parameters.
+    pub params: PaperCalibration,
+    /// Root mean square of |calibrated|/r - 1 over the fitted samples.
+    pub rms: f64,
+    /// Heading coverage of the rotation that was fitted, in degrees.
+    pub coverage_deg: f64,
+    /// Samples fitted.
+    pub n: usize,
+    /// When it was accepted, in seconds since the Unix epoch.
+    pub time: f64,
+    /// Terms of the effects beyond the paper's (zero when absent, and then
+    /// left out of the JSON, so files of the paper's model stay as they were).
+    #[serde(default, skip_serializing_if = "Terms::is_none")]
+    pub terms: Terms,
+    /// A 3-axis sensor's calibration (then `params` is the identity with
+    /// the field's r, and `coverage_deg` 0); absent for a 2-axis one, so its
+    /// files stay as they were.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ellipsoid: Option<Ellipsoid3Params>,
+}
+
+/// The 3-D model of a 3-axis sensor: calibrated = W·(raw − o), with
+/// |calibrated| = r (see [`crate::model::ellipsoid`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Ellipsoid3Params {
+    /// o, raw units.
+    pub offset: [f64; 3],
+    /// W, row-major, symmetric, det W = 1.
+    pub matrix: [[f64; 3]; 3],
+    /// The field's magnitude, raw units.
+    pub r: f64,
+    /// The share of the sphere's regions the fitted samples reached.
+    pub coverage: f64,
+}
+
+impl Ellipsoid3Params {
+    /// The calibration itself (o, W, r), without the coverage.
+    pub fn calibration(&self) -> Calibration3D {
+        Calibration3D {
+            offset: self.offset,
+            matrix: self.matrix,
+            r: self.r,
+        }
+    }
+
+    /// W·(raw − o).
+    pub fn correct(&self, raw: [f64; 3]) -> [f64; 3] {
+        correct3(&self.offset, &self.matrix, raw)
+    }
+}
+
+/// The live-correctable effects' terms: cross-axis coupling `c`, the odd
+/// cubic per axis `k` relative to the full scale `cubic_scale`, and the odd
+/// cubic about the turn's centre `kc` relative to the turn's radius per
+/// axis `turn_radius` (raw units, as `centre`). The centred terms are left
+/// out of the JSON when absent, and default to absent, so state files
+/// written before them still load and read the same.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Terms {
+    #[serde(default)]
+    pub c: f64,
+    #[serde(default)]
+    pub k: [f64; 2],
+    #[serde(default)]
+    pub cubic_scale: f64,
+    #[serde(default, skip_serializing_if = "is_zero_pair")]
+    pub kc: [f64; 2],
+    #[serde(default, skip_serializing_if = "is_zero_pair")]
+    pub centre: [f64; 2],
+    #[serde(default, skip_serializing_if = "is_zero_pair")]
+    pub turn_radius: [f64; 2],
+}
+
+fn is_zero_pair(pair: &[f64; 2]) -> bool {
+    *pair == [0.0; 2]
+}
+
+impl Terms {
+    pub fn is_none(&self) -> bool {
+        *self == Terms::default()
+    }
+}
+
+impl Calibration {
+    /// The corrected reading of a raw sample: the cubic terms removed (about
+    /// the sensor's zero and about the turn's centre), then the paper's
+    /// gains and offsets with the cross-axis coupling.
+    pub fn apply(&self, x: f64, y: f64) -> (f64, f64) {
+        apply(&self.params, &self.terms, x, y)
+    }
+}
+
+/// The corrected reading of a raw sample under a model's parameters and
+/// terms (see [`Calibration::apply`]); also for fits not (yet) accepted.
+pub fn apply(p: &PaperCalibration, t: &Terms, x: f64, y: f64) -> (f64, f64) {
+    let (mut x2, mut y2) = if t.cubic_scale > 0.0 {
+        let s2 = t.cubic_scale * t.cubic_scale;
+        (x + t.k[0] * x * x * x / s2, y + t.k[1] * y * y * y / s2)
+    } else {
+        (x, y)
+    };
+    if t.turn_radius.iter().all(|s| *s > 0.0) {
+        let (vx, vy) = (x - t.centre[0], y - t.centre[1]);
+        x2 += t.kc[0] * vx * vx * vx / (t.turn_radius[0] * t.turn_radius[0]);
+        y2 += t.kc[1] * vy * vy * vy / (t.turn_radius[1] * t.turn_radius[1]);
+    }
+    (p.a * x2 + p.b + t.c * (y2 + p.d), y2 + p.d)
+}
+
+/// The paper's parameters with their standard errors, by name.
+pub fn paper_parameters(c: &PaperCalibration, se: Option<&PaperCalibration>) -> Vec<Param> {
+    let se = se.copied().unwrap_or(PaperCalibration {
+        a: f64::NAN,
+        b: f64::NAN,
+        d: f64::NAN,
+        r: f64::NAN,
+    });
+    [
+        ("a", c.a, se.a),
+        ("b", c.b, se.b),
+        ("d", c.d, se.d),
+        ("r", c.r, se.r),
+    ]
+    .into_iter()
+    .map(|(name, value, se)| Param {
+        name: name.into(),
+        value,
+        se,
+    })
+    .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A state file written before the centred cubic (terms c, k and
+    /// cubic_scale only) loads with no centred term and corrects as before;
+    /// one with the centred term corrects with it, and a calibration
+    /// without it writes none of its fields.
+    #[test]
+    fn terms_without_the_centred_cubic_still_load() {
+        let old = r#"{"sensor":"s","id":3,"model":"offset+scale+cubic","params":{"a":1.0,"b":-10.0,"d":5.0,"r":100.0},
+            "rms":0.01,"coverage_deg":360.0,"n":200,"time":1.0,"terms":{"c":0.0,"k":[0.02,0.01],"cubic_scale":200.0}}"#;
+        let cal: Calibration = serde_json::from_str(old).unwrap();
+        assert_eq!(cal.terms.kc, [0.0; 2]);
+        assert_eq!(cal.terms.turn_radius, [0.0; 2]);
+        let (x, y) = (150.0, -40.0);
+        let x2 = x + 0.02 * x * x * x / 200.0f64.powi(2);
+        let y2 = y + 0.01 * y * y * y / 200.0f64.powi(2);
+        assert_eq!(cal.apply(x, y), (x2 - 10.0, y2 + 5.0));
+        let json = serde_json::to_string(&cal).unwrap();
+        assert!(!json.contains("kc") && !json.contains("centre"), "{json}");
+
+        let centred = Calibration {
+            model: "offset+scale+cubic-centred".into(),
+            terms: Terms {
+                kc: [0.04, -0.03],
+                centre: [10.0, -5.0],
+                turn_radius: [90.0, 100.0],
+                ..Terms::default()
+            },
+            ..cal
+        };
+        let back: Calibration =
+            serde_json::from_str(&serde_json::to_string(&centred).unwrap()).unwrap();
+        assert_eq!(back, centred);
+        let (vx, vy) = (x - 10.0, y + 5.0);
+        let want = (
+            x + 0.04 * vx * vx * vx / 8100.0 - 10.0,
+            y - 0.03 * vy * vy * vy / 10_000.0 + 5.0,
+        );
+        let got = centred.apply(x, y);
+        assert!((got.0 - want.0).abs() < 1e-12 && (got.1 - want.1).abs() < 1e-12);
+    }
+}
