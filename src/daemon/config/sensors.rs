@@ -811,7 +811,6 @@ impl Checker<'_> {
 pub(super) fn gyro_lsb_per_deg_s(stream: StreamDesc) -> Option<f64> {
     match stream.chip {
         None => Some(falcon::RATE_LSB_PER_DEG_S),
-        Some((Chip::Mpu6050, _)) => Some(crate::protocol::chips::mpu6050::GYRO_LSB_PER_DEG_S),
-        Some(_) => None,
+        Some((chip, _)) => chip.gyro_lsb_per_deg_s(),
     }
 }

@@ -1,6 +1,23 @@
 //! Analog Devices ADXL345 accelerometer (protocols.md §3; Linux
 //! `drivers/iio/accel/adxl345_core.c`).
 
+use super::Driver;
+use crate::sample::Reading;
+
+/// The ADXL345's entry in the chip table.
+pub const DRIVER: Driver = Driver {
+    name: "adxl345",
+    default_address: 0x53,
+    label: "ADXL345 accelerometer",
+    init_writes: INIT,
+    identity: IDENTITY,
+    data_reads: DATA_READS,
+    gyro_lsb_per_deg_s: None,
+    register_name,
+    decode: decode_reading,
+    encode: encode_reading,
+};
+
 /// Device ID register, and the value every ADXL345 holds there.
 pub const DEVID: u8 = 0x00;
 pub const DEVID_VALUE: u8 = 0xE5;
@@ -42,6 +59,20 @@ pub fn decode(data: &[u8; 6]) -> [i16; 3] {
 pub fn encode(accel: [i16; 3]) -> [u8; 6] {
     let [x, y, z] = accel.map(i16::to_le_bytes);
     [x[0], x[1], y[0], y[1], z[0], z[1]]
+}
+
+/// [`decode`] as a reading, or `None` for a wrong length.
+fn decode_reading(data: &[u8], time: f64) -> Option<Reading> {
+    Some(Reading {
+        time,
+        accel: Some(decode(data.try_into().ok()?)),
+        ..Reading::default()
+    })
+}
+
+/// [`encode`] of a reading's accelerometer (0 where it has none).
+fn encode_reading(reading: &Reading) -> Vec<u8> {
+    encode(reading.accel.unwrap_or([0; 3])).to_vec()
 }
 
 #[cfg(test)]
