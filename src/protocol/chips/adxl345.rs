@@ -2,7 +2,6 @@
 //! `drivers/iio/accel/adxl345_core.c`).
 
 use super::Driver;
-use crate::sample::Reading;
 
 /// The ADXL345's entry in the chip table.
 pub const DRIVER: Driver = Driver {
@@ -14,8 +13,8 @@ pub const DRIVER: Driver = Driver {
     data_reads: DATA_READS,
     gyro_lsb_per_deg_s: None,
     register_name,
-    decode: decode_reading,
-    encode: encode_reading,
+    decode: |data, time| super::accel_reading(data, time, decode),
+    encode: |reading| encode(reading.accel.unwrap_or([0; 3])).to_vec(),
 };
 
 /// Device ID register, and the value every ADXL345 holds there.
@@ -59,20 +58,6 @@ pub fn decode(data: &[u8; 6]) -> [i16; 3] {
 pub fn encode(accel: [i16; 3]) -> [u8; 6] {
     let [x, y, z] = accel.map(i16::to_le_bytes);
     [x[0], x[1], y[0], y[1], z[0], z[1]]
-}
-
-/// [`decode`] as a reading, or `None` for a wrong length.
-fn decode_reading(data: &[u8], time: f64) -> Option<Reading> {
-    Some(Reading {
-        time,
-        accel: Some(decode(data.try_into().ok()?)),
-        ..Reading::default()
-    })
-}
-
-/// [`encode`] of a reading's accelerometer (0 where it has none).
-fn encode_reading(reading: &Reading) -> Vec<u8> {
-    encode(reading.accel.unwrap_or([0; 3])).to_vec()
 }
 
 #[cfg(test)]

@@ -5,7 +5,6 @@
 /// Accelerometer registers.
 pub mod accel {
     use crate::protocol::chips::Driver;
-    use crate::sample::Reading;
 
     /// The LSM303DLHC accelerometer's entry in the chip table.
     pub const DRIVER: Driver = Driver {
@@ -17,8 +16,8 @@ pub mod accel {
         data_reads: DATA_READS,
         gyro_lsb_per_deg_s: None,
         register_name,
-        decode: decode_reading,
-        encode: encode_reading,
+        decode: |data, time| crate::protocol::chips::accel_reading(data, time, decode),
+        encode: |reading| encode(reading.accel.unwrap_or([0; 3])).to_vec(),
     };
 
     /// Bits 7:4 = data rate, bit 3 = low power, bits 2:0 = z, y, x enable.
@@ -59,20 +58,6 @@ pub mod accel {
     pub fn encode(accel: [i16; 3]) -> [u8; 6] {
         let [x, y, z] = accel.map(|v| (v.clamp(-2048, 2047) << 4).to_le_bytes());
         [x[0], x[1], y[0], y[1], z[0], z[1]]
-    }
-
-    /// [`decode`] as a reading, or `None` for a wrong length.
-    fn decode_reading(data: &[u8], time: f64) -> Option<Reading> {
-        Some(Reading {
-            time,
-            accel: Some(decode(data.try_into().ok()?)),
-            ..Reading::default()
-        })
-    }
-
-    /// [`encode`] of a reading's accelerometer (0 where it has none).
-    fn encode_reading(reading: &Reading) -> Vec<u8> {
-        encode(reading.accel.unwrap_or([0; 3])).to_vec()
     }
 }
 

@@ -156,6 +156,21 @@ impl Chip {
     }
 }
 
+/// An accelerometer's poll as a reading, through its `decode`, or `None`
+/// when `data` is not one poll's length: the driver's `decode` for chips
+/// that measure acceleration alone.
+fn accel_reading<const N: usize>(
+    data: &[u8],
+    time: f64,
+    decode: fn(&[u8; N]) -> [i16; 3],
+) -> Option<Reading> {
+    Some(Reading {
+        time,
+        accel: Some(decode(data.try_into().ok()?)),
+        ..Reading::default()
+    })
+}
+
 /// Why a chip could not be set up or read. Every message names the chip and
 /// its address and says what to check.
 #[derive(Debug, thiserror::Error)]
