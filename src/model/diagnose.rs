@@ -30,6 +30,10 @@ use serde::Serialize;
 
 use super::FitError;
 use super::effects::{self, Effect, model_name};
+/// The physical limits stand with their effects in the catalogue.
+pub use super::effects::{
+    MAX_CROSS_AXIS_DEG, MAX_CROSS_AXIS_SHEAR, MAX_CUBIC, ParamLimit, limit_of,
+};
 use super::gyro::{HeadingCheck, HeadingReference};
 use super::heading::coverage;
 use super::ladder::{
@@ -88,24 +92,6 @@ pub const MIN_RMS_DROP: f64 = 0.03;
 /// 5 % noise, far below this at any n.
 pub const MIN_EXPLAINED_NOISE: f64 = 0.25;
 
-/// The largest non-linearity a `cubic` (and `cubic-centred`) may bend the
-/// reading by at full scale: 10 %. Datasheets give 0.1–0.5 % of full scale
-/// (HMC5883L: ±0.1 % FS at ±2 gauss; MPU-6050: 0.5 % accelerometer
-/// non-linearity; ADXL345: ±0.5 % FS); an amplifier near saturation can do
-/// more, so the limit is twenty times the worst of them and refuses no real
-/// sensor. The fit's k is that fraction at the data's largest reading
-/// (nonlinear.rs), so |k| compares with it directly.
-pub const MAX_CUBIC: f64 = 0.10;
-/// The largest cross-axis coupling, in degrees: 20°. Datasheets give a
-/// cross-axis sensitivity of ±2 % (≈ 1.1°; HMC5883L ±0.2 %, MPU-6050 ±2 %,
-/// ADXL345 ±1 %); soft iron near the sensor and a tilted mounting add more,
-/// so the limit is ten times the worst datasheet figure. ArduPilot's
-/// CompassCalibrator accepts off-diagonals up to 1.0 (45°), but as a sanity
-/// bound on a whole vehicle's 3-D soft-iron matrix, not a coupling one
-/// would believe; PX4's mag calibration checks only that they are finite.
-pub const MAX_CROSS_AXIS_DEG: f64 = 20.0;
-/// [`MAX_CROSS_AXIS_DEG`] as the model's shear c = tan(angle).
-pub const MAX_CROSS_AXIS_SHEAR: f64 = 0.364;
 /// The most an added effect may change the fitted gain ratio a, as a
 /// factor: 1.25. The catalogue at its limits moves it less: a cubic of
 /// [`MAX_CUBIC`] on one axis and its opposite on the other changes the
@@ -126,66 +112,6 @@ pub const MAX_GAIN_CHANGE: f64 = 1.25;
 /// the fit enlarging the circle (time and covariates that follow heading
 /// through a turn can do that) rather than a cause.
 pub const MAX_OFFSET_SWING: f64 = 0.6;
-
-/// A physical limit on one fitted parameter, by the parameter's name.
-#[derive(Debug, Clone, Copy)]
-pub struct ParamLimit {
-    pub param: &'static str,
-    /// The largest |value| a physical cause of that name produces.
-    pub max_abs: f64,
-    /// What the value means, for the evidence: `describe(value)`.
-    pub describe: fn(f64) -> String,
-    /// Where the limit comes from.
-    pub source: &'static str,
-}
-
-fn bends(k: f64) -> String {
-    format!(
-        "bends the reading by {:.1} % at full scale",
-        k.abs() * 100.0
-    )
-}
-
-fn couples(c: f64) -> String {
-    format!("couples the axes by {:.1}°", c.atan().to_degrees().abs())
-}
-
-const CUBIC_SOURCE: &str =
-    "limit 10 % at full scale; datasheets give 0.1–0.5 % (HMC5883L, MPU-6050, ADXL345)";
-
-/// The physical limits, keyed by parameter name (an effect whose parameter
-/// has no row has no size limit beyond its standard error).
-pub const PARAM_LIMITS: [ParamLimit; 4] = [
-    ParamLimit {
-        param: "k_x",
-        max_abs: MAX_CUBIC,
-        describe: bends,
-        source: CUBIC_SOURCE,
-    },
-    ParamLimit {
-        param: "k_y",
-        max_abs: MAX_CUBIC,
-        describe: bends,
-        source: CUBIC_SOURCE,
-    },
-    ParamLimit {
-        param: "kc",
-        max_abs: MAX_CUBIC,
-        describe: bends,
-        source: CUBIC_SOURCE,
-    },
-    ParamLimit {
-        param: "c",
-        max_abs: MAX_CROSS_AXIS_SHEAR,
-        describe: couples,
-        source: "limit 20°; datasheets give ±2 % cross-axis sensitivity (≈ 1°), ArduPilot accepts off-diagonals below 1.0",
-    },
-];
-
-/// The limit on a parameter, if it has one.
-pub fn limit_of(param: &str) -> Option<&'static ParamLimit> {
-    PARAM_LIMITS.iter().find(|l| l.param == param)
-}
 
 /// With a gyro, a candidate whose heading error against it is worse than
 /// the model's without it by more than this many standard errors (of the

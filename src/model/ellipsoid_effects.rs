@@ -285,8 +285,19 @@ impl<'a> Layout<'a> {
         sorted.sort();
         sorted.dedup();
         for effect in sorted {
+            if !effect.is_in_3d() {
+                return Err(Effects3Error::NotIn3D {
+                    effect: effect.clone(),
+                });
+            }
             match effect {
-                Effect::Offset | Effect::Scale | Effect::CrossAxis | Effect::Outliers => {}
+                // No columns of their own (the base model holds the first
+                // three, outliers reweights); cubic-centred was refused above.
+                Effect::Offset
+                | Effect::Scale
+                | Effect::CrossAxis
+                | Effect::Outliers
+                | Effect::CubicCentred => {}
                 Effect::Drift => {
                     let t = data.t.as_deref().ok_or(Effects3Error::MissingTime)?;
                     let (tau, sd) = standardised(t).ok_or_else(|| Effects3Error::Undetermined {
@@ -317,11 +328,6 @@ impl<'a> Layout<'a> {
                     }
                     cubic = Some((names.len(), 1.0 / (s * s)));
                     names.extend(AXES.map(|a| format!("k_{a}")));
-                }
-                Effect::CubicCentred => {
-                    return Err(Effects3Error::NotIn3D {
-                        effect: effect.clone(),
-                    });
                 }
             }
         }

@@ -206,18 +206,6 @@ const MIN_STATUS_INTERVAL_S: f64 = 0.05;
 const MIN_RETRY_S: f64 = 0.05;
 /// Names become file names and JSON values: keep them short.
 const NAME_MAX: usize = 64;
-/// The effects the daemon can fit and apply to live readings: those that
-/// depend on the reading alone (drift needs the time base and covariates a
-/// logged column at correction time).
-const LIVE_EFFECTS: [Effect; 6] = [
-    Effect::Offset,
-    Effect::Scale,
-    Effect::CrossAxis,
-    Effect::Cubic,
-    Effect::CubicCentred,
-    Effect::Outliers,
-];
-
 /// A checked configuration.
 #[derive(Debug, Clone)]
 pub struct Config {

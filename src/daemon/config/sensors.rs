@@ -563,14 +563,14 @@ impl Checker<'_> {
             let effect: Effect = name
                 .parse()
                 .map_err(|problem| self.error(item_key, problem))?;
-            if !LIVE_EFFECTS.contains(&effect) {
+            if !effect.is_live() {
                 return Err(self.error(
                     item_key,
                     format!(
                         "the effect '{effect}' cannot correct live readings: it needs the time base or a \
                          logged column at correction time; the daemon fits {}; analyse it offline with \
                          `fieldcal fit --effects {effect}` or `fieldcal diagnose`",
-                        LIVE_EFFECTS.iter().map(Effect::to_string).collect::<Vec<_>>().join(", ")
+                        effects::live().iter().map(Effect::to_string).collect::<Vec<_>>().join(", ")
                     ),
                 ));
             }
@@ -828,8 +828,7 @@ impl Checker<'_> {
 pub(super) fn gyro_lsb_per_deg_s(stream: StreamDesc) -> Option<f64> {
     match stream.chip {
         None => Some(falcon::RATE_LSB_PER_DEG_S),
-        Some((Chip::Mpu6050, _)) => Some(crate::protocol::chips::mpu6050::GYRO_LSB_PER_DEG_S),
-        Some(_) => None,
+        Some((chip, _)) => chip.gyro_lsb_per_deg_s(),
     }
 }
 

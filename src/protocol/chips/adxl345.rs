@@ -1,6 +1,22 @@
 //! Analog Devices ADXL345 accelerometer (protocols.md §3; Linux
 //! `drivers/iio/accel/adxl345_core.c`).
 
+use super::Driver;
+
+/// The ADXL345's entry in the chip table.
+pub const DRIVER: Driver = Driver {
+    name: "adxl345",
+    default_address: 0x53,
+    label: "ADXL345 accelerometer",
+    init_writes: INIT,
+    identity: IDENTITY,
+    data_reads: DATA_READS,
+    gyro_lsb_per_deg_s: None,
+    register_name,
+    decode: |data, time| super::accel_reading(data, time, decode),
+    encode: |reading| encode(reading.accel.unwrap_or([0; 3])).to_vec(),
+};
+
 /// Device ID register, and the value every ADXL345 holds there.
 pub const DEVID: u8 = 0x00;
 pub const DEVID_VALUE: u8 = 0xE5;

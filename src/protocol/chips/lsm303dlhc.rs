@@ -4,6 +4,22 @@
 
 /// Accelerometer registers.
 pub mod accel {
+    use crate::protocol::chips::Driver;
+
+    /// The LSM303DLHC accelerometer's entry in the chip table.
+    pub const DRIVER: Driver = Driver {
+        name: "lsm303dlhc-accel",
+        default_address: 0x19,
+        label: "LSM303DLHC accelerometer",
+        init_writes: INIT,
+        identity: IDENTITY,
+        data_reads: DATA_READS,
+        gyro_lsb_per_deg_s: None,
+        register_name,
+        decode: |data, time| crate::protocol::chips::accel_reading(data, time, decode),
+        encode: |reading| encode(reading.accel.unwrap_or([0; 3])).to_vec(),
+    };
+
     /// Bits 7:4 = data rate, bit 3 = low power, bits 2:0 = z, y, x enable.
     pub const CTRL_REG1_A: u8 = 0x20;
     /// Bit 7 = block data update, bits 5:4 = range, bit 3 = high resolution.
@@ -47,6 +63,23 @@ pub mod accel {
 
 /// Magnetometer registers.
 pub mod mag {
+    use crate::protocol::chips::Driver;
+    use crate::sample::Reading;
+
+    /// The LSM303DLHC magnetometer's entry in the chip table.
+    pub const DRIVER: Driver = Driver {
+        name: "lsm303dlhc-mag",
+        default_address: 0x1E,
+        label: "LSM303DLHC magnetometer",
+        init_writes: INIT,
+        identity: IDENTITY,
+        data_reads: DATA_READS,
+        gyro_lsb_per_deg_s: None,
+        register_name,
+        decode: decode_reading,
+        encode: encode_reading,
+    };
+
     /// Bit 7 = temperature sensor on, bits 4:2 = data rate.
     pub const CRA_REG_M: u8 = 0x00;
     /// Bits 7:5 = gain.
@@ -104,6 +137,23 @@ pub mod mag {
         let [x, y, z] = field.map(i16::to_be_bytes);
         let t = (temp_raw.clamp(-2048, 2047) << 4).to_be_bytes();
         [x[0], x[1], z[0], z[1], y[0], y[1], t[0], t[1]]
+    }
+
+    /// [`decode`] as a reading (field and raw temperature), or `None` for a
+    /// wrong length.
+    fn decode_reading(data: &[u8], time: f64) -> Option<Reading> {
+        let (field, temp_raw) = decode(data.try_into().ok()?);
+        Some(Reading {
+            time,
+            mag: Some(field),
+            temp_raw: Some(temp_raw),
+            ..Reading::default()
+        })
+    }
+
+    /// [`encode`] of a reading's field and raw temperature (0 where missing).
+    fn encode_reading(reading: &Reading) -> Vec<u8> {
+        encode(reading.mag.unwrap_or([0; 3]), reading.temp_raw.unwrap_or(0)).to_vec()
     }
 }
 

@@ -32,6 +32,40 @@ pub enum Chip {
     Lsm303dlhcMag,
 }
 
+/// Everything fieldcal knows about one chip: its names, its address, its
+/// register map and how its data bytes become a [`Reading`]. Each chip's
+/// module holds one `DRIVER` constant; [`Chip::driver`] is the table that
+/// maps the command-line names to them. Adding a chip is its module plus a
+/// variant and one line in that table.
+#[derive(Debug)]
+pub struct Driver {
+    /// The name used on the command line and in files.
+    pub name: &'static str,
+    /// The chip's usual 7-bit I2C address.
+    pub default_address: u8,
+    /// The chip as a person names it, for messages.
+    pub label: &'static str,
+    /// (register, value) writes that configure the chip, in order.
+    pub init_writes: &'static [(u8, u8)],
+    /// (register, expected value) pairs that identify the chip.
+    pub identity: &'static [(u8, u8)],
+    /// (first register, length) of the burst reads of one poll, in order.
+    pub data_reads: &'static [(u8, usize)],
+    /// Gyro counts per degree/second as the init writes set the chip up,
+    /// where the chip has a gyro.
+    pub gyro_lsb_per_deg_s: Option<f64>,
+    /// The datasheet name of a register, or `None` for one fieldcal does not
+    /// use.
+    pub register_name: fn(u8) -> Option<&'static str>,
+    /// One poll's data bytes as a reading stamped with the given time, or
+    /// `None` when the bytes are not one poll's length.
+    pub decode: fn(&[u8], f64) -> Option<Reading>,
+    /// The data bytes the chip would return for a reading (the inverse of
+    /// `decode`); fields the chip does not have are ignored, missing ones
+    /// read as 0.
+    pub encode: fn(&Reading) -> Vec<u8>,
+}
+
 impl Chip {
     /// Every chip, in declaration order.
     pub const ALL: [Chip; 4] = [
@@ -41,69 +75,49 @@ impl Chip {
         Chip::Lsm303dlhcMag,
     ];
 
+    /// The chip's driver: the table of chips.
+    pub fn driver(self) -> &'static Driver {
+        match self {
+            Chip::Adxl345 => &adxl345::DRIVER,
+            Chip::Mpu6050 => &mpu6050::DRIVER,
+            Chip::Lsm303dlhcAccel => &lsm303dlhc::accel::DRIVER,
+            Chip::Lsm303dlhcMag => &lsm303dlhc::mag::DRIVER,
+        }
+    }
+
     /// The name used on the command line and in files.
     pub fn name(self) -> &'static str {
-        match self {
-            Chip::Adxl345 => "adxl345",
-            Chip::Mpu6050 => "mpu6050",
-            Chip::Lsm303dlhcAccel => "lsm303dlhc-accel",
-            Chip::Lsm303dlhcMag => "lsm303dlhc-mag",
-        }
+        self.driver().name
     }
 
     /// The chip's usual 7-bit I2C address.
     pub fn default_address(self) -> u8 {
-        match self {
-            Chip::Adxl345 => 0x53,
-            Chip::Mpu6050 => 0x68,
-            Chip::Lsm303dlhcAccel => 0x19,
-            Chip::Lsm303dlhcMag => 0x1E,
-        }
+        self.driver().default_address
     }
 
     /// The chip as a person names it, for messages.
     pub fn label(self) -> &'static str {
-        match self {
-            Chip::Adxl345 => "ADXL345 accelerometer",
-            Chip::Mpu6050 => "MPU-6050 accelerometer/gyroscope",
-            Chip::Lsm303dlhcAccel => "LSM303DLHC accelerometer",
-            Chip::Lsm303dlhcMag => "LSM303DLHC magnetometer",
-        }
+        self.driver().label
     }
 
     /// (register, value) writes that configure the chip, in order, one byte
     /// each.
     pub fn init_writes(self) -> &'static [(u8, u8)] {
-        match self {
-            Chip::Adxl345 => adxl345::INIT,
-            Chip::Mpu6050 => mpu6050::INIT,
-            Chip::Lsm303dlhcAccel => lsm303dlhc::accel::INIT,
-            Chip::Lsm303dlhcMag => lsm303dlhc::mag::INIT,
-        }
+        self.driver().init_writes
     }
 
     /// (register, expected value) pairs that identify the chip, read one
     /// register at a time; empty where the chip has no documented ID
     /// (the LSM303DLHC accelerometer: its init writes still have to be ACKed).
     pub fn identity(self) -> &'static [(u8, u8)] {
-        match self {
-            Chip::Adxl345 => adxl345::IDENTITY,
-            Chip::Mpu6050 => mpu6050::IDENTITY,
-            Chip::Lsm303dlhcAccel => lsm303dlhc::accel::IDENTITY,
-            Chip::Lsm303dlhcMag => lsm303dlhc::mag::IDENTITY,
-        }
+        self.driver().identity
     }
 
     /// (first register, length) of the burst reads of one poll, in order.
     /// The register byte is sent as is (it includes the LSM303DLHC
     /// accelerometer's auto-increment bit).
     pub fn data_reads(self) -> &'static [(u8, usize)] {
-        match self {
-            Chip::Adxl345 => adxl345::DATA_READS,
-            Chip::Mpu6050 => mpu6050::DATA_READS,
-            Chip::Lsm303dlhcAccel => lsm303dlhc::accel::DATA_READS,
-            Chip::Lsm303dlhcMag => lsm303dlhc::mag::DATA_READS,
-        }
+        self.driver().data_reads
     }
 
     /// Bytes of one poll: the sum of the [`Chip::data_reads`] lengths.
@@ -111,55 +125,26 @@ impl Chip {
         self.data_reads().iter().map(|&(_, len)| len).sum()
     }
 
+    /// Gyro counts per degree/second as the chip is set up, where it has a
+    /// gyro whose scale fieldcal sets.
+    pub fn gyro_lsb_per_deg_s(self) -> Option<f64> {
+        self.driver().gyro_lsb_per_deg_s
+    }
+
     /// The datasheet name of `register`, or "register" for one fieldcal
     /// does not use.
     pub fn register_name(self, register: u8) -> &'static str {
-        match self {
-            Chip::Adxl345 => adxl345::register_name(register),
-            Chip::Mpu6050 => mpu6050::register_name(register),
-            Chip::Lsm303dlhcAccel => lsm303dlhc::accel::register_name(register),
-            Chip::Lsm303dlhcMag => lsm303dlhc::mag::register_name(register),
-        }
-        .unwrap_or("register")
+        (self.driver().register_name)(register).unwrap_or("register")
     }
 
     /// Decodes one poll's data bytes (the [`Chip::data_reads`] bursts,
     /// concatenated) into a reading stamped `time`.
     pub fn decode(self, data: &[u8], time: f64) -> Result<Reading, ChipError> {
-        let length_error = || ChipError::DataLength {
+        (self.driver().decode)(data, time).ok_or(ChipError::DataLength {
             chip: self,
             expected: self.data_len(),
             found: data.len(),
-        };
-        let mut reading = Reading {
-            time,
-            ..Reading::default()
-        };
-        match self {
-            Chip::Adxl345 => {
-                let data = data.try_into().map_err(|_| length_error())?;
-                reading.accel = Some(adxl345::decode(data));
-            }
-            Chip::Mpu6050 => {
-                let data = data.try_into().map_err(|_| length_error())?;
-                let sample = mpu6050::decode(data);
-                reading.accel = Some(sample.accel);
-                reading.gyro = Some(sample.gyro);
-                reading.temp_raw = Some(sample.temp_raw);
-                reading.temp_c = Some(mpu6050::temp_c(sample.temp_raw));
-            }
-            Chip::Lsm303dlhcAccel => {
-                let data = data.try_into().map_err(|_| length_error())?;
-                reading.accel = Some(lsm303dlhc::accel::decode(data));
-            }
-            Chip::Lsm303dlhcMag => {
-                let data = data.try_into().map_err(|_| length_error())?;
-                let (field, temp_raw) = lsm303dlhc::mag::decode(data);
-                reading.mag = Some(field);
-                reading.temp_raw = Some(temp_raw);
-            }
-        }
-        Ok(reading)
+        })
     }
 
     /// The data bytes a chip would return for `reading`: the inverse of
@@ -167,30 +152,23 @@ impl Chip {
     /// not have are ignored; missing ones read as 0. The MPU-6050 takes its
     /// temperature from `temp_raw`, else from `temp_c`.
     pub fn encode(self, reading: &Reading) -> Vec<u8> {
-        let zero = [0i16; 3];
-        match self {
-            Chip::Adxl345 => adxl345::encode(reading.accel.unwrap_or(zero)).to_vec(),
-            Chip::Mpu6050 => {
-                let temp_raw = reading
-                    .temp_raw
-                    .or(reading.temp_c.map(mpu6050::temp_raw))
-                    .unwrap_or(0);
-                mpu6050::encode(&mpu6050::Sample {
-                    accel: reading.accel.unwrap_or(zero),
-                    temp_raw,
-                    gyro: reading.gyro.unwrap_or(zero),
-                })
-                .to_vec()
-            }
-            Chip::Lsm303dlhcAccel => {
-                lsm303dlhc::accel::encode(reading.accel.unwrap_or(zero)).to_vec()
-            }
-            Chip::Lsm303dlhcMag => {
-                lsm303dlhc::mag::encode(reading.mag.unwrap_or(zero), reading.temp_raw.unwrap_or(0))
-                    .to_vec()
-            }
-        }
+        (self.driver().encode)(reading)
     }
+}
+
+/// An accelerometer's poll as a reading, through its `decode`, or `None`
+/// when `data` is not one poll's length: the driver's `decode` for chips
+/// that measure acceleration alone.
+fn accel_reading<const N: usize>(
+    data: &[u8],
+    time: f64,
+    decode: fn(&[u8; N]) -> [i16; 3],
+) -> Option<Reading> {
+    Some(Reading {
+        time,
+        accel: Some(decode(data.try_into().ok()?)),
+        ..Reading::default()
+    })
 }
 
 /// Why a chip could not be set up or read. Every message names the chip and

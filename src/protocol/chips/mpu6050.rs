@@ -1,6 +1,23 @@
 //! InvenSense MPU-6050 accelerometer, gyroscope and temperature (protocols.md
 //! §3; Linux `drivers/iio/imu/inv_mpu6050/`).
 
+use super::Driver;
+use crate::sample::Reading;
+
+/// The MPU-6050's entry in the chip table.
+pub const DRIVER: Driver = Driver {
+    name: "mpu6050",
+    default_address: 0x68,
+    label: "MPU-6050 accelerometer/gyroscope",
+    init_writes: INIT,
+    identity: IDENTITY,
+    data_reads: DATA_READS,
+    gyro_lsb_per_deg_s: Some(GYRO_LSB_PER_DEG_S),
+    register_name,
+    decode: decode_reading,
+    encode: encode_reading,
+};
+
 /// Sample rate = 1 kHz / (1 + div) with the low-pass filter on.
 pub const SMPLRT_DIV: u8 = 0x19;
 /// Bits 2:0 = digital low-pass filter.
@@ -91,6 +108,36 @@ pub fn encode(sample: &Sample) -> [u8; 14] {
         chunk.copy_from_slice(&word.to_be_bytes());
     }
     out
+}
+
+/// [`decode`] as a reading, the temperature also in degrees Celsius, or
+/// `None` for a wrong length.
+fn decode_reading(data: &[u8], time: f64) -> Option<Reading> {
+    let sample = decode(data.try_into().ok()?);
+    Some(Reading {
+        time,
+        accel: Some(sample.accel),
+        gyro: Some(sample.gyro),
+        temp_raw: Some(sample.temp_raw),
+        temp_c: Some(temp_c(sample.temp_raw)),
+        ..Reading::default()
+    })
+}
+
+/// [`encode`] of a reading (0 where a field is missing), the temperature
+/// from `temp_raw`, else from `temp_c`.
+fn encode_reading(reading: &Reading) -> Vec<u8> {
+    let zero = [0i16; 3];
+    let temp_raw = reading
+        .temp_raw
+        .or(reading.temp_c.map(temp_raw))
+        .unwrap_or(0);
+    encode(&Sample {
+        accel: reading.accel.unwrap_or(zero),
+        temp_raw,
+        gyro: reading.gyro.unwrap_or(zero),
+    })
+    .to_vec()
 }
 
 #[cfg(test)]
