@@ -333,6 +333,39 @@ impl SimSensor {
         self.simulate_with_truth().map(|(data, _)| data)
     }
 
+    /// The sample times, rounded to the nanosecond so 0.15 is written 0.15,
+    /// not 0.15000000000000002, and the covariates logged at each: the
+    /// temperature and the switched current, where those effects are on.
+    fn clock_and_covariates(
+        &self,
+        n: usize,
+        duration: f64,
+        switch_rng: &mut ChaCha8Rng,
+    ) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        let e = &self.effects;
+        let mut t = Vec::with_capacity(n);
+        let mut temp = Vec::new();
+        let mut current = Vec::new();
+        let mut current_on = false;
+        let mut next_switch = 0.0;
+        let switch_mean = self.turn_seconds / 5.0;
+        for i in 0..n {
+            let time = (i as f64 * self.period * 1e9).round() / 1e9;
+            t.push(time);
+            if e.temp_per_c.is_some() {
+                temp.push(temperature(time, duration, e.temp_rise));
+            }
+            if e.current_per_a.is_some() {
+                while time >= next_switch {
+                    current_on = !current_on;
+                    next_switch += switch_mean * (0.5 + switch_rng.random::<f64>());
+                }
+                current.push(if current_on { 2.0 } else { 0.0 });
+            }
+        }
+        (t, temp, current)
+    }
+
     /// Simulates the recording and reports the true value of every
     /// parameter of the full model, and which samples carry spikes.
     pub fn simulate_with_truth(&self) -> Result<(Dataset, SimTruth), SimError> {
@@ -363,27 +396,7 @@ impl SimSensor {
         // First the clock and the covariates, so the moving offsets' means
         // are known: the model's cubic acts on the reading less the moving
         // offsets about their means, and the simulation mirrors it.
-        let mut t = Vec::with_capacity(n);
-        let mut temp = Vec::new();
-        let mut current = Vec::new();
-        let mut current_on = false;
-        let mut next_switch = 0.0;
-        let switch_mean = self.turn_seconds / 5.0;
-        for i in 0..n {
-            // Rounded to the nanosecond so 0.15 is written 0.15, not 0.15000000000000002.
-            let time = (i as f64 * self.period * 1e9).round() / 1e9;
-            t.push(time);
-            if e.temp_per_c.is_some() {
-                temp.push(temperature(time, duration, e.temp_rise));
-            }
-            if e.current_per_a.is_some() {
-                while time >= next_switch {
-                    current_on = !current_on;
-                    next_switch += switch_mean * (0.5 + switch_rng.random::<f64>());
-                }
-                current.push(if current_on { 2.0 } else { 0.0 });
-            }
-        }
+        let (t, temp, current) = self.clock_and_covariates(n, duration, &mut switch_rng);
         let moving = |i: usize| -> (f64, f64) {
             let mut moving_x = e.drift_per_s[0] * t[i];
             let mut moving_y = e.drift_per_s[1] * t[i];
