@@ -19,8 +19,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
-use serde::Deserialize;
-
+use super::messages::CalibrationEvent;
 use super::sensor::Sensor;
 use crate::model::rotation::Progress;
 
@@ -390,40 +389,6 @@ pub fn render_line(view: &SensorView, name_width: usize) -> String {
     }
 }
 
-/// The subset of a `CALIBRATION` line the board reads.
-#[derive(Debug, Deserialize)]
-struct CalibrationLine {
-    class: String,
-    sensor: String,
-    accepted: bool,
-    #[serde(default)]
-    id: Option<u64>,
-    #[serde(default)]
-    reason: Option<String>,
-    #[serde(default)]
-    rms: Option<f64>,
-    #[serde(default)]
-    coverage_deg: f64,
-    #[serde(default)]
-    n: usize,
-    #[serde(default)]
-    origin: String,
-    #[serde(default)]
-    suggested: Option<String>,
-    #[serde(default)]
-    heading_vs_gyro: Option<HeadingRms>,
-    #[serde(default)]
-    heading_check: Option<String>,
-    /// A still-pose accelerometer's fit: its poses.
-    #[serde(default)]
-    poses: Option<usize>,
-}
-
-#[derive(Debug, Deserialize)]
-struct HeadingRms {
-    rms_deg: f64,
-}
-
 #[derive(Debug, Clone)]
 struct Track {
     view: SensorView,
@@ -544,26 +509,17 @@ impl Board {
         logs
     }
 
-    /// Takes a line the daemon published; a `CALIBRATION` line sets the
+    /// Takes a `CALIBRATION` the daemon published, which sets the
     /// sensor's outcome. Returns the milestones as log messages: a rotation
     /// complete, and the fit accepted or rejected, in the live line's words.
-    pub fn on_line(&mut self, line: &str) -> Vec<String> {
+    pub fn on_calibration(&mut self, c: &CalibrationEvent) -> Vec<String> {
         let mut logs = Vec::new();
-        if !line.contains("\"CALIBRATION\"") {
-            return logs;
-        }
-        let Ok(c) = serde_json::from_str::<CalibrationLine>(line) else {
-            return logs;
-        };
-        if c.class != "CALIBRATION" {
-            return logs;
-        }
         let track = self.track(&c.sensor);
-        let stored = c.origin == "state";
+        let stored = c.stored;
         let outcome = match (c.accepted, c.id, c.rms) {
             (true, Some(id), Some(rms)) => {
-                let heading = match (&c.heading_vs_gyro, &c.heading_check) {
-                    (Some(h), _) => HeadingNote::Checked { rms_deg: h.rms_deg },
+                let heading = match (c.heading_rms_deg, &c.heading_check) {
+                    (Some(rms_deg), _) => HeadingNote::Checked { rms_deg },
                     (None, Some(why)) => HeadingNote::NotChecked(why.clone()),
                     (None, None) => HeadingNote::Unknown,
                 };
@@ -590,7 +546,7 @@ impl Board {
                 crate::sample::count(poses as u64, "pose"),
                 crate::sample::count(c.n as u64, "sample")
             ));
-        } else if !stored && c.n > 0 && line.contains("\"axes\":3") {
+        } else if !stored && c.n > 0 && c.axes == 3 {
             logs.push(format!(
                 "{}: sphere covered, {}",
                 c.sensor,
@@ -739,10 +695,10 @@ impl ProgressFeed {
         self.flush_logs();
     }
 
-    /// A control line the daemon published (CALIBRATION lines matter).
-    pub fn control_line(&self, line: &str) {
+    /// A `CALIBRATION` the daemon published.
+    pub fn calibration(&self, event: &CalibrationEvent) {
         let mut shared = self.lock();
-        let logs = shared.board.on_line(line);
+        let logs = shared.board.on_calibration(event);
         self.keep(&mut shared, logs);
         drop(shared);
         self.flush_logs();
@@ -1238,6 +1194,52 @@ mod tests {
         }]
     }
 
+    /// A fit of the compass's rotation, with nothing but its verdict.
+    fn fitted(accepted: bool) -> CalibrationEvent {
+        CalibrationEvent {
+            sensor: "compass".into(),
+            accepted,
+            id: None,
+            reason: None,
+            rms: None,
+            coverage_deg: 0.0,
+            n: 0,
+            stored: false,
+            suggested: None,
+            heading_rms_deg: None,
+            heading_check: None,
+            poses: None,
+            axes: 2,
+        }
+    }
+
+    #[test]
+    fn a_sphere_or_still_poses_complete_in_their_own_words() {
+        let mut board = Board::new();
+        let sphere = CalibrationEvent {
+            id: Some(2),
+            rms: Some(0.01),
+            n: 500,
+            axes: 3,
+            ..fitted(true)
+        };
+        assert_eq!(
+            board.on_calibration(&sphere),
+            [
+                "compass: sphere covered, 500 samples",
+                "compass: calibrated #2, rms 1.00 %"
+            ]
+        );
+        let poses = CalibrationEvent {
+            poses: Some(6),
+            ..sphere
+        };
+        assert_eq!(
+            board.on_calibration(&poses)[0],
+            "compass: 6 poses held still, 500 samples"
+        );
+    }
+
     #[test]
     fn the_board_logs_the_moments_that_matter_and_no_more() {
         let mut board = Board::new();
@@ -1271,9 +1273,16 @@ mod tests {
                 .len(),
             1
         );
-        let line = r#"{"class":"CALIBRATION","sensor":"compass","accepted":true,"id":1,"model":"offset+scale","params":{"a":1.0,"b":0.0,"d":0.0,"r":1.0},"rms":0.0031,"coverage_deg":360.0,"n":412,"fit_ms":0.2,"time":3.0,"origin":"rotation","heading_vs_gyro":{"gyro_column":"gyro_z","rms_deg":0.43,"peak_to_peak_deg":1.0,"n":400,"gyro_scale":1.0,"gyro_bias_deg_s":0.0}}"#;
+        let accepted = CalibrationEvent {
+            id: Some(1),
+            rms: Some(0.0031),
+            coverage_deg: 360.0,
+            n: 412,
+            heading_rms_deg: Some(0.43),
+            ..fitted(true)
+        };
         assert_eq!(
-            board.on_line(line),
+            board.on_calibration(&accepted),
             [
                 "compass: rotation complete, 412 samples over 360°",
                 "compass: calibrated #1, rms 0.31 %, heading check 0.4°"
@@ -1283,15 +1292,12 @@ mod tests {
             board.lines(),
             ["compass  [##########] 100 %  calibrated #1, rms 0.31 %, heading check 0.4°"]
         );
-        // READING and STATUS lines change nothing.
-        assert!(
-            board
-                .on_line(r#"{"class":"READING","sensor":"compass"}"#)
-                .is_empty()
-        );
-        let rejected = r#"{"class":"CALIBRATION","sensor":"compass","accepted":false,"reason":"the sensor is not turning: readings spread over only 3.0 counts in 10.0 s (noise about 1.0 counts); turn it a full rotation","model":"offset+scale","coverage_deg":0.0,"n":0,"fit_ms":0.0,"time":9.0,"origin":"rotation"}"#;
+        let rejected = CalibrationEvent {
+            reason: Some("the sensor is not turning: readings spread over only 3.0 counts in 10.0 s (noise about 1.0 counts); turn it a full rotation".into()),
+            ..fitted(false)
+        };
         assert_eq!(
-            board.on_line(rejected),
+            board.on_calibration(&rejected),
             [
                 "compass: rejected: the sensor is not turning: readings spread over only 3.0 counts in 10.0 s (noise about 1.0 counts); turn it a full rotation"
             ]
@@ -1302,10 +1308,19 @@ mod tests {
     fn a_fit_outside_the_limits_shows_its_numbers_reason_and_suggestion() {
         let mut board = Board::new();
         board.update(&snapshot(90.0, vec![[330.0, 360.0]], 180));
-        let line = r#"{"class":"CALIBRATION","sensor":"compass","accepted":false,"reason":"rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms)","model":"offset+scale","params":{"a":1.0,"b":0.0,"d":0.0,"r":1.0},"rms":0.073,"coverage_deg":358.0,"n":200,"fit_ms":0.3,"time":10.0,"origin":"rotation","suggested":"cubic"}"#;
+        let rejected = CalibrationEvent {
+            reason: Some(
+                "rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms)".into(),
+            ),
+            rms: Some(0.073),
+            coverage_deg: 358.0,
+            n: 200,
+            suggested: Some("cubic".into()),
+            ..fitted(false)
+        };
         let words = "rejected: rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms); turn it steadily in place and level (a plane that wobbles adds an error no 2-D model removes), away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects; the turn suggests adding the effect cubic to the sensor's effects";
         assert_eq!(
-            board.on_line(line),
+            board.on_calibration(&rejected),
             [
                 "compass: rotation complete, 200 samples over 358°".to_string(),
                 format!("compass: {words}")
