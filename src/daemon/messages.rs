@@ -223,6 +223,74 @@ impl<'a> CalibrationMessage<'a> {
     }
 }
 
+/// A `CALIBRATION` as the progress board takes it: what the published
+/// line says about the fit's outcome, as a plain value, so the board never
+/// reads the line back. Built from the message just before it is
+/// serialised ([`CalibrationMessage::event`], and the 3-axis message's).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CalibrationEvent {
+    pub sensor: String,
+    pub accepted: bool,
+    /// The new calibration's id (accepted fits only).
+    pub id: Option<u64>,
+    /// Why the fit was rejected, or why no fit was possible.
+    pub reason: Option<String>,
+    /// Fraction of the field.
+    pub rms: Option<f64>,
+    /// Headings covered, degrees (0 for a 3-axis sensor's sphere).
+    pub coverage_deg: f64,
+    /// Samples fitted.
+    pub n: usize,
+    /// Loaded from the state directory (`origin` `state`) rather than
+    /// fitted now.
+    pub stored: bool,
+    /// The effect the residual suggests adding, if any.
+    pub suggested: Option<String>,
+    /// The heading's rms error against the integrated gyro, degrees, when
+    /// it was checked.
+    pub heading_rms_deg: Option<f64>,
+    /// Why the heading could not be checked against a gyro.
+    pub heading_check: Option<String>,
+    /// A still-pose sensor's fit: its poses.
+    pub poses: Option<usize>,
+    /// 2 for a plane's rotation, 3 for a sphere.
+    pub axes: u8,
+}
+
+/// A number as a published line carries it: JSON has no NaN or infinity,
+/// so such a number goes out as `null`. The board shows what the line
+/// says: an optional number that is not finite is absent, and a line whose
+/// required number is not finite says nothing it can read (`None`).
+pub(crate) fn as_published(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
+impl CalibrationMessage<'_> {
+    /// The outcome this message publishes, for the progress board; `None`
+    /// when a number it needs cannot be published (see [`as_published`]).
+    pub fn event(&self) -> Option<CalibrationEvent> {
+        let heading_rms_deg = match &self.heading_vs_gyro {
+            Some(h) => Some(as_published(h.rms_deg)?),
+            None => None,
+        };
+        Some(CalibrationEvent {
+            sensor: self.sensor.to_string(),
+            accepted: self.accepted,
+            id: self.id,
+            reason: self.reason.clone(),
+            rms: self.rms.and_then(as_published),
+            coverage_deg: as_published(self.coverage_deg)?,
+            n: self.n,
+            stored: self.origin == "state",
+            suggested: self.suggested.clone(),
+            heading_rms_deg,
+            heading_check: self.heading_check.clone(),
+            poses: None,
+            axes: 2,
+        })
+    }
+}
+
 /// Where a sensor is in its life.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]

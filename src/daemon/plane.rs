@@ -15,9 +15,11 @@ use std::time::Instant;
 use super::acceptance::{self, Limits};
 use super::config::{Axis, Field, GyroChoice, SensorConfig};
 use super::lifecycle::Lifecycle;
-use super::messages::{CalibrationMessage, ColumnValues, HeadingVsGyro, ReadingMessage, to_line};
+use super::messages::{
+    CalibrationEvent, CalibrationMessage, ColumnValues, HeadingVsGyro, ReadingMessage, to_line,
+};
 use super::publish::Lane;
-use super::sensor::Emit;
+use super::sensor::Emitter;
 use super::{Calibration, Terms};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::model::diagnose::diagnose;
@@ -217,11 +219,12 @@ impl Plane {
     }
 
     /// The `CALIBRATION` line of the calibration loaded from the state
-    /// directory, if any.
-    pub fn loaded_line(&self, life: &Lifecycle) -> Option<String> {
-        life.current
-            .as_ref()
-            .map(|c| to_line(&CalibrationMessage::loaded(c).with_north(self.config.north.as_ref())))
+    /// directory, if any, with its outcome for the progress board.
+    pub fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
+        life.current.as_ref().map(|c| {
+            let message = CalibrationMessage::loaded(c).with_north(self.config.north.as_ref());
+            (to_line(&message), message.event())
+        })
     }
 
     /// Resolves a csv sensor's columns against the headers of the files
@@ -275,7 +278,7 @@ impl Plane {
         &mut self,
         life: &mut Lifecycle,
         row: &CsvRow,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         let binding = self.csv.as_ref()?;
         if row.file != binding.file {
@@ -301,7 +304,7 @@ impl Plane {
             values: &row.values,
         };
         let line = self.reading_line(life, row.time, x, y, Some(columns));
-        emit(Lane::Reading, line);
+        emit.line(Lane::Reading, line);
         self.collect(life, row.time, x, y, emit)
     }
 
@@ -338,7 +341,7 @@ impl Plane {
         &mut self,
         life: &mut Lifecycle,
         reading: &Reading,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         if life.collecting()
             && let Some(gyro) = &mut self.gyro
@@ -351,7 +354,7 @@ impl Plane {
         }
         let (x, y) = self.axes_of(reading)?;
         life.readings += 1;
-        emit(
+        emit.line(
             Lane::Reading,
             self.reading_line(life, reading.time, x, y, None),
         );
@@ -366,7 +369,7 @@ impl Plane {
         time: f64,
         x: f64,
         y: f64,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         if !life.collecting() {
             return None;
@@ -415,7 +418,12 @@ impl Plane {
         })
     }
 
-    fn fit(&mut self, life: &mut Lifecycle, time: f64, emit: &mut Emit<'_>) -> Option<Calibration> {
+    fn fit(
+        &mut self,
+        life: &mut Lifecycle,
+        time: f64,
+        emit: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
         let (t, x, y) = self.buffer.take();
         let started = Instant::now();
         let fitted = self.fit_rotation(t, x, y);
@@ -466,7 +474,7 @@ impl Plane {
                 heading_check,
                 ..self.rejection(time, &reason, report.n, report.coverage.covered_deg, fit_ms)
             };
-            emit(Lane::Control, to_line(&message));
+            emit.calibration(|| message.event(), to_line(&message));
             self.note_rejection(life, reason);
             return None;
         }
@@ -492,7 +500,7 @@ impl Plane {
             heading_check,
             ..CalibrationMessage::loaded(&calibration).with_north(self.config.north.as_ref())
         };
-        emit(Lane::Control, to_line(&message));
+        emit.calibration(|| message.event(), to_line(&message));
         match (&message.heading_vs_gyro, &message.heading_check) {
             (Some(h), _) => tracing::info!(
                 sensor = %self.config.name,
@@ -627,10 +635,10 @@ impl Plane {
         n: usize,
         coverage_deg: f64,
         fit_ms: f64,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) {
         let message = self.rejection(time, &reason, n, coverage_deg, fit_ms);
-        emit(Lane::Control, to_line(&message));
+        emit.calibration(|| message.event(), to_line(&message));
         self.note_rejection(life, reason);
     }
 

@@ -40,6 +40,7 @@ use std::time::Duration;
 use tokio::sync::mpsc;
 
 use super::config::{self, Config, ConfigError, SensorConfig, SourceConfig, SourceKind};
+use super::messages::CalibrationEvent;
 use super::notify::Notifier;
 use super::sensor::Sensor;
 use super::state::StateStore;
@@ -456,6 +457,9 @@ pub struct RunningSource<'a> {
 pub struct Outcome {
     /// `RELOAD` (or, refused, `ERROR`) lines to publish, in order.
     pub lines: Vec<String>,
+    /// The outcomes of the `CALIBRATION` lines among `lines` (an added
+    /// sensor's stored calibration), for the progress board, in order.
+    pub calibrations: Vec<CalibrationEvent>,
     /// The new STATUS interval, when it changed.
     pub status_interval: Option<Duration>,
 }
@@ -498,6 +502,7 @@ fn refused(file: &str, e: &ReloadError) -> Outcome {
     }
     Outcome {
         lines: vec![line.to_string()],
+        calibrations: Vec::new(),
         status_interval: None,
     }
 }
@@ -544,6 +549,7 @@ fn apply_plan(
         .map(|(s, c)| (c.name.clone(), (s, c)))
         .collect();
     let mut lines = Vec::new();
+    let mut calibrations = Vec::new();
     let info = |lines: &mut Vec<String>, message: String, sensor: Option<&str>| {
         tracing::info!("{message}");
         lines.push(reload_line(&file, &message, sensor, false));
@@ -621,7 +627,10 @@ fn apply_plan(
                 };
                 let how = match sensor.calibration() {
                     Some(c) => {
-                        lines.extend(sensor.loaded_line());
+                        if let Some((line, event)) = sensor.loaded_calibration() {
+                            lines.push(line);
+                            calibrations.extend(event);
+                        }
                         format!(
                             "corrects with calibration #{} from the state directory and waits for a recalibrate",
                             c.id
@@ -672,6 +681,7 @@ fn apply_plan(
     info(&mut lines, summary(plan, &file, counts), None);
     Ok(Outcome {
         lines,
+        calibrations,
         status_interval: plan.status_interval,
     })
 }

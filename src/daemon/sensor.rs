@@ -13,7 +13,7 @@ use std::sync::Arc;
 use super::Calibration;
 use super::config::SensorConfig;
 use super::lifecycle::Lifecycle;
-use super::messages::{SensorState, SensorStatus};
+use super::messages::{CalibrationEvent, SensorState, SensorStatus};
 use super::north::North;
 use super::plane::Plane;
 use super::publish::Lane;
@@ -24,6 +24,46 @@ use crate::sample::Reading;
 
 /// A line to publish, on its lane.
 pub type Emit<'a> = dyn FnMut(Lane, String) + 'a;
+
+/// Where a sensor's output goes: every line to publish, on its lane, and,
+/// to whoever watches the fits (the progress board), each `CALIBRATION`'s
+/// outcome as a typed [`CalibrationEvent`], just before its line.
+pub struct Emitter<'a> {
+    lines: &'a mut Emit<'a>,
+    fits: Option<&'a mut dyn FnMut(CalibrationEvent)>,
+}
+
+impl<'a> Emitter<'a> {
+    /// Lines only: nobody watches the fits.
+    pub fn new(lines: &'a mut Emit<'a>) -> Self {
+        Emitter { lines, fits: None }
+    }
+
+    /// Lines to `lines`, each fit's outcome to `fits` as well.
+    pub fn watched(lines: &'a mut Emit<'a>, fits: &'a mut dyn FnMut(CalibrationEvent)) -> Self {
+        Emitter {
+            lines,
+            fits: Some(fits),
+        }
+    }
+
+    /// Publishes a line on its lane.
+    pub fn line(&mut self, lane: Lane, line: String) {
+        (self.lines)(lane, line);
+    }
+
+    /// Publishes a `CALIBRATION` line on the control lane, after handing
+    /// its outcome (made by `event` only when the fits are watched) to the
+    /// watcher.
+    pub fn calibration(&mut self, event: impl FnOnce() -> Option<CalibrationEvent>, line: String) {
+        if let Some(fits) = &mut self.fits
+            && let Some(event) = event()
+        {
+            fits(event);
+        }
+        (self.lines)(Lane::Control, line);
+    }
+}
 
 /// What a sensor does that depends on its geometry: which readings are
 /// its, how a reading is corrected and published, how samples are
@@ -38,14 +78,14 @@ pub trait Geometry: Send {
         &mut self,
         life: &mut Lifecycle,
         reading: &Reading,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration>;
     /// Handles one row of the sensor's csv source as a reading.
     fn on_row(
         &mut self,
         life: &mut Lifecycle,
         row: &CsvRow,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration>;
     /// Resolves a csv sensor's columns; see [`Sensor::bind_csv`].
     fn bind_csv(
@@ -56,8 +96,8 @@ pub trait Geometry: Send {
     /// Empties the samples collected, to collect anew.
     fn restart(&mut self);
     /// The `CALIBRATION` line of the calibration loaded from the state
-    /// directory, if any.
-    fn loaded_line(&self, life: &Lifecycle) -> Option<String>;
+    /// directory, if any, with its outcome for the progress board.
+    fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)>;
     /// Takes a new true north.
     fn set_north(&mut self, north: Option<North>);
     /// The rotation being collected (a plane).
@@ -91,7 +131,7 @@ impl Geometry for Plane {
         &mut self,
         life: &mut Lifecycle,
         reading: &Reading,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         Plane::on_reading(self, life, reading, emit)
     }
@@ -99,7 +139,7 @@ impl Geometry for Plane {
         &mut self,
         life: &mut Lifecycle,
         row: &CsvRow,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         Plane::on_row(self, life, row, emit)
     }
@@ -113,7 +153,7 @@ impl Geometry for Plane {
     fn restart(&mut self) {
         self.recalibrate();
     }
-    fn loaded_line(&self, life: &Lifecycle) -> Option<String> {
+    fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
         Plane::loaded_line(self, life)
     }
     fn set_north(&mut self, north: Option<North>) {
@@ -135,7 +175,7 @@ impl Geometry for Sensor3 {
         &mut self,
         life: &mut Lifecycle,
         reading: &Reading,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         Sensor3::on_reading(self, life, reading, emit)
     }
@@ -143,7 +183,7 @@ impl Geometry for Sensor3 {
         &mut self,
         life: &mut Lifecycle,
         row: &CsvRow,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         Sensor3::on_row(self, life, row, emit)
     }
@@ -158,7 +198,7 @@ impl Geometry for Sensor3 {
     fn restart(&mut self) {
         self.recalibrate();
     }
-    fn loaded_line(&self, life: &Lifecycle) -> Option<String> {
+    fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
         Sensor3::loaded_line(self, life)
     }
     fn set_north(&mut self, north: Option<North>) {
@@ -221,6 +261,11 @@ impl Sensor {
     /// The `CALIBRATION` line of the calibration loaded from the state
     /// directory, if any.
     pub fn loaded_line(&self) -> Option<String> {
+        self.loaded_calibration().map(|(line, _)| line)
+    }
+
+    /// [`Sensor::loaded_line`], with its outcome for the progress board.
+    pub fn loaded_calibration(&self) -> Option<(String, Option<CalibrationEvent>)> {
         self.geometry.loaded_line(&self.life)
     }
 
@@ -244,7 +289,12 @@ impl Sensor {
     /// row of another file of the source, or a row without numbers in its
     /// axes, is ignored.
     pub fn on_row(&mut self, row: &CsvRow, emit: &mut Emit<'_>) -> Option<Calibration> {
-        self.geometry.on_row(&mut self.life, row, emit)
+        self.on_row_to(row, &mut Emitter::new(emit))
+    }
+
+    /// [`Sensor::on_row`], its output to an [`Emitter`].
+    pub fn on_row_to(&mut self, row: &CsvRow, out: &mut Emitter<'_>) -> Option<Calibration> {
+        self.geometry.on_row(&mut self.life, row, out)
     }
 
     /// Takes over what `old` (the same sensor under the settings before a
@@ -311,7 +361,16 @@ impl Sensor {
     /// exists), feeds the rotation buffer while collecting, and fits when the
     /// rotation is complete. Returns a newly accepted calibration, to store.
     pub fn on_reading(&mut self, reading: &Reading, emit: &mut Emit<'_>) -> Option<Calibration> {
-        self.geometry.on_reading(&mut self.life, reading, emit)
+        self.on_reading_to(reading, &mut Emitter::new(emit))
+    }
+
+    /// [`Sensor::on_reading`], its output to an [`Emitter`].
+    pub fn on_reading_to(
+        &mut self,
+        reading: &Reading,
+        out: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
+        self.geometry.on_reading(&mut self.life, reading, out)
     }
 
     pub fn status(&self) -> SensorStatus<'_> {

@@ -17,10 +17,10 @@ use serde::Serialize;
 
 use super::config::{Axis, Field, SensorConfig};
 use super::lifecycle::Lifecycle;
-use super::messages::to_line;
+use super::messages::{CalibrationEvent, as_published, to_line};
 use super::north::{Earth, MeasuredDip, North, earth};
 use super::publish::Lane;
-use super::sensor::Emit;
+use super::sensor::Emitter;
 use super::{Calibration, Ellipsoid3Params};
 use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
 use crate::model::paper::PaperCalibration;
@@ -322,6 +322,28 @@ struct Calibration3Message<'a> {
     poses: Option<usize>,
 }
 
+impl Calibration3Message<'_> {
+    /// The outcome this message publishes, for the progress board (a
+    /// sphere has no headings covered, no heading check, no suggestion).
+    fn event(&self) -> CalibrationEvent {
+        CalibrationEvent {
+            sensor: self.sensor.to_string(),
+            accepted: self.accepted,
+            id: self.id,
+            reason: self.reason.clone(),
+            rms: self.rms.and_then(as_published),
+            coverage_deg: 0.0,
+            n: self.n,
+            stored: self.origin == "state",
+            suggested: None,
+            heading_rms_deg: None,
+            heading_check: None,
+            poses: self.poses,
+            axes: self.axes,
+        }
+    }
+}
+
 /// The sphere geometry of a 3-axis sensor: its buffer, its tilt source and
 /// its true north. Its state, calibration and counts are the
 /// [`Lifecycle`] its [`super::sensor::Sensor`] lends it.
@@ -496,7 +518,7 @@ impl Sensor3 {
         &mut self,
         life: &mut Lifecycle,
         row: &crate::io::csv::CsvRow,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         let binding = self.csv.as_ref()?;
         let values = |at: [usize; 3]| -> Option<[f64; 3]> {
@@ -520,7 +542,7 @@ impl Sensor3 {
         let raw = values(at)?;
         life.readings += 1;
         let line = self.reading_line(life, row.time, raw);
-        emit(Lane::Reading, line);
+        emit.line(Lane::Reading, line);
         self.collect(life, row.time, raw, emit)
     }
 
@@ -532,7 +554,7 @@ impl Sensor3 {
         &mut self,
         life: &mut Lifecycle,
         reading: &Reading,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         if let Some(tilt) = &self.config.tilt
             && reading.stream == tilt.stream
@@ -546,7 +568,7 @@ impl Sensor3 {
         let raw = pick(field_of(reading, self.field)?, self.config.axes);
         life.readings += 1;
         let line = self.reading_line(life, reading.time, raw);
-        emit(Lane::Reading, line);
+        emit.line(Lane::Reading, line);
         self.collect(life, reading.time, raw, emit)
     }
 
@@ -635,7 +657,7 @@ impl Sensor3 {
         life: &mut Lifecycle,
         time: f64,
         raw: [f64; 3],
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         if !life.collecting() || raw.iter().any(|v| !v.is_finite()) {
             return None;
@@ -654,7 +676,12 @@ impl Sensor3 {
         fitted
     }
 
-    fn fit(&mut self, life: &mut Lifecycle, time: f64, emit: &mut Emit<'_>) -> Option<Calibration> {
+    fn fit(
+        &mut self,
+        life: &mut Lifecycle,
+        time: f64,
+        emit: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
         let started = Instant::now();
         let fitted = ellipsoid::fit(self.buffer.points(), self.config.model);
         let fit_ms = started.elapsed().as_secs_f64() * 1e3;
@@ -706,10 +733,8 @@ impl Sensor3 {
         if let Some(e) = &earth {
             tracing::info!(sensor = %self.name, "against the World Magnetic Model: {}", e.verdict);
         }
-        emit(
-            Lane::Control,
-            to_line(&self.message(&calibration, Some(&fit), fit_ms, "sphere", earth)),
-        );
+        let message = self.message(&calibration, Some(&fit), fit_ms, "sphere", earth);
+        emit.calibration(|| Some(message.event()), to_line(&message));
         tracing::info!(
             sensor = %self.name,
             id = calibration.id,
@@ -821,8 +846,8 @@ impl Sensor3 {
     }
 
     /// The `CALIBRATION` line of a calibration loaded from the state
-    /// directory.
-    pub fn loaded_line(&self, life: &Lifecycle) -> Option<String> {
+    /// directory, with its outcome for the progress board.
+    pub fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
         let c = life.current.as_ref()?;
         let earth = match (&self.north, &c.ellipsoid) {
             (Some(north), Some(p)) if self.field == Field::Mag => earth(
@@ -839,7 +864,8 @@ impl Sensor3 {
             ),
             _ => None,
         };
-        Some(to_line(&self.message(c, None, 0.0, "state", earth)))
+        let message = self.message(c, None, 0.0, "state", earth);
+        Some((to_line(&message), Some(message.event())))
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -851,7 +877,7 @@ impl Sensor3 {
         n: usize,
         fit_ms: f64,
         fit: Option<&Ellipsoid3Fit>,
-        emit: &mut Emit<'_>,
+        emit: &mut Emitter<'_>,
     ) {
         let message = Calibration3Message {
             class: "CALIBRATION",
@@ -882,7 +908,7 @@ impl Sensor3 {
             earth: fit.and_then(|f| self.earth_of(f)),
             poses: self.buffer.still_poses(),
         };
-        emit(Lane::Control, to_line(&message));
+        emit.calibration(|| Some(message.event()), to_line(&message));
         tracing::warn!(sensor = %self.name, "3-D calibration rejected: {reason}");
         life.reject(reason);
         // Collect anew; the previous calibration (if any) keeps correcting.

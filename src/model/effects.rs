@@ -368,7 +368,11 @@ mod tests {
     #[test]
     fn the_catalogue_is_in_the_order_of_the_effects() {
         for (i, info) in CATALOGUE.iter().enumerate() {
-            assert!(std::ptr::eq(info.effect.info(), &CATALOGUE[i]), "{}", info.name);
+            assert!(
+                std::ptr::eq(info.effect.info(), &CATALOGUE[i]),
+                "{}",
+                info.name
+            );
         }
         assert_eq!(
             live(),

@@ -299,8 +299,22 @@ pub fn render_text3(
     extras: Option<&Extras3>,
 ) -> String {
     let mut out = String::new();
-    let mut line =
-        |label: &str, value: String, note: &str| push_line(&mut out, label, &value, note);
+    push_fit_setup(&mut out, fit, source, still, extras);
+    push_parameters(&mut out, fit, units, extras);
+    push_quality(&mut out, fit, supported, models, extras);
+    out
+}
+
+/// The report's first lines: the file and axes, the model and solver, the
+/// samples (and the still poses), the sphere's coverage.
+fn push_fit_setup(
+    out: &mut String,
+    fit: &Ellipsoid3Fit,
+    source: Fit3Source<'_>,
+    still: Option<&StillSummary>,
+    extras: Option<&Extras3>,
+) {
+    let mut line = |label: &str, value: String, note: &str| push_line(out, label, &value, note);
     line("file", source.file.to_string(), "");
     line(
         "axes",
@@ -357,6 +371,17 @@ pub fn render_text3(
         ),
         &cov.missing_text(),
     );
+}
+
+/// The fitted parameters: r, the offset, W, and the extras' terms with
+/// the samples they flagged.
+fn push_parameters(
+    out: &mut String,
+    fit: &Ellipsoid3Fit,
+    units: Option<&str>,
+    extras: Option<&Extras3>,
+) {
+    let mut line = |label: &str, value: String, note: &str| push_line(out, label, &value, note);
     let unit = units.unwrap_or("");
     let unit_note = match units {
         Some(u) => format!("field magnitude ({u})"),
@@ -409,6 +434,18 @@ pub fn render_text3(
             line("flagged", flagged.len().to_string(), &flagged_note(flagged));
         }
     }
+}
+
+/// How well it fits: the rms (and without the extras), every model's rms
+/// on these samples, and the models the coverage determines.
+fn push_quality(
+    out: &mut String,
+    fit: &Ellipsoid3Fit,
+    supported: &[Ellipsoid3Model],
+    models: &[ModelRms],
+    extras: Option<&Extras3>,
+) {
+    let mut line = |label: &str, value: String, note: &str| push_line(out, label, &value, note);
     let used = match extras.and_then(|e| e.flagged.as_ref()) {
         Some(flagged) => format!(", over the {} samples used", fit.n - flagged.len()),
         None => String::new(),
@@ -455,7 +492,6 @@ pub fn render_text3(
         },
         "models the coverage determines",
     );
-    out
 }
 
 /// The model line's note: what the extras take out of each reading.

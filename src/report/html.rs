@@ -63,17 +63,56 @@ figcaption { color: #444; font-size: 0.95em; margin-top: 0.4em; }
 footer { color: #777; font-size: 0.85em; margin-top: 3em; }
 ";
 
-/// Renders the page. `data.summary_html` is inserted as is (the caller
-/// escapes it); every other text is escaped here.
-pub fn render_index(data: &ReportData, figures: &[Figure]) -> String {
-    let title = escape(&data.title);
+/// The 3-D report's page (`fit --z`, `diagnose --z`): wider, for the
+/// ellipsoid's three views side by side.
+const STYLE3: &str = "\
+body { font-family: sans-serif; margin: 2em auto; max-width: 1240px; padding: 0 1em; color: #222; overflow-wrap: anywhere; }
+.summary { background: #f6f6f6; border-left: 4px solid #1f77b4; padding: 0.5em 1em; }
+.summary pre { white-space: pre-wrap; overflow-wrap: anywhere; font-size: 0.85em; }
+.summary pre .line { display: block; min-height: 1.35em; padding-left: 4ch; text-indent: -4ch; }
+figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
+figcaption { color: #444; font-size: 0.95em; }
+";
+
+/// What sets one report page apart from another: its style sheet and the
+/// words of its footer. The skeleton is [`render_page`]'s.
+#[derive(Debug, Clone, Copy)]
+pub struct PageKind {
+    /// The CSS, one rule a line, each ending in a newline.
+    pub style: &'static str,
+    /// The footer's text (HTML, inserted as is).
+    pub footer: &'static str,
+}
+
+/// The 2-D report's page (`fit`, `diagnose`): residuals shown in %.
+pub const PAGE2: PageKind = PageKind {
+    style: STYLE,
+    footer: "Written by fieldcal. Residuals are |s|/r − 1, the magnitude error of a \
+             calibrated sample as a fraction of the field, shown in %.",
+};
+
+/// The 3-D report's page (`fit --z`, `diagnose --z`).
+pub const PAGE3: PageKind = PageKind {
+    style: STYLE3,
+    footer: "Written by fieldcal. Residuals are |s|/r − 1, the magnitude error of a \
+             calibrated sample as a fraction of the field.",
+};
+
+/// Renders a report page of `kind`: the title, the summary, then every
+/// figure under its title with its caption. `summary_html` is inserted as
+/// is (the caller escapes it); every other text is escaped here.
+pub fn render_page(kind: &PageKind, title: &str, summary_html: &str, figures: &[Figure]) -> String {
+    let title = escape(title);
     let mut html = String::new();
     html.push_str("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n");
     html.push_str(&format!("<title>fieldcal report: {title}</title>\n"));
-    html.push_str(&format!("<style>\n{STYLE}</style>\n</head>\n<body>\n"));
+    html.push_str(&format!(
+        "<style>\n{}</style>\n</head>\n<body>\n",
+        kind.style
+    ));
     html.push_str(&format!("<h1>fieldcal report: {title}</h1>\n"));
     html.push_str("<section class=\"summary\">\n");
-    html.push_str(&data.summary_html);
+    html.push_str(summary_html);
     html.push_str("\n</section>\n");
     for figure in figures {
         let id = figure.file.trim_end_matches(".svg");
@@ -86,11 +125,16 @@ pub fn render_index(data: &ReportData, figures: &[Figure]) -> String {
             escape(&figure.caption),
         ));
     }
-    html.push_str(
-        "<footer>Written by fieldcal. Residuals are |s|/r − 1, the magnitude error of a \
-         calibrated sample as a fraction of the field, shown in %.</footer>\n</body>\n</html>\n",
-    );
+    html.push_str(&format!(
+        "<footer>{}</footer>\n</body>\n</html>\n",
+        kind.footer
+    ));
     html
+}
+
+/// Renders the 2-D report's page.
+pub fn render_index(data: &ReportData, figures: &[Figure]) -> String {
+    render_page(&PAGE2, &data.title, &data.summary_html, figures)
 }
 
 #[cfg(test)]

@@ -12,6 +12,7 @@ use crate::capture::CaptureFile;
 use crate::daemon::config::{Config, SourceKind};
 use crate::daemon::messages::SourceStatus;
 use crate::daemon::publish::Lane;
+use crate::daemon::sensor::Emitter;
 use crate::source::csv::{CsvPlayback, check_csv, play_csv};
 use crate::source::replay::{ReplaySummary, Speed, replay_counted};
 use crate::source::{SourceCounters, SourceEvent};
@@ -95,14 +96,16 @@ impl Pipeline {
         }
         let lines = &mut self.lines;
         let mut emit = |_: Lane, line: String| lines.push(line);
+        let mut sensor_out = Emitter::new(&mut emit);
         match event {
             SourceEvent::Reading(reading) => {
                 self.sensors
-                    .on_reading(self.index, &reading, &mut emit, &mut |_| {})
+                    .on_reading(self.index, &reading, &mut sensor_out, &mut |_| {})
             }
-            SourceEvent::Row(row) => self
-                .sensors
-                .on_row(self.index, &row, &mut emit, &mut |_| {}),
+            SourceEvent::Row(row) => {
+                self.sensors
+                    .on_row(self.index, &row, &mut sensor_out, &mut |_| {})
+            }
             _ => {}
         }
         for line in self.lines.drain(..) {

@@ -6,8 +6,8 @@ use std::sync::Arc;
 use crate::daemon::Calibration;
 use crate::daemon::config::Config;
 use crate::daemon::messages::{SourceStatus, StatusMessage, to_line};
-use crate::daemon::publish::{Hub, Lane};
-use crate::daemon::sensor::Sensor;
+use crate::daemon::publish::Hub;
+use crate::daemon::sensor::{Emitter, Sensor};
 use crate::daemon::state::StateStore;
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 
@@ -46,14 +46,14 @@ impl Sensors {
         &mut self,
         source: usize,
         reading: &crate::sample::Reading,
-        emit: &mut dyn FnMut(Lane, String),
+        out: &mut Emitter<'_>,
         store: &mut dyn FnMut(&Calibration),
     ) {
         let mut accepted_any = false;
         for (src, sensor) in &mut self.sensors {
             if *src == source
                 && sensor.wants(reading.stream)
-                && let Some(accepted) = sensor.on_reading(reading, emit)
+                && let Some(accepted) = sensor.on_reading_to(reading, out)
             {
                 store(&accepted);
                 accepted_any = true;
@@ -88,13 +88,13 @@ impl Sensors {
         &mut self,
         source: usize,
         row: &CsvRow,
-        emit: &mut dyn FnMut(Lane, String),
+        out: &mut Emitter<'_>,
         store: &mut dyn FnMut(&Calibration),
     ) {
         let mut accepted_any = false;
         for (src, sensor) in &mut self.sensors {
             if *src == source
-                && let Some(accepted) = sensor.on_row(row, emit)
+                && let Some(accepted) = sensor.on_row_to(row, out)
             {
                 store(&accepted);
                 accepted_any = true;

@@ -12,11 +12,12 @@ use super::sensors::{Sensors, status_text};
 use super::sources::{SourceHandle, Sources};
 use crate::daemon::Calibration;
 use crate::daemon::config::Config;
-use crate::daemon::messages::to_line;
+use crate::daemon::messages::{CalibrationEvent, to_line};
 use crate::daemon::notify::Notifier;
 use crate::daemon::progress::{ProgressFeed, REDRAW};
 use crate::daemon::publish::{ClientCommand, Hub, Lane, ReplyTo};
 use crate::daemon::reload::{ReloadEvent, Reloader};
+use crate::daemon::sensor::Emitter;
 use crate::daemon::state::StateStore;
 use crate::daemon::state_writer::{SaveFailure, StateWriter};
 use crate::source::SourceEvent;
@@ -140,21 +141,24 @@ impl Daemon {
     /// calibration is stored), connections to its status.
     fn handle_event(&mut self, index: usize, event: SourceEvent) {
         let (hub, progress, writer) = (&self.hub, &self.progress, &self.writer);
-        let mut emit = |lane: Lane, line: String| {
-            if lane == Lane::Control
-                && let Some(progress) = progress
-            {
-                progress.control_line(&line);
+        let mut emit = |lane: Lane, line: String| hub.publish(lane, Arc::from(line));
+        // The board takes each fit's outcome just before its line goes out.
+        let mut watch = |event: CalibrationEvent| {
+            if let Some(progress) = progress {
+                progress.calibration(&event);
             }
-            hub.publish(lane, Arc::from(line))
+        };
+        let mut out = match progress {
+            Some(_) => Emitter::watched(&mut emit, &mut watch),
+            None => Emitter::new(&mut emit),
         };
         let mut store = |c: &Calibration| writer.save(c);
         let sensors = &mut self.sensors;
         match event {
             SourceEvent::Reading(reading) => {
-                sensors.on_reading(index, &reading, &mut emit, &mut store)
+                sensors.on_reading(index, &reading, &mut out, &mut store)
             }
-            SourceEvent::Row(row) => sensors.on_row(index, &row, &mut emit, &mut store),
+            SourceEvent::Row(row) => sensors.on_row(index, &row, &mut out, &mut store),
             SourceEvent::Connected { .. } => set_connected(&mut self.sources.handles, index, true),
             SourceEvent::Disconnected { .. } => {
                 set_connected(&mut self.sources.handles, index, false)
@@ -210,10 +214,12 @@ impl Daemon {
         if let Some(page) = &self.outputs.page {
             page.update(&self.running);
         }
-        for line in outcome.lines {
-            if let Some(progress) = &self.progress {
-                progress.control_line(&line);
+        if let Some(progress) = &self.progress {
+            for event in &outcome.calibrations {
+                progress.calibration(event);
             }
+        }
+        for line in outcome.lines {
             self.hub.publish(Lane::Control, Arc::from(line));
         }
         self.reloader

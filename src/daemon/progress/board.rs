@@ -1,32 +1,17 @@
-//! What a person beside the sensor sees while it turns: one line per
-//! sensor with the turned fraction, the headings still missing and what to
-//! do, redrawn live on a terminal; or, when stderr is not a terminal
-//! (systemd, a pipe), a log line at the moments that matter.
-//!
-//! The [`Board`] is pure: sensor snapshots and `CALIBRATION` lines in,
-//! line text and milestone messages out. The daemon's loop feeds it through
-//! a [`ProgressFeed`] (a snapshot at most every [`REDRAW`], so the readings'
-//! path does not pay for it); [`Live`] redraws it from its own thread with
-//! indicatif, and [`LogWriter`] keeps log lines from garbling the live ones.
+//! The board of the progress display, pure: sensor snapshots and typed
+//! `CALIBRATION` events in, the text of each sensor's line and the
+//! milestone messages to log out. No I/O, no clock, no terminal: the
+//! [`super`] module draws it and logs its milestones.
 //!
 //! The rejection reasons come from the rotation buffer
-//! ([`super::rotation`]), the turn gate and the fit ([`crate::model`]) and
-//! the acceptance limits ([`super::acceptance`]); [`explain`] makes each
-//! say what to do in the daemon's terms.
+//! ([`crate::daemon::rotation`]), the turn gate and the fit
+//! ([`crate::model`]) and the acceptance limits
+//! ([`crate::daemon::acceptance`]); [`explain`] makes each say what to do
+//! in the daemon's terms.
 
-use std::io::Write;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, PoisonError};
-use std::time::Duration;
-
-use serde::Deserialize;
-
-use super::sensor::Sensor;
+use crate::daemon::messages::CalibrationEvent;
+use crate::daemon::sensor::Sensor;
 use crate::model::rotation::Progress;
-
-/// How often the live lines are redrawn and the loop takes a snapshot:
-/// ten times a second is as fast as a person reads a changing number.
-pub const REDRAW: Duration = Duration::from_millis(100);
 
 /// After a rejection, its reason stays on the sensor's line until the new
 /// try covers this share of the headings again (the person has evidently
@@ -35,46 +20,6 @@ pub const REJECTION_SHOWN_BELOW_PCT: f64 = 25.0;
 
 /// Cells of the text bar.
 const BAR_CELLS: usize = 10;
-
-/// Most milestone messages kept between two drains (a log that nobody
-/// drains must not grow without bound).
-const MAX_PENDING: usize = 256;
-
-/// `--progress`: when to show the live lines.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ProgressMode {
-    /// Never: log lines at the moments that matter instead.
-    Never,
-    /// Live lines when stderr is a terminal, log lines otherwise.
-    Auto,
-    /// Live lines even when stderr is not a terminal (a terminal recorder).
-    Always,
-}
-
-impl ProgressMode {
-    /// Whether the lines are drawn live, given whether stderr is a terminal.
-    pub fn live(self, stderr_is_terminal: bool) -> bool {
-        match self {
-            ProgressMode::Never => false,
-            ProgressMode::Auto => stderr_is_terminal,
-            ProgressMode::Always => true,
-        }
-    }
-}
-
-impl std::str::FromStr for ProgressMode {
-    type Err = String;
-    fn from_str(text: &str) -> Result<Self, String> {
-        match text {
-            "never" => Ok(ProgressMode::Never),
-            "auto" => Ok(ProgressMode::Auto),
-            "always" => Ok(ProgressMode::Always),
-            other => Err(format!(
-                "'{other}' is not a progress mode: give never, auto or always"
-            )),
-        }
-    }
-}
 
 /// How far a sensor's current rotation has got.
 #[derive(Debug, Clone, PartialEq)]
@@ -390,40 +335,6 @@ pub fn render_line(view: &SensorView, name_width: usize) -> String {
     }
 }
 
-/// The subset of a `CALIBRATION` line the board reads.
-#[derive(Debug, Deserialize)]
-struct CalibrationLine {
-    class: String,
-    sensor: String,
-    accepted: bool,
-    #[serde(default)]
-    id: Option<u64>,
-    #[serde(default)]
-    reason: Option<String>,
-    #[serde(default)]
-    rms: Option<f64>,
-    #[serde(default)]
-    coverage_deg: f64,
-    #[serde(default)]
-    n: usize,
-    #[serde(default)]
-    origin: String,
-    #[serde(default)]
-    suggested: Option<String>,
-    #[serde(default)]
-    heading_vs_gyro: Option<HeadingRms>,
-    #[serde(default)]
-    heading_check: Option<String>,
-    /// A still-pose accelerometer's fit: its poses.
-    #[serde(default)]
-    poses: Option<usize>,
-}
-
-#[derive(Debug, Deserialize)]
-struct HeadingRms {
-    rms_deg: f64,
-}
-
 #[derive(Debug, Clone)]
 struct Track {
     view: SensorView,
@@ -544,26 +455,17 @@ impl Board {
         logs
     }
 
-    /// Takes a line the daemon published; a `CALIBRATION` line sets the
+    /// Takes a `CALIBRATION` the daemon published, which sets the
     /// sensor's outcome. Returns the milestones as log messages: a rotation
     /// complete, and the fit accepted or rejected, in the live line's words.
-    pub fn on_line(&mut self, line: &str) -> Vec<String> {
+    pub fn on_calibration(&mut self, c: &CalibrationEvent) -> Vec<String> {
         let mut logs = Vec::new();
-        if !line.contains("\"CALIBRATION\"") {
-            return logs;
-        }
-        let Ok(c) = serde_json::from_str::<CalibrationLine>(line) else {
-            return logs;
-        };
-        if c.class != "CALIBRATION" {
-            return logs;
-        }
         let track = self.track(&c.sensor);
-        let stored = c.origin == "state";
+        let stored = c.stored;
         let outcome = match (c.accepted, c.id, c.rms) {
             (true, Some(id), Some(rms)) => {
-                let heading = match (&c.heading_vs_gyro, &c.heading_check) {
-                    (Some(h), _) => HeadingNote::Checked { rms_deg: h.rms_deg },
+                let heading = match (c.heading_rms_deg, &c.heading_check) {
+                    (Some(rms_deg), _) => HeadingNote::Checked { rms_deg },
                     (None, Some(why)) => HeadingNote::NotChecked(why.clone()),
                     (None, None) => HeadingNote::Unknown,
                 };
@@ -590,7 +492,7 @@ impl Board {
                 crate::sample::count(poses as u64, "pose"),
                 crate::sample::count(c.n as u64, "sample")
             ));
-        } else if !stored && c.n > 0 && line.contains("\"axes\":3") {
+        } else if !stored && c.n > 0 && c.axes == 3 {
             logs.push(format!(
                 "{}: sphere covered, {}",
                 c.sensor,
@@ -662,329 +564,10 @@ impl Board {
     }
 }
 
-#[derive(Debug, Default)]
-struct Shared {
-    board: Board,
-    /// Milestones not yet logged (log mode only).
-    pending: Vec<String>,
-}
-
-/// The daemon's handle on the board: cheap to clone, shared between the
-/// loop (which feeds it) and the display (which reads it).
-#[derive(Debug, Clone)]
-pub struct ProgressFeed {
-    shared: Arc<Mutex<Shared>>,
-    /// Log the milestones (when nothing is drawn live).
-    log: bool,
-    /// The live lines stdout's lines must be printed above, when stdout is
-    /// the same terminal.
-    above: Option<indicatif::MultiProgress>,
-}
-
-impl ProgressFeed {
-    /// A feed whose milestones are logged at info level when `log`.
-    pub fn new(log: bool) -> Self {
-        ProgressFeed {
-            shared: Arc::default(),
-            log,
-            above: None,
-        }
-    }
-
-    /// Lines the daemon publishes on stdout are printed above the live
-    /// lines of `multi` (for a stdout on the same terminal).
-    pub fn with_stdout_above(self, multi: indicatif::MultiProgress) -> Self {
-        ProgressFeed {
-            above: Some(multi),
-            ..self
-        }
-    }
-
-    /// The writer for `[outputs] stdout`, when it must keep clear of the
-    /// live lines.
-    pub fn stdout_above(&self) -> Option<StdoutAbove> {
-        self.above.clone().map(|multi| StdoutAbove { multi })
-    }
-
-    fn lock(&self) -> std::sync::MutexGuard<'_, Shared> {
-        self.shared.lock().unwrap_or_else(PoisonError::into_inner)
-    }
-
-    fn keep(&self, shared: &mut Shared, logs: Vec<String>) {
-        if !self.log {
-            return;
-        }
-        shared.pending.extend(logs);
-        let excess = shared.pending.len().saturating_sub(MAX_PENDING);
-        shared.pending.drain(..excess);
-    }
-
-    /// The loop's snapshot of its sensors. O(sensors × sectors).
-    pub fn update<'a>(&self, sensors: impl IntoIterator<Item = &'a Sensor>) {
-        let snapshots: Vec<SensorSnapshot> = sensors.into_iter().map(SensorSnapshot::of).collect();
-        let mut shared = self.lock();
-        let logs = shared.board.update(&snapshots);
-        self.keep(&mut shared, logs);
-        drop(shared);
-        self.flush_logs();
-    }
-
-    /// The last snapshot, at shutdown: the lines show it, nothing is logged
-    /// (a rotation "started" by the last readings would only mislead).
-    pub fn settle<'a>(&self, sensors: impl IntoIterator<Item = &'a Sensor>) {
-        let snapshots: Vec<SensorSnapshot> = sensors.into_iter().map(SensorSnapshot::of).collect();
-        let mut shared = self.lock();
-        shared.board.update(&snapshots);
-        drop(shared);
-        self.flush_logs();
-    }
-
-    /// A control line the daemon published (CALIBRATION lines matter).
-    pub fn control_line(&self, line: &str) {
-        let mut shared = self.lock();
-        let logs = shared.board.on_line(line);
-        self.keep(&mut shared, logs);
-        drop(shared);
-        self.flush_logs();
-    }
-
-    /// Logs the pending milestones at info level.
-    pub fn flush_logs(&self) {
-        if !self.log {
-            return;
-        }
-        let pending = std::mem::take(&mut self.lock().pending);
-        for message in pending {
-            tracing::info!("{message}");
-        }
-    }
-
-    pub fn lines(&self) -> Vec<String> {
-        self.lock().board.lines()
-    }
-}
-
-/// The live display: one indicatif line per sensor, redrawn every
-/// [`REDRAW`] from its own thread (a slow terminal never holds up the
-/// daemon's loop).
-pub struct Live {
-    stop: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<()>>,
-}
-
-impl Live {
-    /// Draws `feed`'s lines into `multi` until [`Live::finish`].
-    pub fn spawn(feed: ProgressFeed, multi: indicatif::MultiProgress) -> std::io::Result<Live> {
-        let stop = Arc::new(AtomicBool::new(false));
-        let thread = std::thread::Builder::new().name("progress".into()).spawn({
-            let stop = stop.clone();
-            move || {
-                let mut bars: Vec<indicatif::ProgressBar> = Vec::new();
-                loop {
-                    let last = stop.load(Ordering::Acquire);
-                    draw(&feed, &multi, &mut bars);
-                    if last {
-                        break;
-                    }
-                    std::thread::park_timeout(REDRAW);
-                }
-                // The last state stays on the screen.
-                for bar in &bars {
-                    bar.finish();
-                }
-            }
-        })?;
-        Ok(Live {
-            stop,
-            thread: Some(thread),
-        })
-    }
-
-    /// Draws the last state once more and leaves it on the screen.
-    pub fn finish(mut self) {
-        self.stop.store(true, Ordering::Release);
-        if let Some(thread) = self.thread.take() {
-            thread.thread().unpark();
-            let _ = thread.join();
-        }
-    }
-}
-
-impl Drop for Live {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Release);
-        if let Some(thread) = self.thread.take() {
-            thread.thread().unpark();
-            let _ = thread.join();
-        }
-    }
-}
-
-fn draw(
-    feed: &ProgressFeed,
-    multi: &indicatif::MultiProgress,
-    bars: &mut Vec<indicatif::ProgressBar>,
-) {
-    let lines = feed.lines();
-    while bars.len() < lines.len() {
-        let style = indicatif::ProgressStyle::with_template("{msg}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner());
-        bars.push(multi.add(indicatif::ProgressBar::new(0).with_style(style)));
-    }
-    for (bar, line) in bars.iter().zip(lines) {
-        bar.set_message(line);
-    }
-}
-
-/// The draw target for live lines: stderr, drawn even when it is not a
-/// terminal if `force` (as `--progress always` asks).
-pub fn draw_target(force: bool) -> indicatif::ProgressDrawTarget {
-    use std::io::IsTerminal;
-    if force && !std::io::stderr().is_terminal() {
-        indicatif::ProgressDrawTarget::term_like_with_hz(Box::new(AnsiStderr::from_env()), 10)
-    } else {
-        indicatif::ProgressDrawTarget::stderr_with_hz(10)
-    }
-}
-
-/// stderr driven with ANSI cursor moves, for `--progress always` when
-/// stderr is not a terminal (indicatif hides its own stderr target then).
-#[derive(Debug)]
-struct AnsiStderr {
-    width: u16,
-}
-
-impl AnsiStderr {
-    /// Width from `COLUMNS`, else 80.
-    fn from_env() -> Self {
-        let width = std::env::var("COLUMNS")
-            .ok()
-            .and_then(|c| c.trim().parse::<u16>().ok())
-            .filter(|&w| w >= 20)
-            .unwrap_or(80);
-        AnsiStderr { width }
-    }
-
-    fn out(&self, text: &str) -> std::io::Result<()> {
-        std::io::stderr().lock().write_all(text.as_bytes())
-    }
-}
-
-impl indicatif::TermLike for AnsiStderr {
-    fn width(&self) -> u16 {
-        self.width
-    }
-    fn move_cursor_up(&self, n: usize) -> std::io::Result<()> {
-        if n > 0 {
-            self.out(&format!("\x1b[{n}A"))
-        } else {
-            Ok(())
-        }
-    }
-    fn move_cursor_down(&self, n: usize) -> std::io::Result<()> {
-        if n > 0 {
-            self.out(&format!("\x1b[{n}B"))
-        } else {
-            Ok(())
-        }
-    }
-    fn move_cursor_right(&self, n: usize) -> std::io::Result<()> {
-        if n > 0 {
-            self.out(&format!("\x1b[{n}C"))
-        } else {
-            Ok(())
-        }
-    }
-    fn move_cursor_left(&self, n: usize) -> std::io::Result<()> {
-        if n > 0 {
-            self.out(&format!("\x1b[{n}D"))
-        } else {
-            Ok(())
-        }
-    }
-    fn write_line(&self, s: &str) -> std::io::Result<()> {
-        self.out(&format!("{s}\n"))
-    }
-    fn write_str(&self, s: &str) -> std::io::Result<()> {
-        self.out(s)
-    }
-    fn clear_line(&self) -> std::io::Result<()> {
-        self.out("\r\x1b[2K")
-    }
-    fn flush(&self) -> std::io::Result<()> {
-        std::io::stderr().flush()
-    }
-}
-
-/// stdout, written above the live lines (indicatif's `suspend`). Only for
-/// a stdout that is a terminal, which takes a write at once: each batch of
-/// lines is written in one blocking call.
-pub struct StdoutAbove {
-    multi: indicatif::MultiProgress,
-}
-
-impl tokio::io::AsyncWrite for StdoutAbove {
-    fn poll_write(
-        self: std::pin::Pin<&mut Self>,
-        _: &mut std::task::Context<'_>,
-        buf: &[u8],
-    ) -> std::task::Poll<std::io::Result<usize>> {
-        let written = self.multi.suspend(|| {
-            let mut out = std::io::stdout().lock();
-            out.write_all(buf)?;
-            out.flush()
-        });
-        std::task::Poll::Ready(written.map(|()| buf.len()))
-    }
-
-    fn poll_flush(
-        self: std::pin::Pin<&mut Self>,
-        _: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<std::io::Result<()>> {
-        std::task::Poll::Ready(std::io::stdout().flush())
-    }
-
-    fn poll_shutdown(
-        self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<std::io::Result<()>> {
-        self.poll_flush(cx)
-    }
-}
-
-/// A tracing writer that prints above the live lines (indicatif's
-/// `suspend`), so a log line never garbles them.
-#[derive(Clone)]
-pub struct LogWriter {
-    multi: indicatif::MultiProgress,
-}
-
-impl LogWriter {
-    pub fn new(multi: indicatif::MultiProgress) -> Self {
-        LogWriter { multi }
-    }
-}
-
-impl Write for LogWriter {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        self.multi
-            .suspend(|| std::io::stderr().lock().write_all(buf))?;
-        Ok(buf.len())
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        std::io::stderr().flush()
-    }
-}
-
-impl<'a> tracing_subscriber::fmt::MakeWriter<'a> for LogWriter {
-    type Writer = LogWriter;
-    fn make_writer(&'a self) -> LogWriter {
-        self.clone()
-    }
-}
-
 #[cfg(test)]
 mod tests {
+    use std::time::Duration;
+
     use super::*;
 
     fn collecting(pct: f64, missing: Vec<[f64; 2]>, samples: usize) -> RotationView {
@@ -1238,6 +821,52 @@ mod tests {
         }]
     }
 
+    /// A fit of the compass's rotation, with nothing but its verdict.
+    fn fitted(accepted: bool) -> CalibrationEvent {
+        CalibrationEvent {
+            sensor: "compass".into(),
+            accepted,
+            id: None,
+            reason: None,
+            rms: None,
+            coverage_deg: 0.0,
+            n: 0,
+            stored: false,
+            suggested: None,
+            heading_rms_deg: None,
+            heading_check: None,
+            poses: None,
+            axes: 2,
+        }
+    }
+
+    #[test]
+    fn a_sphere_or_still_poses_complete_in_their_own_words() {
+        let mut board = Board::new();
+        let sphere = CalibrationEvent {
+            id: Some(2),
+            rms: Some(0.01),
+            n: 500,
+            axes: 3,
+            ..fitted(true)
+        };
+        assert_eq!(
+            board.on_calibration(&sphere),
+            [
+                "compass: sphere covered, 500 samples",
+                "compass: calibrated #2, rms 1.00 %"
+            ]
+        );
+        let poses = CalibrationEvent {
+            poses: Some(6),
+            ..sphere
+        };
+        assert_eq!(
+            board.on_calibration(&poses)[0],
+            "compass: 6 poses held still, 500 samples"
+        );
+    }
+
     #[test]
     fn the_board_logs_the_moments_that_matter_and_no_more() {
         let mut board = Board::new();
@@ -1271,9 +900,16 @@ mod tests {
                 .len(),
             1
         );
-        let line = r#"{"class":"CALIBRATION","sensor":"compass","accepted":true,"id":1,"model":"offset+scale","params":{"a":1.0,"b":0.0,"d":0.0,"r":1.0},"rms":0.0031,"coverage_deg":360.0,"n":412,"fit_ms":0.2,"time":3.0,"origin":"rotation","heading_vs_gyro":{"gyro_column":"gyro_z","rms_deg":0.43,"peak_to_peak_deg":1.0,"n":400,"gyro_scale":1.0,"gyro_bias_deg_s":0.0}}"#;
+        let accepted = CalibrationEvent {
+            id: Some(1),
+            rms: Some(0.0031),
+            coverage_deg: 360.0,
+            n: 412,
+            heading_rms_deg: Some(0.43),
+            ..fitted(true)
+        };
         assert_eq!(
-            board.on_line(line),
+            board.on_calibration(&accepted),
             [
                 "compass: rotation complete, 412 samples over 360°",
                 "compass: calibrated #1, rms 0.31 %, heading check 0.4°"
@@ -1283,15 +919,12 @@ mod tests {
             board.lines(),
             ["compass  [##########] 100 %  calibrated #1, rms 0.31 %, heading check 0.4°"]
         );
-        // READING and STATUS lines change nothing.
-        assert!(
-            board
-                .on_line(r#"{"class":"READING","sensor":"compass"}"#)
-                .is_empty()
-        );
-        let rejected = r#"{"class":"CALIBRATION","sensor":"compass","accepted":false,"reason":"the sensor is not turning: readings spread over only 3.0 counts in 10.0 s (noise about 1.0 counts); turn it a full rotation","model":"offset+scale","coverage_deg":0.0,"n":0,"fit_ms":0.0,"time":9.0,"origin":"rotation"}"#;
+        let rejected = CalibrationEvent {
+            reason: Some("the sensor is not turning: readings spread over only 3.0 counts in 10.0 s (noise about 1.0 counts); turn it a full rotation".into()),
+            ..fitted(false)
+        };
         assert_eq!(
-            board.on_line(rejected),
+            board.on_calibration(&rejected),
             [
                 "compass: rejected: the sensor is not turning: readings spread over only 3.0 counts in 10.0 s (noise about 1.0 counts); turn it a full rotation"
             ]
@@ -1302,10 +935,19 @@ mod tests {
     fn a_fit_outside_the_limits_shows_its_numbers_reason_and_suggestion() {
         let mut board = Board::new();
         board.update(&snapshot(90.0, vec![[330.0, 360.0]], 180));
-        let line = r#"{"class":"CALIBRATION","sensor":"compass","accepted":false,"reason":"rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms)","model":"offset+scale","params":{"a":1.0,"b":0.0,"d":0.0,"r":1.0},"rms":0.073,"coverage_deg":358.0,"n":200,"fit_ms":0.3,"time":10.0,"origin":"rotation","suggested":"cubic"}"#;
+        let rejected = CalibrationEvent {
+            reason: Some(
+                "rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms)".into(),
+            ),
+            rms: Some(0.073),
+            coverage_deg: 358.0,
+            n: 200,
+            suggested: Some("cubic".into()),
+            ..fitted(false)
+        };
         let words = "rejected: rms 7.3 % of the field exceeds the limit of 5.0 % (limits.max_rms); turn it steadily in place and level (a plane that wobbles adds an error no 2-D model removes), away from motors and metal; if the rms stays high, add the suggested effect to the sensor's effects; the turn suggests adding the effect cubic to the sensor's effects";
         assert_eq!(
-            board.on_line(line),
+            board.on_calibration(&rejected),
             [
                 "compass: rotation complete, 200 samples over 358°".to_string(),
                 format!("compass: {words}")
@@ -1333,15 +975,5 @@ mod tests {
             board.lines(),
             ["compass  calibrated #4 (stored), rms 0.20 %"]
         );
-    }
-
-    #[test]
-    fn progress_modes() {
-        assert_eq!("auto".parse(), Ok(ProgressMode::Auto));
-        assert!("sometimes".parse::<ProgressMode>().is_err());
-        assert!(!ProgressMode::Auto.live(false));
-        assert!(ProgressMode::Auto.live(true));
-        assert!(!ProgressMode::Never.live(true));
-        assert!(ProgressMode::Always.live(false));
     }
 }
