@@ -625,19 +625,7 @@ fn apply_plan(
                 let Some(config) = new.sensors.iter().find(|s| &s.name == name) else {
                     continue;
                 };
-                let how = match sensor.calibration() {
-                    Some(c) => {
-                        if let Some((line, event)) = sensor.loaded_calibration() {
-                            lines.push(line);
-                            calibrations.extend(event);
-                        }
-                        format!(
-                            "corrects with calibration #{} from the state directory and waits for a recalibrate",
-                            c.id
-                        )
-                    }
-                    None => "collects its first rotation".to_string(),
-                };
+                let how = added(&sensor, &mut lines, &mut calibrations);
                 info(
                     &mut lines,
                     format!(
@@ -750,6 +738,28 @@ fn apply_daemon_changes(
     for message in &plan.restart {
         tracing::warn!("{message}");
         lines.push(reload_line(file, message, None, true));
+    }
+}
+
+/// What a sensor a reload adds does first; its stored calibration, if it
+/// has one, is published (`lines`) and shown (`calibrations`).
+fn added(
+    sensor: &Sensor,
+    lines: &mut Vec<String>,
+    calibrations: &mut Vec<CalibrationEvent>,
+) -> String {
+    match sensor.calibration() {
+        Some(c) => {
+            if let Some((line, event)) = sensor.loaded_calibration() {
+                lines.push(line);
+                calibrations.extend(event);
+            }
+            format!(
+                "corrects with calibration #{} from the state directory and waits for a recalibrate",
+                c.id
+            )
+        }
+        None => "collects its first rotation".to_string(),
     }
 }
 
