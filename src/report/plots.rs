@@ -135,7 +135,7 @@ const FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 
 /// The family plotters asks for by default and writes into the SVG's
 /// `font-family`: a browser without DejaVu Sans falls back to its own sans.
-const FAMILY: &str = "sans-serif";
+pub(super) const FAMILY: &str = "sans-serif";
 
 const SIZE: (u32, u32) = (800, 500);
 const MARGIN: u32 = 12;
@@ -144,17 +144,44 @@ const Y_LABEL_AREA: u32 = 70;
 const TITLE_SIZE: u32 = 20;
 const LABEL_SIZE: u32 = 15;
 
-const BEFORE: RGBColor = RGBColor(31, 119, 180);
-const AFTER: RGBColor = RGBColor(230, 110, 0);
-const FIT: RGBColor = RGBColor(200, 30, 30);
-const FLOOR: RGBColor = RGBColor(90, 90, 90);
+/// The house colours, shared with [`super::plots3`]: the baseline model,
+/// the improved model, a fitted curve, and the noise floor.
+pub(super) const BEFORE: RGBColor = RGBColor(31, 119, 180);
+pub(super) const AFTER: RGBColor = RGBColor(230, 110, 0);
+pub(super) const FIT: RGBColor = RGBColor(200, 30, 30);
+pub(super) const FLOOR: RGBColor = RGBColor(90, 90, 90);
 
-type Svg<'a> = DrawingArea<SVGBackend<'a>, Shift>;
-type Plane = Cartesian2d<RangedCoordf64, RangedCoordf64>;
-type DrawError = DrawingAreaErrorKind<std::io::Error>;
+/// The drawing area every figure is drawn on.
+pub(super) type Svg<'a> = DrawingArea<SVGBackend<'a>, Shift>;
+/// The coordinates of every chart: x and y as plain numbers.
+pub(super) type Plane = Cartesian2d<RangedCoordf64, RangedCoordf64>;
+/// What drawing on an [`Svg`] can fail with.
+pub(super) type DrawError = DrawingAreaErrorKind<std::io::Error>;
+
+/// The sizes (pixels) a chart's frame and mesh are laid out with.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct FrameLayout {
+    pub margin: u32,
+    pub x_label_area: u32,
+    pub y_label_area: u32,
+    /// The font size of the tick labels.
+    pub tick_font: u32,
+    /// The font size of the axis descriptions.
+    pub desc_font: u32,
+}
+
+/// The layout of this module's charts (fixed, so [`plot_pixels`] can
+/// predict the plotting area).
+const HOUSE: FrameLayout = FrameLayout {
+    margin: MARGIN,
+    x_label_area: X_LABEL_AREA,
+    y_label_area: Y_LABEL_AREA,
+    tick_font: 13,
+    desc_font: LABEL_SIZE,
+};
 
 /// Registers the embedded font once per process.
-fn ensure_font() -> Result<(), ReportError> {
+pub(super) fn ensure_font() -> Result<(), ReportError> {
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let ok = *REGISTERED.get_or_init(|| register_font(FAMILY, FontStyle::Normal, FONT).is_ok());
     if ok { Ok(()) } else { Err(ReportError::Font) }
@@ -166,18 +193,31 @@ pub fn write_report(dir: &Path, data: &ReportData) -> Result<Vec<PathBuf>, Repor
     validate(data)?;
     ensure_font()?;
     let figures = render_figures(data)?;
+    write_figures(dir, &figures, |figures| {
+        super::html::render_index(data, figures)
+    })
+}
+
+/// Creates `dir` (and its parents), writes one SVG per figure and then the
+/// page `index` makes of them, and returns the paths written (the page
+/// last).
+pub(super) fn write_figures(
+    dir: &Path,
+    figures: &[Figure],
+    index: impl FnOnce(&[Figure]) -> String,
+) -> Result<Vec<PathBuf>, ReportError> {
     std::fs::create_dir_all(dir).map_err(|source| ReportError::CreateDir {
         path: dir.to_path_buf(),
         source,
     })?;
     let mut written = Vec::with_capacity(figures.len() + 1);
-    for figure in &figures {
+    for figure in figures {
         let path = dir.join(&figure.file);
         write_file(&path, &figure.svg)?;
         written.push(path);
     }
     let path = dir.join(INDEX_FILE);
-    write_file(&path, &super::html::render_index(data, &figures))?;
+    write_file(&path, &index(figures))?;
     written.push(path);
     Ok(written)
 }
@@ -372,20 +412,23 @@ fn display_label<'a>(label: &'a str, fallback: &'a str) -> &'a str {
 
 /// Which samples a plot draws: all of them, or every `step`-th.
 #[derive(Debug, Clone, Copy)]
-struct Thinning {
+pub(super) struct Thinning {
     n: usize,
     step: usize,
 }
 
 impl Thinning {
-    fn new(n: usize) -> Self {
+    /// Every sample of `n`, or every k-th so no more than [`MAX_POINTS`]
+    /// are drawn.
+    pub(super) fn new(n: usize) -> Self {
         Thinning {
             n,
             step: n.div_ceil(MAX_POINTS).max(1),
         }
     }
 
-    fn indices(&self) -> impl Iterator<Item = usize> + Clone {
+    /// The samples drawn.
+    pub(super) fn indices(&self) -> impl Iterator<Item = usize> + Clone + use<> {
         (0..self.n).step_by(self.step)
     }
 
@@ -417,7 +460,7 @@ fn draw(file: &str, f: impl FnOnce(&Svg) -> Result<(), DrawError>) -> Result<Str
 
 /// Renders into a string (not straight to a file) so that file errors are
 /// ours to report with the path, and drawing errors name the figure.
-fn draw_sized(
+pub(super) fn draw_sized(
     file: &str,
     size: (u32, u32),
     f: impl FnOnce(&Svg) -> Result<(), DrawError>,
@@ -464,19 +507,32 @@ fn frame<'a, 'b: 'a>(
     x_desc: &str,
     y_desc: &str,
 ) -> Result<ChartContext<'a, SVGBackend<'b>, Plane>, DrawError> {
+    frame_with(&HOUSE, area, x, y, x_desc, y_desc)
+}
+
+/// A chart laid out by `layout`, with its mesh (light grid, tick labels
+/// by [`tick_label`], both axes described) drawn.
+pub(super) fn frame_with<'a, 'b: 'a>(
+    layout: &FrameLayout,
+    area: &'a Svg<'b>,
+    x: Range<f64>,
+    y: Range<f64>,
+    x_desc: &str,
+    y_desc: &str,
+) -> Result<ChartContext<'a, SVGBackend<'b>, Plane>, DrawError> {
     let mut chart = ChartBuilder::on(area)
-        .margin(MARGIN)
-        .x_label_area_size(X_LABEL_AREA)
-        .y_label_area_size(Y_LABEL_AREA)
+        .margin(layout.margin)
+        .x_label_area_size(layout.x_label_area)
+        .y_label_area_size(layout.y_label_area)
         .build_cartesian_2d(x, y)?;
     chart
         .configure_mesh()
         .x_desc(x_desc)
         .y_desc(y_desc)
-        .label_style((FAMILY, 13))
+        .label_style((FAMILY, layout.tick_font))
         .x_label_formatter(&|v| tick_label(*v))
         .y_label_formatter(&|v| tick_label(*v))
-        .axis_desc_style((FAMILY, LABEL_SIZE))
+        .axis_desc_style((FAMILY, layout.desc_font))
         .light_line_style(RGBColor(235, 235, 235))
         .bold_line_style(RGBColor(215, 215, 215))
         .draw()?;
@@ -486,10 +542,19 @@ fn frame<'a, 'b: 'a>(
 fn legend<'a, 'b: 'a>(
     chart: &mut ChartContext<'a, SVGBackend<'b>, Plane>,
 ) -> Result<(), DrawError> {
+    legend_sized(chart, 13)
+}
+
+/// The series labels in the upper right corner, in a `font_size` font on
+/// a pale box.
+pub(super) fn legend_sized<'a, 'b: 'a>(
+    chart: &mut ChartContext<'a, SVGBackend<'b>, Plane>,
+    font_size: u32,
+) -> Result<(), DrawError> {
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperRight)
-        .label_font((FAMILY, 13))
+        .label_font((FAMILY, font_size))
         .background_style(WHITE.mix(0.85))
         .border_style(RGBColor(160, 160, 160))
         .draw()
@@ -636,15 +701,7 @@ fn residual_plot(
     let y = with_legend_room(scale.range.clone(), rows, plot_pixels(&body).1);
     let mut chart = frame(&body, x.clone(), y, x_desc, "|s|/r − 1 (%)")?;
     if let Some(f) = floor {
-        chart
-            .draw_series(std::iter::once(Rectangle::new(
-                [(x.start, -f), (x.end, f)],
-                FLOOR.mix(0.15).filled(),
-            )))?
-            .label(format!("noise floor ±{}%", super::significant(f, 2)))
-            .legend(|(x, y)| {
-                Rectangle::new([(x - 8, y - 5), (x + 8, y + 5)], FLOOR.mix(0.3).filled())
-            });
+        floor_band(&mut chart, &x, f, 0.15)?;
         for edge in [f, -f] {
             chart.draw_series(DashedLineSeries::new(
                 [(x.start, edge), (x.end, edge)],
@@ -656,25 +713,21 @@ fn residual_plot(
     }
     let size = if before.len() > 2000 { 1 } else { 2 };
     let on_scale = |p: &&(f64, f64)| scale.range.contains(&p.1);
-    chart
-        .draw_series(
-            before
-                .iter()
-                .filter(on_scale)
-                .map(|&p| Circle::new(p, size, BEFORE.mix(0.5).filled())),
-        )?
-        .label(display_label(&data.before_label, "baseline").to_string())
-        .legend(|(x, y)| Circle::new((x, y), 3, BEFORE.filled()));
+    point_series(
+        &mut chart,
+        before.iter().filter(on_scale).copied(),
+        size,
+        BEFORE,
+        display_label(&data.before_label, "baseline").to_string(),
+    )?;
     if !after.is_empty() {
-        chart
-            .draw_series(
-                after
-                    .iter()
-                    .filter(on_scale)
-                    .map(|&p| Circle::new(p, size, AFTER.mix(0.5).filled())),
-            )?
-            .label(display_label(&data.after_label, "with the suggested effect").to_string())
-            .legend(|(x, y)| Circle::new((x, y), 3, AFTER.filled()));
+        point_series(
+            &mut chart,
+            after.iter().filter(on_scale).copied(),
+            size,
+            AFTER,
+            display_label(&data.after_label, "with the suggested effect").to_string(),
+        )?;
     }
     if scale.clipped {
         // Points off the scale stay visible: a triangle at the edge, in
@@ -720,6 +773,40 @@ fn residual_plot(
     legend(&mut chart)
 }
 
+/// The noise floor as a grey band of ±`f` across `x` (`opacity` its fill),
+/// with its legend entry.
+pub(super) fn floor_band<'a, 'b: 'a>(
+    chart: &mut ChartContext<'a, SVGBackend<'b>, Plane>,
+    x: &Range<f64>,
+    f: f64,
+    opacity: f64,
+) -> Result<(), DrawError> {
+    chart
+        .draw_series(std::iter::once(Rectangle::new(
+            [(x.start, -f), (x.end, f)],
+            FLOOR.mix(opacity).filled(),
+        )))?
+        .label(format!("noise floor ±{}%", super::significant(f, 2)))
+        .legend(|(x, y)| Rectangle::new([(x - 8, y - 5), (x + 8, y + 5)], FLOOR.mix(0.3).filled()));
+    Ok(())
+}
+
+/// `points` as half-transparent dots of radius `size` in `colour`, with a
+/// legend entry `label`.
+pub(super) fn point_series<'a, 'b: 'a>(
+    chart: &mut ChartContext<'a, SVGBackend<'b>, Plane>,
+    points: impl Iterator<Item = (f64, f64)>,
+    size: i32,
+    colour: RGBColor,
+    label: String,
+) -> Result<(), DrawError> {
+    chart
+        .draw_series(points.map(|p| Circle::new(p, size, colour.mix(0.5).filled())))?
+        .label(label)
+        .legend(move |(x, y)| Circle::new((x, y), 3, colour.filled()));
+    Ok(())
+}
+
 /// Colours of the ladder's models in the heading plot, in order.
 const MODEL_COLOURS: [RGBColor; 6] = [
     BEFORE,
@@ -761,15 +848,16 @@ fn heading_error_plot(
     let size = if values.len() > 2000 { 1 } else { 2 };
     for (k, (name, points)) in models.iter().enumerate() {
         let colour = MODEL_COLOURS[k % MODEL_COLOURS.len()];
-        chart
-            .draw_series(
-                points
-                    .iter()
-                    .filter(|p| scale.range.contains(&p.1))
-                    .map(|&p| Circle::new(p, size, colour.mix(0.5).filled())),
-            )?
-            .label(display_label(name, "model").to_string())
-            .legend(move |(x, y)| Circle::new((x, y), 3, colour.filled()));
+        point_series(
+            &mut chart,
+            points
+                .iter()
+                .filter(|p| scale.range.contains(&p.1))
+                .copied(),
+            size,
+            colour,
+            display_label(name, "model").to_string(),
+        )?;
     }
     legend(&mut chart)
 }

@@ -18,13 +18,15 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix2, Matrix3};
-use plotters::coord::Shift;
 use plotters::prelude::*;
-use plotters::style::{FontStyle, register_font};
 
 use super::html::escape;
-use super::plots::{Figure, INDEX_FILE, MAX_POINTS, ReportError};
-use super::scale::{equal_aspect, residual_scale, span, tick_label};
+use super::plots::{
+    AFTER, BEFORE, DrawError, FAMILY, FIT, FLOOR, Figure, FrameLayout, Plane, ReportError, Svg,
+    Thinning, draw_sized as draw, ensure_font, floor_band, frame_with, legend_sized, point_series,
+    write_figures,
+};
+use super::scale::{equal_aspect, residual_scale, span};
 use crate::model::sphere;
 
 /// Everything a 3-axis report shows. Per-sample vectors have one value per
@@ -61,44 +63,20 @@ pub struct Report3Data {
     pub ladder: Vec<(String, f64)>,
 }
 
-const FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
-const FAMILY: &str = "sans-serif";
-const BEFORE: RGBColor = RGBColor(31, 119, 180);
-const AFTER: RGBColor = RGBColor(230, 110, 0);
-const FIT: RGBColor = RGBColor(200, 30, 30);
-const FLOOR: RGBColor = RGBColor(90, 90, 90);
+/// The layout of the 3-axis charts: a little tighter than the 2-D
+/// report's.
+const LAYOUT: FrameLayout = FrameLayout {
+    margin: 12,
+    x_label_area: 40,
+    y_label_area: 60,
+    tick_font: 12,
+    desc_font: 14,
+};
 
-type Svg<'a> = DrawingArea<SVGBackend<'a>, Shift>;
-type DrawError = DrawingAreaErrorKind<std::io::Error>;
-
-fn ensure_font() -> Result<(), ReportError> {
-    static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    let ok = *REGISTERED.get_or_init(|| register_font(FAMILY, FontStyle::Normal, FONT).is_ok());
-    if ok { Ok(()) } else { Err(ReportError::Font) }
-}
-
-fn draw(
-    file: &str,
-    size: (u32, u32),
-    f: impl FnOnce(&Svg) -> Result<(), DrawError>,
-) -> Result<String, ReportError> {
-    let mut svg = String::new();
-    {
-        let area = SVGBackend::with_string(&mut svg, size).into_drawing_area();
-        area.fill(&WHITE)
-            .and_then(|()| f(&area))
-            .and_then(|()| area.present())
-            .map_err(|e| ReportError::Draw {
-                file: file.to_string(),
-                message: e.to_string(),
-            })?;
-    }
-    Ok(svg)
-}
-
-/// Every k-th sample, so no figure draws more than [`MAX_POINTS`].
+/// Every k-th sample, so no figure draws more than
+/// [`super::plots::MAX_POINTS`].
 fn thinned(n: usize) -> impl Iterator<Item = usize> + Clone {
-    (0..n).step_by(n.div_ceil(MAX_POINTS).max(1))
+    Thinning::new(n).indices()
 }
 
 fn check(data: &Report3Data) -> Result<(), ReportError> {
@@ -206,21 +184,7 @@ pub fn render_figures3(data: &Report3Data) -> Result<Vec<Figure>, ReportError> {
 /// page last).
 pub fn write_report3(dir: &Path, data: &Report3Data) -> Result<Vec<PathBuf>, ReportError> {
     let figures = render_figures3(data)?;
-    std::fs::create_dir_all(dir).map_err(|source| ReportError::CreateDir {
-        path: dir.to_path_buf(),
-        source,
-    })?;
-    let mut written = Vec::new();
-    let write = |path: PathBuf, text: &str| {
-        std::fs::write(&path, text)
-            .map(|()| path.clone())
-            .map_err(|source| ReportError::Write { path, source })
-    };
-    for f in &figures {
-        written.push(write(dir.join(&f.file), &f.svg)?);
-    }
-    written.push(write(dir.join(INDEX_FILE), &index(data, &figures))?);
-    Ok(written)
+    write_figures(dir, &figures, |figures| index(data, figures))
 }
 
 fn index(data: &Report3Data, figures: &[Figure]) -> String {
@@ -248,31 +212,8 @@ fn chart_frame<'a, 'b: 'a>(
     y: Range<f64>,
     x_desc: &str,
     y_desc: &str,
-) -> Result<
-    ChartContext<
-        'a,
-        SVGBackend<'b>,
-        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
-    >,
-    DrawError,
-> {
-    let mut chart = ChartBuilder::on(area)
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(x, y)?;
-    chart
-        .configure_mesh()
-        .x_desc(x_desc)
-        .y_desc(y_desc)
-        .label_style((FAMILY, 12))
-        .axis_desc_style((FAMILY, 14))
-        .x_label_formatter(&|v| tick_label(*v))
-        .y_label_formatter(&|v| tick_label(*v))
-        .light_line_style(RGBColor(235, 235, 235))
-        .bold_line_style(RGBColor(215, 215, 215))
-        .draw()?;
-    Ok(chart)
+) -> Result<ChartContext<'a, SVGBackend<'b>, Plane>, DrawError> {
+    frame_with(&LAYOUT, area, x, y, x_desc, y_desc)
 }
 
 /// Diverging colour: blue (−1) through white (0) to red (+1).
@@ -477,43 +418,27 @@ fn residual_time(
         "|s|/r − 1 (%)",
     )?;
     if let Some(f) = floor {
-        chart
-            .draw_series(std::iter::once(Rectangle::new(
-                [(x.start, -f), (x.end, f)],
-                FLOOR.mix(0.2).filled(),
-            )))?
-            .label(format!("noise floor ±{}%", super::significant(f, 2)))
-            .legend(|(x, y)| {
-                Rectangle::new([(x - 8, y - 5), (x + 8, y + 5)], FLOOR.mix(0.3).filled())
-            });
+        floor_band(&mut chart, &x, f, 0.2)?;
     }
     let range = scale.range.clone();
     let clip = move |p: &(f64, f64)| (p.0, p.1.clamp(range.start, range.end));
-    chart
-        .draw_series(
-            before
-                .iter()
-                .map(|p| Circle::new(clip(p), 1, BEFORE.mix(0.5).filled())),
-        )?
-        .label(data.before_label.clone())
-        .legend(|(x, y)| Circle::new((x, y), 3, BEFORE.filled()));
+    point_series(
+        &mut chart,
+        before.iter().map(clip),
+        1,
+        BEFORE,
+        data.before_label.clone(),
+    )?;
     if !after.is_empty() {
-        chart
-            .draw_series(
-                after
-                    .iter()
-                    .map(|p| Circle::new(clip(p), 1, AFTER.mix(0.5).filled())),
-            )?
-            .label(data.after_label.clone())
-            .legend(|(x, y)| Circle::new((x, y), 3, AFTER.filled()));
+        point_series(
+            &mut chart,
+            after.iter().map(clip),
+            1,
+            AFTER,
+            data.after_label.clone(),
+        )?;
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font((FAMILY, 12))
-        .background_style(WHITE.mix(0.85))
-        .border_style(RGBColor(160, 160, 160))
-        .draw()
+    legend_sized(&mut chart, 12)
 }
 
 fn ladder(area: &Svg, title: &str, data: &Report3Data) -> Result<(), DrawError> {
