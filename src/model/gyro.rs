@@ -609,6 +609,20 @@ mod tests {
         }
     }
 
+    /// The reference of a gyro `column` that reads `share` of the turn's
+    /// rate (one tilted from the turn's axis).
+    fn reading_a_share(turn: &Turn, column: &str, share: f64) -> HeadingReference {
+        let rate: Vec<f64> = turn.rate.iter().map(|r| share * r).collect();
+        HeadingReference::from_rates(
+            column,
+            &turn.sample_t,
+            &turn.gyro_t,
+            &rate,
+            GyroUnits::DegPerSecond,
+        )
+        .unwrap()
+    }
+
     fn reference(turn: &Turn) -> HeadingReference {
         HeadingReference::from_rates(
             "gyro_z",
@@ -755,28 +769,12 @@ mod tests {
     fn a_gyro_about_another_axis_is_refused() {
         let t = turn(1.0, 0.0);
         // A tilted gyro: 0.3 of the rate (72° off the turn's axis).
-        let rate: Vec<f64> = t.rate.iter().map(|r| 0.3 * r).collect();
-        let r = HeadingReference::from_rates(
-            "gyro_x",
-            &t.sample_t,
-            &t.gyro_t,
-            &rate,
-            GyroUnits::DegPerSecond,
-        )
-        .unwrap();
+        let r = reading_a_share(&t, "gyro_x", 0.3);
         let err = r.check(&t.truth_rad, &[]).unwrap_err();
         assert!(matches!(err, GyroError::WrongAxis { .. }), "{err}");
         assert!(err.to_string().contains("gyro_x"), "{err}");
         // One that barely turns: 0.05 of the rate spans 36°.
-        let rate: Vec<f64> = t.rate.iter().map(|r| 0.05 * r).collect();
-        let r = HeadingReference::from_rates(
-            "gyro_y",
-            &t.sample_t,
-            &t.gyro_t,
-            &rate,
-            GyroUnits::DegPerSecond,
-        )
-        .unwrap();
+        let r = reading_a_share(&t, "gyro_y", 0.05);
         let err = r.check(&t.truth_rad, &[]).unwrap_err();
         assert!(matches!(err, GyroError::NoTurnSeen { .. }), "{err}");
     }
@@ -785,19 +783,7 @@ mod tests {
     fn a_tilt_within_the_bound_is_accepted() {
         let t = turn(1.0, 0.0);
         // 40° off the turn's axis reads cos 40° = 0.77 of the rate.
-        let rate: Vec<f64> = t
-            .rate
-            .iter()
-            .map(|r| 40f64.to_radians().cos() * r)
-            .collect();
-        let r = HeadingReference::from_rates(
-            "g",
-            &t.sample_t,
-            &t.gyro_t,
-            &rate,
-            GyroUnits::DegPerSecond,
-        )
-        .unwrap();
+        let r = reading_a_share(&t, "g", 40f64.to_radians().cos());
         let check = r.check(&t.truth_rad, &[]).unwrap();
         assert!((check.gyro_scale - 1.0 / 40f64.to_radians().cos()).abs() < 1e-3);
     }
