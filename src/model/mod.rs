@@ -35,6 +35,8 @@ pub mod diagnose3;
 pub mod effects;
 pub mod ellipsoid;
 pub mod ellipsoid_effects;
+#[cfg(test)]
+mod fixtures;
 pub mod fit;
 pub mod gyro;
 pub mod heading;
