@@ -170,8 +170,8 @@ pub(super) struct FrameLayout {
     pub desc_font: u32,
 }
 
-/// The layout of this module's charts (fixed, so [`plot_pixels`] can
-/// predict the plotting area).
+/// The house layout of this module's charts (fixed margins and label
+/// areas, so [`plot_pixels`] can predict the plotting area).
 const HOUSE: FrameLayout = FrameLayout {
     margin: MARGIN,
     x_label_area: X_LABEL_AREA,
@@ -480,8 +480,9 @@ pub(super) fn draw_sized(
     Ok(svg)
 }
 
-/// The plotting area a chart built by [`frame`] gets inside `area`
-/// (after the title): the label areas and margins are fixed sizes.
+/// The plotting area a chart built by [`HOUSE`]'s [`FrameLayout::frame`]
+/// gets inside `area` (after the title): the label areas and margins are
+/// fixed sizes.
 fn plot_pixels(area: &Svg) -> (u32, u32) {
     let (w, h) = area.dim_in_pixel();
     (
@@ -498,45 +499,35 @@ fn title_style() -> TextStyle<'static> {
     (FAMILY, TITLE_SIZE).into_font().color(&BLACK)
 }
 
-/// A chart with the house layout (fixed margins and label areas, so
-/// [`plot_pixels`] can predict the plotting area) and its mesh drawn.
-fn frame<'a, 'b: 'a>(
-    area: &'a Svg<'b>,
-    x: Range<f64>,
-    y: Range<f64>,
-    x_desc: &str,
-    y_desc: &str,
-) -> Result<ChartContext<'a, SVGBackend<'b>, Plane>, DrawError> {
-    frame_with(&HOUSE, area, x, y, x_desc, y_desc)
-}
-
-/// A chart laid out by `layout`, with its mesh (light grid, tick labels
-/// by [`tick_label`], both axes described) drawn.
-pub(super) fn frame_with<'a, 'b: 'a>(
-    layout: &FrameLayout,
-    area: &'a Svg<'b>,
-    x: Range<f64>,
-    y: Range<f64>,
-    x_desc: &str,
-    y_desc: &str,
-) -> Result<ChartContext<'a, SVGBackend<'b>, Plane>, DrawError> {
-    let mut chart = ChartBuilder::on(area)
-        .margin(layout.margin)
-        .x_label_area_size(layout.x_label_area)
-        .y_label_area_size(layout.y_label_area)
-        .build_cartesian_2d(x, y)?;
-    chart
-        .configure_mesh()
-        .x_desc(x_desc)
-        .y_desc(y_desc)
-        .label_style((FAMILY, layout.tick_font))
-        .x_label_formatter(&|v| tick_label(*v))
-        .y_label_formatter(&|v| tick_label(*v))
-        .axis_desc_style((FAMILY, layout.desc_font))
-        .light_line_style(RGBColor(235, 235, 235))
-        .bold_line_style(RGBColor(215, 215, 215))
-        .draw()?;
-    Ok(chart)
+impl FrameLayout {
+    /// A chart laid out by this layout, with its mesh (light grid, tick
+    /// labels by [`tick_label`], both axes described) drawn.
+    pub(super) fn frame<'a, 'b: 'a>(
+        &self,
+        area: &'a Svg<'b>,
+        x: Range<f64>,
+        y: Range<f64>,
+        x_desc: &str,
+        y_desc: &str,
+    ) -> Result<ChartContext<'a, SVGBackend<'b>, Plane>, DrawError> {
+        let mut chart = ChartBuilder::on(area)
+            .margin(self.margin)
+            .x_label_area_size(self.x_label_area)
+            .y_label_area_size(self.y_label_area)
+            .build_cartesian_2d(x, y)?;
+        chart
+            .configure_mesh()
+            .x_desc(x_desc)
+            .y_desc(y_desc)
+            .label_style((FAMILY, self.tick_font))
+            .x_label_formatter(&|v| tick_label(*v))
+            .y_label_formatter(&|v| tick_label(*v))
+            .axis_desc_style((FAMILY, self.desc_font))
+            .light_line_style(RGBColor(235, 235, 235))
+            .bold_line_style(RGBColor(215, 215, 215))
+            .draw()?;
+        Ok(chart)
+    }
 }
 
 fn legend<'a, 'b: 'a>(
@@ -578,15 +569,8 @@ fn raw_plot(area: &Svg, title: &str, data: &ReportData, thin: &Thinning) -> Resu
     let x = span(all().map(|p| p.0)).unwrap_or(-1.0..1.0);
     let y = span(all().map(|p| p.1)).unwrap_or(-1.0..1.0);
     let (x, y) = equal_aspect(x, y, plot_pixels(&body));
-    let mut chart = frame(&body, x, y, "raw x (sensor units)", "raw y (sensor units)")?;
-    chart
-        .draw_series(
-            points
-                .iter()
-                .map(|&p| Circle::new(p, 2, BEFORE.mix(0.45).filled())),
-        )?
-        .label(format!("samples ({})", points.len()))
-        .legend(|(x, y)| Circle::new((x, y), 3, BEFORE.filled()));
+    let mut chart = HOUSE.frame(&body, x, y, "raw x (sensor units)", "raw y (sensor units)")?;
+    sample_dots(&mut chart, &points, BEFORE)?;
     if !ellipse.is_empty() {
         let mut closed = ellipse.clone();
         closed.extend(ellipse.first().copied());
@@ -628,7 +612,7 @@ fn calibrated_plot(area: &Svg, data: &ReportData) -> Result<(), DrawError> {
             .fold(1.0_f64, f64::max)
             * 1.08;
         let (x, y) = equal_aspect(-reach..reach, -reach..reach, plot_pixels(&body));
-        let mut chart = frame(&body, x, y, "x / r", "y / r")?;
+        let mut chart = HOUSE.frame(&body, x, y, "x / r", "y / r")?;
         let circle: Vec<(f64, f64)> = (0..=360)
             .map(|d| f64::from(d).to_radians())
             .map(|a| (a.cos(), a.sin()))
@@ -644,14 +628,7 @@ fn calibrated_plot(area: &Svg, data: &ReportData) -> Result<(), DrawError> {
                 (FAMILY, 15).into_font(),
             )))?;
         } else {
-            chart
-                .draw_series(
-                    shown
-                        .iter()
-                        .map(|&p| Circle::new(p, 2, color.mix(0.45).filled())),
-                )?
-                .label(format!("samples ({})", shown.len()))
-                .legend(move |(x, y)| Circle::new((x, y), 3, color.filled()));
+            sample_dots(&mut chart, &shown, color)?;
         }
         legend(&mut chart)?;
     }
@@ -699,7 +676,7 @@ fn residual_plot(
         + usize::from(!after.is_empty())
         + usize::from(scale.clipped);
     let y = with_legend_room(scale.range.clone(), rows, plot_pixels(&body).1);
-    let mut chart = frame(&body, x.clone(), y, x_desc, "|s|/r − 1 (%)")?;
+    let mut chart = HOUSE.frame(&body, x.clone(), y, x_desc, "|s|/r − 1 (%)")?;
     if let Some(f) = floor {
         floor_band(&mut chart, &x, f, 0.15)?;
         for edge in [f, -f] {
@@ -713,22 +690,16 @@ fn residual_plot(
     }
     let size = if before.len() > 2000 { 1 } else { 2 };
     let on_scale = |p: &&(f64, f64)| scale.range.contains(&p.1);
-    point_series(
+    before_and_after(
         &mut chart,
-        before.iter().filter(on_scale).copied(),
+        (&before, &after),
+        |p| on_scale(&p).then_some(*p),
         size,
-        BEFORE,
-        display_label(&data.before_label, "baseline").to_string(),
-    )?;
-    if !after.is_empty() {
-        point_series(
-            &mut chart,
-            after.iter().filter(on_scale).copied(),
-            size,
-            AFTER,
+        (
+            display_label(&data.before_label, "baseline").to_string(),
             display_label(&data.after_label, "with the suggested effect").to_string(),
-        )?;
-    }
+        ),
+    )?;
     if scale.clipped {
         // Points off the scale stay visible: a triangle at the edge, in
         // their model's colour, pointing the way they went.
@@ -791,20 +762,60 @@ pub(super) fn floor_band<'a, 'b: 'a>(
     Ok(())
 }
 
-/// `points` as half-transparent dots of radius `size` in `colour`, with a
-/// legend entry `label`.
+/// `points` as dots of `(radius, fill)`, with a legend entry `label` (a
+/// solid dot in `colour`).
 pub(super) fn point_series<'a, 'b: 'a>(
     chart: &mut ChartContext<'a, SVGBackend<'b>, Plane>,
     points: impl Iterator<Item = (f64, f64)>,
-    size: i32,
+    (size, fill): (i32, RGBAColor),
     colour: RGBColor,
     label: String,
 ) -> Result<(), DrawError> {
     chart
-        .draw_series(points.map(|p| Circle::new(p, size, colour.mix(0.5).filled())))?
+        .draw_series(points.map(|p| Circle::new(p, size, fill.filled())))?
         .label(label)
         .legend(move |(x, y)| Circle::new((x, y), 3, colour.filled()));
     Ok(())
+}
+
+/// The residuals under the baseline model (in [`BEFORE`]) and, when there
+/// are any, under the improved one (in [`AFTER`]): each point `shown` makes
+/// of them as a half-transparent dot of radius `size`, with its model's
+/// label in the legend.
+pub(super) fn before_and_after<'a, 'b: 'a>(
+    chart: &mut ChartContext<'a, SVGBackend<'b>, Plane>,
+    (before, after): (&[(f64, f64)], &[(f64, f64)]),
+    shown: impl Fn(&(f64, f64)) -> Option<(f64, f64)>,
+    size: i32,
+    (before_label, after_label): (String, String),
+) -> Result<(), DrawError> {
+    let models = [(before, BEFORE, before_label), (after, AFTER, after_label)];
+    for (k, (points, colour, label)) in models.into_iter().enumerate() {
+        // The baseline is always in the legend, the improved model only
+        // when there is one.
+        if k > 0 && points.is_empty() {
+            continue;
+        }
+        let dots = points.iter().filter_map(&shown);
+        point_series(chart, dots, (size, colour.mix(0.5)), colour, label)?;
+    }
+    Ok(())
+}
+
+/// The samples of a plot of readings, as dots in `colour`, counted in the
+/// legend.
+fn sample_dots<'a, 'b: 'a>(
+    chart: &mut ChartContext<'a, SVGBackend<'b>, Plane>,
+    points: &[(f64, f64)],
+    colour: RGBColor,
+) -> Result<(), DrawError> {
+    point_series(
+        chart,
+        points.iter().copied(),
+        (2, colour.mix(0.45)),
+        colour,
+        format!("samples ({})", points.len()),
+    )
 }
 
 /// Colours of the ladder's models in the heading plot, in order.
@@ -844,7 +855,7 @@ fn heading_error_plot(
         .collect();
     let scale = residual_scale(&values, None);
     let y = with_legend_room(scale.range.clone(), models.len(), plot_pixels(&body).1);
-    let mut chart = frame(&body, 0.0..360.0, y, "heading (°)", "heading − gyro (°)")?;
+    let mut chart = HOUSE.frame(&body, 0.0..360.0, y, "heading (°)", "heading − gyro (°)")?;
     let size = if values.len() > 2000 { 1 } else { 2 };
     for (k, (name, points)) in models.iter().enumerate() {
         let colour = MODEL_COLOURS[k % MODEL_COLOURS.len()];
@@ -854,7 +865,7 @@ fn heading_error_plot(
                 .iter()
                 .filter(|p| scale.range.contains(&p.1))
                 .copied(),
-            size,
+            (size, colour.mix(0.5)),
             colour,
             display_label(name, "model").to_string(),
         )?;

@@ -14,7 +14,6 @@
 //! - `ladder.svg`: the rms of each step of the ladder against the noise
 //!   floor.
 
-use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix2, Matrix3};
@@ -22,9 +21,8 @@ use plotters::prelude::*;
 
 use super::html::escape;
 use super::plots::{
-    AFTER, BEFORE, DrawError, FAMILY, FIT, FLOOR, Figure, FrameLayout, Plane, ReportError, Svg,
-    Thinning, draw_sized as draw, ensure_font, floor_band, frame_with, legend_sized, point_series,
-    write_figures,
+    BEFORE, DrawError, FAMILY, FIT, FLOOR, Figure, FrameLayout, ReportError, Svg, Thinning,
+    before_and_after, draw_sized as draw, ensure_font, floor_band, legend_sized, write_figures,
 };
 use super::scale::{equal_aspect, residual_scale, span};
 use crate::model::sphere;
@@ -206,16 +204,6 @@ fn index(data: &Report3Data, figures: &[Figure]) -> String {
     html
 }
 
-fn chart_frame<'a, 'b: 'a>(
-    area: &'a Svg<'b>,
-    x: Range<f64>,
-    y: Range<f64>,
-    x_desc: &str,
-    y_desc: &str,
-) -> Result<ChartContext<'a, SVGBackend<'b>, Plane>, DrawError> {
-    frame_with(&LAYOUT, area, x, y, x_desc, y_desc)
-}
-
 /// Diverging colour: blue (−1) through white (0) to red (+1).
 fn diverging(v: f64) -> RGBColor {
     let v = v.clamp(-1.0, 1.0);
@@ -241,7 +229,7 @@ fn azimuth_elevation(d: &[f64; 3]) -> Option<(f64, f64)> {
 fn sphere_map(area: &Svg, title: &str, data: &Report3Data, e: &[f64]) -> Result<(), DrawError> {
     let body = area.titled(title, (FAMILY, 18).into_font().color(&BLACK))?;
     let (map, key) = body.split_horizontally(body.dim_in_pixel().0.saturating_sub(110));
-    let mut chart = chart_frame(
+    let mut chart = LAYOUT.frame(
         &map,
         -180.0..180.0,
         -90.0..90.0,
@@ -377,7 +365,7 @@ fn ellipsoid_views(area: &Svg, title: &str, data: &Report3Data) -> Result<(), Dr
             y,
             (pw.saturating_sub(24 + 60), ph.saturating_sub(24 + 40)),
         );
-        let mut chart = chart_frame(panel, x, y, &data.axes[i], &data.axes[j])?;
+        let mut chart = LAYOUT.frame(panel, x, y, &data.axes[i], &data.axes[j])?;
         chart.draw_series(
             points
                 .iter()
@@ -410,7 +398,7 @@ fn residual_time(
     let values: Vec<f64> = before.iter().chain(&after).map(|p| p.1).collect();
     let scale = residual_scale(&values, floor);
     let x = span(before.iter().map(|p| p.0)).unwrap_or(0.0..1.0);
-    let mut chart = chart_frame(
+    let mut chart = LAYOUT.frame(
         &body,
         x.clone(),
         scale.range.clone(),
@@ -422,22 +410,13 @@ fn residual_time(
     }
     let range = scale.range.clone();
     let clip = move |p: &(f64, f64)| (p.0, p.1.clamp(range.start, range.end));
-    point_series(
+    before_and_after(
         &mut chart,
-        before.iter().map(clip),
+        (&before, &after),
+        |p| Some(clip(p)),
         1,
-        BEFORE,
-        data.before_label.clone(),
+        (data.before_label.clone(), data.after_label.clone()),
     )?;
-    if !after.is_empty() {
-        point_series(
-            &mut chart,
-            after.iter().map(clip),
-            1,
-            AFTER,
-            data.after_label.clone(),
-        )?;
-    }
     legend_sized(&mut chart, 12)
 }
 
@@ -453,7 +432,7 @@ fn ladder(area: &Svg, title: &str, data: &Report3Data) -> Result<(), DrawError> 
         .max(1e-9)
         * 1.15;
     let n = data.ladder.len() as f64;
-    let mut chart = chart_frame(
+    let mut chart = LAYOUT.frame(
         &body,
         -0.5..n - 0.5,
         0.0..top,
