@@ -35,9 +35,9 @@ pub mod diagnose3;
 pub mod effects;
 pub mod ellipsoid;
 pub mod ellipsoid_effects;
+pub mod fit;
 #[cfg(test)]
 mod fixtures;
-pub mod fit;
 pub mod gyro;
 pub mod heading;
 pub mod heading_analysis;

@@ -19,11 +19,12 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix2, Matrix3};
 use plotters::prelude::*;
 
-use super::html::escape;
-use super::plots::{
-    BEFORE, DrawError, FAMILY, FIT, FLOOR, Figure, FrameLayout, ReportError, Svg, Thinning,
-    before_and_after, draw_sized as draw, ensure_font, floor_band, legend_sized, write_figures,
+use super::chart::{
+    BEFORE, DrawError, FAMILY, FIT, FLOOR, FrameLayout, Svg, Thinning, before_and_after,
+    draw_sized as draw, ensure_font, floor_band, legend_sized, write_figures,
 };
+use super::html::escape;
+use super::plots::{Figure, ReportError};
 use super::scale::{equal_aspect, residual_scale, span};
 use crate::model::sphere;
 
