@@ -700,25 +700,21 @@ pub fn verdict(rms: f64, res: &Residuals3, floor: &NoiseFloor, n: usize) -> Stri
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::fixtures::tumbling;
     use crate::sample::Covariate;
-    use crate::sim3::{Motion3, SimSensor3};
 
     /// A tumble with gains only (the baseline is the right model), 1 %
     /// noise, times at 50 Hz and a temperature that wanders independently.
     fn clean(seed: u64, timed: bool) -> Dataset3 {
         let n = 800;
-        let points = SimSensor3 {
-            matrix: [[1.1, 0.0, 0.0], [0.0, 0.92, 0.0], [0.0, 0.0, 1.0]],
-            offset: [0.3, -0.2, 0.1],
-            r: 0.5,
-            noise: 0.005,
+        let points = tumbling(
+            [[1.1, 0.0, 0.0], [0.0, 0.92, 0.0], [0.0, 0.0, 1.0]],
+            [0.3, -0.2, 0.1],
+            0.5,
+            0.005,
             n,
-            motion: Motion3::Tumble {
-                turns: 20.0,
-                axis_path_rad: 10.0,
-            },
             seed,
-        }
+        )
         .simulate()
         .unwrap();
         let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.02).collect();

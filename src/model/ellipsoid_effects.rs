@@ -774,26 +774,16 @@ fn reference(
 mod tests {
     #![allow(clippy::needless_range_loop)] // indices pair fit, truth and se
     use super::*;
+    use crate::model::fixtures::tumbling;
     use crate::sample::Covariate;
-    use crate::sim3::{Motion3, SimSensor3};
+    use crate::sim3::SimSensor3;
 
     const SOFT_IRON: [[f64; 3]; 3] = [[1.2, 0.15, -0.1], [0.15, 0.85, 0.2], [-0.1, 0.2, 1.05]];
     const NOISE: f64 = 0.005;
     const R: f64 = 0.5;
 
     fn sensor(n: usize, seed: u64) -> SimSensor3 {
-        SimSensor3 {
-            matrix: SOFT_IRON,
-            offset: [0.3, -0.2, 0.45],
-            r: R,
-            noise: 0.0,
-            n,
-            motion: Motion3::Tumble {
-                turns: 20.0,
-                axis_path_rad: 10.0,
-            },
-            seed,
-        }
+        tumbling(SOFT_IRON, [0.3, -0.2, 0.45], R, 0.0, n, seed)
     }
 
     /// What a test adds to a clean tumble.

@@ -16,6 +16,8 @@
 
 use serde::Serialize;
 
+use super::residuals::{CentredSums, centred_sums};
+
 /// Units of the gyro's rate column.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
 pub enum GyroUnits {
@@ -331,17 +333,15 @@ impl HeadingReference {
             h.push(acc);
         }
         // Least squares on centred columns: h - mh = s (g - mg) + b (t - mt).
-        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-        let (mh, mg, mt) = (mean(&h), mean(&g), mean(&t));
-        let (mut sgg, mut stt, mut sgt, mut sgh, mut sth) = (0.0, 0.0, 0.0, 0.0, 0.0);
-        for k in 0..n {
-            let (gc, tc, hc) = (g[k] - mg, t[k] - mt, h[k] - mh);
-            sgg += gc * gc;
-            stt += tc * tc;
-            sgt += gc * tc;
-            sgh += gc * hc;
-            sth += tc * hc;
-        }
+        let CentredSums {
+            means: [mg, mt, mh],
+            aa: sgg,
+            bb: stt,
+            ab: sgt,
+            ac: sgh,
+            bc: sth,
+            ..
+        } = centred_sums(&g, &t, &h);
         let det = sgg * stt - sgt * sgt;
         // When the turn ran at a constant rate, the gyro's angle is a line in
         // time and its bias cannot be told from its scale; the heading error
@@ -562,6 +562,25 @@ mod tests {
         rate: Vec<f64>,
     }
 
+    impl Turn {
+        /// The true headings with errors that follow heading (a slow
+        /// 3rd harmonic of 2°, plus `distortion`, in degrees, of each
+        /// heading) and white `noise` (radians).
+        fn noisy_headings(
+            &self,
+            rng: &mut rand_chacha::ChaCha8Rng,
+            noise: &Normal<f64>,
+            distortion: impl Fn(f64) -> f64,
+        ) -> Vec<f64> {
+            self.truth_rad
+                .iter()
+                .map(|&h| {
+                    h + (2.0 * (3.0 * h).sin() + distortion(h)).to_radians() + noise.sample(rng)
+                })
+                .collect()
+        }
+    }
+
     fn heading_at(t: f64) -> f64 {
         // Degrees: 720° over 40 s with a wobble in rate.
         18.0 * t + 20.0 * (t * 0.4).sin() + 10.0
@@ -588,6 +607,20 @@ mod tests {
             gyro_t,
             rate,
         }
+    }
+
+    /// The reference of a gyro `column` that reads `share` of the turn's
+    /// rate (one tilted from the turn's axis).
+    fn reading_a_share(turn: &Turn, column: &str, share: f64) -> HeadingReference {
+        let rate: Vec<f64> = turn.rate.iter().map(|r| share * r).collect();
+        HeadingReference::from_rates(
+            column,
+            &turn.sample_t,
+            &turn.gyro_t,
+            &rate,
+            GyroUnits::DegPerSecond,
+        )
+        .unwrap()
     }
 
     fn reference(turn: &Turn) -> HeadingReference {
@@ -685,14 +718,8 @@ mod tests {
         let noise = Normal::new(0.0, 1.0_f64.to_radians()).unwrap();
         // Heading errors follow heading: a slow error common to both, plus
         // white noise of each.
-        let noisy = |rng: &mut rand_chacha::ChaCha8Rng, extra: f64| -> Vec<f64> {
-            t.truth_rad
-                .iter()
-                .map(|&h| {
-                    h + (2.0 * (3.0 * h).sin() + extra * (2.0 * h).sin()).to_radians()
-                        + noise.sample(rng)
-                })
-                .collect()
+        let noisy = |rng: &mut rand_chacha::ChaCha8Rng, extra: f64| {
+            t.noisy_headings(rng, &noise, |h| extra * (2.0 * h).sin())
         };
         let a = r.check(&noisy(&mut rng, 0.0), &[]).unwrap();
         let b = r.check(&noisy(&mut rng, 0.0), &[]).unwrap();
@@ -724,14 +751,8 @@ mod tests {
         let r = reference(&t);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
         let noise = Normal::new(0.0, 0.5_f64.to_radians()).unwrap();
-        let noisy = |rng: &mut rand_chacha::ChaCha8Rng, extra: f64| -> Vec<f64> {
-            t.truth_rad
-                .iter()
-                .map(|&h| {
-                    h + (2.0 * (3.0 * h).sin() + extra * (2.0 * h + 0.4).sin()).to_radians()
-                        + noise.sample(rng)
-                })
-                .collect()
+        let noisy = |rng: &mut rand_chacha::ChaCha8Rng, extra: f64| {
+            t.noisy_headings(rng, &noise, |h| extra * (2.0 * h + 0.4).sin())
         };
         let a = r.check(&noisy(&mut rng, 0.0), &[]).unwrap();
         let b = r.check(&noisy(&mut rng, 0.8), &[]).unwrap();
@@ -748,28 +769,12 @@ mod tests {
     fn a_gyro_about_another_axis_is_refused() {
         let t = turn(1.0, 0.0);
         // A tilted gyro: 0.3 of the rate (72° off the turn's axis).
-        let rate: Vec<f64> = t.rate.iter().map(|r| 0.3 * r).collect();
-        let r = HeadingReference::from_rates(
-            "gyro_x",
-            &t.sample_t,
-            &t.gyro_t,
-            &rate,
-            GyroUnits::DegPerSecond,
-        )
-        .unwrap();
+        let r = reading_a_share(&t, "gyro_x", 0.3);
         let err = r.check(&t.truth_rad, &[]).unwrap_err();
         assert!(matches!(err, GyroError::WrongAxis { .. }), "{err}");
         assert!(err.to_string().contains("gyro_x"), "{err}");
         // One that barely turns: 0.05 of the rate spans 36°.
-        let rate: Vec<f64> = t.rate.iter().map(|r| 0.05 * r).collect();
-        let r = HeadingReference::from_rates(
-            "gyro_y",
-            &t.sample_t,
-            &t.gyro_t,
-            &rate,
-            GyroUnits::DegPerSecond,
-        )
-        .unwrap();
+        let r = reading_a_share(&t, "gyro_y", 0.05);
         let err = r.check(&t.truth_rad, &[]).unwrap_err();
         assert!(matches!(err, GyroError::NoTurnSeen { .. }), "{err}");
     }
@@ -778,19 +783,7 @@ mod tests {
     fn a_tilt_within_the_bound_is_accepted() {
         let t = turn(1.0, 0.0);
         // 40° off the turn's axis reads cos 40° = 0.77 of the rate.
-        let rate: Vec<f64> = t
-            .rate
-            .iter()
-            .map(|r| 40f64.to_radians().cos() * r)
-            .collect();
-        let r = HeadingReference::from_rates(
-            "g",
-            &t.sample_t,
-            &t.gyro_t,
-            &rate,
-            GyroUnits::DegPerSecond,
-        )
-        .unwrap();
+        let r = reading_a_share(&t, "g", 40f64.to_radians().cos());
         let check = r.check(&t.truth_rad, &[]).unwrap();
         assert!((check.gyro_scale - 1.0 / 40f64.to_radians().cos()).abs() < 1e-3);
     }

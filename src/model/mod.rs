@@ -38,6 +38,8 @@ pub mod effects;
 pub mod ellipsoid;
 pub mod ellipsoid_effects;
 pub mod fit;
+#[cfg(test)]
+mod fixtures;
 pub mod gyro;
 pub mod heading;
 pub mod heading_analysis;

@@ -476,14 +476,18 @@ mod tests {
         );
     }
 
+    /// A sensor with small offsets, for the gradient descent (which starts
+    /// from no offset).
+    const CENTRED: PaperCalibration = PaperCalibration {
+        a: 1.1,
+        b: 30.0,
+        d: -20.0,
+        r: 500.0,
+    };
+
     #[test]
     fn gradient_descent_matches_closed_form_on_a_centred_sensor() {
-        let cal = PaperCalibration {
-            a: 1.1,
-            b: 30.0,
-            d: -20.0,
-            r: 500.0,
-        };
+        let cal = CENTRED;
         let (x, y) = ellipse(&cal, 200);
         let gd = gradient_descent(&x, &y, &GradientDescentOptions::default(), &mut |_| {}).unwrap();
         let fit = gd.theta.to_calibration().unwrap();
@@ -494,12 +498,7 @@ mod tests {
 
     #[test]
     fn gradient_descent_stops_at_its_cap() {
-        let cal = PaperCalibration {
-            a: 1.1,
-            b: 30.0,
-            d: -20.0,
-            r: 500.0,
-        };
+        let cal = CENTRED;
         let (x, y) = ellipse(&cal, 100);
         let options = GradientDescentOptions {
             max_iterations: 5,

@@ -105,6 +105,47 @@ pub struct SetAside {
     pub reason: String,
 }
 
+/// Sums of squares and products of three series about their means (the
+/// moments of a least-squares fit on centred columns), each summed in
+/// sample order.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct CentredSums {
+    /// The means the series are centred on.
+    pub means: [f64; 3],
+    pub aa: f64,
+    pub bb: f64,
+    pub cc: f64,
+    pub ab: f64,
+    pub ac: f64,
+    pub bc: f64,
+}
+
+/// The [`CentredSums`] of `a`, `b` and `c` (of equal length, not empty).
+pub(crate) fn centred_sums(a: &[f64], b: &[f64], c: &[f64]) -> CentredSums {
+    let n = a.len();
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / n as f64;
+    let (ma, mb, mc) = (mean(a), mean(b), mean(c));
+    let mut s = CentredSums {
+        means: [ma, mb, mc],
+        aa: 0.0,
+        bb: 0.0,
+        cc: 0.0,
+        ab: 0.0,
+        ac: 0.0,
+        bc: 0.0,
+    };
+    for i in 0..n {
+        let (da, db, dc) = (a[i] - ma, b[i] - mb, c[i] - mc);
+        s.aa += da * da;
+        s.bb += db * db;
+        s.cc += dc * dc;
+        s.ab += da * db;
+        s.ac += da * dc;
+        s.bc += db * dc;
+    }
+    s
+}
+
 /// R² of `u` regressed on `[1, x, y]`, and on `[1, x]` and `[1, y]` alone;
 /// None when `u` is constant.
 fn r2_on_axes(u: &[f64], x: &[f64], y: &[f64]) -> Option<(f64, f64, f64)> {
@@ -112,18 +153,15 @@ fn r2_on_axes(u: &[f64], x: &[f64], y: &[f64]) -> Option<(f64, f64, f64)> {
     if n < 3 {
         return None;
     }
-    let mean = |v: &[f64]| v[..n].iter().sum::<f64>() / n as f64;
-    let (mu, mx, my) = (mean(u), mean(x), mean(y));
-    let (mut suu, mut sxx, mut syy, mut sxy, mut sux, mut suy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    for i in 0..n {
-        let (du, dx, dy) = (u[i] - mu, x[i] - mx, y[i] - my);
-        suu += du * du;
-        sxx += dx * dx;
-        syy += dy * dy;
-        sxy += dx * dy;
-        sux += du * dx;
-        suy += du * dy;
-    }
+    let CentredSums {
+        aa: suu,
+        bb: sxx,
+        cc: syy,
+        ab: sux,
+        ac: suy,
+        bc: sxy,
+        ..
+    } = centred_sums(&u[..n], &x[..n], &y[..n]);
     if !(suu > 0.0) || !suu.is_finite() {
         return None;
     }

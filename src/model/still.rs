@@ -345,7 +345,7 @@ pub fn find_still(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim3::{Motion3, SimSensor3};
+    use crate::model::fixtures::tumbling;
     use nalgebra::{Matrix3, Vector3};
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
@@ -526,20 +526,9 @@ mod tests {
     #[test]
     fn a_continuous_tumble_never_holds_still() {
         for seed in 0..50 {
-            let raw = SimSensor3 {
-                matrix: SOFT,
-                offset: [0.1, 0.0, -0.1],
-                r: 1.0,
-                noise: 0.005,
-                n: 3000,
-                motion: Motion3::Tumble {
-                    turns: 20.0,
-                    axis_path_rad: 10.0,
-                },
-                seed,
-            }
-            .simulate()
-            .unwrap();
+            let raw = tumbling(SOFT, [0.1, 0.0, -0.1], 1.0, 0.005, 3000, seed)
+                .simulate()
+                .unwrap();
             // 30 s at 100 Hz: 20 turns, 240 °/s on average.
             let t: Vec<f64> = (0..raw.len()).map(|i| i as f64 * 0.01).collect();
             let err = find_still(&raw, Some(&t), None).unwrap_err();

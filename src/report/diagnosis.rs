@@ -33,6 +33,21 @@ fn on_unit_circle(fit: &ModelFit) -> Vec<(f64, f64)> {
         .collect()
 }
 
+/// The ladder as the report draws it: each step's model name and rms.
+/// `step` reads them off a step of either geometry's ladder.
+pub(super) fn ladder_bars<S>(
+    ladder: &[S],
+    step: impl Fn(&S) -> (&String, f64),
+) -> Vec<(String, f64)> {
+    ladder
+        .iter()
+        .map(|s| {
+            let (model, rms) = step(s);
+            (model.clone(), rms)
+        })
+        .collect()
+}
+
 /// Builds the report's data: the baseline fit and the last model of the
 /// ladder are refitted (the diagnosis keeps only their numbers).
 /// `summary` is the diagnosis as text; it is shown escaped, as written.
@@ -70,11 +85,7 @@ pub fn report_data(
             .map(|c| (c.name.clone(), c.values.clone()))
             .collect(),
         noise_floor: diagnosis.noise_floor.rms,
-        ladder: diagnosis
-            .ladder
-            .iter()
-            .map(|s| (s.model.clone(), s.rms))
-            .collect(),
+        ladder: ladder_bars(&diagnosis.ladder, |s| (&s.model, s.rms)),
         heading_errors: diagnosis
             .ladder
             .iter()

@@ -1,6 +1,7 @@
 //! The report of `fieldcal diagnose --report DIR` on three axes: the
 //! diagnosis turned into the plain data [`super::plots3`] draws.
 
+use super::diagnosis::ladder_bars;
 use super::html::preformatted;
 use super::plots3::Report3Data;
 use crate::model::diagnose3::Diagnosis3;
@@ -54,10 +55,6 @@ pub fn report3_data(
         time: data.t.clone(),
         covered: counts.iter().map(|&c| c > 0).collect(),
         noise_floor: diagnosis.noise_floor.rms,
-        ladder: diagnosis
-            .ladder
-            .iter()
-            .map(|s| (s.model.clone(), s.rms))
-            .collect(),
+        ladder: ladder_bars(&diagnosis.ladder, |s| (&s.model, s.rms)),
     })
 }

@@ -1,5 +1,6 @@
 //! What fieldcal tells a person (text) or a program (JSON) about its work.
 
+mod chart;
 pub mod diagnosis;
 pub mod diagnosis3;
 pub mod fit;

@@ -7,15 +7,15 @@
 //! drawn with `plotters`, text laid out with a font embedded in the binary
 //! (no system fonts needed), and an HTML page with inline CSS.
 
-use std::ops::Range;
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 
-use plotters::coord::Shift;
-use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
-use plotters::style::{FontStyle, register_font};
 
+use super::chart::{
+    AFTER, BEFORE, DrawError, FAMILY, FIT, FLOOR, FrameLayout, Plane, Svg, Thinning,
+    before_and_after, draw_sized, ensure_font, floor_band, legend_sized, point_series,
+    write_figures,
+};
 use super::scale::{equal_aspect, residual_scale, span, tick_label, with_legend_room};
 
 /// One named series of (x, y) values, for callers that want to hand over
@@ -128,15 +128,6 @@ pub const MAX_POINTS: usize = 5_000;
 /// The file name of the page that shows the figures.
 pub const INDEX_FILE: &str = "index.html";
 
-/// DejaVu Sans (Bitstream Vera licence, see assets/DejaVuSans.LICENSE.txt):
-/// plotters needs a font to measure text and we cannot count on system
-/// fonts on a headless box.
-const FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
-
-/// The family plotters asks for by default and writes into the SVG's
-/// `font-family`: a browser without DejaVu Sans falls back to its own sans.
-const FAMILY: &str = "sans-serif";
-
 const SIZE: (u32, u32) = (800, 500);
 const MARGIN: u32 = 12;
 const X_LABEL_AREA: u32 = 45;
@@ -144,21 +135,15 @@ const Y_LABEL_AREA: u32 = 70;
 const TITLE_SIZE: u32 = 20;
 const LABEL_SIZE: u32 = 15;
 
-const BEFORE: RGBColor = RGBColor(31, 119, 180);
-const AFTER: RGBColor = RGBColor(230, 110, 0);
-const FIT: RGBColor = RGBColor(200, 30, 30);
-const FLOOR: RGBColor = RGBColor(90, 90, 90);
-
-type Svg<'a> = DrawingArea<SVGBackend<'a>, Shift>;
-type Plane = Cartesian2d<RangedCoordf64, RangedCoordf64>;
-type DrawError = DrawingAreaErrorKind<std::io::Error>;
-
-/// Registers the embedded font once per process.
-fn ensure_font() -> Result<(), ReportError> {
-    static REGISTERED: OnceLock<bool> = OnceLock::new();
-    let ok = *REGISTERED.get_or_init(|| register_font(FAMILY, FontStyle::Normal, FONT).is_ok());
-    if ok { Ok(()) } else { Err(ReportError::Font) }
-}
+/// The house layout of this module's charts (fixed margins and label
+/// areas, so [`plot_pixels`] can predict the plotting area).
+const HOUSE: FrameLayout = FrameLayout {
+    margin: MARGIN,
+    x_label_area: X_LABEL_AREA,
+    y_label_area: Y_LABEL_AREA,
+    tick_font: 13,
+    desc_font: LABEL_SIZE,
+};
 
 /// Creates `dir` (and its parents), writes one SVG per figure and
 /// `index.html`, and returns the paths written (the page last).
@@ -166,26 +151,8 @@ pub fn write_report(dir: &Path, data: &ReportData) -> Result<Vec<PathBuf>, Repor
     validate(data)?;
     ensure_font()?;
     let figures = render_figures(data)?;
-    std::fs::create_dir_all(dir).map_err(|source| ReportError::CreateDir {
-        path: dir.to_path_buf(),
-        source,
-    })?;
-    let mut written = Vec::with_capacity(figures.len() + 1);
-    for figure in &figures {
-        let path = dir.join(&figure.file);
-        write_file(&path, &figure.svg)?;
-        written.push(path);
-    }
-    let path = dir.join(INDEX_FILE);
-    write_file(&path, &super::html::render_index(data, &figures))?;
-    written.push(path);
-    Ok(written)
-}
-
-fn write_file(path: &Path, text: &str) -> Result<(), ReportError> {
-    std::fs::write(path, text).map_err(|source| ReportError::Write {
-        path: path.to_path_buf(),
-        source,
+    write_figures(dir, &figures, |figures| {
+        super::html::render_index(data, figures)
     })
 }
 
@@ -370,75 +337,13 @@ fn display_label<'a>(label: &'a str, fallback: &'a str) -> &'a str {
     }
 }
 
-/// Which samples a plot draws: all of them, or every `step`-th.
-#[derive(Debug, Clone, Copy)]
-struct Thinning {
-    n: usize,
-    step: usize,
-}
-
-impl Thinning {
-    fn new(n: usize) -> Self {
-        Thinning {
-            n,
-            step: n.div_ceil(MAX_POINTS).max(1),
-        }
-    }
-
-    fn indices(&self) -> impl Iterator<Item = usize> + Clone {
-        (0..self.n).step_by(self.step)
-    }
-
-    /// A short note for a plot title.
-    fn note(&self) -> String {
-        if self.step > 1 {
-            format!(" (1 in {} of {} samples shown)", self.step, self.n)
-        } else {
-            String::new()
-        }
-    }
-
-    /// A sentence for the page.
-    fn sentence(&self) -> String {
-        if self.step > 1 {
-            format!(
-                " To keep the file small, every {}th of the {} samples is drawn.",
-                self.step, self.n
-            )
-        } else {
-            String::new()
-        }
-    }
-}
-
 fn draw(file: &str, f: impl FnOnce(&Svg) -> Result<(), DrawError>) -> Result<String, ReportError> {
     draw_sized(file, SIZE, f)
 }
 
-/// Renders into a string (not straight to a file) so that file errors are
-/// ours to report with the path, and drawing errors name the figure.
-fn draw_sized(
-    file: &str,
-    size: (u32, u32),
-    f: impl FnOnce(&Svg) -> Result<(), DrawError>,
-) -> Result<String, ReportError> {
-    let mut svg = String::new();
-    {
-        let area = SVGBackend::with_string(&mut svg, size).into_drawing_area();
-        let result = area
-            .fill(&WHITE)
-            .and_then(|()| f(&area))
-            .and_then(|()| area.present());
-        result.map_err(|e| ReportError::Draw {
-            file: file.to_string(),
-            message: e.to_string(),
-        })?;
-    }
-    Ok(svg)
-}
-
-/// The plotting area a chart built by [`frame`] gets inside `area`
-/// (after the title): the label areas and margins are fixed sizes.
+/// The plotting area a chart built by [`HOUSE`]'s [`FrameLayout::frame`]
+/// gets inside `area` (after the title): the label areas and margins are
+/// fixed sizes.
 fn plot_pixels(area: &Svg) -> (u32, u32) {
     let (w, h) = area.dim_in_pixel();
     (
@@ -455,44 +360,10 @@ fn title_style() -> TextStyle<'static> {
     (FAMILY, TITLE_SIZE).into_font().color(&BLACK)
 }
 
-/// A chart with the house layout (fixed margins and label areas, so
-/// [`plot_pixels`] can predict the plotting area) and its mesh drawn.
-fn frame<'a, 'b: 'a>(
-    area: &'a Svg<'b>,
-    x: Range<f64>,
-    y: Range<f64>,
-    x_desc: &str,
-    y_desc: &str,
-) -> Result<ChartContext<'a, SVGBackend<'b>, Plane>, DrawError> {
-    let mut chart = ChartBuilder::on(area)
-        .margin(MARGIN)
-        .x_label_area_size(X_LABEL_AREA)
-        .y_label_area_size(Y_LABEL_AREA)
-        .build_cartesian_2d(x, y)?;
-    chart
-        .configure_mesh()
-        .x_desc(x_desc)
-        .y_desc(y_desc)
-        .label_style((FAMILY, 13))
-        .x_label_formatter(&|v| tick_label(*v))
-        .y_label_formatter(&|v| tick_label(*v))
-        .axis_desc_style((FAMILY, LABEL_SIZE))
-        .light_line_style(RGBColor(235, 235, 235))
-        .bold_line_style(RGBColor(215, 215, 215))
-        .draw()?;
-    Ok(chart)
-}
-
 fn legend<'a, 'b: 'a>(
     chart: &mut ChartContext<'a, SVGBackend<'b>, Plane>,
 ) -> Result<(), DrawError> {
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font((FAMILY, 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(RGBColor(160, 160, 160))
-        .draw()
+    legend_sized(chart, 13)
 }
 
 fn raw_plot(area: &Svg, title: &str, data: &ReportData, thin: &Thinning) -> Result<(), DrawError> {
@@ -513,15 +384,8 @@ fn raw_plot(area: &Svg, title: &str, data: &ReportData, thin: &Thinning) -> Resu
     let x = span(all().map(|p| p.0)).unwrap_or(-1.0..1.0);
     let y = span(all().map(|p| p.1)).unwrap_or(-1.0..1.0);
     let (x, y) = equal_aspect(x, y, plot_pixels(&body));
-    let mut chart = frame(&body, x, y, "raw x (sensor units)", "raw y (sensor units)")?;
-    chart
-        .draw_series(
-            points
-                .iter()
-                .map(|&p| Circle::new(p, 2, BEFORE.mix(0.45).filled())),
-        )?
-        .label(format!("samples ({})", points.len()))
-        .legend(|(x, y)| Circle::new((x, y), 3, BEFORE.filled()));
+    let mut chart = HOUSE.frame(&body, x, y, "raw x (sensor units)", "raw y (sensor units)")?;
+    sample_dots(&mut chart, &points, BEFORE)?;
     if !ellipse.is_empty() {
         let mut closed = ellipse.clone();
         closed.extend(ellipse.first().copied());
@@ -563,7 +427,7 @@ fn calibrated_plot(area: &Svg, data: &ReportData) -> Result<(), DrawError> {
             .fold(1.0_f64, f64::max)
             * 1.08;
         let (x, y) = equal_aspect(-reach..reach, -reach..reach, plot_pixels(&body));
-        let mut chart = frame(&body, x, y, "x / r", "y / r")?;
+        let mut chart = HOUSE.frame(&body, x, y, "x / r", "y / r")?;
         let circle: Vec<(f64, f64)> = (0..=360)
             .map(|d| f64::from(d).to_radians())
             .map(|a| (a.cos(), a.sin()))
@@ -579,14 +443,7 @@ fn calibrated_plot(area: &Svg, data: &ReportData) -> Result<(), DrawError> {
                 (FAMILY, 15).into_font(),
             )))?;
         } else {
-            chart
-                .draw_series(
-                    shown
-                        .iter()
-                        .map(|&p| Circle::new(p, 2, color.mix(0.45).filled())),
-                )?
-                .label(format!("samples ({})", shown.len()))
-                .legend(move |(x, y)| Circle::new((x, y), 3, color.filled()));
+            sample_dots(&mut chart, &shown, color)?;
         }
         legend(&mut chart)?;
     }
@@ -634,17 +491,9 @@ fn residual_plot(
         + usize::from(!after.is_empty())
         + usize::from(scale.clipped);
     let y = with_legend_room(scale.range.clone(), rows, plot_pixels(&body).1);
-    let mut chart = frame(&body, x.clone(), y, x_desc, "|s|/r − 1 (%)")?;
+    let mut chart = HOUSE.frame(&body, x.clone(), y, x_desc, "|s|/r − 1 (%)")?;
     if let Some(f) = floor {
-        chart
-            .draw_series(std::iter::once(Rectangle::new(
-                [(x.start, -f), (x.end, f)],
-                FLOOR.mix(0.15).filled(),
-            )))?
-            .label(format!("noise floor ±{}%", super::significant(f, 2)))
-            .legend(|(x, y)| {
-                Rectangle::new([(x - 8, y - 5), (x + 8, y + 5)], FLOOR.mix(0.3).filled())
-            });
+        floor_band(&mut chart, &x, f, 0.15)?;
         for edge in [f, -f] {
             chart.draw_series(DashedLineSeries::new(
                 [(x.start, edge), (x.end, edge)],
@@ -656,26 +505,16 @@ fn residual_plot(
     }
     let size = if before.len() > 2000 { 1 } else { 2 };
     let on_scale = |p: &&(f64, f64)| scale.range.contains(&p.1);
-    chart
-        .draw_series(
-            before
-                .iter()
-                .filter(on_scale)
-                .map(|&p| Circle::new(p, size, BEFORE.mix(0.5).filled())),
-        )?
-        .label(display_label(&data.before_label, "baseline").to_string())
-        .legend(|(x, y)| Circle::new((x, y), 3, BEFORE.filled()));
-    if !after.is_empty() {
-        chart
-            .draw_series(
-                after
-                    .iter()
-                    .filter(on_scale)
-                    .map(|&p| Circle::new(p, size, AFTER.mix(0.5).filled())),
-            )?
-            .label(display_label(&data.after_label, "with the suggested effect").to_string())
-            .legend(|(x, y)| Circle::new((x, y), 3, AFTER.filled()));
-    }
+    before_and_after(
+        &mut chart,
+        (&before, &after),
+        |p| on_scale(&p).then_some(*p),
+        size,
+        (
+            display_label(&data.before_label, "baseline").to_string(),
+            display_label(&data.after_label, "with the suggested effect").to_string(),
+        ),
+    )?;
     if scale.clipped {
         // Points off the scale stay visible: a triangle at the edge, in
         // their model's colour, pointing the way they went.
@@ -720,6 +559,22 @@ fn residual_plot(
     legend(&mut chart)
 }
 
+/// The samples of a plot of readings, as dots in `colour`, counted in the
+/// legend.
+fn sample_dots<'a, 'b: 'a>(
+    chart: &mut ChartContext<'a, SVGBackend<'b>, Plane>,
+    points: &[(f64, f64)],
+    colour: RGBColor,
+) -> Result<(), DrawError> {
+    point_series(
+        chart,
+        points.iter().copied(),
+        (2, colour.mix(0.45)),
+        colour,
+        format!("samples ({})", points.len()),
+    )
+}
+
 /// Colours of the ladder's models in the heading plot, in order.
 const MODEL_COLOURS: [RGBColor; 6] = [
     BEFORE,
@@ -757,19 +612,20 @@ fn heading_error_plot(
         .collect();
     let scale = residual_scale(&values, None);
     let y = with_legend_room(scale.range.clone(), models.len(), plot_pixels(&body).1);
-    let mut chart = frame(&body, 0.0..360.0, y, "heading (°)", "heading − gyro (°)")?;
+    let mut chart = HOUSE.frame(&body, 0.0..360.0, y, "heading (°)", "heading − gyro (°)")?;
     let size = if values.len() > 2000 { 1 } else { 2 };
     for (k, (name, points)) in models.iter().enumerate() {
         let colour = MODEL_COLOURS[k % MODEL_COLOURS.len()];
-        chart
-            .draw_series(
-                points
-                    .iter()
-                    .filter(|p| scale.range.contains(&p.1))
-                    .map(|&p| Circle::new(p, size, colour.mix(0.5).filled())),
-            )?
-            .label(display_label(name, "model").to_string())
-            .legend(move |(x, y)| Circle::new((x, y), 3, colour.filled()));
+        point_series(
+            &mut chart,
+            points
+                .iter()
+                .filter(|p| scale.range.contains(&p.1))
+                .copied(),
+            (size, colour.mix(0.5)),
+            colour,
+            display_label(name, "model").to_string(),
+        )?;
     }
     legend(&mut chart)
 }

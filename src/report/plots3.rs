@@ -14,17 +14,18 @@
 //! - `ladder.svg`: the rms of each step of the ladder against the noise
 //!   floor.
 
-use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix2, Matrix3};
-use plotters::coord::Shift;
 use plotters::prelude::*;
-use plotters::style::{FontStyle, register_font};
 
+use super::chart::{
+    BEFORE, DrawError, FAMILY, FIT, FLOOR, FrameLayout, Svg, Thinning, before_and_after,
+    draw_sized as draw, ensure_font, floor_band, legend_sized, write_figures,
+};
 use super::html::escape;
-use super::plots::{Figure, INDEX_FILE, MAX_POINTS, ReportError};
-use super::scale::{equal_aspect, residual_scale, span, tick_label};
+use super::plots::{Figure, ReportError};
+use super::scale::{equal_aspect, residual_scale, span};
 use crate::model::sphere;
 
 /// Everything a 3-axis report shows. Per-sample vectors have one value per
@@ -61,44 +62,20 @@ pub struct Report3Data {
     pub ladder: Vec<(String, f64)>,
 }
 
-const FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
-const FAMILY: &str = "sans-serif";
-const BEFORE: RGBColor = RGBColor(31, 119, 180);
-const AFTER: RGBColor = RGBColor(230, 110, 0);
-const FIT: RGBColor = RGBColor(200, 30, 30);
-const FLOOR: RGBColor = RGBColor(90, 90, 90);
+/// The layout of the 3-axis charts: a little tighter than the 2-D
+/// report's.
+const LAYOUT: FrameLayout = FrameLayout {
+    margin: 12,
+    x_label_area: 40,
+    y_label_area: 60,
+    tick_font: 12,
+    desc_font: 14,
+};
 
-type Svg<'a> = DrawingArea<SVGBackend<'a>, Shift>;
-type DrawError = DrawingAreaErrorKind<std::io::Error>;
-
-fn ensure_font() -> Result<(), ReportError> {
-    static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    let ok = *REGISTERED.get_or_init(|| register_font(FAMILY, FontStyle::Normal, FONT).is_ok());
-    if ok { Ok(()) } else { Err(ReportError::Font) }
-}
-
-fn draw(
-    file: &str,
-    size: (u32, u32),
-    f: impl FnOnce(&Svg) -> Result<(), DrawError>,
-) -> Result<String, ReportError> {
-    let mut svg = String::new();
-    {
-        let area = SVGBackend::with_string(&mut svg, size).into_drawing_area();
-        area.fill(&WHITE)
-            .and_then(|()| f(&area))
-            .and_then(|()| area.present())
-            .map_err(|e| ReportError::Draw {
-                file: file.to_string(),
-                message: e.to_string(),
-            })?;
-    }
-    Ok(svg)
-}
-
-/// Every k-th sample, so no figure draws more than [`MAX_POINTS`].
+/// Every k-th sample, so no figure draws more than
+/// [`super::plots::MAX_POINTS`].
 fn thinned(n: usize) -> impl Iterator<Item = usize> + Clone {
-    (0..n).step_by(n.div_ceil(MAX_POINTS).max(1))
+    Thinning::new(n).indices()
 }
 
 fn check(data: &Report3Data) -> Result<(), ReportError> {
@@ -206,21 +183,7 @@ pub fn render_figures3(data: &Report3Data) -> Result<Vec<Figure>, ReportError> {
 /// page last).
 pub fn write_report3(dir: &Path, data: &Report3Data) -> Result<Vec<PathBuf>, ReportError> {
     let figures = render_figures3(data)?;
-    std::fs::create_dir_all(dir).map_err(|source| ReportError::CreateDir {
-        path: dir.to_path_buf(),
-        source,
-    })?;
-    let mut written = Vec::new();
-    let write = |path: PathBuf, text: &str| {
-        std::fs::write(&path, text)
-            .map(|()| path.clone())
-            .map_err(|source| ReportError::Write { path, source })
-    };
-    for f in &figures {
-        written.push(write(dir.join(&f.file), &f.svg)?);
-    }
-    written.push(write(dir.join(INDEX_FILE), &index(data, &figures))?);
-    Ok(written)
+    write_figures(dir, &figures, |figures| index(data, figures))
 }
 
 fn index(data: &Report3Data, figures: &[Figure]) -> String {
@@ -240,39 +203,6 @@ fn index(data: &Report3Data, figures: &[Figure]) -> String {
     }
     html.push_str("<footer>Written by fieldcal. Residuals are |s|/r − 1, the magnitude error of a calibrated sample as a fraction of the field.</footer>\n</body>\n</html>\n");
     html
-}
-
-fn chart_frame<'a, 'b: 'a>(
-    area: &'a Svg<'b>,
-    x: Range<f64>,
-    y: Range<f64>,
-    x_desc: &str,
-    y_desc: &str,
-) -> Result<
-    ChartContext<
-        'a,
-        SVGBackend<'b>,
-        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
-    >,
-    DrawError,
-> {
-    let mut chart = ChartBuilder::on(area)
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(x, y)?;
-    chart
-        .configure_mesh()
-        .x_desc(x_desc)
-        .y_desc(y_desc)
-        .label_style((FAMILY, 12))
-        .axis_desc_style((FAMILY, 14))
-        .x_label_formatter(&|v| tick_label(*v))
-        .y_label_formatter(&|v| tick_label(*v))
-        .light_line_style(RGBColor(235, 235, 235))
-        .bold_line_style(RGBColor(215, 215, 215))
-        .draw()?;
-    Ok(chart)
 }
 
 /// Diverging colour: blue (−1) through white (0) to red (+1).
@@ -300,7 +230,7 @@ fn azimuth_elevation(d: &[f64; 3]) -> Option<(f64, f64)> {
 fn sphere_map(area: &Svg, title: &str, data: &Report3Data, e: &[f64]) -> Result<(), DrawError> {
     let body = area.titled(title, (FAMILY, 18).into_font().color(&BLACK))?;
     let (map, key) = body.split_horizontally(body.dim_in_pixel().0.saturating_sub(110));
-    let mut chart = chart_frame(
+    let mut chart = LAYOUT.frame(
         &map,
         -180.0..180.0,
         -90.0..90.0,
@@ -436,7 +366,7 @@ fn ellipsoid_views(area: &Svg, title: &str, data: &Report3Data) -> Result<(), Dr
             y,
             (pw.saturating_sub(24 + 60), ph.saturating_sub(24 + 40)),
         );
-        let mut chart = chart_frame(panel, x, y, &data.axes[i], &data.axes[j])?;
+        let mut chart = LAYOUT.frame(panel, x, y, &data.axes[i], &data.axes[j])?;
         chart.draw_series(
             points
                 .iter()
@@ -469,7 +399,7 @@ fn residual_time(
     let values: Vec<f64> = before.iter().chain(&after).map(|p| p.1).collect();
     let scale = residual_scale(&values, floor);
     let x = span(before.iter().map(|p| p.0)).unwrap_or(0.0..1.0);
-    let mut chart = chart_frame(
+    let mut chart = LAYOUT.frame(
         &body,
         x.clone(),
         scale.range.clone(),
@@ -477,43 +407,18 @@ fn residual_time(
         "|s|/r − 1 (%)",
     )?;
     if let Some(f) = floor {
-        chart
-            .draw_series(std::iter::once(Rectangle::new(
-                [(x.start, -f), (x.end, f)],
-                FLOOR.mix(0.2).filled(),
-            )))?
-            .label(format!("noise floor ±{}%", super::significant(f, 2)))
-            .legend(|(x, y)| {
-                Rectangle::new([(x - 8, y - 5), (x + 8, y + 5)], FLOOR.mix(0.3).filled())
-            });
+        floor_band(&mut chart, &x, f, 0.2)?;
     }
     let range = scale.range.clone();
     let clip = move |p: &(f64, f64)| (p.0, p.1.clamp(range.start, range.end));
-    chart
-        .draw_series(
-            before
-                .iter()
-                .map(|p| Circle::new(clip(p), 1, BEFORE.mix(0.5).filled())),
-        )?
-        .label(data.before_label.clone())
-        .legend(|(x, y)| Circle::new((x, y), 3, BEFORE.filled()));
-    if !after.is_empty() {
-        chart
-            .draw_series(
-                after
-                    .iter()
-                    .map(|p| Circle::new(clip(p), 1, AFTER.mix(0.5).filled())),
-            )?
-            .label(data.after_label.clone())
-            .legend(|(x, y)| Circle::new((x, y), 3, AFTER.filled()));
-    }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font((FAMILY, 12))
-        .background_style(WHITE.mix(0.85))
-        .border_style(RGBColor(160, 160, 160))
-        .draw()
+    before_and_after(
+        &mut chart,
+        (&before, &after),
+        |p| Some(clip(p)),
+        1,
+        (data.before_label.clone(), data.after_label.clone()),
+    )?;
+    legend_sized(&mut chart, 12)
 }
 
 fn ladder(area: &Svg, title: &str, data: &Report3Data) -> Result<(), DrawError> {
@@ -528,7 +433,7 @@ fn ladder(area: &Svg, title: &str, data: &Report3Data) -> Result<(), DrawError> 
         .max(1e-9)
         * 1.15;
     let n = data.ladder.len() as f64;
-    let mut chart = chart_frame(
+    let mut chart = LAYOUT.frame(
         &body,
         -0.5..n - 0.5,
         0.0..top,

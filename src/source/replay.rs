@@ -171,8 +171,14 @@ pub fn replay_counted(
     counters: &SourceCounters,
     emit: &mut dyn FnMut(Reading),
 ) -> Result<ReplaySummary, ReplayError> {
+    let playback = Playback {
+        name,
+        speed,
+        stop,
+        counters,
+    };
     match file {
-        CaptureFile::Raw { bytes } => replay_raw(bytes, name, speed, stop, counters, emit),
+        CaptureFile::Raw { bytes } => replay_raw(bytes, playback, emit),
         CaptureFile::Capture {
             header,
             chunks,
@@ -255,15 +261,28 @@ pub fn replay_counted(
     }
 }
 
+/// How a replay plays: the name its messages use, its speed, the flag
+/// that stops it, and the counters it keeps as a live source would.
+#[derive(Clone, Copy)]
+struct Playback<'a> {
+    name: &'a str,
+    speed: Speed,
+    stop: &'a AtomicBool,
+    counters: &'a SourceCounters,
+}
+
 /// A plain dump has no timing: frames are replayed at the nominal period.
 fn replay_raw(
     bytes: &[u8],
-    name: &str,
-    speed: Speed,
-    stop: &AtomicBool,
-    counters: &SourceCounters,
+    playback: Playback,
     emit: &mut dyn FnMut(Reading),
 ) -> Result<ReplaySummary, ReplayError> {
+    let Playback {
+        name,
+        speed,
+        stop,
+        counters,
+    } = playback;
     let mut decoder = FalconDecoder::new();
     let mut frames = Vec::new();
     decoder.decode(bytes, |frame| frames.push(frame));

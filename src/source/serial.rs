@@ -226,22 +226,21 @@ pub(crate) fn publish_counters(
     counters: &SourceCounters,
 ) {
     let now = decoder.counters();
-    SourceCounters::add(
-        &counters.bytes_skipped,
-        now.bytes_skipped - reported.bytes_skipped,
-    );
-    SourceCounters::add(
-        &counters.frames_good,
-        now.frames_good - reported.frames_good,
-    );
-    SourceCounters::add(&counters.frames_bad, now.frames_bad - reported.frames_bad);
-    SourceCounters::add(
-        &counters.frames_lost,
-        now.frames_lost - reported.frames_lost,
-    );
-    SourceCounters::add(
-        &counters.timer_resets,
-        now.timer_resets - reported.timer_resets,
-    );
+    let before = &*reported;
+    for (counter, added) in [
+        (
+            &counters.bytes_skipped,
+            now.bytes_skipped - before.bytes_skipped,
+        ),
+        (&counters.frames_good, now.frames_good - before.frames_good),
+        (&counters.frames_bad, now.frames_bad - before.frames_bad),
+        (&counters.frames_lost, now.frames_lost - before.frames_lost),
+        (
+            &counters.timer_resets,
+            now.timer_resets - before.timer_resets,
+        ),
+    ] {
+        SourceCounters::add(counter, added);
+    }
     *reported = now;
 }

@@ -10,7 +10,9 @@ use fieldcal::model::diagnose3::{
     Candidate3, Diagnosis3, NotDetermined, Residuals3, Step3, diagnose3 as diagnose_3d,
 };
 use fieldcal::model::effects::{Effect, parse_list};
-use fieldcal::model::residuals::{Residuals, SetAside};
+use fieldcal::model::nonlinear::Param;
+use fieldcal::model::residuals::{NoiseFloor, Residuals, SetAside};
+use std::path::{Path, PathBuf};
 
 use crate::DiagnoseArgs;
 use crate::output::write_stdout;
@@ -20,20 +22,8 @@ pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
         return diagnose3(args, &z);
     }
     let (data, reference) = args.input.read_with_reference()?;
-    let baseline = parse_list(args.effects.as_deref().unwrap_or("paper"))
-        .map_err(anyhow::Error::msg)
-        .context("--effects")?;
-    for effect in &baseline {
-        if let Effect::Covariate(column) = effect
-            && data.covariate(column).is_none()
-        {
-            anyhow::bail!(
-                "--effects: {}: the recording has no column '{column}'",
-                args.input.file.display()
-            );
-        }
-    }
     let file = args.input.file.display().to_string();
+    let baseline = baseline_effects(&args, &file, |column| data.covariate(column).is_some())?;
     let mut diagnosis = run_diagnosis(&data, &baseline, reference.as_ref())
         .with_context(|| format!("{file}: no diagnosis"))?;
     if let Some(gyro) = reference
@@ -54,12 +44,7 @@ pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
         let report = fieldcal::report::diagnosis::report_data(&data, &diagnosis, &title, &summary)
             .with_context(|| format!("{file}: cannot refit the models for the report"))?;
         let written = fieldcal::report::plots::write_report(dir, &report)?;
-        eprintln!(
-            "report: {} files in {}; open {}",
-            written.len(),
-            dir.display(),
-            dir.join(fieldcal::report::plots::INDEX_FILE).display()
-        );
+        announce_report(dir, &written);
     }
 
     let text = if args.json {
@@ -68,6 +53,37 @@ pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
         summary
     };
     write_stdout(text.as_bytes())
+}
+
+/// The model `--effects` asks to start from (`paper` by default), each
+/// covariate of it checked against the recording's columns by `has_column`.
+fn baseline_effects(
+    args: &DiagnoseArgs,
+    file: &str,
+    has_column: impl Fn(&str) -> bool,
+) -> Result<Vec<Effect>> {
+    let baseline = parse_list(args.effects.as_deref().unwrap_or("paper"))
+        .map_err(anyhow::Error::msg)
+        .context("--effects")?;
+    for effect in &baseline {
+        if let Effect::Covariate(column) = effect
+            && !has_column(column)
+        {
+            anyhow::bail!("--effects: {file}: the recording has no column '{column}'");
+        }
+    }
+    Ok(baseline)
+}
+
+/// Tells the person (on stderr) where the report went and which page to
+/// open.
+fn announce_report(dir: &Path, written: &[PathBuf]) {
+    eprintln!(
+        "report: {} files in {}; open {}",
+        written.len(),
+        dir.display(),
+        dir.join(fieldcal::report::plots::INDEX_FILE).display()
+    );
 }
 
 /// The JSON surface: flat numbers where a program wants them (`noise_floor`
@@ -180,23 +196,55 @@ fn noise_ratio(rms: f64, floor: f64) -> String {
     }
 }
 
+/// The baseline's line of the text report.
+fn baseline_line(out: &mut String, model: &str, rms: f64, unknowns: usize) {
+    out.push_str(&format!(
+        "baseline  {model}: rms {} of the field ({unknowns} unknowns)\n",
+        pct(rms),
+    ));
+}
+
+/// The noise floor's line, and a line per column set aside.
+fn floor_and_set_aside(out: &mut String, floor: &NoiseFloor, set_aside: &[SetAside]) {
+    out.push_str(&format!(
+        "noise floor  {} ({})\n\n",
+        pct(floor.rms),
+        floor.method
+    ));
+    for aside in set_aside {
+        out.push_str(&format!("set aside  {}: {}\n", aside.column, aside.reason));
+    }
+}
+
+/// The two lines of step `i` of the ladder: its model, rms and rms against
+/// the noise floor (with `inside` added in the parentheses, `after` after
+/// them), then its parameters.
+fn ladder_step(
+    out: &mut String,
+    i: usize,
+    (model, rms, params): (&str, f64, &[Param]),
+    floor: f64,
+    (inside, after): (&str, &str),
+) {
+    let ratio = noise_ratio(rms, floor);
+    out.push_str(&format!(
+        "  {i}. {:<40} rms {:>9}  ({ratio}{inside}){after}\n",
+        model,
+        pct(rms)
+    ));
+    out.push_str(&format!("     {}\n", params_text(params)));
+}
+
 fn render_text(d: &Diagnosis, file: &str) -> String {
     let mut out = String::new();
     out.push_str(&format!("{file}\n"));
-    out.push_str(&format!(
-        "baseline  {}: rms {} of the field ({} unknowns)\n",
-        d.baseline.model,
-        pct(d.baseline.rms),
-        d.baseline.unknowns
-    ));
-    out.push_str(&format!(
-        "noise floor  {} ({})\n\n",
-        pct(d.noise_floor.rms),
-        d.noise_floor.method
-    ));
-    for aside in &d.set_aside {
-        out.push_str(&format!("set aside  {}: {}\n", aside.column, aside.reason));
-    }
+    baseline_line(
+        &mut out,
+        &d.baseline.model,
+        d.baseline.rms,
+        d.baseline.unknowns,
+    );
+    floor_and_set_aside(&mut out, &d.noise_floor, &d.set_aside);
     if !d.set_aside.is_empty() {
         out.push('\n');
     }
@@ -221,19 +269,19 @@ fn render_text(d: &Diagnosis, file: &str) -> String {
     );
     out.push_str("ladder:\n");
     for (i, step) in d.ladder.iter().enumerate() {
-        let ratio = noise_ratio(step.rms, d.noise_floor.rms);
         let heading = step.heading_vs_gyro.as_ref().map_or(String::new(), |h| {
             format!(
                 "  heading {:.2}° rms, {:.2}° peak to peak against {}",
                 h.rms_deg, h.peak_to_peak_deg, h.gyro_column
             )
         });
-        out.push_str(&format!(
-            "  {i}. {:<40} rms {:>9}  ({ratio}){heading}\n",
-            step.model,
-            pct(step.rms)
-        ));
-        out.push_str(&format!("     {}\n", params_text(&step.params)));
+        ladder_step(
+            &mut out,
+            i,
+            (&step.model, step.rms, &step.params),
+            d.noise_floor.rms,
+            ("", &heading),
+        );
     }
     out.push_str(&format!("  noise floor {}\n\n", pct(d.noise_floor.rms)));
     out.push_str(&format!("{}\n", d.heading));
@@ -251,16 +299,7 @@ fn diagnose3(args: DiagnoseArgs, z: &str) -> Result<()> {
         );
     }
     let data = args.input.read3(z)?;
-    let baseline = parse_list(args.effects.as_deref().unwrap_or("paper"))
-        .map_err(anyhow::Error::msg)
-        .context("--effects")?;
-    for effect in &baseline {
-        if let Effect::Covariate(column) = effect
-            && data.covariate(column).is_none()
-        {
-            anyhow::bail!("--effects: {file}: the recording has no column '{column}'");
-        }
-    }
+    let baseline = baseline_effects(&args, &file, |column| data.covariate(column).is_some())?;
     let diagnosis =
         diagnose_3d(&data, &baseline).with_context(|| format!("{file}: no diagnosis"))?;
     let summary = render_text3(&diagnosis, &file, &data);
@@ -273,12 +312,7 @@ fn diagnose3(args: DiagnoseArgs, z: &str) -> Result<()> {
             fieldcal::report::diagnosis3::report3_data(&data, &diagnosis, &title, &summary)
                 .with_context(|| format!("{file}: cannot refit the models for the report"))?;
         let written = fieldcal::report::plots3::write_report3(dir, &report)?;
-        eprintln!(
-            "report: {} files in {}; open {}",
-            written.len(),
-            dir.display(),
-            dir.join(fieldcal::report::plots::INDEX_FILE).display()
-        );
+        announce_report(dir, &written);
     }
     let text = if args.json {
         serde_json::to_string(&Diagnosis3Json::new(&diagnosis, &file, &data))? + "\n"
@@ -360,12 +394,12 @@ fn render_text3(d: &Diagnosis3, file: &str, data: &fieldcal::sample::Dataset3) -
         "{file}\naxes  x = {}, y = {}, z = {} (3-D)\n",
         data.x_name, data.y_name, data.z_name
     );
-    out.push_str(&format!(
-        "baseline  {}: rms {} of the field ({} unknowns)\n",
-        d.baseline.model,
-        pct(d.baseline.rms),
-        d.baseline.unknowns
-    ));
+    baseline_line(
+        &mut out,
+        &d.baseline.model,
+        d.baseline.rms,
+        d.baseline.unknowns,
+    );
     if let Some(note) = &d.baseline_note {
         out.push_str(&format!("           {note}\n"));
     }
@@ -376,14 +410,7 @@ fn render_text3(d: &Diagnosis3, file: &str, data: &fieldcal::sample::Dataset3) -
         d.coverage.regions,
         d.coverage.missing_text()
     ));
-    out.push_str(&format!(
-        "noise floor  {} ({})\n\n",
-        pct(d.noise_floor.rms),
-        d.noise_floor.method
-    ));
-    for aside in &d.set_aside {
-        out.push_str(&format!("set aside  {}: {}\n", aside.column, aside.reason));
-    }
+    floor_and_set_aside(&mut out, &d.noise_floor, &d.set_aside);
     for n in &d.not_determined {
         out.push_str(&format!("not determined  {}: {}\n", n.effect, n.reason));
     }
@@ -402,18 +429,18 @@ fn render_text3(d: &Diagnosis3, file: &str, data: &fieldcal::sample::Dataset3) -
     );
     out.push_str("ladder:\n");
     for (i, step) in d.ladder.iter().enumerate() {
-        let ratio = noise_ratio(step.rms, d.noise_floor.rms);
         let flagged = if step.flagged > 0 {
             format!(", {} flagged", step.flagged)
         } else {
             String::new()
         };
-        out.push_str(&format!(
-            "  {i}. {:<40} rms {:>9}  ({ratio}{flagged})\n",
-            step.model,
-            pct(step.rms)
-        ));
-        out.push_str(&format!("     {}\n", params_text(&step.params)));
+        ladder_step(
+            &mut out,
+            i,
+            (&step.model, step.rms, &step.params),
+            d.noise_floor.rms,
+            (&flagged, ""),
+        );
     }
     out.push_str(&format!("  noise floor {}\n\n", pct(d.noise_floor.rms)));
     out.push_str(&format!("verdict: {}\n", d.verdict));
