@@ -23,7 +23,7 @@ use super::chart::{
     BEFORE, DrawError, FAMILY, FIT, FLOOR, FrameLayout, Svg, Thinning, before_and_after,
     draw_sized as draw, ensure_font, floor_band, legend_sized, write_figures,
 };
-use super::html::escape;
+use super::html::{PAGE3, render_page};
 use super::plots::{Figure, ReportError};
 use super::scale::{equal_aspect, residual_scale, span};
 use crate::model::sphere;
@@ -187,22 +187,7 @@ pub fn write_report3(dir: &Path, data: &Report3Data) -> Result<Vec<PathBuf>, Rep
 }
 
 fn index(data: &Report3Data, figures: &[Figure]) -> String {
-    let title = escape(&data.title);
-    let mut html = format!(
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>fieldcal report: {title}</title>\n<style>\nbody {{ font-family: sans-serif; margin: 2em auto; max-width: 1240px; padding: 0 1em; color: #222; overflow-wrap: anywhere; }}\n.summary {{ background: #f6f6f6; border-left: 4px solid #1f77b4; padding: 0.5em 1em; }}\n.summary pre {{ white-space: pre-wrap; overflow-wrap: anywhere; font-size: 0.85em; }}\n.summary pre .line {{ display: block; min-height: 1.35em; padding-left: 4ch; text-indent: -4ch; }}\nfigure img {{ max-width: 100%; height: auto; border: 1px solid #ddd; }}\nfigcaption {{ color: #444; font-size: 0.95em; }}\n</style>\n</head>\n<body>\n<h1>fieldcal report: {title}</h1>\n<section class=\"summary\">\n{}\n</section>\n",
-        data.summary_html
-    );
-    for f in figures {
-        html.push_str(&format!(
-            "<h2 id=\"{id}\">{t}</h2>\n<figure>\n<img src=\"{file}\" alt=\"{t}\">\n<figcaption>{c}</figcaption>\n</figure>\n",
-            id = escape(f.file.trim_end_matches(".svg")),
-            t = escape(&f.title),
-            file = escape(&f.file),
-            c = escape(&f.caption)
-        ));
-    }
-    html.push_str("<footer>Written by fieldcal. Residuals are |s|/r − 1, the magnitude error of a calibrated sample as a fraction of the field.</footer>\n</body>\n</html>\n");
-    html
+    render_page(&PAGE3, &data.title, &data.summary_html, figures)
 }
 
 /// Diverging colour: blue (−1) through white (0) to red (+1).
