@@ -630,8 +630,7 @@ impl SimSensor {
         &self,
         wire: &FalconWire,
     ) -> Result<(crate::capture::CaptureHeader, Vec<crate::capture::Chunk>), WireError> {
-        use crate::capture::{CaptureHeader, Chunk, StreamInfo, StreamKind};
-        use crate::protocol::falcon::{BAUD, FalconFrame};
+        use crate::protocol::falcon::FalconFrame;
 
         self.check_capture(wire)?;
         let data = self.simulate()?;
@@ -643,66 +642,90 @@ impl SimSensor {
                 Err(WireError::OutOfRange { index, value })
             }
         };
-        // A separate stream of randomness, so adding garbage does not change
-        // the sensor's noise.
-        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ 0x0067_6172_6261_6765);
         // The true turn rate, in the frame's gyro scale, about z.
         let rate_counts = (360.0 / self.turn_seconds * crate::protocol::falcon::RATE_LSB_PER_DEG_S)
             .round() as i16;
         let t = data.t.as_deref().unwrap_or(&[]);
-        let mut chunks = Vec::with_capacity(data.len());
-        let mut debt = 0.0f64;
-        for i in 0..data.len() {
-            let frame = FalconFrame {
-                mag: [to_counts(i, data.x[i])?, to_counts(i, data.y[i])?, 200],
-                accel: [0, 0, wire.gravity_counts],
-                rate: [0, 0, rate_counts],
-                timer: (i as u64 * wire.ticks_per_frame as u64 % 65_536) as u16,
-            };
-            let mut bytes = frame.encode().to_vec();
-            if wire.garbage > 0.0 {
-                // Garbage bytes make up `garbage` of the stream on average;
-                // the fractional remainder carries over so small rates still
-                // produce some garbage.
-                debt += wire.garbage / (1.0 - wire.garbage).max(1e-9)
-                    * 23.0
-                    * 2.0
-                    * rng.random::<f64>();
-                let burst = debt.floor() as usize;
-                debt -= burst as f64;
-                let mut junk: Vec<u8> = (0..burst).map(|_| rng.random::<u8>()).collect();
-                junk.extend_from_slice(&bytes);
-                bytes = junk;
-            }
-            chunks.push(Chunk {
-                time: t.get(i).copied().unwrap_or(i as f64 * self.period),
-                stream: 0,
-                bytes,
-            });
-        }
-        let header = CaptureHeader {
-            version: crate::capture::VERSION,
-            streams: vec![StreamInfo {
-                id: 0,
-                kind: StreamKind::Falcon,
-            }],
-            port: None,
-            baud: Some(BAUD),
-            started_unix: 0.0,
-            nominal_period_s: self.period,
-            note: Some(format!(
-                "simulated: field {} gains {} {} offsets {} {} noise {} seed {}",
-                self.field,
-                self.gain_x,
-                self.gain_y,
-                self.offset_x,
-                self.offset_y,
-                self.noise,
-                self.seed
-            )),
-        };
-        Ok((header, chunks))
+        let frames = (0..data.len())
+            .map(|i| {
+                let frame = FalconFrame {
+                    mag: [to_counts(i, data.x[i])?, to_counts(i, data.y[i])?, 200],
+                    accel: [0, 0, wire.gravity_counts],
+                    rate: [0, 0, rate_counts],
+                    timer: (i as u64 * wire.ticks_per_frame as u64 % 65_536) as u16,
+                };
+                Ok((t.get(i).copied().unwrap_or(i as f64 * self.period), frame))
+            })
+            .collect::<Result<Vec<_>, WireError>>()?;
+        let note = format!(
+            "simulated: field {} gains {} {} offsets {} {} noise {} seed {}",
+            self.field,
+            self.gain_x,
+            self.gain_y,
+            self.offset_x,
+            self.offset_y,
+            self.noise,
+            self.seed
+        );
+        Ok(pack_falcon(
+            &frames,
+            wire.garbage,
+            self.seed,
+            self.period,
+            note,
+        ))
     }
+}
+
+/// A one-stream Falcon capture of `frames` (time, frame), with random
+/// bytes making up `garbage` of the stream on average before the frames.
+/// The garbage draws on its own stream of randomness (from `seed`), so
+/// adding it does not change a sensor's noise.
+pub(crate) fn pack_falcon(
+    frames: &[(f64, crate::protocol::falcon::FalconFrame)],
+    garbage: f64,
+    seed: u64,
+    period: f64,
+    note: String,
+) -> (crate::capture::CaptureHeader, Vec<crate::capture::Chunk>) {
+    use crate::capture::{CaptureHeader, Chunk, StreamInfo, StreamKind};
+    use crate::protocol::falcon::{BAUD, FRAME_LEN};
+
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0067_6172_6261_6765);
+    let mut chunks = Vec::with_capacity(frames.len());
+    let mut debt = 0.0f64;
+    for (time, frame) in frames {
+        let mut bytes = frame.encode().to_vec();
+        if garbage > 0.0 {
+            // The fractional remainder carries over so small rates still
+            // produce some garbage.
+            debt +=
+                garbage / (1.0 - garbage).max(1e-9) * FRAME_LEN as f64 * 2.0 * rng.random::<f64>();
+            let burst = debt.floor() as usize;
+            debt -= burst as f64;
+            let mut junk: Vec<u8> = (0..burst).map(|_| rng.random::<u8>()).collect();
+            junk.extend_from_slice(&bytes);
+            bytes = junk;
+        }
+        chunks.push(Chunk {
+            time: *time,
+            stream: 0,
+            bytes,
+        });
+    }
+    let header = CaptureHeader {
+        version: crate::capture::VERSION,
+        streams: vec![StreamInfo {
+            id: 0,
+            kind: StreamKind::Falcon,
+        }],
+        port: None,
+        baud: Some(BAUD),
+        started_unix: 0.0,
+        nominal_period_s: period,
+        note: Some(note),
+    };
+    (header, chunks)
 }
 
 #[cfg(test)]

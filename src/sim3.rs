@@ -147,12 +147,7 @@ impl SimSensor3 {
             } => {
                 let inc = inclination_deg.to_radians();
                 let tilt = tilt_deg.to_radians();
-                // The wobble: tilt about x and y at incommensurate rates.
-                let (fa, fb) = (1.7, 2.9);
-                let (pa, pb) = (
-                    std::f64::consts::TAU * rng.random::<f64>(),
-                    std::f64::consts::TAU * rng.random::<f64>(),
-                );
+                let wobble = Wobble::new(&mut rng, turns, tilt);
                 for i in 0..n {
                     let s = i as f64 / n.max(1) as f64;
                     let phi = std::f64::consts::TAU * turns * s;
@@ -160,8 +155,7 @@ impl SimSensor3 {
                     // about its z axis and tilts.
                     let world = Vector3::new(inc.cos(), 0.0, inc.sin());
                     let yaw = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), -phi);
-                    let ta = tilt * (fa * std::f64::consts::TAU * turns * s + pa).sin();
-                    let tb = tilt * (fb * std::f64::consts::TAU * turns * s + pb).sin();
+                    let (ta, tb) = wobble.at(s);
                     let wob = nalgebra::Rotation3::from_euler_angles(ta, tb, 0.0);
                     out.push((wob * yaw * world).into());
                 }
@@ -475,16 +469,11 @@ impl SimImu3 {
             }
             ImuMotion::WobblingTurn { turns, tilt_deg } => {
                 let tilt = tilt_deg.to_radians();
-                let (fa, fb) = (1.7, 2.9);
-                let (pa, pb) = (
-                    std::f64::consts::TAU * rng.random::<f64>(),
-                    std::f64::consts::TAU * rng.random::<f64>(),
-                );
+                let wobble = Wobble::new(&mut rng, turns, tilt);
                 for i in 0..n {
                     let s = i as f64 / n.max(1) as f64;
                     let psi = std::f64::consts::TAU * turns * s;
-                    let roll = tilt * (fa * std::f64::consts::TAU * turns * s + pa).sin();
-                    let pitch = tilt * (fb * std::f64::consts::TAU * turns * s + pb).sin();
+                    let (roll, pitch) = wobble.at(s);
                     // Heading ψ clockwise seen from above: −ψ about up.
                     let yaw = Rotation3::from_axis_angle(&Vector3::z_axis(), -psi);
                     let wob = Rotation3::from_axis_angle(&Vector3::x_axis(), roll)
@@ -669,8 +658,7 @@ impl SimImu3 {
         garbage: f64,
         ticks_per_frame: u16,
     ) -> Result<(crate::capture::CaptureHeader, Vec<crate::capture::Chunk>), Wire3Error> {
-        use crate::capture::{CaptureHeader, Chunk, StreamInfo, StreamKind};
-        use crate::protocol::falcon::{BAUD, FRAME_LEN, FalconFrame, RATE_LSB_PER_DEG_S};
+        use crate::protocol::falcon::{FalconFrame, RATE_LSB_PER_DEG_S};
 
         self.check_capture(garbage)?;
         let samples = self.simulate()?;
@@ -687,60 +675,70 @@ impl SimImu3 {
                 }
                 Ok(out)
             };
-        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ 0x0067_6172_6261_6765);
-        let mut chunks = Vec::with_capacity(samples.len());
-        let mut debt = 0.0f64;
-        for (i, s) in samples.iter().enumerate() {
-            let frame = FalconFrame {
-                mag: counts(i, "magnetometer", s.mag)?,
-                accel: counts(i, "accelerometer", s.accel)?,
-                rate: counts(i, "gyro", s.gyro.map(|g| g * RATE_LSB_PER_DEG_S))?,
-                timer: (i as u64 * u64::from(ticks_per_frame) % 65_536) as u16,
-            };
-            let mut bytes = frame.encode().to_vec();
-            if garbage > 0.0 {
-                debt += garbage / (1.0 - garbage).max(1e-9)
-                    * FRAME_LEN as f64
-                    * 2.0
-                    * rng.random::<f64>();
-                let burst = debt.floor() as usize;
-                debt -= burst as f64;
-                let mut junk: Vec<u8> = (0..burst).map(|_| rng.random::<u8>()).collect();
-                junk.extend_from_slice(&bytes);
-                bytes = junk;
-            }
-            chunks.push(Chunk {
-                time: s.t,
-                stream: 0,
-                bytes,
-            });
+        let frames = samples
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let frame = FalconFrame {
+                    mag: counts(i, "magnetometer", s.mag)?,
+                    accel: counts(i, "accelerometer", s.accel)?,
+                    rate: counts(i, "gyro", s.gyro.map(|g| g * RATE_LSB_PER_DEG_S))?,
+                    timer: (i as u64 * u64::from(ticks_per_frame) % 65_536) as u16,
+                };
+                Ok((s.t, frame))
+            })
+            .collect::<Result<Vec<_>, Wire3Error>>()?;
+        let note = format!(
+            "simulated IMU: field {} inclination {} gravity {} mag W {:?} o {:?} noise {}; accel W {:?} o {:?} noise {}; {:?}; seed {}",
+            self.field,
+            self.inclination_deg,
+            self.gravity,
+            self.mag.matrix,
+            self.mag.offset,
+            self.mag.noise,
+            self.accel.matrix,
+            self.accel.offset,
+            self.accel.noise,
+            self.motion,
+            self.seed
+        );
+        Ok(crate::sim::pack_falcon(
+            &frames,
+            garbage,
+            self.seed,
+            self.period,
+            note,
+        ))
+    }
+}
+
+/// A turn's wobble: tilts about two axes at incommensurate rates (1.7 and
+/// 2.9 times the turn's) with random phases.
+struct Wobble {
+    turns: f64,
+    tilt: f64,
+    phases: (f64, f64),
+}
+
+impl Wobble {
+    fn new(rng: &mut ChaCha8Rng, turns: f64, tilt: f64) -> Self {
+        let pa = std::f64::consts::TAU * rng.random::<f64>();
+        let pb = std::f64::consts::TAU * rng.random::<f64>();
+        Wobble {
+            turns,
+            tilt,
+            phases: (pa, pb),
         }
-        let header = CaptureHeader {
-            version: crate::capture::VERSION,
-            streams: vec![StreamInfo {
-                id: 0,
-                kind: StreamKind::Falcon,
-            }],
-            port: None,
-            baud: Some(BAUD),
-            started_unix: 0.0,
-            nominal_period_s: self.period,
-            note: Some(format!(
-                "simulated IMU: field {} inclination {} gravity {} mag W {:?} o {:?} noise {}; accel W {:?} o {:?} noise {}; {:?}; seed {}",
-                self.field,
-                self.inclination_deg,
-                self.gravity,
-                self.mag.matrix,
-                self.mag.offset,
-                self.mag.noise,
-                self.accel.matrix,
-                self.accel.offset,
-                self.accel.noise,
-                self.motion,
-                self.seed
-            )),
-        };
-        Ok((header, chunks))
+    }
+
+    /// The two tilts, radians, at fraction `s` of the recording.
+    fn at(&self, s: f64) -> (f64, f64) {
+        use std::f64::consts::TAU;
+        // In this order, so a seed gives the same recording as before.
+        (
+            self.tilt * (1.7 * TAU * self.turns * s + self.phases.0).sin(),
+            self.tilt * (2.9 * TAU * self.turns * s + self.phases.1).sin(),
+        )
     }
 }
 

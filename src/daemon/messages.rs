@@ -136,7 +136,7 @@ pub struct CalibrationMessage<'a> {
     /// The fitted model's heading against the integrated gyro of the
     /// sensor's source, when a check was possible.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub heading_vs_gyro: Option<HeadingVsGyro>,
+    pub heading_vs_gyro: Option<HeadingCheck>,
     /// Why the heading could not be checked against a gyro, when a model
     /// was fitted but no check was possible.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -152,55 +152,25 @@ pub struct CalibrationMessage<'a> {
     pub declination_uncertainty_deg: Option<f64>,
 }
 
-/// A rotation's heading error against the integrated gyro: the gyro's
-/// scale, sign and bias fitted over the rotation, the rest is the model's.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct HeadingVsGyro {
-    /// Which gyro axis, such as `gyro_z`.
-    pub gyro_column: String,
-    /// Root mean square of the heading error, degrees.
-    pub rms_deg: f64,
-    /// Largest minus smallest heading error, degrees.
-    pub peak_to_peak_deg: f64,
-    /// Samples compared.
-    pub n: usize,
-    /// Fitted factor from the integrated gyro angle to heading (its sign
-    /// says which way the gyro axis points).
-    pub gyro_scale: f64,
-    /// Fitted gyro bias, degrees/second.
-    pub gyro_bias_deg_s: f64,
-}
-
-impl From<&HeadingCheck> for HeadingVsGyro {
-    fn from(c: &HeadingCheck) -> Self {
-        HeadingVsGyro {
-            gyro_column: c.gyro_column.clone(),
-            rms_deg: c.rms_deg,
-            peak_to_peak_deg: c.peak_to_peak_deg,
-            n: c.n,
-            gyro_scale: c.gyro_scale,
-            gyro_bias_deg_s: c.gyro_bias_deg_s,
-        }
-    }
-}
-
 impl<'a> CalibrationMessage<'a> {
-    pub fn loaded(calibration: &'a Calibration) -> Self {
+    /// A rejected fit of `model` for `sensor` with nothing else known: the
+    /// start of every message.
+    pub fn rejected(sensor: &'a str, model: &'a str, reason: Option<String>) -> Self {
         CalibrationMessage {
             class: "CALIBRATION",
-            sensor: &calibration.sensor,
-            accepted: true,
-            id: Some(calibration.id),
-            reason: None,
-            model: &calibration.model,
-            params: Some(calibration.params),
-            rms: Some(calibration.rms),
-            coverage_deg: calibration.coverage_deg,
-            n: calibration.n,
+            sensor,
+            accepted: false,
+            id: None,
+            reason,
+            model,
+            params: None,
+            rms: None,
+            coverage_deg: 0.0,
+            n: 0,
             fit_ms: 0.0,
-            time: calibration.time,
-            origin: "state",
-            terms: (!calibration.terms.is_none()).then_some(calibration.terms),
+            time: 0.0,
+            origin: "rotation",
+            terms: None,
             noise_floor: None,
             suggested: None,
             close_second: None,
@@ -209,6 +179,21 @@ impl<'a> CalibrationMessage<'a> {
             declination_deg: None,
             declination_source: None,
             declination_uncertainty_deg: None,
+        }
+    }
+
+    pub fn loaded(calibration: &'a Calibration) -> Self {
+        CalibrationMessage {
+            accepted: true,
+            id: Some(calibration.id),
+            params: Some(calibration.params),
+            rms: Some(calibration.rms),
+            coverage_deg: calibration.coverage_deg,
+            n: calibration.n,
+            time: calibration.time,
+            origin: "state",
+            terms: (!calibration.terms.is_none()).then_some(calibration.terms),
+            ..Self::rejected(&calibration.sensor, &calibration.model, None)
         }
     }
 

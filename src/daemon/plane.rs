@@ -16,15 +16,16 @@ use super::acceptance::{self, Limits};
 use super::config::{Axis, Field, GyroChoice, SensorConfig};
 use super::lifecycle::Lifecycle;
 use super::messages::{
-    CalibrationEvent, CalibrationMessage, ColumnValues, HeadingVsGyro, ReadingMessage, to_line,
+    CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, to_line,
 };
 use super::publish::Lane;
-use super::sensor::Emitter;
+use super::sensor::{Emitter, Geometry};
 use super::{Calibration, Terms};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::model::diagnose::diagnose;
 use crate::model::effects::{Effect, parse_list};
 use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper};
+use crate::model::gyro::HeadingCheck;
 use crate::model::gyro::{GyroUnits, HeadingReference};
 use crate::model::heading::coverage;
 use crate::model::nonlinear::{cubic_scale, fit_model, turn_frame};
@@ -175,7 +176,7 @@ impl GyroTrack {
     /// The heading check of a rotation: samples at times `t` whose model
     /// headings are `headings_rad`. Uses the rates from the last one at or
     /// before the rotation's first sample to the first at or after its last.
-    fn check(&self, t: &[f64], headings_rad: &[f64]) -> Result<HeadingVsGyro, String> {
+    fn check(&self, t: &[f64], headings_rad: &[f64]) -> Result<HeadingCheck, String> {
         let (Some(&first), Some(&last)) = (t.first(), t.last()) else {
             return Err("no samples to check".into());
         };
@@ -193,7 +194,7 @@ impl GyroTrack {
         let check = reference
             .check(headings_rad, &[])
             .map_err(|e| e.to_string())?;
-        Ok(HeadingVsGyro::from(&check))
+        Ok(check)
     }
 }
 
@@ -218,109 +219,6 @@ impl Plane {
         }
     }
 
-    /// The `CALIBRATION` line of the calibration loaded from the state
-    /// directory, if any, with its outcome for the progress board.
-    pub fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
-        life.current.as_ref().map(|c| {
-            let message = CalibrationMessage::loaded(c).with_north(self.config.north.as_ref());
-            (to_line(&message), message.event())
-        })
-    }
-
-    /// Resolves a csv sensor's columns against the headers of the files
-    /// its source plays (`files[k]` has `layouts[k]`; one file, or several
-    /// on one clock), once before the first row: all its columns must be in
-    /// one file. Returns the (file, column) pairs it needs a number in, for
-    /// the source to skip rows without. A sensor of another source needs
-    /// none.
-    pub fn bind_csv(
-        &mut self,
-        layouts: &[Arc<CsvLayout>],
-        files: &[std::path::PathBuf],
-    ) -> Result<Vec<(usize, usize)>, CsvError> {
-        let refs: Vec<&CsvLayout> = layouts.iter().map(Arc::as_ref).collect();
-        let Some(columns) = &self.config.columns else {
-            return Ok(Vec::new());
-        };
-        let mut names = vec![
-            (columns[0].as_str(), "the sensor's x axis"),
-            (columns[1].as_str(), "the sensor's y axis"),
-        ];
-        if let GyroChoice::Column { name, .. } = &self.config.gyro {
-            names.push((name.as_str(), "the sensor's gyro"));
-        }
-        let (file, found) = crate::source::csv::locate_columns(files, &refs, &names)?;
-        let Some(layout) = layouts.get(file) else {
-            return Ok(Vec::new());
-        };
-        let axes = [found[0], found[1]];
-        let gyro = found.get(2).copied();
-        let others = (0..layout.names.len())
-            .filter(|i| !axes.contains(i) && Some(*i) != layout.time_index())
-            .collect();
-        let required = found.iter().map(|&i| (file, i)).collect();
-        self.csv = Some(CsvBinding {
-            file,
-            layout: layout.clone(),
-            axes,
-            gyro,
-            others,
-        });
-        Ok(required)
-    }
-
-    /// Handles one row of the sensor's csv source, as
-    /// [`Sensor::on_reading`] a reading: the row's other columns travel
-    /// with the published reading. A sensor not bound to a csv source, a
-    /// row of another file of the source, or a row without numbers in its
-    /// axes, is ignored.
-    pub fn on_row(
-        &mut self,
-        life: &mut Lifecycle,
-        row: &CsvRow,
-        emit: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
-        let binding = self.csv.as_ref()?;
-        if row.file != binding.file {
-            return None;
-        }
-        let (x, y) = (
-            *row.values.get(binding.axes[0])?,
-            *row.values.get(binding.axes[1])?,
-        );
-        if !(x.is_finite() && y.is_finite()) {
-            return None;
-        }
-        if life.collecting()
-            && let (Some(gyro), Some(i)) = (&mut self.gyro, binding.gyro)
-            && let Some(&rate) = row.values.get(i)
-        {
-            gyro.keep_value(row.time, rate);
-        }
-        life.readings += 1;
-        let columns = ColumnValues {
-            names: &binding.layout.names,
-            indices: &binding.others,
-            values: &row.values,
-        };
-        let line = self.reading_line(life, row.time, x, y, Some(columns));
-        emit.line(Lane::Reading, line);
-        self.collect(life, row.time, x, y, emit)
-    }
-
-    /// Takes a new true north (a reload that changed only
-    /// `declination_deg` or the location): the calibration and the
-    /// rotation being collected are kept.
-    pub fn set_north(&mut self, north: Option<super::north::North>) {
-        self.config.north = north;
-    }
-
-    /// Whether a reading from `stream` of the sensor's source belongs to it
-    /// (its own stream, or the stream of the gyro its heading is checked by).
-    pub fn wants(&self, stream: u8) -> bool {
-        self.config.stream == stream || self.gyro.as_ref().is_some_and(|g| g.stream == stream)
-    }
-
     /// The two turning axes of a reading, if it carries the sensor's field.
     pub fn axes_of(&self, reading: &Reading) -> Option<(f64, f64)> {
         axes_of(&self.config, reading)
@@ -332,33 +230,6 @@ impl Plane {
         if let Some(gyro) = &mut self.gyro {
             gyro.clear();
         }
-    }
-
-    /// Handles one reading: publishes it (corrected when a calibration
-    /// exists), feeds the rotation buffer while collecting, and fits when the
-    /// rotation is complete. Returns a newly accepted calibration, to store.
-    pub fn on_reading(
-        &mut self,
-        life: &mut Lifecycle,
-        reading: &Reading,
-        emit: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
-        if life.collecting()
-            && let Some(gyro) = &mut self.gyro
-        {
-            gyro.keep(reading);
-        }
-        if reading.stream != self.config.stream {
-            // Only the gyro of another chip: kept above, nothing to publish.
-            return None;
-        }
-        let (x, y) = self.axes_of(reading)?;
-        life.readings += 1;
-        emit.line(
-            Lane::Reading,
-            self.reading_line(life, reading.time, x, y, None),
-        );
-        self.collect(life, reading.time, x, y, emit)
     }
 
     /// Feeds a published sample to the rotation buffer while collecting,
@@ -532,7 +403,7 @@ impl Plane {
         rotation: &Dataset,
         report: &FitReport,
         terms: &Terms,
-    ) -> Result<HeadingVsGyro, String> {
+    ) -> Result<HeadingCheck, String> {
         let Some(gyro) = &mut self.gyro else {
             return Err(match &self.config.gyro {
                 GyroChoice::Off(why) => why.clone(),
@@ -652,28 +523,11 @@ impl Plane {
         fit_ms: f64,
     ) -> CalibrationMessage<'_> {
         CalibrationMessage {
-            class: "CALIBRATION",
-            sensor: &self.config.name,
-            accepted: false,
-            id: None,
-            reason: Some(reason.to_string()),
-            model: &self.model,
-            params: None,
-            rms: None,
             coverage_deg,
             n,
             fit_ms,
             time,
-            origin: "rotation",
-            terms: None,
-            noise_floor: None,
-            suggested: None,
-            close_second: None,
-            heading_vs_gyro: None,
-            heading_check: None,
-            declination_deg: None,
-            declination_source: None,
-            declination_uncertainty_deg: None,
+            ..CalibrationMessage::rejected(&self.config.name, &self.model, Some(reason.to_string()))
         }
         .with_north(self.config.north.as_ref())
     }
@@ -687,6 +541,121 @@ impl Plane {
     /// Progress of the rotation being collected.
     pub fn progress(&self) -> Progress {
         self.buffer.progress()
+    }
+}
+
+impl Geometry for Plane {
+    fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
+        life.current.as_ref().map(|c| {
+            let message = CalibrationMessage::loaded(c).with_north(self.config.north.as_ref());
+            (to_line(&message), message.event())
+        })
+    }
+    fn bind_csv(
+        &mut self,
+        layouts: &[Arc<CsvLayout>],
+        files: &[std::path::PathBuf],
+    ) -> Result<Vec<(usize, usize)>, CsvError> {
+        let refs: Vec<&CsvLayout> = layouts.iter().map(Arc::as_ref).collect();
+        let Some(columns) = &self.config.columns else {
+            return Ok(Vec::new());
+        };
+        let mut names = vec![
+            (columns[0].as_str(), "the sensor's x axis"),
+            (columns[1].as_str(), "the sensor's y axis"),
+        ];
+        if let GyroChoice::Column { name, .. } = &self.config.gyro {
+            names.push((name.as_str(), "the sensor's gyro"));
+        }
+        let (file, found) = crate::source::csv::locate_columns(files, &refs, &names)?;
+        let Some(layout) = layouts.get(file) else {
+            return Ok(Vec::new());
+        };
+        let axes = [found[0], found[1]];
+        let gyro = found.get(2).copied();
+        let others = (0..layout.names.len())
+            .filter(|i| !axes.contains(i) && Some(*i) != layout.time_index())
+            .collect();
+        let required = found.iter().map(|&i| (file, i)).collect();
+        self.csv = Some(CsvBinding {
+            file,
+            layout: layout.clone(),
+            axes,
+            gyro,
+            others,
+        });
+        Ok(required)
+    }
+    fn on_row(
+        &mut self,
+        life: &mut Lifecycle,
+        row: &CsvRow,
+        emit: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
+        let binding = self.csv.as_ref()?;
+        if row.file != binding.file {
+            return None;
+        }
+        let (x, y) = (
+            *row.values.get(binding.axes[0])?,
+            *row.values.get(binding.axes[1])?,
+        );
+        if !(x.is_finite() && y.is_finite()) {
+            return None;
+        }
+        if life.collecting()
+            && let (Some(gyro), Some(i)) = (&mut self.gyro, binding.gyro)
+            && let Some(&rate) = row.values.get(i)
+        {
+            gyro.keep_value(row.time, rate);
+        }
+        life.readings += 1;
+        let columns = ColumnValues {
+            names: &binding.layout.names,
+            indices: &binding.others,
+            values: &row.values,
+        };
+        let line = self.reading_line(life, row.time, x, y, Some(columns));
+        emit.line(Lane::Reading, line);
+        self.collect(life, row.time, x, y, emit)
+    }
+    fn set_north(&mut self, north: Option<super::north::North>) {
+        self.config.north = north;
+    }
+    fn wants(&self, stream: u8) -> bool {
+        self.config.stream == stream || self.gyro.as_ref().is_some_and(|g| g.stream == stream)
+    }
+    fn on_reading(
+        &mut self,
+        life: &mut Lifecycle,
+        reading: &Reading,
+        emit: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
+        if life.collecting()
+            && let Some(gyro) = &mut self.gyro
+        {
+            gyro.keep(reading);
+        }
+        if reading.stream != self.config.stream {
+            // Only the gyro of another chip: kept above, nothing to publish.
+            return None;
+        }
+        let (x, y) = self.axes_of(reading)?;
+        life.readings += 1;
+        emit.line(
+            Lane::Reading,
+            self.reading_line(life, reading.time, x, y, None),
+        );
+        self.collect(life, reading.time, x, y, emit)
+    }
+    fn restart(&mut self) {
+        self.recalibrate();
+    }
+    fn rotation(&self) -> Option<Progress> {
+        Some(self.progress())
+    }
+    fn as_plane(&self) -> Option<&Plane> {
+        Some(self)
     }
 }
 

@@ -20,14 +20,16 @@ use super::lifecycle::Lifecycle;
 use super::messages::{CalibrationEvent, as_published, to_line};
 use super::north::{Earth, MeasuredDip, North, earth};
 use super::publish::Lane;
-use super::sensor::Emitter;
+use super::sensor::{Emitter, Geometry};
 use super::{Calibration, Ellipsoid3Params};
+use crate::io::csv::{CsvError, CsvLayout};
 use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
 use crate::model::paper::PaperCalibration;
 use crate::model::sphere::SphereCoverage;
 use crate::model::sphere_buffer::SphereBuffer;
 use crate::model::tilt::{inclination_deg, robust_spread, tilt_heading_or_why};
 use crate::sample::Reading;
+use std::sync::Arc;
 
 // The sphere buffer's settings and progress, at the paths they had before
 // the buffer moved to [`crate::model::sphere_buffer`].
@@ -424,15 +426,6 @@ impl Sensor3 {
         self.tilt_calibration = calibration.filter(|c| c.ellipsoid.is_some()).cloned();
     }
 
-    pub fn wants(&self, stream: u8) -> bool {
-        self.stream == stream
-            || self
-                .config
-                .tilt
-                .as_ref()
-                .is_some_and(|t| t.stream == stream)
-    }
-
     /// Takes over what the same sensor earned under the settings before a
     /// reload beyond its [`Lifecycle`]: its tilt source's calibration and
     /// the count of stale headings.
@@ -440,11 +433,6 @@ impl Sensor3 {
         self.tilt_calibration = old.tilt_calibration.clone();
         self.headings_stale = old.headings_stale;
         self.recalibrate();
-    }
-
-    /// Takes a new true north; keeps the calibration and the buffer.
-    pub fn set_north(&mut self, north: Option<North>) {
-        self.north = north;
     }
 
     /// Starts a new buffer (the [`Lifecycle`] restarts beside it).
@@ -461,115 +449,6 @@ impl Sensor3 {
     /// accelerometer's latest reading was older than [`MAX_TILT_AGE_S`].
     pub fn headings_stale(&self) -> u64 {
         self.headings_stale
-    }
-
-    /// Resolves a csv sensor's columns (and its tilt source's) against the
-    /// headers of its source's files (`files[k]` has `layouts[k]`). Returns
-    /// the (file, column) pairs it needs numbers in.
-    pub fn bind_csv(
-        &mut self,
-        files: &[std::path::PathBuf],
-        layouts: &[&crate::io::csv::CsvLayout],
-    ) -> Result<Vec<(usize, usize)>, crate::io::csv::CsvError> {
-        use crate::source::csv::locate_columns;
-        let Some(columns) = &self.config.columns else {
-            return Ok(Vec::new());
-        };
-        let roles = [
-            "the sensor's x axis",
-            "the sensor's y axis",
-            "the sensor's z axis",
-        ];
-        let names: Vec<(&str, &'static str)> = columns
-            .iter()
-            .zip(roles)
-            .map(|(c, r)| (c.as_str(), r))
-            .collect();
-        let (file, own) = locate_columns(files, layouts, &names)?;
-        let own = (file, [own[0], own[1], own[2]]);
-        let mut required: Vec<(usize, usize)> = own.1.iter().map(|&i| (file, i)).collect();
-        let tilt = match self.config.tilt.as_ref().and_then(|t| t.columns.as_ref()) {
-            None => None,
-            Some(columns) => {
-                let roles = [
-                    "the tilt source's x axis",
-                    "the tilt source's y axis",
-                    "the tilt source's z axis",
-                ];
-                let names: Vec<(&str, &'static str)> = columns
-                    .iter()
-                    .zip(roles)
-                    .map(|(c, r)| (c.as_str(), r))
-                    .collect();
-                let (file, at) = locate_columns(files, layouts, &names)?;
-                required.extend(at.iter().map(|&i| (file, i)));
-                Some((file, [at[0], at[1], at[2]]))
-            }
-        };
-        self.csv = Some(Csv3Binding { own, tilt });
-        Ok(required)
-    }
-
-    /// Handles one row of the sensor's csv source as [`Sensor3::on_reading`]
-    /// a reading: a row of the tilt source's file updates the accelerometer
-    /// kept, a row of its own file is published and collected. Unbound, or
-    /// without numbers in its columns, the row is ignored.
-    pub fn on_row(
-        &mut self,
-        life: &mut Lifecycle,
-        row: &crate::io::csv::CsvRow,
-        emit: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
-        let binding = self.csv.as_ref()?;
-        let values = |at: [usize; 3]| -> Option<[f64; 3]> {
-            let v = [
-                *row.values.get(at[0])?,
-                *row.values.get(at[1])?,
-                *row.values.get(at[2])?,
-            ];
-            v.iter().all(|x| x.is_finite()).then_some(v)
-        };
-        if let Some((file, at)) = binding.tilt
-            && row.file == file
-            && let Some(accel) = values(at)
-        {
-            self.last_accel = Some((row.time, accel));
-        }
-        let (file, at) = binding.own;
-        if row.file != file {
-            return None;
-        }
-        let raw = values(at)?;
-        life.readings += 1;
-        let line = self.reading_line(life, row.time, raw);
-        emit.line(Lane::Reading, line);
-        self.collect(life, row.time, raw, emit)
-    }
-
-    /// Handles one reading: keeps the tilt source's accelerometer, and for
-    /// the sensor's own stream publishes the reading (corrected when
-    /// calibrated, with the tilt-compensated heading when it has a tilt
-    /// source) and collects. Returns a newly accepted calibration.
-    pub fn on_reading(
-        &mut self,
-        life: &mut Lifecycle,
-        reading: &Reading,
-        emit: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
-        if let Some(tilt) = &self.config.tilt
-            && reading.stream == tilt.stream
-            && let Some(triad) = reading.accel
-        {
-            self.last_accel = Some((reading.time, pick(triad, tilt.axes)));
-        }
-        if reading.stream != self.stream {
-            return None;
-        }
-        let raw = pick(field_of(reading, self.field)?, self.config.axes);
-        life.readings += 1;
-        let line = self.reading_line(life, reading.time, raw);
-        emit.line(Lane::Reading, line);
-        self.collect(life, reading.time, raw, emit)
     }
 
     fn reading_line(&mut self, life: &Lifecycle, time: f64, raw: [f64; 3]) -> String {
@@ -845,29 +724,6 @@ impl Sensor3 {
             .ok_or_else(|| "no fitted sample had a tilt accelerometer reading beside it".into())
     }
 
-    /// The `CALIBRATION` line of a calibration loaded from the state
-    /// directory, with its outcome for the progress board.
-    pub fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
-        let c = life.current.as_ref()?;
-        let earth = match (&self.north, &c.ellipsoid) {
-            (Some(north), Some(p)) if self.field == Field::Mag => earth(
-                north,
-                p.r,
-                self.config.lsb_per_unit,
-                Err(if self.config.tilt.is_some() {
-                    "it is measured over a fit's samples, and a calibration loaded from the \
-                     state directory has none"
-                        .into()
-                } else {
-                    "the sensor has no tilt accelerometer".into()
-                }),
-            ),
-            _ => None,
-        };
-        let message = self.message(c, None, 0.0, "state", earth);
-        Some((to_line(&message), Some(message.event())))
-    }
-
     #[allow(clippy::too_many_arguments)]
     fn reject(
         &mut self,
@@ -914,6 +770,157 @@ impl Sensor3 {
         // Collect anew; the previous calibration (if any) keeps correcting.
         self.buffer.rejected();
     }
+}
+
+impl Geometry for Sensor3 {
+    fn wants(&self, stream: u8) -> bool {
+        self.stream == stream
+            || self
+                .config
+                .tilt
+                .as_ref()
+                .is_some_and(|t| t.stream == stream)
+    }
+    fn set_north(&mut self, north: Option<North>) {
+        self.north = north;
+    }
+    fn bind_csv(
+        &mut self,
+        layouts: &[Arc<CsvLayout>],
+        files: &[std::path::PathBuf],
+    ) -> Result<Vec<(usize, usize)>, CsvError> {
+        let Some(columns) = &self.config.columns else {
+            return Ok(Vec::new());
+        };
+        let layouts: Vec<&CsvLayout> = layouts.iter().map(Arc::as_ref).collect();
+        let own = locate3(files, &layouts, columns, OWN_ROLES)?;
+        let tilt = match self.config.tilt.as_ref().and_then(|t| t.columns.as_ref()) {
+            None => None,
+            Some(columns) => Some(locate3(files, &layouts, columns, TILT_ROLES)?),
+        };
+        let required = [Some(own), tilt]
+            .into_iter()
+            .flatten()
+            .flat_map(|(file, at)| at.map(|i| (file, i)))
+            .collect();
+        self.csv = Some(Csv3Binding { own, tilt });
+        Ok(required)
+    }
+    fn on_row(
+        &mut self,
+        life: &mut Lifecycle,
+        row: &crate::io::csv::CsvRow,
+        emit: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
+        let binding = self.csv.as_ref()?;
+        let values = |at: [usize; 3]| -> Option<[f64; 3]> {
+            let v = [
+                *row.values.get(at[0])?,
+                *row.values.get(at[1])?,
+                *row.values.get(at[2])?,
+            ];
+            v.iter().all(|x| x.is_finite()).then_some(v)
+        };
+        if let Some((file, at)) = binding.tilt
+            && row.file == file
+            && let Some(accel) = values(at)
+        {
+            self.last_accel = Some((row.time, accel));
+        }
+        let (file, at) = binding.own;
+        if row.file != file {
+            return None;
+        }
+        let raw = values(at)?;
+        life.readings += 1;
+        let line = self.reading_line(life, row.time, raw);
+        emit.line(Lane::Reading, line);
+        self.collect(life, row.time, raw, emit)
+    }
+    fn on_reading(
+        &mut self,
+        life: &mut Lifecycle,
+        reading: &Reading,
+        emit: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
+        if let Some(tilt) = &self.config.tilt
+            && reading.stream == tilt.stream
+            && let Some(triad) = reading.accel
+        {
+            self.last_accel = Some((reading.time, pick(triad, tilt.axes)));
+        }
+        if reading.stream != self.stream {
+            return None;
+        }
+        let raw = pick(field_of(reading, self.field)?, self.config.axes);
+        life.readings += 1;
+        let line = self.reading_line(life, reading.time, raw);
+        emit.line(Lane::Reading, line);
+        self.collect(life, reading.time, raw, emit)
+    }
+    fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
+        let c = life.current.as_ref()?;
+        let earth = match (&self.north, &c.ellipsoid) {
+            (Some(north), Some(p)) if self.field == Field::Mag => earth(
+                north,
+                p.r,
+                self.config.lsb_per_unit,
+                Err(if self.config.tilt.is_some() {
+                    "it is measured over a fit's samples, and a calibration loaded from the \
+                     state directory has none"
+                        .into()
+                } else {
+                    "the sensor has no tilt accelerometer".into()
+                }),
+            ),
+            _ => None,
+        };
+        let message = self.message(c, None, 0.0, "state", earth);
+        Some((to_line(&message), Some(message.event())))
+    }
+    fn restart(&mut self) {
+        self.recalibrate();
+    }
+    fn sphere(&self, collecting: bool) -> (Option<SphereProgress>, Option<u64>) {
+        (
+            collecting.then(|| self.progress()),
+            self.tilt_sensor().is_some().then(|| self.headings_stale()),
+        )
+    }
+    fn as_sphere(&self) -> Option<&Sensor3> {
+        Some(self)
+    }
+    fn as_sphere_mut(&mut self) -> Option<&mut Sensor3> {
+        Some(self)
+    }
+}
+
+const OWN_ROLES: [&str; 3] = [
+    "the sensor's x axis",
+    "the sensor's y axis",
+    "the sensor's z axis",
+];
+const TILT_ROLES: [&str; 3] = [
+    "the tilt source's x axis",
+    "the tilt source's y axis",
+    "the tilt source's z axis",
+];
+
+/// Finds the three columns named in `columns` (x, y, z, with their `roles`
+/// for messages) among the files' headers: the file and the three indices.
+fn locate3(
+    files: &[std::path::PathBuf],
+    layouts: &[&CsvLayout],
+    columns: &[String],
+    roles: [&'static str; 3],
+) -> Result<(usize, [usize; 3]), CsvError> {
+    let names: Vec<(&str, &'static str)> = columns
+        .iter()
+        .zip(roles)
+        .map(|(c, r)| (c.as_str(), r))
+        .collect();
+    let (file, at) = crate::source::csv::locate_columns(files, layouts, &names)?;
+    Ok((file, [at[0], at[1], at[2]]))
 }
 
 #[cfg(test)]

@@ -76,15 +76,7 @@ impl I2cBus for LinuxI2cBus {
             .map_err(|e| self.error(address, register, Access::Write, e))
     }
 
-    fn read_registers(
-        &mut self,
-        address: u8,
-        register: u8,
-        buf: &mut [u8],
-    ) -> Result<(), I2cError> {
-        if buf.is_empty() {
-            return Ok(());
-        }
+    fn read(&mut self, address: u8, register: u8, buf: &mut [u8]) -> Result<(), I2cError> {
         self.dev
             .write_read(address, &[register], buf)
             .map_err(|e| self.error(address, register, Access::Read, e))

@@ -18,9 +18,21 @@ pub trait I2cBus: Send {
     /// Writes `data` to `register` on (the chip auto-increments or not, as it
     /// does). Fails with [`I2cError::Nack`] when the chip does not ACK.
     fn write_register(&mut self, address: u8, register: u8, data: &[u8]) -> Result<(), I2cError>;
-    /// Fills `buf` from `register` on, in one transfer (repeated start).
-    fn read_registers(&mut self, address: u8, register: u8, buf: &mut [u8])
-    -> Result<(), I2cError>;
+    /// Fills `buf` from `register` on, in one transfer (repeated start). An
+    /// empty `buf` is no transfer at all.
+    fn read_registers(
+        &mut self,
+        address: u8,
+        register: u8,
+        buf: &mut [u8],
+    ) -> Result<(), I2cError> {
+        if buf.is_empty() {
+            return Ok(());
+        }
+        self.read(address, register, buf)
+    }
+    /// The transfer behind [`I2cBus::read_registers`]; `buf` is not empty.
+    fn read(&mut self, address: u8, register: u8, buf: &mut [u8]) -> Result<(), I2cError>;
     /// The bus and its port, for messages: "USB-ISS on /dev/ttyACM0".
     fn describe(&self) -> String;
 }
@@ -29,13 +41,8 @@ impl<B: I2cBus + ?Sized> I2cBus for Box<B> {
     fn write_register(&mut self, address: u8, register: u8, data: &[u8]) -> Result<(), I2cError> {
         (**self).write_register(address, register, data)
     }
-    fn read_registers(
-        &mut self,
-        address: u8,
-        register: u8,
-        buf: &mut [u8],
-    ) -> Result<(), I2cError> {
-        (**self).read_registers(address, register, buf)
+    fn read(&mut self, address: u8, register: u8, buf: &mut [u8]) -> Result<(), I2cError> {
+        (**self).read(address, register, buf)
     }
     fn describe(&self) -> String {
         (**self).describe()

@@ -207,15 +207,7 @@ impl<P: Read + Write + Send> I2cBus for UsbIssBus<P> {
         }
     }
 
-    fn read_registers(
-        &mut self,
-        address: u8,
-        register: u8,
-        buf: &mut [u8],
-    ) -> Result<(), I2cError> {
-        if buf.is_empty() {
-            return Ok(());
-        }
+    fn read(&mut self, address: u8, register: u8, buf: &mut [u8]) -> Result<(), I2cError> {
         let command =
             proto::encode_read(address, register, buf.len()).map_err(|e| self.bad_request(e))?;
         let len = buf.len();

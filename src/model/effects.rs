@@ -139,27 +139,27 @@ pub struct EffectInfo {
     pub in_3d: bool,
 }
 
+impl EffectInfo {
+    /// One of the paper's own effects: no parameters beyond the paper's,
+    /// live and in 3-D.
+    const fn paper(effect: Effect, name: &'static str) -> Self {
+        EffectInfo {
+            effect,
+            name,
+            params: &[],
+            limits: &[],
+            paper: true,
+            live: true,
+            in_3d: true,
+        }
+    }
+}
+
 /// The catalogue, in the order of [`Effect`] (the order models list their
 /// effects in).
 pub static CATALOGUE: [EffectInfo; 8] = [
-    EffectInfo {
-        effect: Effect::Offset,
-        name: "offset",
-        params: &[],
-        limits: &[],
-        paper: true,
-        live: true,
-        in_3d: true,
-    },
-    EffectInfo {
-        effect: Effect::Scale,
-        name: "scale",
-        params: &[],
-        limits: &[],
-        paper: true,
-        live: true,
-        in_3d: true,
-    },
+    EffectInfo::paper(Effect::Offset, "offset"),
+    EffectInfo::paper(Effect::Scale, "scale"),
     EffectInfo {
         effect: Effect::CrossAxis,
         name: "cross-axis",

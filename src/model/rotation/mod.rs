@@ -1012,6 +1012,15 @@ mod tests {
         (0..d.len()).map(|i| (t[i], d.x[i], d.y[i])).collect()
     }
 
+    /// One and a half clean turns with noise `noise`, the sensor's default.
+    fn turn_and_a_half(noise: f64) -> SimSensor {
+        SimSensor {
+            turns: 1.5,
+            noise,
+            ..Default::default()
+        }
+    }
+
     /// Fraction of a turn at which the buffer completed.
     fn completes_at(sim: &SimSensor) -> f64 {
         let samples = sim_samples(sim);
@@ -1060,11 +1069,7 @@ mod tests {
 
     #[test]
     fn a_clean_turn_completes_at_its_end_and_not_before() {
-        let sim = SimSensor {
-            turns: 1.5,
-            noise: 2.0,
-            ..Default::default()
-        };
+        let sim = turn_and_a_half(2.0);
         let at = completes_at(&sim);
         assert!((0.9..=1.0).contains(&at), "completed at {at} turns");
     }
@@ -1072,19 +1077,12 @@ mod tests {
     #[test]
     fn a_turn_from_any_heading_completes() {
         for start in [0.0, 4.0, 37.0, 90.0, 123.4, 181.0, 269.0, 333.3, 359.0] {
-            let sim = SimSensor {
-                turns: 1.5,
-                noise: 2.0,
-                start_heading_deg: start,
-                seed: start as u64 + 7,
-                ..Default::default()
-            };
-            let at = completes_at(&sim);
+            let mut sim = turn_and_a_half(2.0);
+            sim.start_heading_deg = start;
+            sim.seed = start as u64 + 7;
             // At worst the last sector needs its samples from the second pass.
-            assert!(
-                (0.9..=1.03).contains(&at),
-                "start {start}: completed at {at} turns"
-            );
+            let at = completes_at(&sim);
+            assert!((0.9..=1.03).contains(&at), "start {start}: at {at} turns");
         }
     }
 
@@ -1092,14 +1090,12 @@ mod tests {
     fn a_turn_far_from_the_origin_and_with_unequal_gains_completes() {
         for (gain_x, period) in [(1.0, 0.05), (1.4, 0.05), (0.6, 0.03)] {
             let sim = SimSensor {
-                turns: 1.5,
-                noise: 3.0,
                 offset_x: 5000.0,
                 offset_y: -5000.0,
                 gain_x,
                 period,
                 start_heading_deg: 200.0,
-                ..Default::default()
+                ..turn_and_a_half(3.0)
             };
             let at = completes_at(&sim);
             // The raw headings of an ellipse of gain ratio a run ahead of or
@@ -1277,11 +1273,7 @@ mod tests {
 
     #[test]
     fn bad_samples_are_ignored_without_harm() {
-        let sim = SimSensor {
-            turns: 1.5,
-            noise: 2.0,
-            ..Default::default()
-        };
+        let sim = turn_and_a_half(2.0);
         let clean = sim_samples(&sim);
         let mut buffer = RotationBuffer::new(RotationConfig::default());
         let mut done = None;
@@ -1322,11 +1314,9 @@ mod tests {
     #[test]
     fn the_samples_of_a_turn_fit() {
         let sim = SimSensor {
-            turns: 1.5,
-            noise: 2.0,
             gain_x: 1.2,
             offset_x: 3000.0,
-            ..Default::default()
+            ..turn_and_a_half(2.0)
         };
         let mut buffer = RotationBuffer::new(RotationConfig::default());
         assert_eq!(
@@ -1536,42 +1526,17 @@ mod tests {
             bad.validate().unwrap_err(),
             "max_gap_deg must be between 2 and 60 degrees, got 90"
         );
+        let with = |set: fn(&mut RotationConfig)| {
+            let mut config = RotationConfig::default();
+            set(&mut config);
+            config
+        };
         let cases = [
-            (
-                RotationConfig {
-                    max_gap_deg: f64::NAN,
-                    ..Default::default()
-                },
-                "max_gap_deg",
-            ),
-            (
-                RotationConfig {
-                    max_samples: 11,
-                    ..Default::default()
-                },
-                "max_samples",
-            ),
-            (
-                RotationConfig {
-                    timeout_s: f64::NAN,
-                    ..Default::default()
-                },
-                "timeout_s",
-            ),
-            (
-                RotationConfig {
-                    still_timeout_s: -1.0,
-                    ..Default::default()
-                },
-                "still_timeout_s",
-            ),
-            (
-                RotationConfig {
-                    still_ratio: 0.5,
-                    ..Default::default()
-                },
-                "still_ratio",
-            ),
+            (with(|c| c.max_gap_deg = f64::NAN), "max_gap_deg"),
+            (with(|c| c.max_samples = 11), "max_samples"),
+            (with(|c| c.timeout_s = f64::NAN), "timeout_s"),
+            (with(|c| c.still_timeout_s = -1.0), "still_timeout_s"),
+            (with(|c| c.still_ratio = 0.5), "still_ratio"),
         ];
         for (config, key) in cases {
             let err = config.validate().unwrap_err();
