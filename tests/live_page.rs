@@ -66,14 +66,45 @@ impl Driver {
             addr: format!("127.0.0.1:{port}"),
             session: None,
         };
+        // Until chromedriver says it is ready: while it starts (slowly on a
+        // loaded machine) it may refuse or reset a connection.
         let deadline = Instant::now() + T;
-        while std::net::TcpStream::connect(&driver.addr).is_err() {
-            assert!(Instant::now() < deadline, "chromedriver did not listen");
+        while !driver.ready() {
+            assert!(Instant::now() < deadline, "chromedriver did not become ready");
             std::thread::sleep(Duration::from_millis(50));
         }
-        let status = driver.call("GET", "/status", None);
-        assert_eq!(status["ready"], true, "{status}");
         driver
+    }
+
+    /// Whether `GET /status` answers `"ready": true`; false on any error.
+    fn ready(&self) -> bool {
+        use std::io::{Read, Write};
+        let Ok(mut stream) = std::net::TcpStream::connect(&self.addr) else {
+            return false;
+        };
+        let _ = stream.set_read_timeout(Some(Duration::from_secs(2)));
+        let request = format!(
+            "GET /status HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n\r\n",
+            self.addr
+        );
+        if stream.write_all(request.as_bytes()).is_err() {
+            return false;
+        }
+        // The answer is small; chromedriver may keep the connection open,
+        // so read what comes until the timeout or the body's end.
+        let mut answer = Vec::new();
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = stream.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            answer.extend_from_slice(&buf[..n]);
+            let text = String::from_utf8_lossy(&answer);
+            if text.contains("\"ready\":true") || text.contains("\"ready\": true") {
+                return true;
+            }
+        }
+        false
     }
 
     /// One WebDriver command; its `value`.
