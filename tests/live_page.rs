@@ -70,7 +70,10 @@ impl Driver {
         // loaded machine) it may refuse or reset a connection.
         let deadline = Instant::now() + T;
         while !driver.ready() {
-            assert!(Instant::now() < deadline, "chromedriver did not become ready");
+            assert!(
+                Instant::now() < deadline,
+                "chromedriver did not become ready"
+            );
             std::thread::sleep(Duration::from_millis(50));
         }
         driver

@@ -18,8 +18,7 @@ use super::lifecycle::Lifecycle;
 use super::messages::{
     CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, to_line,
 };
-use super::publish::Lane;
-use super::sensor::{Emitter, Geometry};
+use super::sensor::{Emitter, Geometry, Sample};
 use super::{Calibration, Terms};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::model::diagnose::diagnose;
@@ -232,36 +231,7 @@ impl Plane {
         }
     }
 
-    /// Feeds a published sample to the rotation buffer while collecting,
-    /// and fits when the rotation is complete.
-    fn collect(
-        &mut self,
-        life: &mut Lifecycle,
-        time: f64,
-        x: f64,
-        y: f64,
-        emit: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
-        if !life.collecting() {
-            return None;
-        }
-        // The gyro's integrated angle lets the buffer check the turn.
-        let turned = self.gyro.as_ref().and_then(GyroTrack::angle);
-        match self.buffer.push_turned(time, x, y, turned) {
-            RotationEvent::Collecting => None,
-            RotationEvent::Rejected { reason } => {
-                if let Some(gyro) = &mut self.gyro {
-                    gyro.forget_before(time);
-                }
-                tracing::warn!(sensor = %self.config.name, "{reason}");
-                self.reject(life, time, reason, 0, 0.0, 0.0, emit);
-                None
-            }
-            RotationEvent::Complete => self.fit(life, time, emit),
-        }
-    }
-
-    fn reading_line(
+    fn line_xy(
         &self,
         life: &Lifecycle,
         time: f64,
@@ -545,6 +515,81 @@ impl Plane {
 }
 
 impl Geometry for Plane {
+    fn row_sample(&mut self, life: &Lifecycle, row: &CsvRow) -> Option<Sample> {
+        let binding = self.csv.as_ref()?;
+        if row.file != binding.file {
+            return None;
+        }
+        let (x, y) = (
+            *row.values.get(binding.axes[0])?,
+            *row.values.get(binding.axes[1])?,
+        );
+        if !(x.is_finite() && y.is_finite()) {
+            return None;
+        }
+        if life.collecting()
+            && let (Some(gyro), Some(i)) = (&mut self.gyro, binding.gyro)
+            && let Some(&rate) = row.values.get(i)
+        {
+            gyro.keep_value(row.time, rate);
+        }
+        Some(Sample {
+            time: row.time,
+            raw: [x, y, 0.0],
+        })
+    }
+    fn reading_sample(&mut self, life: &Lifecycle, reading: &Reading) -> Option<Sample> {
+        if life.collecting()
+            && let Some(gyro) = &mut self.gyro
+        {
+            gyro.keep(reading);
+        }
+        if reading.stream != self.config.stream {
+            // Only the gyro of another chip: kept above, nothing to publish.
+            return None;
+        }
+        let (x, y) = self.axes_of(reading)?;
+        Some(Sample {
+            time: reading.time,
+            raw: [x, y, 0.0],
+        })
+    }
+    fn reading_line(&mut self, life: &Lifecycle, sample: Sample, row: Option<&CsvRow>) -> String {
+        let columns = row
+            .zip(self.csv.as_ref())
+            .map(|(row, binding)| ColumnValues {
+                names: &binding.layout.names,
+                indices: &binding.others,
+                values: &row.values,
+            });
+        let [x, y, _] = sample.raw;
+        self.line_xy(life, sample.time, x, y, columns)
+    }
+    fn push(
+        &mut self,
+        life: &mut Lifecycle,
+        sample: Sample,
+        emit: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
+        let (time, [x, y, _]) = (sample.time, sample.raw);
+        if !life.collecting() {
+            return None;
+        }
+        // The gyro's integrated angle lets the buffer check the turn.
+        let turned = self.gyro.as_ref().and_then(GyroTrack::angle);
+        match self.buffer.push_turned(time, x, y, turned) {
+            RotationEvent::Collecting => None,
+            RotationEvent::Rejected { reason } => {
+                if let Some(gyro) = &mut self.gyro {
+                    gyro.forget_before(time);
+                }
+                tracing::warn!(sensor = %self.config.name, "{reason}");
+                self.reject(life, time, reason, 0, 0.0, 0.0, emit);
+                None
+            }
+            RotationEvent::Complete => self.fit(life, time, emit),
+        }
+    }
     fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
         life.current.as_ref().map(|c| {
             let message = CalibrationMessage::loaded(c).with_north(self.config.north.as_ref());
@@ -586,67 +631,11 @@ impl Geometry for Plane {
         });
         Ok(required)
     }
-    fn on_row(
-        &mut self,
-        life: &mut Lifecycle,
-        row: &CsvRow,
-        emit: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
-        let binding = self.csv.as_ref()?;
-        if row.file != binding.file {
-            return None;
-        }
-        let (x, y) = (
-            *row.values.get(binding.axes[0])?,
-            *row.values.get(binding.axes[1])?,
-        );
-        if !(x.is_finite() && y.is_finite()) {
-            return None;
-        }
-        if life.collecting()
-            && let (Some(gyro), Some(i)) = (&mut self.gyro, binding.gyro)
-            && let Some(&rate) = row.values.get(i)
-        {
-            gyro.keep_value(row.time, rate);
-        }
-        life.readings += 1;
-        let columns = ColumnValues {
-            names: &binding.layout.names,
-            indices: &binding.others,
-            values: &row.values,
-        };
-        let line = self.reading_line(life, row.time, x, y, Some(columns));
-        emit.line(Lane::Reading, line);
-        self.collect(life, row.time, x, y, emit)
-    }
     fn set_north(&mut self, north: Option<super::north::North>) {
         self.config.north = north;
     }
     fn wants(&self, stream: u8) -> bool {
         self.config.stream == stream || self.gyro.as_ref().is_some_and(|g| g.stream == stream)
-    }
-    fn on_reading(
-        &mut self,
-        life: &mut Lifecycle,
-        reading: &Reading,
-        emit: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
-        if life.collecting()
-            && let Some(gyro) = &mut self.gyro
-        {
-            gyro.keep(reading);
-        }
-        if reading.stream != self.config.stream {
-            // Only the gyro of another chip: kept above, nothing to publish.
-            return None;
-        }
-        let (x, y) = self.axes_of(reading)?;
-        life.readings += 1;
-        emit.line(
-            Lane::Reading,
-            self.reading_line(life, reading.time, x, y, None),
-        );
-        self.collect(life, reading.time, x, y, emit)
     }
     fn restart(&mut self) {
         self.recalibrate();

@@ -65,26 +65,36 @@ impl<'a> Emitter<'a> {
     }
 }
 
+/// One sample of a sensor's own field: the time its source stamped, and
+/// its raw axes (x, y, z; a plane's third is 0: it turns in x, y).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sample {
+    pub time: f64,
+    pub raw: [f64; 3],
+}
+
 /// What a sensor does that depends on its geometry: which readings are
 /// its, how a reading is corrected and published, how samples are
 /// collected and fitted. The sensor's [`Lifecycle`] is lent to each call.
 pub trait Geometry: Send {
     /// Whether a reading from `stream` of the sensor's source belongs to it.
     fn wants(&self, stream: u8) -> bool;
-    /// Handles one reading: publishes it (corrected when a calibration
-    /// exists), collects it, and fits when the samples are complete.
-    /// Returns a newly accepted calibration, to store.
-    fn on_reading(
+    /// The sensor's own sample in a reading, if it carries one; keeps what
+    /// else the reading carries for the geometry (a gyro's rate, an
+    /// accelerometer's vertical).
+    fn reading_sample(&mut self, life: &Lifecycle, reading: &Reading) -> Option<Sample>;
+    /// [`Geometry::reading_sample`] for a row of the sensor's csv source
+    /// (unbound, another file's row or no numbers in its axes: none).
+    fn row_sample(&mut self, life: &Lifecycle, row: &CsvRow) -> Option<Sample>;
+    /// The `READING` line of a sample (corrected when a calibration
+    /// exists), with the other columns of its csv row, if any.
+    fn reading_line(&mut self, life: &Lifecycle, sample: Sample, row: Option<&CsvRow>) -> String;
+    /// Collects a published sample while collecting, and fits when the
+    /// samples are complete. Returns a newly accepted calibration, to store.
+    fn push(
         &mut self,
         life: &mut Lifecycle,
-        reading: &Reading,
-        emit: &mut Emitter<'_>,
-    ) -> Option<Calibration>;
-    /// Handles one row of the sensor's csv source as a reading.
-    fn on_row(
-        &mut self,
-        life: &mut Lifecycle,
-        row: &CsvRow,
+        sample: Sample,
         emit: &mut Emitter<'_>,
     ) -> Option<Calibration>;
     /// Resolves a csv sensor's columns; see [`Sensor::bind_csv`].
@@ -199,7 +209,22 @@ impl Sensor {
 
     /// [`Sensor::on_row`], its output to an [`Emitter`].
     pub fn on_row_to(&mut self, row: &CsvRow, out: &mut Emitter<'_>) -> Option<Calibration> {
-        self.geometry.on_row(&mut self.life, row, out)
+        let sample = self.geometry.row_sample(&self.life, row)?;
+        self.publish(sample, Some(row), out)
+    }
+
+    /// Publishes a sample of the sensor's own field and collects it: the
+    /// one path every reading and row takes.
+    fn publish(
+        &mut self,
+        sample: Sample,
+        row: Option<&CsvRow>,
+        out: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
+        self.life.readings += 1;
+        let line = self.geometry.reading_line(&self.life, sample, row);
+        out.line(Lane::Reading, line);
+        self.geometry.push(&mut self.life, sample, out)
     }
 
     /// Takes over what `old` (the same sensor under the settings before a
@@ -275,7 +300,8 @@ impl Sensor {
         reading: &Reading,
         out: &mut Emitter<'_>,
     ) -> Option<Calibration> {
-        self.geometry.on_reading(&mut self.life, reading, out)
+        let sample = self.geometry.reading_sample(&self.life, reading)?;
+        self.publish(sample, None, out)
     }
 
     pub fn status(&self) -> SensorStatus<'_> {

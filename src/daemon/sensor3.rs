@@ -19,10 +19,9 @@ use super::config::{Axis, Field, SensorConfig};
 use super::lifecycle::Lifecycle;
 use super::messages::{CalibrationEvent, as_published, to_line};
 use super::north::{Earth, MeasuredDip, North, earth};
-use super::publish::Lane;
-use super::sensor::{Emitter, Geometry};
+use super::sensor::{Emitter, Geometry, Sample};
 use super::{Calibration, Ellipsoid3Params};
-use crate::io::csv::{CsvError, CsvLayout};
+use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
 use crate::model::paper::PaperCalibration;
 use crate::model::sphere::SphereCoverage;
@@ -451,110 +450,6 @@ impl Sensor3 {
         self.headings_stale
     }
 
-    fn reading_line(&mut self, life: &Lifecycle, time: f64, raw: [f64; 3]) -> String {
-        let corrected = life
-            .current
-            .as_ref()
-            .and_then(|c| Some((c.id, apply3(c.ellipsoid.as_ref()?, raw))));
-        let mut heading_omitted = None;
-        let accel = match (&self.config.tilt, corrected, self.last_accel) {
-            (Some(source), Some(_), None) => {
-                heading_omitted = Some(format!(
-                    "no reading of the tilt source '{}' yet",
-                    source.sensor
-                ));
-                None
-            }
-            (Some(source), Some(_), Some((t, _))) if time - t > MAX_TILT_AGE_S => {
-                self.headings_stale += 1;
-                heading_omitted = Some(format!(
-                    "the latest reading of the tilt source '{}' is {:.3} s old, more than \
-                     {MAX_TILT_AGE_S} s: its tilt is stale",
-                    source.sensor,
-                    time - t
-                ));
-                None
-            }
-            (_, _, last) => last.map(|(_, a)| a),
-        };
-        let tilt = match (&self.config.tilt, corrected, accel) {
-            (Some(source), Some((_, mag)), Some(accel_raw)) => {
-                let cal = self.tilt_calibration.as_ref();
-                let accel = match cal.and_then(|c| c.ellipsoid.as_ref()) {
-                    Some(p) => apply3(p, accel_raw),
-                    None => accel_raw,
-                };
-                match tilt_heading_or_why(mag, accel, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]) {
-                    Ok(h) => Some((
-                        h.heading_deg,
-                        TiltFields {
-                            sensor: &source.sensor,
-                            calibration: cal.map(|c| c.id),
-                            calibrated: cal.is_some(),
-                            tilt_deg: h.tilt_deg,
-                            pitch_deg: h.pitch_deg,
-                            inclination_deg: h.inclination_deg,
-                        },
-                    )),
-                    Err(why) => {
-                        heading_omitted = Some(why.to_string());
-                        None
-                    }
-                }
-            }
-            _ => None,
-        };
-        let (heading_deg, tilt) = match tilt {
-            Some((h, t)) => (Some(h), Some(t)),
-            None => (None, None),
-        };
-        let true_heading_deg = heading_deg
-            .zip(self.north.as_ref())
-            .map(|(h, n)| n.true_heading(h));
-        to_line(&Reading3Message {
-            class: "READING",
-            sensor: &self.name,
-            time,
-            axes: 3,
-            raw,
-            corrected: corrected.map(|c| c.1),
-            magnitude: corrected.map(|(_, c)| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt()),
-            calibration: corrected.map(|c| c.0),
-            calibrated: corrected.is_some(),
-            heading_deg,
-            true_heading_deg,
-            tilt,
-            heading_omitted,
-        })
-    }
-
-    /// Keeps a sample while collecting, thinning the most crowded region
-    /// when the buffer is full, and fits once the coverage supports the
-    /// model.
-    fn collect(
-        &mut self,
-        life: &mut Lifecycle,
-        time: f64,
-        raw: [f64; 3],
-        emit: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
-        if !life.collecting() || raw.iter().any(|v| !v.is_finite()) {
-            return None;
-        }
-        // The accelerometer beside this sample, unless it is stale.
-        let accel = self.config.tilt.is_some().then(|| {
-            self.last_accel
-                .filter(|(t, _)| (time - t).abs() <= MAX_TILT_AGE_S)
-                .map(|(_, a)| a)
-        });
-        if !self.buffer.push(time, raw, accel) {
-            return None;
-        }
-        let fitted = self.fit(life, time, emit);
-        self.buffer.after_fit();
-        fitted
-    }
-
     fn fit(
         &mut self,
         life: &mut Lifecycle,
@@ -773,6 +668,106 @@ impl Sensor3 {
 }
 
 impl Geometry for Sensor3 {
+    fn reading_line(&mut self, life: &Lifecycle, sample: Sample, _row: Option<&CsvRow>) -> String {
+        let Sample { time, raw } = sample;
+        let corrected = life
+            .current
+            .as_ref()
+            .and_then(|c| Some((c.id, apply3(c.ellipsoid.as_ref()?, raw))));
+        let mut heading_omitted = None;
+        let accel = match (&self.config.tilt, corrected, self.last_accel) {
+            (Some(source), Some(_), None) => {
+                heading_omitted = Some(format!(
+                    "no reading of the tilt source '{}' yet",
+                    source.sensor
+                ));
+                None
+            }
+            (Some(source), Some(_), Some((t, _))) if time - t > MAX_TILT_AGE_S => {
+                self.headings_stale += 1;
+                heading_omitted = Some(format!(
+                    "the latest reading of the tilt source '{}' is {:.3} s old, more than \
+                     {MAX_TILT_AGE_S} s: its tilt is stale",
+                    source.sensor,
+                    time - t
+                ));
+                None
+            }
+            (_, _, last) => last.map(|(_, a)| a),
+        };
+        let tilt = match (&self.config.tilt, corrected, accel) {
+            (Some(source), Some((_, mag)), Some(accel_raw)) => {
+                let cal = self.tilt_calibration.as_ref();
+                let accel = match cal.and_then(|c| c.ellipsoid.as_ref()) {
+                    Some(p) => apply3(p, accel_raw),
+                    None => accel_raw,
+                };
+                match tilt_heading_or_why(mag, accel, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]) {
+                    Ok(h) => Some((
+                        h.heading_deg,
+                        TiltFields {
+                            sensor: &source.sensor,
+                            calibration: cal.map(|c| c.id),
+                            calibrated: cal.is_some(),
+                            tilt_deg: h.tilt_deg,
+                            pitch_deg: h.pitch_deg,
+                            inclination_deg: h.inclination_deg,
+                        },
+                    )),
+                    Err(why) => {
+                        heading_omitted = Some(why.to_string());
+                        None
+                    }
+                }
+            }
+            _ => None,
+        };
+        let (heading_deg, tilt) = match tilt {
+            Some((h, t)) => (Some(h), Some(t)),
+            None => (None, None),
+        };
+        let true_heading_deg = heading_deg
+            .zip(self.north.as_ref())
+            .map(|(h, n)| n.true_heading(h));
+        to_line(&Reading3Message {
+            class: "READING",
+            sensor: &self.name,
+            time,
+            axes: 3,
+            raw,
+            corrected: corrected.map(|c| c.1),
+            magnitude: corrected.map(|(_, c)| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt()),
+            calibration: corrected.map(|c| c.0),
+            calibrated: corrected.is_some(),
+            heading_deg,
+            true_heading_deg,
+            tilt,
+            heading_omitted,
+        })
+    }
+    fn push(
+        &mut self,
+        life: &mut Lifecycle,
+        sample: Sample,
+        emit: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
+        let Sample { time, raw } = sample;
+        if !life.collecting() || raw.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        // The accelerometer beside this sample, unless it is stale.
+        let accel = self.config.tilt.is_some().then(|| {
+            self.last_accel
+                .filter(|(t, _)| (time - t).abs() <= MAX_TILT_AGE_S)
+                .map(|(_, a)| a)
+        });
+        if !self.buffer.push(time, raw, accel) {
+            return None;
+        }
+        let fitted = self.fit(life, time, emit);
+        self.buffer.after_fit();
+        fitted
+    }
     fn wants(&self, stream: u8) -> bool {
         self.stream == stream
             || self
@@ -806,12 +801,7 @@ impl Geometry for Sensor3 {
         self.csv = Some(Csv3Binding { own, tilt });
         Ok(required)
     }
-    fn on_row(
-        &mut self,
-        life: &mut Lifecycle,
-        row: &crate::io::csv::CsvRow,
-        emit: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
+    fn row_sample(&mut self, _life: &Lifecycle, row: &CsvRow) -> Option<Sample> {
         let binding = self.csv.as_ref()?;
         let values = |at: [usize; 3]| -> Option<[f64; 3]> {
             let v = [
@@ -831,18 +821,12 @@ impl Geometry for Sensor3 {
         if row.file != file {
             return None;
         }
-        let raw = values(at)?;
-        life.readings += 1;
-        let line = self.reading_line(life, row.time, raw);
-        emit.line(Lane::Reading, line);
-        self.collect(life, row.time, raw, emit)
+        Some(Sample {
+            time: row.time,
+            raw: values(at)?,
+        })
     }
-    fn on_reading(
-        &mut self,
-        life: &mut Lifecycle,
-        reading: &Reading,
-        emit: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
+    fn reading_sample(&mut self, _life: &Lifecycle, reading: &Reading) -> Option<Sample> {
         if let Some(tilt) = &self.config.tilt
             && reading.stream == tilt.stream
             && let Some(triad) = reading.accel
@@ -852,11 +836,10 @@ impl Geometry for Sensor3 {
         if reading.stream != self.stream {
             return None;
         }
-        let raw = pick(field_of(reading, self.field)?, self.config.axes);
-        life.readings += 1;
-        let line = self.reading_line(life, reading.time, raw);
-        emit.line(Lane::Reading, line);
-        self.collect(life, reading.time, raw, emit)
+        Some(Sample {
+            time: reading.time,
+            raw: pick(field_of(reading, self.field)?, self.config.axes),
+        })
     }
     fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
         let c = life.current.as_ref()?;
