@@ -197,21 +197,21 @@ fn a_full_config_parses_to_the_right_structures() {
     assert_eq!(s[0].source, "bridge");
     assert_eq!(s[0].stream, 1);
     assert_eq!(s[0].field, Field::Mag);
-    assert_eq!(s[0].axes, [Axis::X, Axis::Y]);
-    assert_eq!(s[0].effects, ["offset", "scale"]);
-    assert_eq!(s[0].rotation.max_gap_deg, 20.0);
-    assert_eq!(s[0].limits.min_coverage_deg, 350.0);
+    assert_eq!(s[0].plane().unwrap().axes, [Axis::X, Axis::Y]);
+    assert_eq!(s[0].effects(), ["offset", "scale"]);
+    assert_eq!(s[0].plane().unwrap().rotation.max_gap_deg, 20.0);
+    assert_eq!(s[0].plane().unwrap().limits.min_coverage_deg, 350.0);
     assert_eq!(
-        s[1].rotation,
+        s[1].plane().unwrap().rotation,
         fieldcal::daemon::rotation::RotationConfig::default()
     );
     assert_eq!((s[1].stream, s[1].field), (2, Field::Accel));
-    assert_eq!(s[1].axes, [Axis::Y, Axis::Z]);
-    assert_eq!(s[1].effects, ["offset", "scale"]);
+    assert_eq!(s[1].plane().unwrap().axes, [Axis::Y, Axis::Z]);
+    assert_eq!(s[1].effects(), ["offset", "scale"]);
     assert_eq!((s[2].stream, s[2].field), (0, Field::Mag));
     assert_eq!(s[3].stream, 0);
-    assert_eq!(s[3].axes, [Axis::Z, Axis::X]);
-    assert_eq!(s[3].effects, ["offset", "scale"]);
+    assert_eq!(s[3].plane().unwrap().axes, [Axis::Z, Axis::X]);
+    assert_eq!(s[3].effects(), ["offset", "scale"]);
     assert!(config.source("bench").is_some());
 }
 
@@ -240,7 +240,7 @@ fn defaults_fill_what_is_left_out() {
         }
         other => panic!("{other:?}"),
     }
-    assert_eq!(config.sensors[0].effects, ["offset", "scale"]);
+    assert_eq!(config.sensors[0].effects(), ["offset", "scale"]);
 }
 
 #[test]
@@ -432,7 +432,7 @@ fn effects_are_checked_against_the_catalogue() {
     let config =
         fieldcal::daemon::config::parse(&text, std::path::Path::new("/tmp/fieldcal.toml")).unwrap();
     assert_eq!(
-        config.sensors[0].effects,
+        config.sensors[0].effects(),
         ["offset", "scale", "cross-axis", "cubic", "outliers"]
     );
     let text =
@@ -820,7 +820,11 @@ gyro_lsb_per_deg_s = 57.3
 "
     );
     let config = parse(&text, &config_path()).unwrap();
-    let gyro: Vec<&GyroChoice> = config.sensors.iter().map(|s| &s.gyro).collect();
+    let gyro: Vec<&GyroChoice> = config
+        .sensors
+        .iter()
+        .map(|s| &s.plane().unwrap().gyro)
+        .collect();
     // The Falcon-GX frame's own gyro at the frame's scale, about z.
     assert_eq!(
         *gyro[0],
@@ -1000,11 +1004,11 @@ fn a_csv_source_names_its_columns() {
     assert_eq!(config.sources[0].kind.speed(), Some(Speed::Max));
     let s = &config.sensors[0];
     assert_eq!(
-        s.columns,
+        s.plane().unwrap().columns,
         Some(["mag_x_lsb".to_string(), "mag_z_lsb".to_string()])
     );
     assert_eq!(
-        s.gyro,
+        s.plane().unwrap().gyro,
         GyroChoice::Column {
             name: "gyro_y".into(),
             units: GyroUnits::RadPerSecond
@@ -1015,7 +1019,7 @@ fn a_csv_source_names_its_columns() {
     let (_dir, text) = csv_source(ROBOT, "", "axes = [\"mag_x_lsb\", \"mag_z_lsb\"]");
     let config = parse(&text, &config_path()).unwrap();
     assert_eq!(config.sources[0].kind.speed(), Some(Speed::Times(1.0)));
-    match &config.sensors[0].gyro {
+    match &config.sensors[0].plane().unwrap().gyro {
         GyroChoice::Off(why) => assert!(why.contains("gyro = \"COLUMN\""), "{why}"),
         other => panic!("{other:?}"),
     }

@@ -439,13 +439,13 @@ port = "/dev/null"
          [[sensor]]\nname = \"acc\"\nsource = \"imu\"\nfield = \"accel\"\naxes = [\"x\", \"y\", \"z\"]\n"
     );
     let config = fieldcal::daemon::config::parse(&text, Path::new("t.toml")).unwrap();
-    let three = config.sensors[0].three.as_ref().unwrap();
+    let three = config.sensors[0].sphere().unwrap();
     assert_eq!(three.tilt.as_ref().unwrap().sensor, "acc");
     assert_eq!(
         three.model,
         fieldcal::model::ellipsoid::Ellipsoid3Model::OffsetScale
     );
-    assert!(config.sensors[1].three.as_ref().unwrap().tilt.is_none());
+    assert!(config.sensors[1].sphere().unwrap().tilt.is_none());
 }
 
 #[test]

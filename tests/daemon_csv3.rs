@@ -295,7 +295,7 @@ fn the_shipped_example_names_the_real_pair() {
             std::fs::canonicalize(real(name)).unwrap()
         );
     }
-    let three = config.sensors[0].three.as_ref().unwrap();
+    let three = config.sensors[0].sphere().unwrap();
     assert_eq!(three.tilt.as_ref().unwrap().sensor, "level");
 }
 
@@ -361,7 +361,7 @@ fn a_3_axis_csv_sensor_and_a_source_of_several_files_are_checked_naming_the_key(
         ),
     );
     let config = parse(&ok, &config_path()).unwrap();
-    let three = config.sensors[0].three.as_ref().unwrap();
+    let three = config.sensors[0].sphere().unwrap();
     assert_eq!(
         three.columns,
         Some(["mag_x".to_string(), "mag_y".into(), "mag_z".into()])

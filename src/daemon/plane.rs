@@ -13,7 +13,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use super::acceptance::{self, Limits};
-use super::config::{Axis, Field, GyroChoice, SensorConfig};
+use super::config::{Axis, Field, GyroChoice, PlaneConfig, SensorConfig};
 use super::lifecycle::Lifecycle;
 use super::messages::{
     CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, to_line,
@@ -36,6 +36,8 @@ use crate::sample::Reading;
 /// A 2-axis sensor's rotation buffer, model and gyro.
 pub struct Plane {
     config: SensorConfig,
+    /// The 2-axis settings of `config`.
+    plane: PlaneConfig,
     effects: Vec<Effect>,
     limits: Limits,
     model: String,
@@ -199,18 +201,19 @@ impl GyroTrack {
 
 impl Plane {
     /// The plane of a 2-axis sensor of `config`.
-    pub fn new(config: SensorConfig) -> Self {
-        let limits = config.limits.clone();
-        let buffer = RotationBuffer::new(config.rotation.clone());
-        let gyro = GyroTrack::new(&config.gyro, buffer.config().max_samples);
+    pub fn new(config: SensorConfig, plane: PlaneConfig) -> Self {
+        let limits = plane.limits.clone();
+        let buffer = RotationBuffer::new(plane.rotation.clone());
+        let gyro = GyroTrack::new(&plane.gyro, buffer.config().max_samples);
         // The configuration checked the names; an unparsable list (not
         // possible from a checked file) falls back to the paper's model.
-        let effects = parse_list(&config.effects.join(","))
+        let effects = parse_list(&plane.effects.join(","))
             .unwrap_or_else(|_| crate::model::effects::PAPER.to_vec());
         Plane {
             model: crate::model::effects::model_name(&effects),
             effects,
             config,
+            plane,
             limits,
             buffer,
             gyro,
@@ -220,7 +223,7 @@ impl Plane {
 
     /// The two turning axes of a reading, if it carries the sensor's field.
     pub fn axes_of(&self, reading: &Reading) -> Option<(f64, f64)> {
-        axes_of(&self.config, reading)
+        axes_of(self.config.field, self.plane.axes, reading)
     }
 
     /// Starts a new rotation (the [`Lifecycle`] restarts beside it).
@@ -375,7 +378,7 @@ impl Plane {
         terms: &Terms,
     ) -> Result<HeadingCheck, String> {
         let Some(gyro) = &mut self.gyro else {
-            return Err(match &self.config.gyro {
+            return Err(match &self.plane.gyro {
                 GyroChoice::Off(why) => why.clone(),
                 GyroChoice::Rate { .. } | GyroChoice::Column { .. } => {
                     "no heading check: no gyro".into()
@@ -602,14 +605,14 @@ impl Geometry for Plane {
         files: &[std::path::PathBuf],
     ) -> Result<Vec<(usize, usize)>, CsvError> {
         let refs: Vec<&CsvLayout> = layouts.iter().map(Arc::as_ref).collect();
-        let Some(columns) = &self.config.columns else {
+        let Some(columns) = &self.plane.columns else {
             return Ok(Vec::new());
         };
         let mut names = vec![
             (columns[0].as_str(), "the sensor's x axis"),
             (columns[1].as_str(), "the sensor's y axis"),
         ];
-        if let GyroChoice::Column { name, .. } = &self.config.gyro {
+        if let GyroChoice::Column { name, .. } = &self.plane.gyro {
             names.push((name.as_str(), "the sensor's gyro"));
         }
         let (file, found) = crate::source::csv::locate_columns(files, &refs, &names)?;
@@ -648,10 +651,10 @@ impl Geometry for Plane {
     }
 }
 
-/// The two turning axes (`config.axes`) of a reading, if it carries the
+/// The two turning axes (`axes`) of a reading, if it carries the
 /// sensor's field.
-pub fn axes_of(config: &SensorConfig, reading: &Reading) -> Option<(f64, f64)> {
-    let triad = match config.field {
+pub fn axes_of(field: Field, axes: [Axis; 2], reading: &Reading) -> Option<(f64, f64)> {
+    let triad = match field {
         Field::Mag => reading.mag,
         Field::Accel => reading.accel,
         Field::Gyro => reading.gyro,
@@ -663,5 +666,5 @@ pub fn axes_of(config: &SensorConfig, reading: &Reading) -> Option<(f64, f64)> {
             Axis::Z => triad[2],
         })
     };
-    Some((pick(config.axes[0]), pick(config.axes[1])))
+    Some((pick(axes[0]), pick(axes[1])))
 }

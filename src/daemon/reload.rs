@@ -39,7 +39,9 @@ use std::time::Duration;
 
 use tokio::sync::mpsc;
 
-use super::config::{self, Config, ConfigError, SensorConfig, SourceConfig, SourceKind};
+use super::config::{
+    self, Config, ConfigError, SensorConfig, SensorGeometry, SourceConfig, SourceKind,
+};
 use super::messages::CalibrationEvent;
 use super::notify::Notifier;
 use super::sensor::Sensor;
@@ -221,22 +223,33 @@ fn changed_keys(old: &SensorConfig, new: &SensorConfig) -> Vec<&'static str> {
     if old.field != new.field {
         keys.push("field");
     }
-    if old.axes != new.axes || old.columns != new.columns {
+    // Each key as the file gives it; a 3-axis sensor has no rotation,
+    // limits or gyro of its own (the defaults stand for them).
+    let axes = |s: &SensorConfig| match &s.geometry {
+        SensorGeometry::Plane(p) => (p.axes, p.columns.clone()),
+        SensorGeometry::Sphere(t) => ([t.axes[0], t.axes[1]], None),
+    };
+    let plane = |s: &SensorConfig| match &s.geometry {
+        SensorGeometry::Plane(p) => (Some(p.gyro.clone()), p.rotation.clone(), p.limits.clone()),
+        SensorGeometry::Sphere(_) => (None, Default::default(), Default::default()),
+    };
+    let (old_plane, new_plane) = (plane(old), plane(new));
+    if axes(old) != axes(new) {
         keys.push("axes");
     }
-    if old.effects != new.effects {
+    if old.effects() != new.effects() {
         keys.push("model");
     }
-    if old.gyro != new.gyro {
+    if old_plane.0 != new_plane.0 {
         keys.push("gyro");
     }
-    if old.rotation != new.rotation {
+    if old_plane.1 != new_plane.1 {
         keys.push("rotation");
     }
-    if old.limits != new.limits {
+    if old_plane.2 != new_plane.2 {
         keys.push("limits");
     }
-    if old.three != new.three {
+    if old.sphere() != new.sphere() {
         keys.push("axes, model, tilt, units or sphere");
     }
     if old.north != new.north {
@@ -523,7 +536,7 @@ fn plural(n: usize, one: &str, many: &str) -> String {
 }
 
 fn model_of(config: &SensorConfig) -> String {
-    let effects = crate::model::effects::parse_list(&config.effects.join(","))
+    let effects = crate::model::effects::parse_list(&config.effects().join(","))
         .unwrap_or_else(|_| crate::model::effects::PAPER.to_vec());
     crate::model::effects::model_name(&effects)
 }
@@ -1150,7 +1163,7 @@ axes = ["x", "y"]
         );
         assert_eq!(sensors[0].1.status().rotation.unwrap().samples, 100);
         assert_eq!(sensors[0].1.calibration().map(|c| c.id), Some(1));
-        assert_eq!(config.sensors[1].effects, ["offset", "scale", "cubic"]);
+        assert_eq!(config.sensors[1].effects(), ["offset", "scale", "cubic"]);
 
         // compass's model changes mid-turn: a new rotation under the new
         // model, and calibration #1 (the paper's) corrects meanwhile.

@@ -11,7 +11,7 @@
 use std::sync::Arc;
 
 use super::Calibration;
-use super::config::SensorConfig;
+use super::config::{SensorConfig, SensorGeometry};
 use super::lifecycle::Lifecycle;
 use super::messages::{CalibrationEvent, SensorState, SensorStatus};
 use super::north::North;
@@ -146,13 +146,13 @@ impl Sensor {
     pub fn new(config: SensorConfig, stored: Option<Calibration>) -> Self {
         // A 2-axis sensor never starts from a 3-D calibration (its axes
         // were changed from three to two), nor a 3-axis one from a 2-D one.
-        let (geometry, stored): (Box<dyn Geometry>, _) = match config.three.clone() {
-            Some(three) => (
-                Box::new(Sensor3::new(&config, three)),
+        let (geometry, stored): (Box<dyn Geometry>, _) = match &config.geometry {
+            SensorGeometry::Sphere(three) => (
+                Box::new(Sensor3::new(&config, three.clone())),
                 stored.filter(|c| c.ellipsoid.is_some()),
             ),
-            None => (
-                Box::new(Plane::new(config.clone())),
+            SensorGeometry::Plane(plane) => (
+                Box::new(Plane::new(config.clone(), plane.clone())),
                 stored.filter(|c| c.ellipsoid.is_none()),
             ),
         };
@@ -273,11 +273,6 @@ impl Sensor {
     /// or of the accelerometer its heading is tilt-compensated with).
     pub fn wants(&self, stream: u8) -> bool {
         self.geometry.wants(stream)
-    }
-
-    /// The two turning axes of a reading, if it carries the sensor's field.
-    pub fn axes_of(&self, reading: &Reading) -> Option<(f64, f64)> {
-        super::plane::axes_of(&self.config, reading)
     }
 
     /// Starts a new rotation; the current calibration keeps correcting

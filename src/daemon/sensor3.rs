@@ -22,7 +22,7 @@ use super::north::{Earth, MeasuredDip, North, earth};
 use super::sensor::{Emitter, Geometry, Sample};
 use super::{Calibration, Ellipsoid3Params};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
-use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Model, Ellipsoid3Se};
+use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Se};
 use crate::model::paper::PaperCalibration;
 use crate::model::sphere::SphereCoverage;
 use crate::model::sphere_buffer::SphereBuffer;
@@ -76,40 +76,14 @@ pub const RELATIVE_MAX_RMS: f64 = 0.05;
 /// (`heading_omitted`) and counted (`headings_stale` in STATUS).
 pub const MAX_TILT_AGE_S: f64 = 0.1;
 
-/// The accelerometer a magnetometer's heading is tilt-compensated with:
-/// another 3-axis sensor of the same source (`tilt = "<name>"`).
-#[derive(Debug, Clone, PartialEq)]
-pub struct TiltSource {
-    pub sensor: String,
-    pub stream: u8,
-    pub axes: [Axis; 3],
-    /// For a csv source: the accelerometer sensor's three columns.
-    pub columns: Option<[String; 3]>,
-}
+pub use super::config::{Sensor3Config, TiltSource};
 
-/// What a `[[sensor]]` with three axes adds to [`SensorConfig`].
-#[derive(Debug, Clone, PartialEq)]
-pub struct Sensor3Config {
-    /// The three axes, in the order of the sensor's x, y, z.
-    pub axes: [Axis; 3],
-    pub model: Ellipsoid3Model,
-    /// Raw counts per gauss (a magnetometer, `lsb_per_gauss`) or per g (an
-    /// accelerometer, `lsb_per_g`), when configured.
-    pub lsb_per_unit: Option<f64>,
-    pub tilt: Option<TiltSource>,
-    pub sphere: SphereSettings,
-    /// A sensor of a csv source: the columns of its x, y, z (then `axes`
-    /// is x, y, z and unused).
-    pub columns: Option<[String; 3]>,
-}
-
-impl Sensor3Config {
-    fn unit(field: Field) -> &'static str {
-        match field {
-            Field::Mag => "gauss",
-            Field::Accel => "g",
-            Field::Gyro => "deg/s",
-        }
+/// The unit of a field's calibrated magnitude.
+fn unit_of(field: Field) -> &'static str {
+    match field {
+        Field::Mag => "gauss",
+        Field::Accel => "g",
+        Field::Gyro => "deg/s",
     }
 }
 
@@ -544,10 +518,7 @@ impl Sensor3 {
             matrix: p.map(|p| p.matrix),
             r: p.map(|p| p.r),
             r_units: p.and_then(|p| self.config.lsb_per_unit.map(|u| p.r / u)),
-            units: self
-                .config
-                .lsb_per_unit
-                .map(|_| Sensor3Config::unit(self.field)),
+            units: self.config.lsb_per_unit.map(|_| unit_of(self.field)),
             se: fit.map(|f| f.se),
             rms: Some(c.rms),
             n: c.n,
@@ -642,10 +613,7 @@ impl Sensor3 {
             matrix: fit.map(|f| f.matrix),
             r: fit.map(|f| f.r),
             r_units: fit.and_then(|f| self.config.lsb_per_unit.map(|u| f.r / u)),
-            units: self
-                .config
-                .lsb_per_unit
-                .map(|_| Sensor3Config::unit(self.field)),
+            units: self.config.lsb_per_unit.map(|_| unit_of(self.field)),
             se: fit.map(|f| f.se),
             rms: fit.map(|f| f.rms),
             n,
@@ -1067,7 +1035,7 @@ mod tests {
                 },
                 seed: 5,
             };
-            ellipsoid::fit(&sim.simulate().unwrap(), Ellipsoid3Model::Full).unwrap()
+            ellipsoid::fit(&sim.simulate().unwrap(), ellipsoid::Ellipsoid3Model::Full).unwrap()
         };
         // 2000 counts per gauss: 1000 counts = 500 mG.
         let good = fit_of([1000.0, -500.0, 200.0], 1000.0);

@@ -381,7 +381,8 @@ impl Axis {
     }
 }
 
-/// One `[[sensor]]`: two axes of one field of one stream of a source.
+/// One `[[sensor]]`: two or three axes of one field of one stream of a
+/// source.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SensorConfig {
     pub name: String,
@@ -391,22 +392,9 @@ pub struct SensorConfig {
     /// list, the stream id of a replayed capture, 0 for a Falcon.
     pub stream: u8,
     pub field: Field,
-    /// The raw x and y of the paper's model, in that order; different.
-    pub axes: [Axis; 2],
-    /// The model's effects, in catalogue order (the paper's: offset, scale).
-    pub effects: Vec<String>,
-    pub rotation: RotationSettings,
-    pub limits: LimitSettings,
-    /// Where the heading check of each rotation takes its gyro from.
-    pub gyro: GyroChoice,
-    /// A sensor of a csv source: the two columns that turn (the raw x and
-    /// y, in that order); then `stream`, `field` and `axes` are unused
-    /// (0, mag, x and y).
-    pub columns: Option<[String; 2]>,
-    /// A 3-axis sensor (`axes = ["x", "y", "z"]`): its model, units, tilt
-    /// source and collection; then `axes` holds its first two axes, and
-    /// `effects`, `gyro`, `rotation` and `limits` are unused.
-    pub three: Option<crate::daemon::sensor3::Sensor3Config>,
+    /// What it measures with: two axes turned in a plane, or three over a
+    /// sphere, each with the settings of that geometry only.
+    pub geometry: SensorGeometry,
     /// A magnetometer's true north (`declination_deg` or `[sensor.location]`,
     /// else `[daemon]`'s for a device's magnetometer): its readings then
     /// carry `true_heading_deg`.
@@ -555,6 +543,7 @@ mod spans;
 use columns::Columns;
 use raw::*;
 use sensors::PlaneSensor;
+pub use sensors::{PlaneConfig, Sensor3Config, SensorGeometry, TiltSource};
 use sources::*;
 use spans::*;
 
@@ -734,7 +723,7 @@ impl Checker<'_> {
                 let (mut sensor, tilt) = self.check_csv_sensor(&key, s, source, layout)?;
                 // A 3-axis csv sensor names its field: true north is a
                 // magnetometer's (a 2-axis one's columns carry no field).
-                if north.is_some() && sensor.three.is_some() && sensor.field != Field::Mag {
+                if north.is_some() && sensor.sphere().is_some() && sensor.field != Field::Mag {
                     return Err(self.north_not_magnetometer(&key, location_given, sensor.field));
                 }
                 sensor.north = north;

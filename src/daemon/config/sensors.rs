@@ -3,6 +3,97 @@
 
 use super::*;
 
+/// A sensor's geometry, with the settings that geometry uses.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SensorGeometry {
+    /// Two axes turned about the third: a rotation and the paper's model.
+    Plane(PlaneConfig),
+    /// Three axes (`axes = ["x", "y", "z"]`): sphere coverage and an
+    /// ellipsoid.
+    Sphere(Sensor3Config),
+}
+
+/// What a 2-axis `[[sensor]]` adds to [`SensorConfig`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlaneConfig {
+    /// The raw x and y of the paper's model, in that order; different.
+    pub axes: [Axis; 2],
+    /// The model's effects, in catalogue order (the paper's: offset, scale).
+    pub effects: Vec<String>,
+    pub rotation: RotationSettings,
+    pub limits: LimitSettings,
+    /// Where the heading check of each rotation takes its gyro from.
+    pub gyro: GyroChoice,
+    /// A sensor of a csv source: the two columns that turn (the raw x and
+    /// y, in that order); then the sensor's `stream`, `field` and `axes`
+    /// are unused (0, mag, x and y).
+    pub columns: Option<[String; 2]>,
+}
+
+/// What a `[[sensor]]` with three axes adds to [`SensorConfig`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sensor3Config {
+    /// The three axes, in the order of the sensor's x, y, z.
+    pub axes: [Axis; 3],
+    pub model: crate::model::ellipsoid::Ellipsoid3Model,
+    /// Raw counts per gauss (a magnetometer, `lsb_per_gauss`) or per g (an
+    /// accelerometer, `lsb_per_g`), when configured.
+    pub lsb_per_unit: Option<f64>,
+    pub tilt: Option<TiltSource>,
+    pub sphere: crate::model::sphere_buffer::SphereSettings,
+    /// A sensor of a csv source: the columns of its x, y, z (then `axes`
+    /// is x, y, z and unused).
+    pub columns: Option<[String; 3]>,
+}
+
+/// The accelerometer a magnetometer's heading is tilt-compensated with:
+/// another 3-axis sensor of the same source (`tilt = "<name>"`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TiltSource {
+    pub sensor: String,
+    pub stream: u8,
+    pub axes: [Axis; 3],
+    /// For a csv source: the accelerometer sensor's three columns.
+    pub columns: Option<[String; 3]>,
+}
+
+impl SensorConfig {
+    /// The 2-axis settings, if the sensor turns in a plane.
+    pub fn plane(&self) -> Option<&PlaneConfig> {
+        match &self.geometry {
+            SensorGeometry::Plane(plane) => Some(plane),
+            SensorGeometry::Sphere(_) => None,
+        }
+    }
+
+    /// The 3-axis settings, if the sensor covers a sphere.
+    pub fn sphere(&self) -> Option<&Sensor3Config> {
+        match &self.geometry {
+            SensorGeometry::Sphere(three) => Some(three),
+            SensorGeometry::Plane(_) => None,
+        }
+    }
+
+    /// [`SensorConfig::sphere`], to change.
+    pub fn sphere_mut(&mut self) -> Option<&mut Sensor3Config> {
+        match &mut self.geometry {
+            SensorGeometry::Sphere(three) => Some(three),
+            SensorGeometry::Plane(_) => None,
+        }
+    }
+
+    /// The model's names: a plane's effects, or the pieces of a sphere's
+    /// model name (`paper+cross-axis`: `paper`, `cross-axis`).
+    pub fn effects(&self) -> Vec<String> {
+        match &self.geometry {
+            SensorGeometry::Plane(plane) => plane.effects.clone(),
+            SensorGeometry::Sphere(three) => {
+                three.model.name().split('+').map(String::from).collect()
+            }
+        }
+    }
+}
+
 impl Checker<'_> {
     /// A sensor of a csv source: two columns of its file (or of one of its
     /// files), and optionally a gyro column; or three columns and a `field`,
@@ -129,13 +220,14 @@ impl Checker<'_> {
             source: s.source,
             stream: plane.stream,
             field: plane.field,
-            axes: plane.axes,
-            effects: plane.effects,
-            rotation: s.rotation,
-            limits: s.limits,
-            gyro: plane.gyro,
-            columns: plane.columns,
-            three: None,
+            geometry: SensorGeometry::Plane(PlaneConfig {
+                axes: plane.axes,
+                effects: plane.effects,
+                rotation: s.rotation,
+                limits: s.limits,
+                gyro: plane.gyro,
+                columns: plane.columns,
+            }),
             north: plane.north,
         })
     }
@@ -269,7 +361,7 @@ impl Checker<'_> {
         let columns = [found[0].1.clone(), found[1].1.clone(), found[2].1.clone()];
         let (mut sensor, tilt) =
             self.check_sensor3(key, s, field, 0, &[Axis::X, Axis::Y, Axis::Z], "")?;
-        if let Some(three) = sensor.three.as_mut() {
+        if let Some(three) = sensor.sphere_mut() {
             three.columns = Some(columns);
         }
         Ok((sensor, tilt))
@@ -416,16 +508,7 @@ impl Checker<'_> {
                 source: s.source,
                 stream,
                 field,
-                axes: [axes[0], axes[1]],
-                effects: model.name().split('+').map(String::from).collect(),
-                rotation: RotationSettings::default(),
-                limits: LimitSettings::default(),
-                gyro: GyroChoice::Off(
-                    "a 3-axis sensor: its fit is judged by the sphere's coverage, not a gyro"
-                        .into(),
-                ),
-                columns: None,
-                three: Some(three),
+                geometry: SensorGeometry::Sphere(three),
                 north: None,
             },
             s.tilt,
@@ -439,7 +522,6 @@ impl Checker<'_> {
         sensors: &mut [SensorConfig],
         pending: &[(usize, String)],
     ) -> Result<(), ConfigError> {
-        use crate::daemon::sensor3::TiltSource;
         for (i, name) in pending {
             let key = format!("sensor[{i}].tilt");
             let Some(me) = sensors.get(*i) else { continue };
@@ -447,7 +529,7 @@ impl Checker<'_> {
             let Some(j) = found else {
                 let names: Vec<&str> = sensors
                     .iter()
-                    .filter(|s| s.three.is_some() && s.field == Field::Accel)
+                    .filter(|s| s.sphere().is_some() && s.field == Field::Accel)
                     .map(|s| s.name.as_str())
                     .collect();
                 return Err(self.error(
@@ -469,7 +551,7 @@ impl Checker<'_> {
             let other = &sensors[j];
             let problem = if j == *i {
                 Some("a sensor cannot be its own tilt source".to_string())
-            } else if other.three.is_none() {
+            } else if other.sphere().is_none() {
                 Some(format!(
                     "'{name}' is a 2-axis sensor: the tilt source must be a 3-axis accelerometer \
                      (axes = [\"x\", \"y\", \"z\"], field = \"accel\")"
@@ -496,13 +578,13 @@ impl Checker<'_> {
             if let Some(problem) = problem {
                 return Err(self.error(&key, problem));
             }
-            let tilt = other.three.as_ref().map(|t| TiltSource {
+            let tilt = other.sphere().map(|t| TiltSource {
                 sensor: name.clone(),
                 stream: other.stream,
                 axes: t.axes,
                 columns: t.columns.clone(),
             });
-            if let Some(three) = sensors.get_mut(*i).and_then(|s| s.three.as_mut()) {
+            if let Some(three) = sensors.get_mut(*i).and_then(SensorConfig::sphere_mut) {
                 three.tilt = tilt;
             }
         }

@@ -46,7 +46,7 @@ use serde_json::{Value, json};
 use tokio::sync::{mpsc, watch};
 
 use super::{Access, ClientCommand, Hub, MAX_COMMAND_LEN, Origin, ReplyTo, SubscribeError};
-use crate::daemon::config::Config;
+use crate::daemon::config::{Config, SensorGeometry};
 use crate::model::effects::{model_name, parse_list};
 pub use conn::ConnectionLimits;
 use conn::{BoundedListener, Peer};
@@ -107,28 +107,25 @@ pub fn page_config(config: &Config) -> Value {
     let sensors: Vec<Value> = config
         .sensors
         .iter()
-        .map(|s| {
-            let model = parse_list(&s.effects.join(","))
-                .map(|e| model_name(&e))
-                .unwrap_or_else(|_| s.effects.join("+"));
-            match &s.three {
-                Some(three) => json!({
-                    "name": s.name,
-                    "source": s.source,
-                    "axes": 3,
-                    "model": three.model.name(),
-                    "sphere": three.sphere,
-                    "tilt": three.tilt.as_ref().map(|t| t.sensor.as_str()),
-                }),
-                None => json!({
-                    "name": s.name,
-                    "source": s.source,
-                    "axes": 2,
-                    "model": model,
-                    "limits": s.limits,
-                    "rotation": s.rotation,
-                }),
-            }
+        .map(|s| match &s.geometry {
+            SensorGeometry::Sphere(three) => json!({
+                "name": s.name,
+                "source": s.source,
+                "axes": 3,
+                "model": three.model.name(),
+                "sphere": three.sphere,
+                "tilt": three.tilt.as_ref().map(|t| t.sensor.as_str()),
+            }),
+            SensorGeometry::Plane(plane) => json!({
+                "name": s.name,
+                "source": s.source,
+                "axes": 2,
+                "model": parse_list(&plane.effects.join(","))
+                    .map(|e| model_name(&e))
+                    .unwrap_or_else(|_| plane.effects.join("+")),
+                "limits": plane.limits,
+                "rotation": plane.rotation,
+            }),
         })
         .collect();
     let access = &config.outputs.access;
