@@ -106,6 +106,26 @@ fn paper_params(params: &Value) -> Result<Vec<Param>, CheckError> {
         .collect()
 }
 
+/// The `calibration` of a daemon state file (one with a `format`), refused
+/// when this fieldcal does not read its format; None for other JSON.
+pub(super) fn state_calibration(root: &Value) -> Result<Option<&Value>, CheckError> {
+    let Some(cal) = root
+        .get("calibration")
+        .filter(|_| root.get("format").is_some())
+    else {
+        return Ok(None);
+    };
+    let format = root.get("format").and_then(Value::as_u64);
+    if format != Some(u64::from(super::calibration::FORMAT_VERSION)) {
+        return Err(unknown(format!(
+            "a state file of format {}, this fieldcal reads format {}",
+            root["format"],
+            super::calibration::FORMAT_VERSION
+        )));
+    }
+    Ok(Some(cal))
+}
+
 /// Reads a stored calibration: `fit --json` of the paper's model or of
 /// `--effects`, or a daemon state file.
 pub fn parse_stored(bytes: &[u8]) -> Result<StoredCalibration, CheckError> {
@@ -114,18 +134,7 @@ pub fn parse_stored(bytes: &[u8]) -> Result<StoredCalibration, CheckError> {
     if !root.is_object() {
         return Err(unknown("the JSON is not an object"));
     }
-    let stored = if let Some(cal) = root
-        .get("calibration")
-        .filter(|_| root.get("format").is_some())
-    {
-        let format = root.get("format").and_then(Value::as_u64);
-        if format != Some(u64::from(super::calibration::FORMAT_VERSION)) {
-            return Err(unknown(format!(
-                "a state file of format {}, this fieldcal reads format {}",
-                root["format"],
-                super::calibration::FORMAT_VERSION
-            )));
-        }
+    let stored = if let Some(cal) = state_calibration(&root)? {
         let calibration: super::calibration::Calibration = serde_json::from_value(cal.clone())
             .map_err(|e| unknown(format!("a state file whose calibration does not read: {e}")))?;
         let effects = parse_list(&calibration.model).map_err(unknown)?;

@@ -86,18 +86,7 @@ pub fn is_three_axes(root: &Value) -> bool {
 /// Reads a stored 3-D calibration from the JSON of `fieldcal fit --json`
 /// on three axes or a daemon state file of a 3-axis sensor.
 pub fn parse_stored3(root: &Value) -> Result<Stored3, CheckError> {
-    let stored = if let Some(cal) = root
-        .get("calibration")
-        .filter(|_| root.get("format").is_some())
-    {
-        let format = root.get("format").and_then(Value::as_u64);
-        if format != Some(u64::from(super::calibration::FORMAT_VERSION)) {
-            return Err(unknown(format!(
-                "a state file of format {}, this fieldcal reads format {}",
-                root["format"],
-                super::calibration::FORMAT_VERSION
-            )));
-        }
+    let stored = if let Some(cal) = super::check::state_calibration(root)? {
         let e = cal
             .get("ellipsoid")
             .filter(|e| !e.is_null())

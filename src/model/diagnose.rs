@@ -645,7 +645,7 @@ pub fn diagnose(
     // little from one sample to the next (5 % at 200 samples a turn adds
     // ~13 % to the estimate), so the residual with the least structure left
     // gives the cleanest estimate.
-    let noise_floor = climb.final_residuals.noise_floor.clone();
+    let noise_floor = climb.final_residuals.common.noise_floor.clone();
     let verdict = verdict(
         climb.last.rms,
         &climb.final_residuals,
@@ -788,7 +788,7 @@ mod data_tests {
         let fit = fit_model(&one, &effects::PAPER).unwrap();
         let res = analyse(&one, &fit);
         assert!(
-            res.tail_max_sd > EXTREME_SDS && tails_heavy(&res),
+            res.common.tail_max_sd > EXTREME_SDS && tails_heavy(&res),
             "{res:?}"
         );
     }
@@ -989,7 +989,7 @@ mod judge_tests {
         with.extend_from_slice(own);
         let candidate = fit(&with, rms1);
         let mut res = analyse(&data, &fit_model(&data, &effects::PAPER).unwrap());
-        res.noise_floor.rms = 0.01;
+        res.common.noise_floor.rms = 0.01;
         let params = own_params(&candidate, &current);
         judge(&Trial {
             data: &data,
@@ -1025,7 +1025,7 @@ mod judge_tests {
             *e *= 0.85;
         }
         let mut res = analyse(&data, &fit_model(&data, &effects::PAPER).unwrap());
-        res.noise_floor.rms = residuals::noise_floor(&data, &current).rms;
+        res.common.noise_floor.rms = residuals::noise_floor(&data, &current).rms;
         let effect = Effect::CubicCentred;
         let judge_of = |candidate: &ModelFit| {
             let params = own_params(candidate, &current);

@@ -47,8 +47,7 @@ use super::ellipsoid_effects::{Effects3Error, Ellipsoid3EffectsFit, base_effects
 use super::ladder::{self, Gates, Geometry, Offer, STRUCTURE_SES, percent, range, starting_list};
 use super::nonlinear::{MAD_TO_SD, Param};
 use super::residuals::{
-    COPY_R2, CovariateLink, GAUSSIAN_TAIL_4SD, NoiseFloor, SetAside, TAIL_SDS, is_time_like, links,
-    median, robust_sd, slow_structure,
+    COPY_R2, NoiseFloor, ResidualCommon, SetAside, is_time_like, links, median, robust_sd,
 };
 use super::sphere::{self, SphereCoverage};
 use crate::sample::Dataset3;
@@ -70,19 +69,8 @@ pub struct Residuals3 {
     /// coupling), as a fraction of the field; fitted jointly.
     pub direction_degree1: f64,
     pub direction_degree2: f64,
-    /// Slope of e against time, per second (None without times).
-    pub time_trend: Option<f64>,
-    /// Share of the variance a moving average over ~1/10 of the run
-    /// explains, in time order.
-    pub time_structure: Option<f64>,
-    pub covariates: Vec<CovariateLink>,
-    /// Samples beyond 4 robust SD of the median.
-    pub tail_count: usize,
-    /// What Gaussian noise would give: n · P(|Z| > 4).
-    pub tail_expected: f64,
-    pub tail_max_sd: f64,
-    pub robust_sd: f64,
-    pub noise_floor: NoiseFloor,
+    #[serde(flatten)]
+    pub common: ResidualCommon,
 }
 
 /// One effect the model could add, as judged on the current model.
@@ -310,7 +298,7 @@ pub fn analyse(data: &Dataset3, fit: &Ellipsoid3EffectsFit, aside: &[SetAside]) 
     let column = |values: &[f64]| -> Option<Vec<f64>> {
         (values.len() == n_all).then(|| order.iter().map(|&i| values[i]).collect())
     };
-    let (time_trend, covariates) = links(data.t.as_deref(), &data.covariates, aside, column, &e);
+    let links = links(data.t.as_deref(), &data.covariates, aside, column, &e);
     let m = median(&e);
     let sd = robust_sd(&e);
     let z: Vec<f64> = if sd > 0.0 {
@@ -322,14 +310,7 @@ pub fn analyse(data: &Dataset3, fit: &Ellipsoid3EffectsFit, aside: &[SetAside]) 
     Residuals3 {
         direction_degree1: d1,
         direction_degree2: d2,
-        time_trend,
-        time_structure: slow_structure(&e),
-        covariates,
-        tail_count: z.iter().filter(|v| v.abs() > TAIL_SDS).count(),
-        tail_expected: e.len() as f64 * GAUSSIAN_TAIL_4SD,
-        tail_max_sd: z.iter().map(|v| v.abs()).fold(0.0, f64::max),
-        robust_sd: sd,
-        noise_floor: noise_floor_of(&e, data.t.is_some()),
+        common: ResidualCommon::of(&e, &z, sd, links, noise_floor_of(&e, data.t.is_some())),
     }
 }
 
@@ -630,7 +611,7 @@ pub fn diagnose3(data: &Dataset3, baseline: &[Effect]) -> Result<Diagnosis3, Eff
         aside: &aside,
     };
     let climb = ladder::climb(&sphere, model, base_fit, &baseline_residuals);
-    let noise_floor = climb.final_residuals.noise_floor.clone();
+    let noise_floor = climb.final_residuals.common.noise_floor.clone();
     let used = climb.last.n - climb.last.flagged.len();
     let verdict = verdict(climb.last.rms, &climb.final_residuals, &noise_floor, used);
     Ok(Diagnosis3 {

@@ -22,7 +22,7 @@ use super::diagnose::{
 };
 use super::effects::Effect;
 use super::nonlinear::Param;
-use super::residuals::{CovariateLink, GAUSSIAN_TAIL_4SD, NoiseFloor};
+use super::residuals::{GAUSSIAN_TAIL_4SD, NoiseFloor, ResidualCommon};
 
 /// An rms below this is rounding, not noise or structure.
 pub(crate) const NUMERICAL_RMS: f64 = 1e-12;
@@ -54,16 +54,7 @@ pub(crate) trait LadderFit {
 
 /// What the gates and the verdict read of a residual, in either geometry.
 pub(crate) trait ResidualStats {
-    /// Samples beyond 4 robust SD of the median.
-    fn tail_count(&self) -> usize;
-    /// What Gaussian noise would give beyond 4 SD.
-    fn tail_expected(&self) -> f64;
-    /// The furthest sample, in robust SD.
-    fn tail_max_sd(&self) -> f64;
-    fn noise_floor(&self) -> &NoiseFloor;
-    /// Share of the variance a moving average explains, in time order.
-    fn time_structure(&self) -> Option<f64>;
-    fn covariates(&self) -> &[CovariateLink];
+    fn common(&self) -> &ResidualCommon;
 }
 
 /// What the ladder reads of a ranked candidate.
@@ -76,7 +67,7 @@ pub(crate) trait Ranked {
 /// Implements [`LadderFit`], [`ResidualStats`] and [`Ranked`] for a
 /// geometry's fit, residual and candidate types, whose fields share the
 /// ladder's names (`rms`, `rss`, `unknowns`, `flagged`, `params`; the tail
-/// counts, `noise_floor`, `time_structure`, `covariates`; `effect`,
+/// counts and the rest in `common`; `effect`,
 /// `supported`, `delta_bic`).
 macro_rules! ladder_types {
     ($fit:ty, $residuals:ty, $candidate:ty) => {
@@ -99,23 +90,8 @@ macro_rules! ladder_types {
         }
 
         impl $crate::model::ladder::ResidualStats for $residuals {
-            fn tail_count(&self) -> usize {
-                self.tail_count
-            }
-            fn tail_expected(&self) -> f64 {
-                self.tail_expected
-            }
-            fn tail_max_sd(&self) -> f64 {
-                self.tail_max_sd
-            }
-            fn noise_floor(&self) -> &$crate::model::residuals::NoiseFloor {
-                &self.noise_floor
-            }
-            fn time_structure(&self) -> Option<f64> {
-                self.time_structure
-            }
-            fn covariates(&self) -> &[$crate::model::residuals::CovariateLink] {
-                &self.covariates
+            fn common(&self) -> &$crate::model::residuals::ResidualCommon {
+                &self.common
             }
         }
 
@@ -276,9 +252,9 @@ pub(crate) fn percent(fraction: f64) -> String {
 
 /// Whether the tails of a residual are too heavy for Gaussian noise.
 pub(crate) fn tails_heavy<R: ResidualStats + ?Sized>(res: &R) -> bool {
-    let n = res.tail_expected() / GAUSSIAN_TAIL_4SD;
-    res.tail_count() >= tail_threshold(res.tail_expected())
-        || (res.tail_count() >= 1 && res.tail_max_sd() > EXTREME_SDS && n < 100_000.0)
+    let n = res.common().tail_expected / GAUSSIAN_TAIL_4SD;
+    res.common().tail_count >= tail_threshold(res.common().tail_expected)
+        || (res.common().tail_count >= 1 && res.common().tail_max_sd > EXTREME_SDS && n < 100_000.0)
 }
 
 /// What decided one candidate.
@@ -369,9 +345,9 @@ pub(crate) fn judge(t: &Scores<'_>, gates: &dyn Gates) -> Judgement {
     if *t.effect == Effect::Outliers && !tails_heavy(t.res) {
         return refuse(format!(
             "no outliers: {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}; {numbers}",
-            crate::sample::count(t.res.tail_count() as u64, "sample"),
-            t.res.tail_max_sd(),
-            t.res.tail_expected()
+            crate::sample::count(t.res.common().tail_count as u64, "sample"),
+            t.res.common().tail_max_sd,
+            t.res.common().tail_expected
         ));
     }
     let drop = if rms0 > 0.0 { 1.0 - rms1 / rms0 } else { 0.0 };
@@ -382,7 +358,7 @@ pub(crate) fn judge(t: &Scores<'_>, gates: &dyn Gates) -> Judgement {
             MIN_RMS_DROP * 100.0
         ));
     }
-    let floor = t.res.noise_floor().rms;
+    let floor = t.res.common().noise_floor.rms;
     if amplitude < MIN_EXPLAINED_NOISE * floor {
         return refuse(format!(
             "too small to matter: it explains {} of the field, under a quarter of the noise floor {}; {with_params}",
@@ -411,9 +387,9 @@ pub(crate) fn judge(t: &Scores<'_>, gates: &dyn Gates) -> Judgement {
         format!(
             "; {} flagged, {} beyond 4 robust SD (the furthest at {:.1}) where Gaussian noise would give {:.2}",
             crate::sample::count(t.flagged as u64, "sample"),
-            t.res.tail_count(),
-            t.res.tail_max_sd(),
-            t.res.tail_expected()
+            t.res.common().tail_count,
+            t.res.common().tail_max_sd,
+            t.res.common().tail_expected
         )
     } else {
         String::new()
@@ -588,14 +564,15 @@ pub(crate) fn verdict<R: ResidualStats + ?Sized>(
         );
     }
     let mut places = patterns();
-    if let Some(s) = res.time_structure().filter(|s| *s > 0.3) {
+    if let Some(s) = res.common().time_structure.filter(|s| *s > 0.3) {
         places.push(format!(
             "slow wander in time ({:.0} % of the variance)",
             s * 100.0
         ));
     }
     for c in res
-        .covariates()
+        .common()
+        .covariates
         .iter()
         .filter(|c| c.correlation.abs() > 0.5)
     {
@@ -604,7 +581,7 @@ pub(crate) fn verdict<R: ResidualStats + ?Sized>(
     if tails_heavy(res) {
         places.push(format!(
             "{} beyond 4 robust SD",
-            crate::sample::count(res.tail_count() as u64, "sample")
+            crate::sample::count(res.common().tail_count as u64, "sample")
         ));
     }
     let where_ = blame(places, excess);

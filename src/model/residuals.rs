@@ -57,6 +57,15 @@ pub struct NoiseFloor {
 pub struct Residuals {
     /// Orders 1..=4, least squares of e on cos/sin(kθ) jointly.
     pub harmonics: Vec<Harmonic>,
+    #[serde(flatten)]
+    pub common: ResidualCommon,
+}
+
+/// What the residual of a fit of either geometry says beyond its
+/// geometry: its trend and structure in time, its links to logged
+/// columns, its tail and its noise.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ResidualCommon {
     /// Slope of e vs time, per second (None without a time column).
     pub time_trend: Option<f64>,
     /// Fraction of the residual variance explained by a moving average over
@@ -546,23 +555,43 @@ pub fn analyse(data: &Dataset, fit: &ModelFit) -> Residuals {
     };
 
     let aside = set_aside(data);
-    let (time_trend, covariates) = links(data.t.as_deref(), &data.covariates, &aside, column, &e);
+    let timed = data.t.is_some();
+    let links = links(data.t.as_deref(), &data.covariates, &aside, column, &e);
 
     let sd = robust_sd(&e);
     let z = standardized(&e, &theta);
-    let tail_count = z.iter().filter(|v| v.abs() > TAIL_SDS).count();
     let tail_max_sd = z.iter().map(|v| v.abs()).fold(0.0, f64::max);
 
     Residuals {
         harmonics: harmonics(&e, &theta),
-        tail_max_sd: finite_or_zero(tail_max_sd),
-        time_trend,
-        time_structure: slow_structure(&e),
-        covariates,
-        tail_count,
-        tail_expected: e.len() as f64 * GAUSSIAN_TAIL_4SD,
-        robust_sd: sd,
-        noise_floor: noise_floor_of(&e, data.t.is_some()),
+        common: ResidualCommon {
+            tail_max_sd: finite_or_zero(tail_max_sd),
+            ..ResidualCommon::of(&e, &z, sd, links, noise_floor_of(&e, timed))
+        },
+    }
+}
+
+impl ResidualCommon {
+    /// From the residual `e` in time order, standardised as `z` (robust SD
+    /// `sd`), with its trend in time and links to the logged columns
+    /// ([`links`]) and its noise floor.
+    pub fn of(
+        e: &[f64],
+        z: &[f64],
+        sd: f64,
+        (time_trend, covariates): (Option<f64>, Vec<CovariateLink>),
+        noise_floor: NoiseFloor,
+    ) -> Self {
+        ResidualCommon {
+            time_trend,
+            time_structure: slow_structure(e),
+            covariates,
+            tail_count: z.iter().filter(|v| v.abs() > TAIL_SDS).count(),
+            tail_expected: e.len() as f64 * GAUSSIAN_TAIL_4SD,
+            tail_max_sd: z.iter().map(|v| v.abs()).fold(0.0, f64::max),
+            robust_sd: sd,
+            noise_floor,
+        }
     }
 }
 
