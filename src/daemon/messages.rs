@@ -340,5 +340,14 @@ pub struct StatusMessage<'a> {
 /// Serialises a message to one line (without the newline). Serialising
 /// these plain structs cannot fail; an empty object is the fallback.
 pub fn to_line<T: Serialize>(message: &T) -> String {
-    serde_json::to_string(message).unwrap_or_else(|_| "{}".to_string())
+    // Room for a calibrated READING (about 150 to 250 bytes) at once:
+    // serde_json's own start of 128 bytes would grow, and copy, for most.
+    let mut line = Vec::with_capacity(LINE_CAPACITY);
+    match serde_json::to_writer(&mut line, message) {
+        Ok(()) => String::from_utf8(line).unwrap_or_else(|_| "{}".to_string()),
+        Err(_) => "{}".to_string(),
+    }
 }
+
+/// Bytes reserved for a line before it is written.
+const LINE_CAPACITY: usize = 256;

@@ -97,6 +97,42 @@ pub trait Geometry: Send {
         sample: Sample,
         emit: &mut Emitter<'_>,
     ) -> Option<Calibration>;
+    /// Publishes a sample of the sensor's own field and collects it: the
+    /// one path every reading and row takes (written once; each geometry's
+    /// copy calls its own methods directly).
+    fn publish(
+        &mut self,
+        life: &mut Lifecycle,
+        sample: Sample,
+        row: Option<&CsvRow>,
+        emit: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
+        life.readings += 1;
+        let line = self.reading_line(life, sample, row);
+        emit.line(Lane::Reading, line);
+        self.push(life, sample, emit)
+    }
+    /// Handles one reading: publishes the sensor's own sample, if it
+    /// carries one, and collects it. Returns a newly accepted calibration.
+    fn on_reading(
+        &mut self,
+        life: &mut Lifecycle,
+        reading: &Reading,
+        emit: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
+        let sample = self.reading_sample(life, reading)?;
+        self.publish(life, sample, None, emit)
+    }
+    /// [`Geometry::on_reading`] for a row of the sensor's csv source.
+    fn on_row(
+        &mut self,
+        life: &mut Lifecycle,
+        row: &CsvRow,
+        emit: &mut Emitter<'_>,
+    ) -> Option<Calibration> {
+        let sample = self.row_sample(life, row)?;
+        self.publish(life, sample, Some(row), emit)
+    }
     /// Resolves a csv sensor's columns; see [`Sensor::bind_csv`].
     fn bind_csv(
         &mut self,
@@ -209,23 +245,9 @@ impl Sensor {
 
     /// [`Sensor::on_row`], its output to an [`Emitter`].
     pub fn on_row_to(&mut self, row: &CsvRow, out: &mut Emitter<'_>) -> Option<Calibration> {
-        let sample = self.geometry.row_sample(&self.life, row)?;
-        self.publish(sample, Some(row), out)
+        self.geometry.on_row(&mut self.life, row, out)
     }
 
-    /// Publishes a sample of the sensor's own field and collects it: the
-    /// one path every reading and row takes.
-    fn publish(
-        &mut self,
-        sample: Sample,
-        row: Option<&CsvRow>,
-        out: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
-        self.life.readings += 1;
-        let line = self.geometry.reading_line(&self.life, sample, row);
-        out.line(Lane::Reading, line);
-        self.geometry.push(&mut self.life, sample, out)
-    }
 
     /// Takes over what `old` (the same sensor under the settings before a
     /// reload) had earned: its calibration, which keeps correcting (and
@@ -295,8 +317,7 @@ impl Sensor {
         reading: &Reading,
         out: &mut Emitter<'_>,
     ) -> Option<Calibration> {
-        let sample = self.geometry.reading_sample(&self.life, reading)?;
-        self.publish(sample, None, out)
+        self.geometry.on_reading(&mut self.life, reading, out)
     }
 
     pub fn status(&self) -> SensorStatus<'_> {
