@@ -214,21 +214,6 @@ pub fn coverage(directions: impl IntoIterator<Item = [f64; 3]>) -> SphereCoverag
     }
 }
 
-/// Coverage of the directions of `points` from `centre`, mapped by the
-/// symmetric `matrix` (an ellipsoid's calibration, so that the directions
-/// are those of the calibrated field).
-pub fn coverage_about(
-    points: &[[f64; 3]],
-    centre: [f64; 3],
-    matrix: [[f64; 3]; 3],
-) -> SphereCoverage {
-    coverage(
-        points
-            .iter()
-            .map(|p| super::calibration3::correct3(&centre, &matrix, *p)),
-    )
-}
-
 fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
     let dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     dot.clamp(-1.0, 1.0).acos().to_degrees()
