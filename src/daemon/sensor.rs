@@ -248,7 +248,6 @@ impl Sensor {
         self.geometry.on_row(&mut self.life, row, out)
     }
 
-
     /// Takes over what `old` (the same sensor under the settings before a
     /// reload) had earned: its calibration, which keeps correcting (and
     /// keeps naming its own model) until one under the new settings is

@@ -36,17 +36,7 @@ pub fn simulate(args: SimulateArgs) -> Result<()> {
         seed: args.seed,
         effects: sim_effects(&args.effect, args.temp_rise),
     };
-    if args.json && args.output.is_none() {
-        bail!("--json prints the true calibration on stdout, so the data needs --output FILE");
-    }
-    // Refuse before simulating; the write itself checks again (a file
-    // may appear meanwhile) and never replaces one without --force.
-    if let Some(path) = &args.output
-        && !args.force
-        && std::fs::symlink_metadata(path).is_ok()
-    {
-        bail!("{}", exists_message(path));
-    }
+    check_output(&args)?;
     let wire = FalconWire {
         garbage: args.garbage,
         ..Default::default()
@@ -58,27 +48,11 @@ pub fn simulate(args: SimulateArgs) -> Result<()> {
     let (data, model_truth) = sensor.simulate_with_truth()?;
     let n = match args.format {
         SimFormat::Csv => {
-            match &args.output {
-                Some(path) => write_file(path, args.force, |out| write_dataset_to(out, &data))?,
-                None => {
-                    let mut buffer = Vec::with_capacity(data.len() * 40);
-                    write_dataset_to(&mut buffer, &data)?;
-                    write_stdout(&buffer)?;
-                }
-            }
+            write_csv(&args, |mut out| write_dataset_to(&mut out, &data))?;
             data.len()
         }
         SimFormat::Falcon | SimFormat::FalconRaw => {
-            let Some(path) = &args.output else {
-                bail!("Falcon-GX frames are binary: write them to a file with --output FILE");
-            };
-            let (header, chunks) = sensor.falcon_capture(&wire)?;
-            if args.format == SimFormat::Falcon {
-                write_file(path, args.force, |out| write_capture(out, &header, &chunks))?;
-            } else {
-                write_file(path, args.force, |out| write_raw(out, &chunks))?;
-            }
-            chunks.len()
+            write_frames(&args, || Ok(sensor.falcon_capture(&wire)?))?
         }
     };
     let truth = sensor.truth();
@@ -196,6 +170,58 @@ fn exists_message(path: &Path) -> String {
         "{} exists: simulate never overwrites a file; choose another --output, or add --force to replace it",
         path.display()
     )
+}
+
+/// The output checks before anything is simulated: `--json` needs
+/// `--output`, and an existing file is refused without `--force` (the
+/// write itself checks again: a file may appear meanwhile).
+fn check_output(args: &SimulateArgs) -> Result<()> {
+    if args.json && args.output.is_none() {
+        bail!("--json prints the true calibration on stdout, so the data needs --output FILE");
+    }
+    if let Some(path) = &args.output
+        && !args.force
+        && std::fs::symlink_metadata(path).is_ok()
+    {
+        bail!("{}", exists_message(path));
+    }
+    Ok(())
+}
+
+/// Writes a CSV (by `write`) to `--output`, or to stdout.
+fn write_csv(
+    args: &SimulateArgs,
+    write: impl Fn(&mut dyn Write) -> std::io::Result<()>,
+) -> Result<()> {
+    match &args.output {
+        Some(path) => write_file(path, args.force, |mut out| write(&mut out)),
+        None => {
+            let mut buffer = Vec::new();
+            write(&mut buffer)?;
+            write_stdout(&buffer)
+        }
+    }
+}
+
+/// Writes the Falcon-GX frames `frames` makes to `--output`: a capture, or
+/// (`falcon-raw`) the bytes alone. Returns the number of frames.
+fn write_frames(
+    args: &SimulateArgs,
+    frames: impl FnOnce() -> Result<(
+        fieldcal::capture::CaptureHeader,
+        Vec<fieldcal::capture::Chunk>,
+    )>,
+) -> Result<usize> {
+    let Some(path) = &args.output else {
+        bail!("Falcon-GX frames are binary: write them to a file with --output FILE");
+    };
+    let (header, chunks) = frames()?;
+    if args.format == SimFormat::Falcon {
+        write_file(path, args.force, |out| write_capture(out, &header, &chunks))?;
+    } else {
+        write_file(path, args.force, |out| write_raw(out, &chunks))?;
+    }
+    Ok(chunks.len())
 }
 
 /// Writes `path` atomically (a reader sees the old file or the whole new
@@ -415,41 +441,17 @@ fn imu_of(args: &SimulateArgs) -> Result<SimImu3> {
 /// `fieldcal simulate --axes 3`.
 fn simulate3(args: SimulateArgs) -> Result<()> {
     let imu = imu_of(&args)?;
-    if args.json && args.output.is_none() {
-        bail!("--json prints the true calibration on stdout, so the data needs --output FILE");
-    }
-    if let Some(path) = &args.output
-        && !args.force
-        && std::fs::symlink_metadata(path).is_ok()
-    {
-        bail!("{}", exists_message(path));
-    }
+    check_output(&args)?;
     let n = match args.format {
         SimFormat::Csv => {
             let samples = imu.simulate()?;
-            match &args.output {
-                Some(path) => write_file(path, args.force, |out| write_imu_csv(out, &samples))?,
-                None => {
-                    let mut buffer = Vec::with_capacity(samples.len() * 160);
-                    write_imu_csv(&mut buffer, &samples)?;
-                    write_stdout(&buffer)?;
-                }
-            }
+            write_csv(&args, |mut out| write_imu_csv(&mut out, &samples))?;
             samples.len()
         }
-        SimFormat::Falcon | SimFormat::FalconRaw => {
-            let Some(path) = &args.output else {
-                bail!("Falcon-GX frames are binary: write them to a file with --output FILE");
-            };
-            let wire = FalconWire::default();
-            let (header, chunks) = imu.falcon_capture(args.garbage, wire.ticks_per_frame)?;
-            if args.format == SimFormat::Falcon {
-                write_file(path, args.force, |out| write_capture(out, &header, &chunks))?;
-            } else {
-                write_file(path, args.force, |out| write_raw(out, &chunks))?;
-            }
-            chunks.len()
-        }
+        SimFormat::Falcon | SimFormat::FalconRaw => write_frames(&args, || {
+            let ticks = FalconWire::default().ticks_per_frame;
+            Ok(imu.falcon_capture(args.garbage, ticks)?)
+        })?,
     };
     let truth = |(o, w, r): ([f64; 3], [[f64; 3]; 3], f64)| serde_json::json!({"offset": o, "matrix": w, "r": r});
     if args.json {
