@@ -232,7 +232,11 @@ axes = ["x", "y"]
     // turns by the poll, not by the clock): the rotation completes at the
     // end of the turn, within its last sector, not a second turn later. A
     // loaded machine delays polls, so this counts readings, not seconds.
-    let readings = daemon.seen.iter().filter(|v| is_class(v, "READING")).count();
+    let readings = daemon
+        .seen
+        .iter()
+        .filter(|v| is_class(v, "READING"))
+        .count();
     assert!(
         (readings as f64) < 1.1 * PER_TURN,
         "{readings} readings before the calibration"

@@ -44,6 +44,7 @@ fn with_gyro(run: &str, file: &str, x: &str, y: &str, gyro: &str) -> Diagnosis {
     }
     for c in &d.candidates {
         let h = c
+            .extra
             .heading_vs_gyro
             .as_ref()
             .expect("every candidate is checked");
@@ -97,7 +98,7 @@ fn assert_heading_never_worse(d: &Diagnosis) {
             .iter()
             .find(|c| &c.effect == s)
             .expect("suggested is a candidate");
-        let delta = base.worse_by(c.heading_vs_gyro.as_ref().expect("checked"));
+        let delta = base.worse_by(c.extra.heading_vs_gyro.as_ref().expect("checked"));
         assert!(
             delta.delta_rms_deg <= (HEADING_WORSE_SES * delta.se_deg).max(HEADING_MATTERS_DEG),
             "{c:?}"

@@ -127,32 +127,15 @@ pub const HEADING_WORSE_SES: f64 = 2.0;
 /// long recording resolves it.
 pub const HEADING_MATTERS_DEG: f64 = 0.1;
 
-/// One effect the model could add, as judged on the current model.
+/// One effect the model could add, as judged on the current model, with
+/// the heading error against the gyro when one was given.
+pub type Candidate = ladder::Candidate<HeadingSlot>;
+
+/// What a 2-D candidate adds to the ladder's: its heading against the gyro.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Candidate {
-    pub effect: Effect,
-    /// Rms the model reaches with this effect added (over the used samples).
-    pub rms: f64,
-    /// Rms of the model it was added to.
-    pub rms_before: f64,
-    /// Share of the model's mean-square residual the effect explains,
-    /// 1 − rms²/rms_before².
-    pub explained: f64,
-    /// The effect's own fitted parameters, with standard errors.
-    pub params: Vec<Param>,
-    /// Unknowns the effect adds; for `outliers`, the flagged samples (each
-    /// costs one unknown in the mean-shift outlier model).
-    pub unknowns_added: usize,
-    /// BIC with the effect minus BIC without: negative is better.
-    pub delta_bic: f64,
-    /// Whether the data supports it: ΔBIC below -[`BIC_MARGIN`] (and the
-    /// tail gate for `outliers`), material, within the physical limits,
-    /// resolved above its standard errors, and not folding the turn.
-    pub supported: bool,
+pub struct HeadingSlot {
     /// The heading error against the gyro, when one was given.
     pub heading_vs_gyro: Option<HeadingCheck>,
-    /// Why: built from the numbers that decided `supported`.
-    pub evidence: String,
 }
 
 /// One model of the ladder.
@@ -195,7 +178,7 @@ pub struct Diagnosis {
     pub heading: String,
 }
 
-ladder::ladder_types!(ModelFit, Residuals, Candidate);
+ladder::ladder_types!(ModelFit, Residuals);
 
 /// The criterion, as the report states it.
 pub fn criterion() -> String {
@@ -588,18 +571,8 @@ impl Geometry for Plane<'_> {
             covered: covered_deg(offer.fit),
             covered_now: covered_deg(offer.current),
         });
-        Candidate {
-            evidence: judged.evidence + &caveat(&offer.effect, self.data),
-            rms: offer.fit.rms,
-            rms_before: offer.current.rms,
-            explained: offer.explained(),
-            unknowns_added: offer.unknowns_added(),
-            delta_bic: offer.delta_bic,
-            supported: judged.supported,
-            heading_vs_gyro,
-            params: offer.params,
-            effect: offer.effect,
-        }
+        let evidence = judged.evidence + &caveat(&offer.effect, self.data);
+        offer.candidate(judged.supported, evidence, HeadingSlot { heading_vs_gyro })
     }
 }
 

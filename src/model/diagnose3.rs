@@ -74,22 +74,7 @@ pub struct Residuals3 {
 }
 
 /// One effect the model could add, as judged on the current model.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Candidate3 {
-    pub effect: Effect,
-    /// Rms the model reaches with this effect (over the used samples).
-    pub rms: f64,
-    pub rms_before: f64,
-    /// 1 − rms²/rms_before².
-    pub explained: f64,
-    /// The effect's own fitted parameters, with standard errors.
-    pub params: Vec<Param>,
-    /// Unknowns added; for `outliers`, the flagged samples.
-    pub unknowns_added: usize,
-    pub delta_bic: f64,
-    pub supported: bool,
-    pub evidence: String,
-}
+pub type Candidate3 = ladder::Candidate<ladder::Nothing>;
 
 pub use super::ladder::NotDetermined;
 
@@ -131,7 +116,7 @@ pub struct Diagnosis3 {
     pub criterion: String,
 }
 
-ladder::ladder_types!(Ellipsoid3EffectsFit, Residuals3, Candidate3);
+ladder::ladder_types!(Ellipsoid3EffectsFit, Residuals3);
 
 /// The criterion, as the report states it.
 pub fn criterion() -> String {
@@ -564,17 +549,7 @@ impl Geometry for Sphere<'_> {
                 params: &offer.params,
             },
         );
-        Candidate3 {
-            rms: offer.fit.rms,
-            rms_before: offer.current.rms,
-            explained: offer.explained(),
-            unknowns_added: offer.unknowns_added(),
-            delta_bic: offer.delta_bic,
-            supported: judged.supported,
-            evidence: judged.evidence,
-            params: offer.params,
-            effect: offer.effect,
-        }
+        offer.candidate(judged.supported, judged.evidence, ladder::Nothing {})
     }
 }
 

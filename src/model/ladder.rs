@@ -64,13 +64,11 @@ pub(crate) trait Ranked {
     fn delta_bic(&self) -> f64;
 }
 
-/// Implements [`LadderFit`], [`ResidualStats`] and [`Ranked`] for a
-/// geometry's fit, residual and candidate types, whose fields share the
-/// ladder's names (`rms`, `rss`, `unknowns`, `flagged`, `params`; the tail
-/// counts and the rest in `common`; `effect`,
-/// `supported`, `delta_bic`).
+/// Implements [`LadderFit`] and [`ResidualStats`] for a geometry's fit
+/// and residual types, whose fields share the ladder's names (`rms`,
+/// `rss`, `unknowns`, `flagged`, `params`; `common`).
 macro_rules! ladder_types {
-    ($fit:ty, $residuals:ty, $candidate:ty) => {
+    ($fit:ty, $residuals:ty) => {
         impl $crate::model::ladder::LadderFit for $fit {
             fn rms(&self) -> f64 {
                 self.rms
@@ -92,18 +90,6 @@ macro_rules! ladder_types {
         impl $crate::model::ladder::ResidualStats for $residuals {
             fn common(&self) -> &$crate::model::residuals::ResidualCommon {
                 &self.common
-            }
-        }
-
-        impl $crate::model::ladder::Ranked for $candidate {
-            fn effect(&self) -> &$crate::model::effects::Effect {
-                &self.effect
-            }
-            fn supported(&self) -> bool {
-                self.supported
-            }
-            fn delta_bic(&self) -> f64 {
-                self.delta_bic
             }
         }
     };
@@ -154,7 +140,70 @@ pub(crate) struct Offer<'a, G: Geometry + ?Sized> {
     pub delta_bic: f64,
 }
 
+/// One effect the model could add, as judged on the current model. `X`
+/// is what the geometry adds: the 2-D heading against a gyro, nothing in
+/// 3-D ([`Nothing`]); its keys stand before `evidence` in the JSON.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Candidate<X> {
+    pub effect: Effect,
+    /// Rms the model reaches with this effect added (over the used samples).
+    pub rms: f64,
+    /// Rms of the model it was added to.
+    pub rms_before: f64,
+    /// Share of the model's mean-square residual the effect explains,
+    /// 1 − rms²/rms_before².
+    pub explained: f64,
+    /// The effect's own fitted parameters, with standard errors.
+    pub params: Vec<Param>,
+    /// Unknowns the effect adds; for `outliers`, the flagged samples (each
+    /// costs one unknown in the mean-shift outlier model).
+    pub unknowns_added: usize,
+    /// BIC with the effect minus BIC without: negative is better.
+    pub delta_bic: f64,
+    /// Whether the data supports it: ΔBIC below -[`BIC_MARGIN`] (and the
+    /// tail gate for `outliers`), material, within the physical limits,
+    /// resolved above its standard errors, and not folding the data.
+    pub supported: bool,
+    #[serde(flatten)]
+    pub extra: X,
+    /// Why: built from the numbers that decided `supported`.
+    pub evidence: String,
+}
+
+/// Nothing added to a candidate (a 3-D one).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Nothing {}
+
+impl<X> Ranked for Candidate<X> {
+    fn effect(&self) -> &Effect {
+        &self.effect
+    }
+    fn supported(&self) -> bool {
+        self.supported
+    }
+    fn delta_bic(&self) -> f64 {
+        self.delta_bic
+    }
+}
+
 impl<G: Geometry + ?Sized> Offer<'_, G> {
+    /// The candidate this offer is, judged `supported` for `evidence`, with
+    /// what the geometry adds.
+    pub fn candidate<X>(self, supported: bool, evidence: String, extra: X) -> Candidate<X> {
+        Candidate {
+            rms: self.fit.rms(),
+            rms_before: self.current.rms(),
+            explained: self.explained(),
+            unknowns_added: self.unknowns_added(),
+            delta_bic: self.delta_bic,
+            supported,
+            extra,
+            evidence,
+            params: self.params,
+            effect: self.effect,
+        }
+    }
+
     /// Share of the current model's mean-square residual the candidate
     /// explains.
     pub fn explained(&self) -> f64 {

@@ -249,7 +249,7 @@ fn render_text(d: &Diagnosis, file: &str) -> String {
         out.push('\n');
     }
     let rows = d.candidates.iter().map(|c| {
-        let heading = c.heading_vs_gyro.as_ref().map_or(String::new(), |h| {
+        let heading = c.extra.heading_vs_gyro.as_ref().map_or(String::new(), |h| {
             format!("heading {:.2}° rms  ", h.rms_deg)
         });
         candidate_row(
