@@ -275,15 +275,7 @@ impl Plane {
         let (report, terms, rotation) = match fitted {
             Ok(found) => found,
             Err((reason, n)) => {
-                self.reject(
-                    life,
-                    time,
-                    format!("no fit: {reason}"),
-                    n,
-                    0.0,
-                    fit_ms,
-                    emit,
-                );
+                self.reject(life, time, format!("no fit: {reason}"), (n, fit_ms), emit);
                 return None;
             }
         };
@@ -470,18 +462,17 @@ impl Plane {
         Ok((report, terms, rotation))
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// A rotation of `n` samples refused for `reason`: published with no
+    /// coverage, and counted.
     fn reject(
         &mut self,
         life: &mut Lifecycle,
         time: f64,
         reason: String,
-        n: usize,
-        coverage_deg: f64,
-        fit_ms: f64,
+        (n, fit_ms): (usize, f64),
         emit: &mut Emitter<'_>,
     ) {
-        let message = self.rejection(time, &reason, n, coverage_deg, fit_ms);
+        let message = self.rejection(time, &reason, n, 0.0, fit_ms);
         emit.calibration(|| message.event(), to_line(&message));
         self.note_rejection(life, reason);
     }
@@ -587,7 +578,7 @@ impl Geometry for Plane {
                     gyro.forget_before(time);
                 }
                 tracing::warn!(sensor = %self.config.name, "{reason}");
-                self.reject(life, time, reason, 0, 0.0, 0.0, emit);
+                self.reject(life, time, reason, (0, 0.0), emit);
                 None
             }
             RotationEvent::Complete => self.fit(life, time, emit),

@@ -433,7 +433,6 @@ impl Sensor3 {
         let started = Instant::now();
         let fitted = ellipsoid::fit(self.buffer.points(), self.config.model);
         let fit_ms = started.elapsed().as_secs_f64() * 1e3;
-        let n = self.buffer.points().len();
         let fit = match fitted {
             Ok(fit) => fit,
             Err(e @ ellipsoid::Ellipsoid3Error::NotCovered { .. }) => {
@@ -445,13 +444,13 @@ impl Sensor3 {
                 return None;
             }
             Err(e) => {
-                self.reject(life, time, format!("no fit: {e}"), n, fit_ms, None, emit);
+                self.reject(life, (time, fit_ms), format!("no fit: {e}"), None, emit);
                 return None;
             }
         };
         let max_rms = self.config.sphere.max_rms;
         if let Err(reason) = check_limits(&fit, self.field, self.config.lsb_per_unit, max_rms) {
-            self.reject(life, time, reason, n, fit_ms, Some(&fit), emit);
+            self.reject(life, (time, fit_ms), reason, Some(&fit), emit);
             return None;
         }
         let calibration = Calibration {
@@ -590,17 +589,17 @@ impl Sensor3 {
             .ok_or_else(|| "no fitted sample had a tilt accelerometer reading beside it".into())
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// The sphere's samples refused for `reason` (with the fit, when there
+    /// was one): published, counted, and collected anew.
     fn reject(
         &mut self,
         life: &mut Lifecycle,
-        time: f64,
+        (time, fit_ms): (f64, f64),
         reason: String,
-        n: usize,
-        fit_ms: f64,
         fit: Option<&Ellipsoid3Fit>,
         emit: &mut Emitter<'_>,
     ) {
+        let n = self.buffer.points().len();
         let message = Calibration3Message {
             class: "CALIBRATION",
             sensor: &self.name,

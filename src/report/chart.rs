@@ -236,14 +236,17 @@ pub(super) fn point_series<'a, 'b: 'a>(
     Ok(())
 }
 
+/// A point of a figure, (x, y).
+type Point = (f64, f64);
+
 /// The residuals under the baseline model (in [`BEFORE`]) and, when there
 /// are any, under the improved one (in [`AFTER`]): each point `shown` makes
 /// of them as a half-transparent dot of radius `size`, with its model's
 /// label in the legend.
 pub(super) fn before_and_after<'a, 'b: 'a>(
     chart: &mut ChartContext<'a, SVGBackend<'b>, Plane>,
-    (before, after): (&[(f64, f64)], &[(f64, f64)]),
-    shown: impl Fn(&(f64, f64)) -> Option<(f64, f64)>,
+    (before, after): (&[Point], &[Point]),
+    shown: impl Fn(&Point) -> Option<Point>,
     size: i32,
     (before_label, after_label): (String, String),
 ) -> Result<(), DrawError> {

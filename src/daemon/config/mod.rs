@@ -775,7 +775,7 @@ impl Checker<'_> {
             };
             let north = match north {
                 Some(_) if field != Field::Mag => {
-                    return Err(self.north_not_magnetometer(&key, s.location.is_some(), field));
+                    return Err(self.north_not_magnetometer(key, s.location.is_some(), field));
                 }
                 Some(n) => Some(n),
                 None if field == Field::Mag => daemon_north.clone(),
@@ -791,7 +791,7 @@ impl Checker<'_> {
                 ));
             }
             let stream =
-                self.resolve_stream(&key, s.chip.as_deref(), src_name, src_kind, stream_list)?;
+                self.resolve_stream(key, s.chip.as_deref(), src_name, src_kind, stream_list)?;
             let fields = stream.fields();
             if !fields.contains(&field) {
                 let names: Vec<&str> = fields.iter().map(|f| f.name()).collect();
@@ -869,7 +869,7 @@ impl Checker<'_> {
                 }
             };
             let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
-            let gyro = self.check_gyro(&key, &s, axes, stream, src_name, stream_list)?;
+            let gyro = self.check_gyro(key, &s, axes, stream, src_name, stream_list)?;
             let plane = PlaneSensor {
                 stream: stream.id,
                 field,

@@ -172,8 +172,6 @@ impl ProgressFeed {
     }
 }
 
-/// The live display: one indicatif line per sensor, redrawn every
-
 #[cfg(test)]
 mod tests {
     use super::*;
