@@ -993,6 +993,16 @@ mod tests {
     }
 
     /// Pushes until something other than Collecting; returns its index.
+    /// The sample at which a default buffer rejects `samples`, and why;
+    /// fails when it completes or goes on collecting.
+    fn rejected(samples: &[(f64, f64, f64)]) -> (usize, String) {
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        match run(&mut buffer, samples) {
+            Some((i, RotationEvent::Rejected { reason })) => (i, reason),
+            other => panic!("{other:?}"),
+        }
+    }
+
     fn run(
         buffer: &mut RotationBuffer,
         samples: &[(f64, f64, f64)],
@@ -1208,12 +1218,8 @@ mod tests {
             let phase = (t / 6.0).rem_euclid(2.0);
             170.0 * if phase < 1.0 { phase } else { 2.0 - phase }
         });
-        let mut buffer = RotationBuffer::new(RotationConfig::default());
-        let (i, event) = run(&mut buffer, &samples).unwrap();
+        let (i, reason) = rejected(&samples);
         assert!((i as f64 * 0.05 - 60.05).abs() < 1e-9, "{i}");
-        let RotationEvent::Rejected { reason } = event else {
-            panic!("{event:?}");
-        };
         assert!(
             reason.starts_with("the sensor turned back and forth over 170° and never completed a rotation within 60 s"),
             "{reason}"
@@ -1227,13 +1233,9 @@ mod tests {
     #[test]
     fn a_still_sensor_is_rejected_as_not_turning() {
         let samples = track(12.0, 0.05, (700.0, -300.0), 3.0, |_| 40.0);
-        let mut buffer = RotationBuffer::new(RotationConfig::default());
-        let (i, event) = run(&mut buffer, &samples).unwrap();
+        let (i, reason) = rejected(&samples);
         // The first sample 10 s after the first.
         assert_eq!(i, 200);
-        let RotationEvent::Rejected { reason } = event else {
-            panic!("{event:?}");
-        };
         assert!(
             reason.starts_with("the sensor is not turning: readings spread over only "),
             "{reason}"
