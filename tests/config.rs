@@ -10,6 +10,7 @@ use fieldcal::capture::{CaptureHeader, CaptureWriter, StreamInfo, StreamKind};
 use fieldcal::daemon::config::{
     Axis, ConfigError, Field, GyroChoice, LogFormat, SourceKind, load, parse,
 };
+use fieldcal::daemon::source_kinds::{Csv, Falcon, Replay, UsbIss};
 use fieldcal::model::gyro::GyroUnits;
 use fieldcal::protocol::chips::Chip;
 use fieldcal::source::replay::Speed;
@@ -140,14 +141,14 @@ fn a_full_config_parses_to_the_right_structures() {
     assert_eq!(config.daemon.state_dir, PathBuf::from("/var/lib/fieldcal"));
     assert_eq!(config.daemon.status_interval, Duration::from_millis(500));
     assert_eq!(config.daemon.log_format, LogFormat::Json);
-    assert!(!config.outputs.stdout);
+    assert!(!config.outputs.stdout());
     assert_eq!(
-        config.outputs.tcp,
+        config.outputs.tcp(),
         Some("127.0.0.1:2948".parse::<SocketAddr>().unwrap())
     );
     assert_eq!(
-        config.outputs.unix,
-        Some(PathBuf::from("/run/fieldcal/fieldcal.sock"))
+        config.outputs.unix(),
+        Some(Path::new("/run/fieldcal/fieldcal.sock"))
     );
     assert_eq!(config.outputs.queue, 100);
 
@@ -155,15 +156,15 @@ fn a_full_config_parses_to_the_right_structures() {
     assert_eq!(config.sources[0].name, "imu");
     assert_eq!(
         config.sources[0].kind,
-        SourceKind::Falcon {
+        SourceKind::Falcon(Falcon {
             port: "/dev/ttyUSB0".into(),
             baud: 115_200
-        }
+        })
     );
     assert_eq!(config.sources[0].retry, Duration::from_secs(5));
     assert_eq!(
         config.sources[1].kind,
-        SourceKind::UsbIss {
+        SourceKind::UsbIss(UsbIss {
             port: "/dev/ttyACM0".into(),
             chips: vec![
                 (Chip::Mpu6050, 0x68),
@@ -172,14 +173,14 @@ fn a_full_config_parses_to_the_right_structures() {
             ],
             poll: Duration::from_millis(20),
             i2c_khz: 400,
-        }
+        })
     );
     assert_eq!(config.sources[1].retry, Duration::from_secs(2));
     let bridge = config.sources[1].bridge_config().unwrap();
     assert_eq!(bridge.period, Duration::from_millis(20));
     assert!(bridge.validate().is_ok());
     match &config.sources[2].kind {
-        SourceKind::Replay { file, speed } => {
+        SourceKind::Replay(Replay { file, speed }) => {
             // Relative to the configuration's directory.
             assert!(
                 file.starts_with(config_path().parent().unwrap()),
@@ -223,18 +224,18 @@ fn defaults_fill_what_is_left_out() {
     let config = parse(&text, &config_path()).unwrap();
     assert_eq!(config.daemon.status_interval, Duration::from_secs(1));
     assert_eq!(config.daemon.log_format, LogFormat::Text);
-    assert!(config.outputs.stdout);
-    assert_eq!(config.outputs.tcp, None);
+    assert!(config.outputs.stdout());
+    assert_eq!(config.outputs.tcp(), None);
     assert_eq!(config.outputs.queue, 4096);
     assert_eq!(
         config.sources[0].kind,
-        SourceKind::Falcon {
+        SourceKind::Falcon(Falcon {
             port: "/dev/ttyUSB0".into(),
             baud: 38_400
-        }
+        })
     );
     match &config.sources[1].kind {
-        SourceKind::UsbIss { poll, i2c_khz, .. } => {
+        SourceKind::UsbIss(UsbIss { poll, i2c_khz, .. }) => {
             assert_eq!(*poll, Duration::from_millis(30));
             assert_eq!(*i2c_khz, 100);
         }
@@ -580,7 +581,7 @@ fn a_replayed_bridge_capture_resolves_chips_to_stream_ids() {
     let config = load(&path).unwrap();
     assert_eq!(config.sensors[0].stream, 3);
     match &config.sources[0].kind {
-        SourceKind::Replay { file, speed } => {
+        SourceKind::Replay(Replay { file, speed }) => {
             assert_eq!(file, &dir.path().join("bridge.fcap"));
             assert_eq!(*speed, Speed::Times(4.0));
         }
@@ -611,7 +612,7 @@ fn a_public_tcp_address_needs_tcp_public() {
     );
     let text = format!("[outputs]\ntcp = \"0.0.0.0:2948\"\ntcp_public = true\n{base}");
     let config = parse(&text, &config_path()).unwrap();
-    assert_eq!(config.outputs.tcp, Some("0.0.0.0:2948".parse().unwrap()));
+    assert_eq!(config.outputs.tcp(), Some("0.0.0.0:2948".parse().unwrap()));
     let text = format!("[outputs]\ntcp = \"[::1]:2948\"\n{base}");
     assert!(parse(&text, &config_path()).is_ok());
     let text = format!("[outputs]\ntcp = \"localhost:2948\"\n{base}");
@@ -629,10 +630,13 @@ fn a_public_http_address_needs_http_public() {
         "{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"
     );
     let config = parse(&base, &config_path()).unwrap();
-    assert_eq!(config.outputs.http, None);
+    assert_eq!(config.outputs.http(), None);
     let text = format!("[outputs]\nhttp = \"127.0.0.1:8080\"\n{base}");
     let config = parse(&text, &config_path()).unwrap();
-    assert_eq!(config.outputs.http, Some("127.0.0.1:8080".parse().unwrap()));
+    assert_eq!(
+        config.outputs.http(),
+        Some("127.0.0.1:8080".parse().unwrap())
+    );
     let text = format!("[outputs]\nhttp = \"0.0.0.0:8080\"\n{base}");
     assert_refused(
         &text,
@@ -645,7 +649,7 @@ fn a_public_http_address_needs_http_public() {
     assert_refused(&text, "outputs.http", Some(2), &["http_public = true"]);
     let text = format!("[outputs]\nhttp = \"0.0.0.0:8080\"\nhttp_public = true\n{base}");
     let config = parse(&text, &config_path()).unwrap();
-    assert_eq!(config.outputs.http, Some("0.0.0.0:8080".parse().unwrap()));
+    assert_eq!(config.outputs.http(), Some("0.0.0.0:8080".parse().unwrap()));
     let text = format!("[outputs]\nhttp = \"localhost:8080\"\n{base}");
     assert_refused(
         &text,
@@ -764,7 +768,7 @@ fn replay_speeds_out_of_range_are_refused_naming_the_key() {
         std::fs::write(&path, text.replace("SPEED", speed)).unwrap();
         let config = load(&path).unwrap();
         match &config.sources[0].kind {
-            SourceKind::Replay { speed, .. } => assert_eq!(*speed, Speed::Times(factor)),
+            SourceKind::Replay(Replay { speed, .. }) => assert_eq!(*speed, Speed::Times(factor)),
             other => panic!("{other:?}"),
         }
     }
@@ -994,12 +998,12 @@ fn a_csv_source_names_its_columns() {
     let config = parse(&text, &config_path()).unwrap();
     assert_eq!(
         config.sources[0].kind,
-        SourceKind::Csv {
+        SourceKind::Csv(Csv {
             files: vec![dir.path().join("robot.csv")],
             speed: Speed::Max,
             time_column: None,
             period_s: None,
-        }
+        })
     );
     assert_eq!(config.sources[0].kind.speed(), Some(Speed::Max));
     let s = &config.sensors[0];
@@ -1028,13 +1032,13 @@ fn a_csv_source_names_its_columns() {
     let config = parse(&text, &config_path()).unwrap();
     assert!(matches!(
         &config.sources[0].kind,
-        SourceKind::Csv { time_column: Some(c), period_s: None, .. } if c == "c"
+        SourceKind::Csv(Csv { time_column: Some(c), period_s: None, .. }) if c == "c"
     ));
     let (_dir, text) = csv_source("a,b,c,d,e", "period_s = 0.1", "axes = [\"a\", \"b\"]");
     let config = parse(&text, &config_path()).unwrap();
     assert!(matches!(
         &config.sources[0].kind,
-        SourceKind::Csv { period_s: Some(p), .. } if *p == 0.1
+        SourceKind::Csv(Csv { period_s: Some(p), .. }) if *p == 0.1
     ));
 }
 

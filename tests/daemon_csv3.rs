@@ -285,7 +285,9 @@ fn files_whose_clocks_do_not_overlap_are_refused_before_ready() {
 #[test]
 fn the_shipped_example_names_the_real_pair() {
     let config = load(&repo_path("config/sunsided-tilt-sphere.toml")).unwrap();
-    let SourceKind::Csv { files, .. } = &config.sources[0].kind else {
+    let SourceKind::Csv(fieldcal::daemon::source_kinds::Csv { files, .. }) =
+        &config.sources[0].kind
+    else {
         panic!("{:?}", config.sources[0].kind);
     };
     assert_eq!(files.len(), 2);

@@ -13,6 +13,7 @@ pub mod lifecycle;
 pub mod messages;
 pub mod north;
 pub mod notify;
+pub mod output_kinds;
 pub mod plane;
 pub mod progress;
 pub mod publish;
@@ -21,6 +22,7 @@ pub mod rotation;
 pub mod run;
 pub mod sensor;
 pub mod sensor3;
+pub mod source_kinds;
 pub mod state;
 pub mod state_writer;
 

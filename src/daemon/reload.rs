@@ -39,16 +39,13 @@ use std::time::Duration;
 
 use tokio::sync::mpsc;
 
-use super::config::{
-    self, Config, ConfigError, SensorConfig, SensorGeometry, SourceConfig, SourceKind,
-};
+use super::config::{self, Config, ConfigError, SensorConfig, SensorGeometry, SourceConfig};
 use super::messages::CalibrationEvent;
 use super::notify::Notifier;
 use super::sensor::Sensor;
 use super::state::StateStore;
-use crate::capture::{CaptureError, read_capture};
+use crate::capture::CaptureError;
 use crate::io::csv::{CsvError, CsvLayout};
-use crate::source::csv::check_csv_files;
 
 /// Why a new configuration was refused.
 #[derive(Debug, thiserror::Error)]
@@ -88,25 +85,7 @@ impl ReloadError {
 pub fn check(path: &Path) -> Result<Config, ReloadError> {
     let config = config::load(path)?;
     for source in &config.sources {
-        match &source.kind {
-            SourceKind::Replay { file, .. } => {
-                read_capture(file)?;
-            }
-            SourceKind::Csv {
-                files,
-                time_column,
-                period_s,
-                ..
-            } => {
-                let (checked, _) = check_csv_files(files, time_column.as_deref(), *period_s)?;
-                let layouts: Vec<Arc<CsvLayout>> =
-                    checked.into_iter().map(|(l, _)| Arc::new(l)).collect();
-                for sensor in config.sensors.iter().filter(|s| s.source == source.name) {
-                    Sensor::new(sensor.clone(), None).bind_csv(&layouts, files)?;
-                }
-            }
-            SourceKind::Falcon { .. } | SourceKind::UsbIss { .. } => {}
-        }
+        source.kind.preflight(&source.name, &config.sensors)?;
     }
     Ok(config)
 }
@@ -286,39 +265,20 @@ fn restart_changes(old: &Config, new: &Config) -> Vec<String> {
         );
     }
     let (oo, no) = (&old.outputs, &new.outputs);
-    let address =
-        |a: &Option<std::net::SocketAddr>| a.map_or("none".to_string(), |a| a.to_string());
-    let path = |p: &Option<PathBuf>| {
-        p.as_ref()
-            .map_or("none".to_string(), |p| p.display().to_string())
-    };
     let before = out.len();
-    if oo.stdout != no.stdout {
-        changed(
-            &mut out,
-            "[outputs] stdout",
-            no.stdout.to_string(),
-            oo.stdout.to_string(),
-        );
-    }
-    if oo.tcp != no.tcp {
-        changed(
-            &mut out,
-            "[outputs] tcp",
-            address(&no.tcp),
-            address(&oo.tcp),
-        );
-    }
-    if oo.unix != no.unix {
-        changed(&mut out, "[outputs] unix", path(&no.unix), path(&oo.unix));
-    }
-    if oo.http != no.http {
-        changed(
-            &mut out,
-            "[outputs] http",
-            address(&no.http),
-            address(&oo.http),
-        );
+    // Each kind of output, named by its address or path (or its "off"
+    // word) when that changed.
+    for (kind, _, off) in crate::daemon::output_kinds::TABLE {
+        let of = |c: &config::OutputsConfig| {
+            c.outputs
+                .iter()
+                .find(|o| o.name() == *kind)
+                .map_or(off.to_string(), |o| o.describe())
+        };
+        let (was, now) = (of(oo), of(no));
+        if was != now {
+            changed(&mut out, &format!("[outputs] {kind}"), now, was);
+        }
     }
     if oo.queue != no.queue {
         changed(
@@ -364,92 +324,7 @@ fn source_keys(old: &SourceConfig, new: &SourceConfig) -> Vec<&'static str> {
     if old.retry != new.retry {
         keys.push("retry_s");
     }
-    match (&old.kind, &new.kind) {
-        (SourceKind::Falcon { port: p0, baud: b0 }, SourceKind::Falcon { port: p1, baud: b1 }) => {
-            if p0 != p1 {
-                keys.push("port");
-            }
-            if b0 != b1 {
-                keys.push("baud");
-            }
-        }
-        (
-            SourceKind::UsbIss {
-                port: p0,
-                chips: c0,
-                poll: q0,
-                i2c_khz: k0,
-            },
-            SourceKind::UsbIss {
-                port: p1,
-                chips: c1,
-                poll: q1,
-                i2c_khz: k1,
-            },
-        ) => {
-            if p0 != p1 {
-                keys.push("port");
-            }
-            if c0 != c1 {
-                keys.push("chips");
-            }
-            if q0 != q1 {
-                keys.push("poll_ms");
-            }
-            if k0 != k1 {
-                keys.push("i2c_khz");
-            }
-        }
-        (
-            SourceKind::Replay {
-                file: f0,
-                speed: s0,
-            },
-            SourceKind::Replay {
-                file: f1,
-                speed: s1,
-            },
-        ) => {
-            if f0 != f1 {
-                keys.push("file");
-            }
-            if s0 != s1 {
-                keys.push("speed");
-            }
-        }
-        (
-            SourceKind::Csv {
-                files: f0,
-                speed: s0,
-                time_column: t0,
-                period_s: p0,
-            },
-            SourceKind::Csv {
-                files: f1,
-                speed: s1,
-                time_column: t1,
-                period_s: p1,
-            },
-        ) => {
-            if f0 != f1 {
-                keys.push(if f0.len() == 1 && f1.len() == 1 {
-                    "file"
-                } else {
-                    "files"
-                });
-            }
-            if s0 != s1 {
-                keys.push("speed");
-            }
-            if t0 != t1 {
-                keys.push("time_column");
-            }
-            if p0 != p1 {
-                keys.push("period_s");
-            }
-        }
-        _ => keys.push("kind"),
-    }
+    keys.extend(old.kind.changed(&new.kind));
     if keys.is_empty() {
         keys.push("settings");
     }

@@ -95,7 +95,7 @@ fn replay_with_config(args: &ReplayArgs, config: &Config, name: &str) -> Result<
         .speed
         .or_else(|| source.and_then(|s| s.kind.speed()))
         .unwrap_or(Speed::Times(1.0));
-    let is_csv_source = source.is_some_and(|s| matches!(s.kind, SourceKind::Csv { .. }));
+    let is_csv_source = source.is_some_and(|s| matches!(s.kind, SourceKind::Csv(_)));
     let stdout = std::io::stdout();
     let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
     let result = if is_csv_source {

@@ -183,7 +183,7 @@ use crate::model::effects::{self, Effect};
 use crate::model::gyro::GyroUnits;
 use crate::protocol::chips::Chip;
 use crate::protocol::falcon;
-use crate::source::bridge::{BridgeConfig, I2cSpeed};
+use crate::source::bridge::BridgeConfig;
 use crate::source::replay::Speed;
 
 /// When a sensor's rotation counts as complete (`[sensor.rotation]`).
@@ -193,7 +193,6 @@ pub type LimitSettings = crate::daemon::acceptance::Limits;
 
 /// Polls per second are bounded by what a USB-ISS can do; a minute between
 /// polls is already useless for a turning sensor.
-const POLL_MS_MAX: u64 = 60_000;
 /// Shortest `daemon.status_interval_s`: 50 ms, the Falcon-GX's frame period
 /// (the I2C bridge polls every 30 ms by default). A STATUS line more often
 /// than readings arrive says nothing new, and a microsecond interval filled
@@ -243,23 +242,46 @@ pub enum LogFormat {
 /// `[outputs]`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OutputsConfig {
-    pub stdout: bool,
-    /// Loopback unless the file said `tcp_public = true`.
-    pub tcp: Option<SocketAddr>,
-    pub unix: Option<PathBuf>,
-    /// The live page's HTTP listener; loopback unless the file said
-    /// `http_public = true`.
-    pub http: Option<SocketAddr>,
+    /// The outputs to start, in the order of the kinds' list
+    /// ([`crate::daemon::output_kinds`]), each kind at most once.
+    pub outputs: Vec<Output>,
     /// Lines queued per subscriber.
     pub queue: usize,
     /// Subscribers at once; None: derived from the descriptor limit at start.
     pub max_subscribers: Option<usize>,
-    /// The Unix socket's mode.
-    pub unix_mode: u32,
-    /// The Unix socket's group id, when set.
-    pub unix_group: Option<u32>,
     /// Who may recalibrate (`recalibrate_from`, and the token of `token_file`).
     pub access: Access,
+}
+
+impl OutputsConfig {
+    /// Whether the lines go to stdout.
+    pub fn stdout(&self) -> bool {
+        self.outputs.iter().any(|o| matches!(o, Output::Stdout(_)))
+    }
+
+    /// The TCP listener's address (loopback unless `tcp_public = true`).
+    pub fn tcp(&self) -> Option<SocketAddr> {
+        self.outputs.iter().find_map(|o| match o {
+            Output::Tcp(t) => Some(t.address),
+            _ => None,
+        })
+    }
+
+    /// The Unix socket's path.
+    pub fn unix(&self) -> Option<&Path> {
+        self.outputs.iter().find_map(|o| match o {
+            Output::Unix(u) => Some(u.path.as_path()),
+            _ => None,
+        })
+    }
+
+    /// The live page's address (loopback unless `http_public = true`).
+    pub fn http(&self) -> Option<SocketAddr> {
+        self.outputs.iter().find_map(|o| match o {
+            Output::Http(h) => Some(h.address),
+            _ => None,
+        })
+    }
 }
 
 /// One `[[source]]`.
@@ -271,66 +293,13 @@ pub struct SourceConfig {
     pub retry: Duration,
 }
 
-/// What a source reads, with the settings of that kind.
-#[derive(Debug, Clone, PartialEq)]
-pub enum SourceKind {
-    /// A Falcon-GX-style IMU on a serial line: one stream (0).
-    Falcon { port: PathBuf, baud: u32 },
-    /// Chips behind a USB-ISS bridge, polled in this order: stream k is
-    /// `chips[k]`.
-    UsbIss {
-        port: PathBuf,
-        chips: Vec<(Chip, u8)>,
-        poll: Duration,
-        i2c_khz: u32,
-    },
-    /// A capture (or raw Falcon dump) played back.
-    Replay { file: PathBuf, speed: Speed },
-    /// A CSV recording played row by row (one stream, 0): the rows' times
-    /// come from `time_column` (else the first of t, t_s, time, time_s) or,
-    /// when the file has none, row k is at k * `period_s`. Several files
-    /// recorded on one clock (`files`, each with its own header and time
-    /// column) are played merged in time order; a source of one file
-    /// (`file`) has one here.
-    Csv {
-        files: Vec<PathBuf>,
-        speed: Speed,
-        time_column: Option<String>,
-        period_s: Option<f64>,
-    },
-}
-
-impl SourceKind {
-    /// How fast a replayed file plays (`replay` and `csv` sources).
-    pub fn speed(&self) -> Option<Speed> {
-        match self {
-            SourceKind::Replay { speed, .. } | SourceKind::Csv { speed, .. } => Some(*speed),
-            _ => None,
-        }
-    }
-}
-
 impl SourceConfig {
     /// The bridge settings of a `usb-iss` source, `None` for other kinds.
     pub fn bridge_config(&self) -> Option<BridgeConfig> {
-        let SourceKind::UsbIss {
-            port,
-            chips,
-            poll,
-            i2c_khz,
-        } = &self.kind
-        else {
-            return None;
-        };
-        let mut config = BridgeConfig::new(port.clone(), chips.clone());
-        config.period = *poll;
-        config.speed = if *i2c_khz == 400 {
-            I2cSpeed::Khz400
-        } else {
-            I2cSpeed::Khz100
-        };
-        config.retry_interval = self.retry;
-        Some(config)
+        match &self.kind {
+            SourceKind::UsbIss(bridge) => Some(bridge.bridge_config(self.retry)),
+            _ => None,
+        }
     }
 }
 
@@ -533,6 +502,7 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
 }
 
 mod columns;
+mod keys;
 mod outputs;
 mod raw;
 mod sensors;
@@ -540,17 +510,21 @@ mod settings;
 mod sources;
 mod spans;
 
+pub use crate::daemon::output_kinds::Output;
+pub use crate::daemon::source_kinds::SourceKind;
 use columns::Columns;
+pub(crate) use keys::{Keys, RawKeys};
 use raw::*;
 use sensors::PlaneSensor;
 pub use sensors::{PlaneConfig, Sensor3Config, SensorGeometry, TiltSource};
+pub use sources::StreamDesc;
 use sources::*;
 use spans::*;
 
 // ---------------------------------------------------------------------------
 // Checking, with positions looked up in the spanned document.
 
-struct Checker<'a> {
+pub(crate) struct Checker<'a> {
     text: &'a str,
     path: &'a Path,
     doc: &'a Spanned<DeTable<'a>>,
@@ -558,7 +532,7 @@ struct Checker<'a> {
 }
 
 impl Checker<'_> {
-    fn error(&self, key: &str, problem: impl Into<String>) -> ConfigError {
+    pub(crate) fn error(&self, key: &str, problem: impl Into<String>) -> ConfigError {
         ConfigError::Invalid {
             path: self.path.to_path_buf(),
             key: key.to_string(),
@@ -594,7 +568,7 @@ impl Checker<'_> {
         }
     }
 
-    fn resolve(&self, path: &Path) -> PathBuf {
+    pub(crate) fn resolve(&self, path: &Path) -> PathBuf {
         if path.is_absolute() {
             path.to_path_buf()
         } else {
@@ -603,6 +577,8 @@ impl Checker<'_> {
     }
 
     fn check(&self, mut raw: RawConfig) -> Result<Config, ConfigError> {
+        self.refuse_unknown_output_keys(&raw.outputs)?;
+        self.refuse_unknown_source_keys(&raw.source)?;
         let today = crate::geomag::CivilDate::today();
         let daemon_north = self.check_north(
             "daemon",
@@ -611,7 +587,7 @@ impl Checker<'_> {
             today,
         )?;
         let daemon = self.check_daemon(raw.daemon)?;
-        let outputs = self.check_outputs(raw.outputs)?;
+        let outputs = self.check_outputs(&raw.outputs)?;
         let checked = self.check_sources(raw.source)?;
         let sensors = self.check_sensors(raw.sensor, &checked, daemon_north, today)?;
         Ok(Config {
@@ -643,10 +619,10 @@ impl Checker<'_> {
                 ));
             }
             source_index.insert(s.name.clone(), i);
-            let (source, desc, layout) = self.check_source(&key, s)?;
-            sources.push(source);
-            streams.push(desc);
-            layouts.push(layout);
+            let checked = self.check_source(&key, &s)?;
+            sources.push(checked.settings);
+            streams.push(checked.streams);
+            layouts.push(checked.layouts);
         }
         Ok(CheckedSources {
             sources,
@@ -715,7 +691,7 @@ impl Checker<'_> {
                 ));
             };
             let (src_name, src_kind) = match sources.get(src) {
-                Some(source) => (source.name.as_str(), kind_name(&source.kind)),
+                Some(source) => (source.name.as_str(), source.kind.name()),
                 None => ("", ""),
             };
             if let (Some(Some(layout)), Some(source)) = (layouts.get(src), sources.get(src)) {

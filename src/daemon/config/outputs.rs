@@ -3,22 +3,21 @@
 //! and subscriber limits.
 
 use super::*;
+use crate::daemon::output_kinds::{self, Output};
 
 impl Checker<'_> {
-    pub(super) fn check_outputs(&self, raw: RawOutputs) -> Result<OutputsConfig, ConfigError> {
-        let tcp = self.listen_address("tcp", raw.tcp, raw.tcp_public, 2948)?;
-        let http = self.listen_address("http", raw.http, raw.http_public, 8080)?;
-        let unix = match raw.unix {
-            Some(p) if p.as_os_str().is_empty() => {
-                return Err(self.error(
-                    "outputs.unix",
-                    "empty: give a socket path, or leave the key out",
-                ));
-            }
-            Some(p) => Some(self.resolve(&p)),
-            None => None,
+    /// `[outputs]`: each kind of output from its own keys (refused when
+    /// no kind and no common key names them), then the queue, the
+    /// subscriber limit and who may recalibrate.
+    pub(super) fn check_outputs(&self, raw: &RawKeys) -> Result<OutputsConfig, ConfigError> {
+        let mut keys = Keys {
+            checker: self,
+            key: "outputs".into(),
+            kind: "",
+            values: raw,
         };
-        let queue = match raw.queue {
+        let outputs = Output::check_all(&mut keys)?;
+        let queue = match keys.get::<u64>("queue")? {
             None => 4096,
             Some(q) if (1..=1_000_000).contains(&q) => usize::try_from(q).unwrap_or(4096),
             Some(q) => {
@@ -28,7 +27,7 @@ impl Checker<'_> {
                 ));
             }
         };
-        let max_subscribers = match raw.max_subscribers {
+        let max_subscribers = match keys.get::<u64>("max_subscribers")? {
             None => None,
             Some(n) if (1..=MAX_SUBSCRIBERS_LIMIT).contains(&n) => usize::try_from(n).ok(),
             Some(n) => {
@@ -41,15 +40,7 @@ impl Checker<'_> {
                 ));
             }
         };
-        let unix_mode = match raw.unix_mode {
-            None => crate::daemon::publish::unix::SOCKET_MODE,
-            Some(text) => self.unix_mode(&text)?,
-        };
-        let unix_group = match raw.unix_group {
-            None => None,
-            Some(value) => Some(self.unix_group(&value)?),
-        };
-        let recalibrate_from = match raw.recalibrate_from {
+        let recalibrate_from = match keys.get::<Vec<String>>("recalibrate_from")? {
             None => Access::default().recalibrate_from,
             Some(list) => {
                 let mut from = Vec::new();
@@ -70,19 +61,14 @@ impl Checker<'_> {
                 from
             }
         };
-        let token = match raw.token_file {
+        let token = match keys.get::<PathBuf>("token_file")? {
             None => None,
             Some(path) => Some(self.token_file(&self.resolve(&path))?),
         };
         Ok(OutputsConfig {
-            stdout: raw.stdout.unwrap_or(true),
-            tcp,
-            unix,
-            http,
+            outputs,
             queue,
             max_subscribers,
-            unix_mode,
-            unix_group,
             access: Access {
                 recalibrate_from,
                 token,
@@ -90,8 +76,19 @@ impl Checker<'_> {
         })
     }
 
+    /// Every `[outputs]` key that no kind of output takes and that is not
+    /// a common one, refused in serde's words.
+    pub(super) fn refuse_unknown_output_keys(&self, raw: &RawKeys) -> Result<(), ConfigError> {
+        let allowed: Vec<&str> = output_kinds::TABLE
+            .iter()
+            .flat_map(|(_, keys, _)| keys.iter().copied())
+            .chain(COMMON_OUTPUT_KEYS.iter().copied())
+            .collect();
+        self.refuse_unknown("outputs", raw, &allowed)
+    }
+
     /// `outputs.unix_mode`: octal permission bits, at most 0777.
-    pub(super) fn unix_mode(&self, text: &str) -> Result<u32, ConfigError> {
+    pub(crate) fn unix_mode(&self, text: &str) -> Result<u32, ConfigError> {
         let digits = text.trim();
         let digits = digits.strip_prefix("0o").unwrap_or(digits);
         match u32::from_str_radix(digits, 8) {
@@ -107,7 +104,7 @@ impl Checker<'_> {
     }
 
     /// `outputs.unix_group`: a group name or number, which must exist.
-    pub(super) fn unix_group(&self, value: &toml::Value) -> Result<u32, ConfigError> {
+    pub(crate) fn unix_group(&self, value: &toml::Value) -> Result<u32, ConfigError> {
         let key = "outputs.unix_group";
         let name = match value {
             toml::Value::Integer(n) => {
@@ -196,13 +193,14 @@ impl Checker<'_> {
 
     /// `outputs.KEY` as a socket address, refused when it is not loopback
     /// unless `outputs.KEY_public = true` (neither listener authenticates).
-    pub(super) fn listen_address(
+    pub(crate) fn listen_address(
         &self,
+        keys: &Keys<'_, '_>,
         key: &str,
-        text: Option<String>,
-        public: bool,
         example_port: u16,
     ) -> Result<Option<SocketAddr>, ConfigError> {
+        let text = keys.get::<String>(key)?;
+        let public = keys.get::<bool>(&format!("{key}_public"))?.unwrap_or(false);
         let Some(text) = text else {
             return Ok(None);
         };
@@ -232,6 +230,10 @@ impl Checker<'_> {
         Ok(Some(addr))
     }
 }
+
+/// The `[outputs]` keys that are no kind's: the hub's queue and limit,
+/// and who may recalibrate.
+const COMMON_OUTPUT_KEYS: &[&str] = &["queue", "max_subscribers", "recalibrate_from", "token_file"];
 
 /// `outputs.max_subscribers` at most: far beyond any descriptor limit a
 /// service gets by default; the start checks the real limit.

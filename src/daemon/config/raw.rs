@@ -4,6 +4,7 @@
 //! checked [`Config`](super::Config).
 
 use super::*;
+use crate::daemon::source_kinds::KindName;
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -11,7 +12,7 @@ pub(super) struct RawConfig {
     #[serde(default)]
     pub(super) daemon: RawDaemon,
     #[serde(default)]
-    pub(super) outputs: RawOutputs,
+    pub(super) outputs: RawKeys,
     #[serde(default)]
     pub(super) source: Vec<RawSource>,
     #[serde(default)]
@@ -29,69 +30,15 @@ pub(super) struct RawDaemon {
     pub(super) location: Option<LocationKeys>,
 }
 
-#[derive(Deserialize, Default)]
-#[serde(deny_unknown_fields, default)]
-pub(super) struct RawOutputs {
-    pub(super) stdout: Option<bool>,
-    pub(super) tcp: Option<String>,
-    pub(super) tcp_public: bool,
-    pub(super) unix: Option<PathBuf>,
-    pub(super) http: Option<String>,
-    pub(super) http_public: bool,
-    pub(super) queue: Option<u64>,
-    pub(super) max_subscribers: Option<u64>,
-    pub(super) unix_mode: Option<String>,
-    pub(super) unix_group: Option<toml::Value>,
-    pub(super) recalibrate_from: Option<Vec<String>>,
-    pub(super) token_file: Option<PathBuf>,
-}
-
-#[derive(Deserialize, Clone, Copy, PartialEq)]
-#[serde(rename_all = "kebab-case")]
-pub(super) enum RawKind {
-    Falcon,
-    UsbIss,
-    Replay,
-    Csv,
-}
-
-impl RawKind {
-    pub(super) fn name(self) -> &'static str {
-        match self {
-            RawKind::Falcon => "falcon",
-            RawKind::UsbIss => "usb-iss",
-            RawKind::Replay => "replay",
-            RawKind::Csv => "csv",
-        }
-    }
-
-    /// The keys a source of this kind takes, besides name, kind, retry_s.
-    pub(super) fn keys(self) -> &'static [&'static str] {
-        match self {
-            RawKind::Falcon => &["port", "baud"],
-            RawKind::UsbIss => &["port", "chips", "poll_ms", "i2c_khz"],
-            RawKind::Replay => &["file", "speed"],
-            RawKind::Csv => &["file", "files", "speed", "time_column", "period_s"],
-        }
-    }
-}
-
+/// One `[[source]]`: its name, kind and retry, and the keys of its kind
+/// (checked by the kind, in [`crate::daemon::source_kinds`]).
 #[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
 pub(super) struct RawSource {
     pub(super) name: String,
-    pub(super) kind: RawKind,
-    pub(super) port: Option<PathBuf>,
-    pub(super) baud: Option<u32>,
-    pub(super) chips: Option<Vec<String>>,
-    pub(super) poll_ms: Option<u64>,
-    pub(super) i2c_khz: Option<u32>,
-    pub(super) file: Option<PathBuf>,
-    pub(super) files: Option<Vec<PathBuf>>,
-    pub(super) speed: Option<toml::Value>,
-    pub(super) time_column: Option<String>,
-    pub(super) period_s: Option<f64>,
+    pub(super) kind: KindName,
     pub(super) retry_s: Option<f64>,
+    #[serde(flatten)]
+    pub(super) keys: RawKeys,
 }
 
 #[derive(Deserialize)]

@@ -107,7 +107,7 @@ impl Checker<'_> {
         layouts: &[CsvLayout],
     ) -> Result<(SensorConfig, Option<String>), ConfigError> {
         let paths: &[PathBuf] = match &source.kind {
-            SourceKind::Csv { files, .. } => files,
+            SourceKind::Csv(csv) => &csv.files,
             _ => &[],
         };
         let file = paths
@@ -871,7 +871,7 @@ impl Checker<'_> {
     }
 
     /// Seconds from `min` to `max`, both included.
-    pub(super) fn seconds_in(
+    pub(crate) fn seconds_in(
         &self,
         key: &str,
         value: f64,
@@ -890,7 +890,7 @@ impl Checker<'_> {
         ))
     }
 
-    pub(super) fn seconds(&self, key: &str, value: f64, max: f64) -> Result<Duration, ConfigError> {
+    pub(crate) fn seconds(&self, key: &str, value: f64, max: f64) -> Result<Duration, ConfigError> {
         if value > 0.0
             && value <= max
             && let Ok(d) = Duration::try_from_secs_f64(value)

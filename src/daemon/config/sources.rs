@@ -2,37 +2,27 @@
 //! captures and csv files; the byte streams each one carries.
 
 use super::*;
+use crate::daemon::source_kinds::{self, Checked};
 
 impl Checker<'_> {
-    #[allow(clippy::type_complexity)]
+    /// One `[[source]]`: its retry, and its kind's settings checked by the
+    /// kind, after refusing the keys of other kinds.
     pub(super) fn check_source(
         &self,
         key: &str,
-        s: RawSource,
-    ) -> Result<(SourceConfig, Vec<StreamDesc>, Option<Vec<CsvLayout>>), ConfigError> {
-        let kind = s.kind;
-        let present = [
-            ("port", s.port.is_some()),
-            ("baud", s.baud.is_some()),
-            ("chips", s.chips.is_some()),
-            ("poll_ms", s.poll_ms.is_some()),
-            ("i2c_khz", s.i2c_khz.is_some()),
-            ("file", s.file.is_some()),
-            ("files", s.files.is_some()),
-            ("speed", s.speed.is_some()),
-            ("time_column", s.time_column.is_some()),
-            ("period_s", s.period_s.is_some()),
-        ];
-        if let Some((name, _)) = present
-            .iter()
-            .find(|(name, given)| *given && !kind.keys().contains(name))
-        {
+        s: &RawSource,
+    ) -> Result<Checked<SourceConfig>, ConfigError> {
+        let kind = s.kind.0;
+        let own = source_kinds::keys_of(kind).unwrap_or_default();
+        let foreign = source_kinds::all_keys()
+            .into_iter()
+            .find(|name| s.keys.contains_key(*name) && !own.contains(name));
+        if let Some(name) = foreign {
             return Err(self.error(
                 &format!("{key}.{name}"),
                 format!(
-                    "a {} source has no `{name}`: its keys are name, kind, {}, retry_s",
-                    kind.name(),
-                    kind.keys().join(", ")
+                    "a {kind} source has no `{name}`: its keys are name, kind, {}, retry_s",
+                    own.join(", ")
                 ),
             ));
         }
@@ -40,178 +30,68 @@ impl Checker<'_> {
             None => Duration::from_secs(2),
             Some(v) => self.seconds_in(&format!("{key}.retry_s"), v, MIN_RETRY_S, 3600.0)?,
         };
-        let require_port = |port: Option<PathBuf>| match port {
+        let keys = Keys {
+            checker: self,
+            key: key.to_string(),
+            kind,
+            values: &s.keys,
+        };
+        let Checked {
+            settings,
+            streams,
+            layouts,
+        } = SourceKind::check(kind, &keys).unwrap_or_else(|| {
+            Err(self.error(&format!("{key}.kind"), format!("'{kind}' is not a kind")))
+        })?;
+        let settings = SourceConfig {
+            name: s.name.clone(),
+            kind: settings,
+            retry,
+        };
+        Ok(Checked {
+            settings,
+            streams,
+            layouts,
+        })
+    }
+
+    /// The first key of any `[[source]]` that no kind takes, refused in
+    /// serde's words: checked over every source before anything else is.
+    pub(super) fn refuse_unknown_source_keys(&self, raw: &[RawSource]) -> Result<(), ConfigError> {
+        let allowed: Vec<&str> = ["name", "kind"]
+            .into_iter()
+            .chain(source_kinds::all_keys())
+            .chain(["retry_s"])
+            .collect();
+        for (i, s) in raw.iter().enumerate() {
+            self.refuse_unknown(&format!("source[{i}]"), &s.keys, &allowed)?;
+        }
+        Ok(())
+    }
+
+    /// A device source's `port`, or a message that names its kind and an
+    /// example.
+    pub(crate) fn require_port(
+        &self,
+        keys: &Keys<'_, '_>,
+        example: &str,
+    ) -> Result<PathBuf, ConfigError> {
+        match keys.get::<PathBuf>("port")? {
             Some(p) if !p.as_os_str().is_empty() => Ok(p),
-            _ => Err(self.error(
-                &format!("{key}.port"),
+            _ => Err(keys.error(
+                "port",
                 format!(
-                    "a {} source needs `port`, its serial device (such as \"{}\")",
-                    kind.name(),
-                    if kind == RawKind::Falcon {
-                        "/dev/ttyUSB0"
-                    } else {
-                        "/dev/ttyACM0"
-                    }
+                    "a {} source needs `port`, its serial device (such as \"{example}\")",
+                    keys.kind
                 ),
             )),
-        };
-        let mut layout = None;
-        let (source_kind, streams) = match kind {
-            RawKind::Falcon => {
-                let port = require_port(s.port)?;
-                let baud = s.baud.unwrap_or(falcon::BAUD);
-                if baud == 0 {
-                    return Err(self.error(
-                        &format!("{key}.baud"),
-                        format!(
-                            "0 is not a line speed: give the device's, such as {}",
-                            falcon::BAUD
-                        ),
-                    ));
-                }
-                (
-                    SourceKind::Falcon { port, baud },
-                    vec![StreamDesc { id: 0, chip: None }],
-                )
-            }
-            RawKind::UsbIss => {
-                let port = require_port(s.port)?;
-                self.check_bridge(key, port, s.chips, s.poll_ms, s.i2c_khz)?
-            }
-            RawKind::Replay => {
-                let Some(file) = s.file.filter(|f| !f.as_os_str().is_empty()) else {
-                    return Err(self.error(
-                        &format!("{key}.file"),
-                        "a replay source needs `file`, a capture or raw dump (relative to the \
-                         configuration's directory)",
-                    ));
-                };
-                let file = self.resolve(&file);
-                let streams = self.replay_streams(&format!("{key}.file"), &file)?;
-                let speed = self.check_speed(&format!("{key}.speed"), s.speed.as_ref())?;
-                (SourceKind::Replay { file, speed }, streams)
-            }
-            RawKind::Csv => {
-                let (kind, found) = self.check_csv_source(
-                    key,
-                    s.file,
-                    s.files,
-                    s.speed.as_ref(),
-                    s.period_s,
-                    s.time_column,
-                )?;
-                layout = Some(found);
-                (kind, vec![StreamDesc { id: 0, chip: None }])
-            }
-        };
-        Ok((
-            SourceConfig {
-                name: s.name,
-                kind: source_kind,
-                retry,
-            },
-            streams,
-            layout,
-        ))
-    }
-
-    /// An I2C bridge's chips, poll period and bus speed, and a stream for
-    /// each chip.
-    fn check_bridge(
-        &self,
-        key: &str,
-        port: PathBuf,
-        chips: Option<Vec<String>>,
-        poll_ms: Option<u64>,
-        i2c_khz: Option<u32>,
-    ) -> Result<(SourceKind, Vec<StreamDesc>), ConfigError> {
-        let chips = self.check_chips(key, chips.unwrap_or_default())?;
-        let poll_ms = poll_ms.unwrap_or(30);
-        if !(1..=POLL_MS_MAX).contains(&poll_ms) {
-            return Err(self.error(
-                &format!("{key}.poll_ms"),
-                format!("{poll_ms} ms: give 1 to {POLL_MS_MAX} ms between polls"),
-            ));
         }
-        let i2c_khz = i2c_khz.unwrap_or(100);
-        if i2c_khz != 100 && i2c_khz != 400 {
-            return Err(self.error(
-                &format!("{key}.i2c_khz"),
-                format!("{i2c_khz} kHz: the USB-ISS runs the bus at 100 or 400 kHz"),
-            ));
-        }
-        let streams = chips
-            .iter()
-            .enumerate()
-            .map(|(k, &chip)| StreamDesc {
-                id: u8::try_from(k).unwrap_or(u8::MAX),
-                chip: Some(chip),
-            })
-            .collect();
-        Ok((
-            SourceKind::UsbIss {
-                port,
-                chips,
-                poll: Duration::from_millis(poll_ms),
-                i2c_khz,
-            },
-            streams,
-        ))
-    }
-
-    /// A csv source's files, speed and clock (a time column, or a period
-    /// for a single file), each file's header resolved.
-    fn check_csv_source(
-        &self,
-        key: &str,
-        file: Option<PathBuf>,
-        files: Option<Vec<PathBuf>>,
-        speed: Option<&toml::Value>,
-        period_s: Option<f64>,
-        time_column: Option<String>,
-    ) -> Result<(SourceKind, Vec<CsvLayout>), ConfigError> {
-        let (files, listed) = self.csv_files(key, file, files)?;
-        let speed = self.check_speed(&format!("{key}.speed"), speed)?;
-        let period_s = match period_s {
-            None => None,
-            Some(_) if files.len() > 1 => {
-                return Err(self.error(
-                    &format!("{key}.period_s"),
-                    "`period_s` is for a single file without a time column: the files of \
-                     one clock are merged by their time columns, so each needs one \
-                     (name it with time_column)",
-                ));
-            }
-            Some(p) => {
-                self.seconds(&format!("{key}.period_s"), p, 86_400.0)?;
-                Some(p)
-            }
-        };
-        let time_column = time_column.map(|t| t.trim().to_string());
-        let mut found = Vec::with_capacity(files.len());
-        for (k, file) in files.iter().enumerate() {
-            let on = if listed {
-                format!("{key}.files[{k}]")
-            } else {
-                format!("{key}.file")
-            };
-            found.push(self.csv_layout(key, &on, file, time_column.as_deref(), period_s)?);
-        }
-        Ok((
-            SourceKind::Csv {
-                files,
-                speed,
-                time_column,
-                period_s,
-            },
-            found,
-        ))
     }
 
     /// A csv source's `file` or `files` (one of the two; at most
     /// [`crate::source::csv::MAX_FILES`], each once), resolved against the
     /// configuration's directory.
-    pub(super) fn csv_files(
+    pub(crate) fn csv_files(
         &self,
         key: &str,
         file: Option<PathBuf>,
@@ -283,7 +163,7 @@ impl Checker<'_> {
     /// put on the key it is about (`on_file`, the file's own key
     /// `source[N].file` or `source[N].files[K]`, or `time_column` or
     /// `period_s`).
-    pub(super) fn csv_layout(
+    pub(crate) fn csv_layout(
         &self,
         key: &str,
         on_file: &str,
@@ -317,7 +197,7 @@ impl Checker<'_> {
         }
     }
 
-    pub(super) fn check_chips(
+    pub(crate) fn check_chips(
         &self,
         key: &str,
         chips: Vec<String>,
@@ -359,7 +239,7 @@ impl Checker<'_> {
         Ok(parsed)
     }
 
-    pub(super) fn check_speed(
+    pub(crate) fn check_speed(
         &self,
         key: &str,
         value: Option<&toml::Value>,
@@ -388,7 +268,7 @@ impl Checker<'_> {
 
     /// The streams of a replayed file: those its capture header declares,
     /// or one Falcon stream for a raw dump. Reads the header only.
-    pub(super) fn replay_streams(
+    pub(crate) fn replay_streams(
         &self,
         key: &str,
         file: &Path,
@@ -529,10 +409,10 @@ impl Checker<'_> {
 
 /// One byte stream of a source: its id and, for a chip, which one.
 #[derive(Debug, Clone, Copy)]
-pub(super) struct StreamDesc {
-    pub(super) id: u8,
+pub struct StreamDesc {
+    pub(crate) id: u8,
     /// `None` for a Falcon-GX stream.
-    pub(super) chip: Option<(Chip, u8)>,
+    pub(crate) chip: Option<(Chip, u8)>,
 }
 
 impl StreamDesc {
@@ -568,15 +448,6 @@ pub(super) fn chip_fields(chip: Chip) -> Vec<Field> {
         fields.push(Field::Gyro);
     }
     fields
-}
-
-pub(super) fn kind_name(kind: &SourceKind) -> &'static str {
-    match kind {
-        SourceKind::Falcon { .. } => "falcon",
-        SourceKind::UsbIss { .. } => "usb-iss",
-        SourceKind::Replay { .. } => "replay",
-        SourceKind::Csv { .. } => "csv",
-    }
 }
 
 pub(super) fn chip_names() -> String {

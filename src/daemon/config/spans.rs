@@ -7,6 +7,12 @@ impl Checker<'_> {
     /// The span of the value at a dotted key such as `sensor[1].axes`, or
     /// of the nearest enclosing one that is in the file.
     pub(super) fn span_of(&self, key: &str) -> Option<Range<usize>> {
+        self.lookup(key).0
+    }
+
+    /// The span of the value at a dotted key or of the nearest enclosing
+    /// one that is in the file, and the value itself when it is.
+    fn lookup(&self, key: &str) -> (Option<Range<usize>>, Option<&Spanned<DeValue<'_>>>) {
         let mut best: Option<Range<usize>> = None;
         let mut table: &DeTable = self.doc.get_ref();
         let mut value: Option<&Spanned<DeValue>> = None;
@@ -18,26 +24,38 @@ impl Checker<'_> {
             if let Some(v) = value {
                 match v.get_ref() {
                     DeValue::Table(t) => table = t,
-                    _ => return best,
+                    _ => return (best, None),
                 }
             }
             let Some(v) = table.get(name) else {
-                return best;
+                return (best, None);
             };
             best = Some(v.span());
             value = Some(v);
             if let Some(i) = index {
                 let DeValue::Array(items) = v.get_ref() else {
-                    return best;
+                    return (best, None);
                 };
                 let Some(item) = items.get(i) else {
-                    return best;
+                    return (best, None);
                 };
                 best = Some(item.span());
                 value = Some(item);
             }
         }
-        best
+        (best, value)
+    }
+
+    /// Where the key (not its value) of a dotted key such as
+    /// `source[0].buad` starts, if it is in the file.
+    pub(super) fn key_start(&self, key: &str) -> Option<usize> {
+        let (table, name) = key.rsplit_once('.')?;
+        let DeValue::Table(t) = self.lookup(table).1?.get_ref() else {
+            return None;
+        };
+        t.iter()
+            .find(|(k, _)| k.get_ref() == name)
+            .map(|(k, _)| k.span().start)
     }
 }
 

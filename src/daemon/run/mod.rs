@@ -35,10 +35,12 @@ mod sensors;
 mod serve;
 mod sources;
 
+pub(crate) use sensors::Sensors;
+pub(crate) use sources::{SourceTask, Start, Started, cannot_start};
+
 pub use pipeline::{MAX_STATUS_CATCH_UP, replay_csv_through_pipeline, replay_through_pipeline};
 
 use outputs::{Outputs, subscriber_policy};
-use sensors::Sensors;
 use serve::Daemon;
 use sources::Sources;
 

@@ -13,6 +13,7 @@ use crate::daemon::config::{Config, SourceKind};
 use crate::daemon::messages::SourceStatus;
 use crate::daemon::publish::Lane;
 use crate::daemon::sensor::Emitter;
+use crate::daemon::source_kinds::Csv;
 use crate::source::csv::{CsvPlayback, check_csv, play_csv};
 use crate::source::replay::{ReplaySummary, Speed, replay_counted};
 use crate::source::{SourceCounters, SourceEvent};
@@ -173,12 +174,12 @@ pub fn replay_csv_through_pipeline(
     out: &mut dyn Write,
 ) -> Result<CsvPlayback, DaemonError> {
     let mut pipeline = Pipeline::new(config, source, speed)?;
-    let Some(SourceKind::Csv {
+    let Some(SourceKind::Csv(Csv {
         files,
         time_column,
         period_s,
         ..
-    }) = config.sources.get(pipeline.index).map(|s| &s.kind)
+    })) = config.sources.get(pipeline.index).map(|s| &s.kind)
     else {
         return Err(DaemonError::NotCsv(pipeline.source_name.clone()));
     };

@@ -12,7 +12,7 @@ use crate::daemon::state::StateStore;
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 
 /// Sensors grouped by the source that feeds them.
-pub(super) struct Sensors {
+pub(crate) struct Sensors {
     pub(super) sensors: Vec<(usize, Sensor)>,
 }
 
@@ -108,7 +108,7 @@ impl Sensors {
     /// Binds the sensors of csv source `source` to the headers of the
     /// files it plays (`files[k]` has `layouts[k]`); returns the columns
     /// they read in each file, sorted, once each.
-    pub(super) fn bind_csv(
+    pub(crate) fn bind_csv(
         &mut self,
         source: usize,
         layouts: &[Arc<CsvLayout>],
