@@ -16,17 +16,3 @@ pub fn significant(value: f64, digits: usize) -> String {
     let decimals = (digits as i32 - 1 - magnitude).max(0) as usize;
     format!("{value:.decimals$}")
 }
-
-#[cfg(test)]
-mod tests {
-    use super::significant;
-
-    #[test]
-    fn significant_digits() {
-        assert_eq!(significant(1.234567891, 6), "1.23457");
-        assert_eq!(significant(-24000.123456, 6), "-24000.1");
-        assert_eq!(significant(0.000123456789, 4), "0.0001235");
-        assert_eq!(significant(0.0, 6), "0");
-        assert_eq!(significant(1.5e-9, 3), "1.50e-9");
-    }
-}

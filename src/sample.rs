@@ -266,36 +266,3 @@ pub struct Reading {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub timer: Option<u16>,
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn new_rejects_ragged_columns() {
-        let err = Dataset::new(
-            "x",
-            "y",
-            Some(vec![0.0]),
-            vec![1.0, 2.0],
-            vec![1.0, 2.0],
-            vec![],
-        )
-        .unwrap_err();
-        assert_eq!(
-            err,
-            DatasetError::LengthMismatch {
-                name: "t".into(),
-                found: 1,
-                reference: "x".into(),
-                expected: 2
-            }
-        );
-    }
-
-    #[test]
-    fn new_rejects_nan() {
-        let err = Dataset::from_xy(vec![1.0, f64::NAN], vec![1.0, 2.0]).unwrap_err();
-        assert!(matches!(err, DatasetError::NonFinite { row: 1, .. }));
-    }
-}

@@ -36,31 +36,3 @@ pub fn name_list<S: AsRef<str>>(names: &[S]) -> String {
     }
     out
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_long_value_is_cut_and_its_length_given() {
-        let long = "9".repeat(100_000_000 / 1000);
-        let shown = excerpt(&long);
-        assert!(shown.len() < 100, "{shown}");
-        assert!(shown.ends_with("… (100000 bytes)"), "{shown}");
-        assert_eq!(excerpt("12.5x"), "12.5x");
-        // Cut on a character boundary.
-        let accents = "é".repeat(60);
-        assert_eq!(
-            excerpt(&accents).chars().filter(|&c| c == 'é').count(),
-            MAX_ECHO_CHARS
-        );
-    }
-
-    #[test]
-    fn a_long_list_of_names_is_capped() {
-        let names: Vec<String> = (0..1000).map(|i| format!("c{i}")).collect();
-        let shown = name_list(&names);
-        assert!(shown.ends_with("c23 … and 976 more"), "{shown}");
-        assert_eq!(name_list(&["t", "x"]), "t, x");
-    }
-}

@@ -86,25 +86,3 @@ impl MockFalcon {
         (self.starts, self.stops)
     }
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn waits_for_start_and_obeys_stop_even_when_split() {
-        let mut dev = MockFalcon::new(vec![vec![1], vec![2], vec![3]]);
-        assert_eq!(dev.tick(), None);
-        dev.receive(&[0xAA, 0x10]);
-        dev.receive(&[0x00]);
-        assert!(!dev.is_streaming());
-        dev.receive(&[0x02]);
-        assert_eq!(dev.tick(), Some(&[1u8][..]));
-        dev.receive(&STOP_CONTINUOUS);
-        assert_eq!(dev.tick(), None);
-        dev.receive(&START_CONTINUOUS);
-        assert_eq!(dev.tick(), Some(&[2u8][..]));
-        assert_eq!(dev.commands_seen(), (2, 1));
-        assert_eq!(dev.remaining(), 1);
-    }
-}

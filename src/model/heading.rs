@@ -119,38 +119,3 @@ pub fn circle_centre(x: &[f64], y: &[f64]) -> Result<(f64, f64), FitError> {
     }
     Ok((mx + p[0] * spread, my + p[1] * spread))
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn full_circle_of_samples_covers_nearly_360() {
-        let c = coverage((0..36).map(|i| (i as f64 * 10.0).to_radians()));
-        assert!((c.covered_deg - 350.0).abs() < 1e-9, "{c:?}");
-    }
-
-    #[test]
-    fn half_turn_reports_its_gap() {
-        let c = coverage((0..=18).map(|i| (i as f64 * 10.0 - 90.0).to_radians()));
-        assert!((c.covered_deg - 180.0).abs() < 1e-9, "{c:?}");
-        assert!((c.gap_start_deg - 90.0).abs() < 1e-9, "{c:?}");
-        let err = c.require(300.0).unwrap_err().to_string();
-        assert!(err.contains("cover only 180.0°"), "{err}");
-    }
-
-    #[test]
-    fn centre_of_an_arc() {
-        let (x, y): (Vec<f64>, Vec<f64>) = (0..20)
-            .map(|i| {
-                let a = (i as f64 * 4.0).to_radians();
-                (100.0 + 50.0 * a.cos(), -30.0 + 50.0 * a.sin())
-            })
-            .unzip();
-        let (cx, cy) = circle_centre(&x, &y).unwrap();
-        assert!(
-            (cx - 100.0).abs() < 1e-6 && (cy + 30.0).abs() < 1e-6,
-            "{cx} {cy}"
-        );
-    }
-}

@@ -574,16 +574,3 @@ fn flagged_note(flagged: &[usize]) -> String {
         first.join(", ")
     )
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn accelerometer_columns_are_in_g() {
-        assert_eq!(infer_units(["acc_x", "acc_y", "acc_z"]), Some("g"));
-        assert_eq!(infer_units(["AccX", "accel_y", "acc_z"]), Some("g"));
-        assert_eq!(infer_units(["acc_x", "acc_y", "mag_z"]), None);
-        assert_eq!(infer_units(["mag_x", "mag_y", "mag_z"]), None);
-    }
-}

@@ -3,6 +3,7 @@
 
 pub mod daemon;
 pub mod faults;
+pub mod fixtures;
 pub mod http;
 pub mod pty;
 pub mod table;

@@ -59,16 +59,3 @@ pub fn encode(accel: [i16; 3]) -> [u8; 6] {
     let [x, y, z] = accel.map(i16::to_le_bytes);
     [x[0], x[1], y[0], y[1], z[0], z[1]]
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn decode_hand_computed() {
-        // x = 0x0100 = 256 (1 g), y = 0xFFF6 = -10, z = 0x8000 = -32768.
-        let data = [0x00, 0x01, 0xF6, 0xFF, 0x00, 0x80];
-        assert_eq!(decode(&data), [256, -10, -32768]);
-        assert_eq!(encode([256, -10, -32768]), data);
-    }
-}

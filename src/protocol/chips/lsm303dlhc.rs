@@ -156,38 +156,3 @@ pub mod mag {
         encode(reading.mag.unwrap_or([0; 3]), reading.temp_raw.unwrap_or(0)).to_vec()
     }
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn accel_decode_hand_computed() {
-        // x: 0x3E80 = 16000 -> >> 4 = 1000 (1 g at 1 mg/LSB)
-        // y: 0xFFF0 = -16 -> -1
-        // z: 0x8000 = -32768 -> -2048
-        let data = [0x80, 0x3E, 0xF0, 0xFF, 0x00, 0x80];
-        assert_eq!(accel::decode(&data), [1000, -1, -2048]);
-        assert_eq!(accel::encode([1000, -1, -2048]), data);
-        // The low nibble carries no data.
-        assert_eq!(accel::decode(&[0x8F, 0x3E, 0, 0, 0, 0])[0], 1000);
-    }
-
-    #[test]
-    fn mag_decode_is_x_z_y() {
-        // X = 0x0102 = 258, Z = 0xFF00 = -256, Y = 0x0304 = 772,
-        // TEMP = 0x0190 -> >> 4 = 25 (3.1 deg C above the unknown offset).
-        let data = [0x01, 0x02, 0xFF, 0x00, 0x03, 0x04, 0x01, 0x90];
-        let (field, temp) = mag::decode(&data);
-        assert_eq!(field, [258, 772, -256]);
-        assert_eq!(temp, 25);
-        assert_eq!(mag::encode([258, 772, -256], 25), data);
-        // A negative temperature: 0xFF80 -> -8 (-1 deg C).
-        assert_eq!(mag::decode(&[0, 0, 0, 0, 0, 0, 0xFF, 0x80]).1, -8);
-    }
-
-    #[test]
-    fn identity_is_h43() {
-        assert_eq!(mag::IDENTITY, &[(0x0A, 0x48), (0x0B, 0x34), (0x0C, 0x33)]);
-    }
-}

@@ -139,33 +139,3 @@ fn encode_reading(reading: &Reading) -> Vec<u8> {
     })
     .to_vec()
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn decode_hand_computed() {
-        let data = [
-            0x40, 0x00, // AX = 16384 (1 g at +-2 g)
-            0xFF, 0xFE, // AY = -2
-            0x80, 0x00, // AZ = -32768
-            0xF2, 0x1C, // TEMP = -3556 -> 36.53 - 10.4588 = 26.0712 C
-            0x00, 0x83, // GX = 131 (1 deg/s)
-            0x7F, 0xFF, // GY = 32767
-            0xFF, 0x7D, // GZ = -131
-        ];
-        let s = decode(&data);
-        assert_eq!(s.accel, [16384, -2, -32768]);
-        assert_eq!(s.temp_raw, -3556);
-        assert_eq!(s.gyro, [131, 32767, -131]);
-        assert!((temp_c(s.temp_raw) - 26.071_176).abs() < 1e-5);
-        assert_eq!(encode(&s), data);
-    }
-
-    #[test]
-    fn temperature_round_trips() {
-        assert_eq!(temp_raw(36.53), 0);
-        assert_eq!(temp_raw(temp_c(-3556)), -3556);
-    }
-}

@@ -1,0 +1,2408 @@
+//! The model's unit tests that need only the public API (`fieldcal::model::...`),
+//! moved out of src/model: one module a source file, the tests unchanged.
+
+mod common;
+
+mod calibration {
+    use fieldcal::model::calibration::{Calibration, Terms};
+
+    /// A state file written before the centred cubic (terms c, k and
+    /// cubic_scale only) loads with no centred term and corrects as before;
+    /// one with the centred term corrects with it, and a calibration
+    /// without it writes none of its fields.
+    #[test]
+    fn terms_without_the_centred_cubic_still_load() {
+        let old = r#"{"sensor":"s","id":3,"model":"offset+scale+cubic","params":{"a":1.0,"b":-10.0,"d":5.0,"r":100.0},
+            "rms":0.01,"coverage_deg":360.0,"n":200,"time":1.0,"terms":{"c":0.0,"k":[0.02,0.01],"cubic_scale":200.0}}"#;
+        let cal: Calibration = serde_json::from_str(old).unwrap();
+        assert_eq!(cal.terms.kc, [0.0; 2]);
+        assert_eq!(cal.terms.turn_radius, [0.0; 2]);
+        let (x, y) = (150.0, -40.0);
+        let x2 = x + 0.02 * x * x * x / 200.0f64.powi(2);
+        let y2 = y + 0.01 * y * y * y / 200.0f64.powi(2);
+        assert_eq!(cal.apply(x, y), (x2 - 10.0, y2 + 5.0));
+        let json = serde_json::to_string(&cal).unwrap();
+        assert!(!json.contains("kc") && !json.contains("centre"), "{json}");
+
+        let centred = Calibration {
+            model: "offset+scale+cubic-centred".into(),
+            terms: Terms {
+                kc: [0.04, -0.03],
+                centre: [10.0, -5.0],
+                turn_radius: [90.0, 100.0],
+                ..Terms::default()
+            },
+            ..cal
+        };
+        let back: Calibration =
+            serde_json::from_str(&serde_json::to_string(&centred).unwrap()).unwrap();
+        assert_eq!(back, centred);
+        let (vx, vy) = (x - 10.0, y + 5.0);
+        let want = (
+            x + 0.04 * vx * vx * vx / 8100.0 - 10.0,
+            y - 0.03 * vy * vy * vy / 10_000.0 + 5.0,
+        );
+        let got = centred.apply(x, y);
+        assert!((got.0 - want.0).abs() < 1e-12 && (got.1 - want.1).abs() < 1e-12);
+    }
+}
+
+mod check {
+    use fieldcal::model::check::{
+        CheckError, ParamShift, StoredCalibration, StoredSource, check, moved_text,
+        moved_threshold, normal_quantile, parse_stored,
+    };
+    use fieldcal::model::fit::{FitOptions, fit_paper};
+    use fieldcal::model::paper::closed_form_se;
+    use fieldcal::sample::Dataset;
+    use fieldcal::sim::SimSensor;
+
+    #[test]
+    fn a_move_too_large_to_count_in_standard_errors_is_said_in_words() {
+        let moved = ParamShift::compare("r".into(), (1e308, 1e-12), (1.0, 1e-12), true, 3.29);
+        assert!(moved.moved && moved.z.is_infinite());
+        let text = moved_text(&[moved], |_| "the field changed".into());
+        assert!(
+            text.starts_with("r moved far beyond its standard errors (1"),
+            "{text}"
+        );
+        assert!(!text.contains("inf"), "{text}");
+        let moved = ParamShift::compare("b".into(), (1.0, 0.1), (2.0, 0.0), true, 3.29);
+        let text = moved_text(&[moved], |_| String::new());
+        assert!(text.starts_with("b moved by 10.0 SE"), "{text}");
+    }
+
+    #[test]
+    fn normal_quantile_matches_tables() {
+        assert!((normal_quantile(0.975) - 1.959964).abs() < 1e-6);
+        assert!((normal_quantile(0.5)).abs() < 1e-12);
+        assert!((normal_quantile(0.001) + 3.090232).abs() < 1e-6);
+        assert!(normal_quantile(0.0).is_nan());
+        // Four parameters at 1 % family-wise.
+        assert!((moved_threshold(4) - 3.023).abs() < 1e-3);
+    }
+
+    fn sensor(seed: u64, offset_x: f64) -> SimSensor {
+        SimSensor {
+            gain_x: 1.08,
+            offset_x,
+            offset_y: -60.0,
+            noise: 10.0,
+            turns: 2.0,
+            turn_seconds: 20.0,
+            seed,
+            ..SimSensor::default()
+        }
+    }
+
+    fn stored_from(data: &Dataset) -> StoredCalibration {
+        let report = fit_paper(&data.x, &data.y, &FitOptions::default(), &mut |_| {}).unwrap();
+        let se = closed_form_se(&data.x, &data.y, &report.theta);
+        StoredCalibration {
+            source: StoredSource::FitPaper,
+            effects: fieldcal::model::effects::PAPER.to_vec(),
+            params: fieldcal::model::calibration::paper_parameters(
+                &report.calibration,
+                se.as_ref(),
+            ),
+            cubic_scale: None,
+            rms: Some(report.rms),
+        }
+    }
+
+    #[test]
+    fn the_same_sensor_holds_and_a_shifted_offset_is_named() {
+        let stored = stored_from(&sensor(1, 150.0).simulate().unwrap());
+        let same = check(&sensor(2, 150.0).simulate().unwrap(), &stored, None, 300.0).unwrap();
+        assert!(same.holds, "{}", same.verdict);
+        assert!(same.verdict.starts_with("holds"), "{}", same.verdict);
+        let moved = check(&sensor(2, 180.0).simulate().unwrap(), &stored, None, 300.0).unwrap();
+        assert!(!moved.holds);
+        let names: Vec<&str> = moved
+            .parameters
+            .iter()
+            .filter(|p| p.moved)
+            .map(|p| p.name.as_str())
+            .collect();
+        assert_eq!(names, ["b"], "{}", moved.verdict);
+        assert!(moved.verdict.starts_with("b moved by"), "{}", moved.verdict);
+    }
+
+    #[test]
+    fn garbage_is_not_a_calibration() {
+        for bytes in [
+            &b"hello"[..],
+            b"[1,2]",
+            b"{\"solver\":\"x\",\"params\":{}}",
+            b"{}",
+        ] {
+            let err = parse_stored(bytes).unwrap_err();
+            assert!(matches!(err, CheckError::UnknownFormat { .. }), "{err}");
+            assert!(err.to_string().contains("fit --json"), "{err}");
+        }
+        let err =
+            parse_stored(br#"{"solver":"lsq","params":{"a":-1,"b":0,"d":0,"r":1}}"#).unwrap_err();
+        assert!(matches!(err, CheckError::Invalid { .. }), "{err}");
+    }
+}
+
+mod diagnose3 {
+    use crate::common::fixtures::tumbling;
+    use fieldcal::model::diagnose3::diagnose3;
+    use fieldcal::model::effects::Effect;
+    use fieldcal::sample::Covariate;
+    use fieldcal::sample::Dataset3;
+
+    /// A tumble with gains only (the baseline is the right model), 1 %
+    /// noise, times at 50 Hz and a temperature that wanders independently.
+    fn clean(seed: u64, timed: bool) -> Dataset3 {
+        let n = 800;
+        let points = tumbling(
+            [[1.1, 0.0, 0.0], [0.0, 0.92, 0.0], [0.0, 0.0, 1.0]],
+            [0.3, -0.2, 0.1],
+            0.5,
+            0.005,
+            n,
+            seed,
+        )
+        .simulate()
+        .unwrap();
+        let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.02).collect();
+        let temp = t.iter().map(|s| 20.0 + 3.0 * (s * 0.37).sin()).collect();
+        Dataset3 {
+            x_name: "x".into(),
+            y_name: "y".into(),
+            z_name: "z".into(),
+            t: timed.then_some(t),
+            points,
+            covariates: vec![Covariate {
+                name: "temp".into(),
+                values: temp,
+            }],
+        }
+    }
+
+    #[test]
+    fn clean_tumbles_suggest_nothing() {
+        let mut fired = Vec::new();
+        for seed in 1..=20 {
+            let d = diagnose3(&clean(seed, true), &[]).unwrap();
+            assert!(d.noise_floor.rms > 0.0);
+            if let Some(e) = &d.suggested {
+                fired.push((seed, e.to_string()));
+            } else {
+                assert!(
+                    d.verdict.starts_with("what remains is noise"),
+                    "{}",
+                    d.verdict
+                );
+            }
+        }
+        assert!(fired.len() <= 1, "clean tumbles got suggestions: {fired:?}");
+    }
+
+    #[test]
+    fn drift_without_times_is_not_determined() {
+        let d = diagnose3(&clean(3, false), &[]).unwrap();
+        let drift = d
+            .not_determined
+            .iter()
+            .find(|n| n.effect == Effect::Drift)
+            .expect("drift is not determined without times");
+        assert!(drift.reason.contains("no time column"), "{}", drift.reason);
+        assert!(d.candidates.iter().all(|c| c.effect != Effect::Drift));
+        assert!(
+            d.candidates
+                .iter()
+                .any(|c| c.effect == Effect::Covariate("temp".into()))
+        );
+    }
+
+    #[test]
+    fn six_static_poses_do_not_offer_cross_axis() {
+        // Six static poses (each axis up, then down) support offset+scale,
+        // not the full W (ellipsoid.rs's rule).
+        let mut data = clean(4, true);
+        let n = data.points.len();
+        for (i, p) in data.points.iter_mut().enumerate() {
+            let pose = i * 6 / n;
+            let axis = pose / 2;
+            let sign = if pose.is_multiple_of(2) { 1.0 } else { -1.0 };
+            let mut v = [0.0; 3];
+            v[axis] = sign * 0.5;
+            let gains = [1.1, 0.92, 1.0];
+            let offset = [0.3, -0.2, 0.1];
+            for j in 0..3 {
+                // Scatter within a pose: 1 % of the tumble's excursion.
+                let noise = (p[j] - offset[j]) * 1e-2;
+                p[j] = offset[j] + v[j] / gains[j] + noise;
+            }
+        }
+        let d = diagnose3(&data, &[]).unwrap();
+        let cross = d
+            .not_determined
+            .iter()
+            .find(|n| n.effect == Effect::CrossAxis)
+            .unwrap_or_else(|| panic!("{:?}", d.not_determined));
+        assert!(
+            cross.reason.contains("too little to determine"),
+            "{}",
+            cross.reason
+        );
+        assert!(d.candidates.iter().all(|c| c.effect != Effect::CrossAxis));
+    }
+}
+
+mod effects {
+    use fieldcal::model::effects::{
+        CATALOGUE, Effect, MAX_CROSS_AXIS_SHEAR, MAX_CUBIC, limit_of, live, model_name, parse_list,
+    };
+
+    #[test]
+    fn names_round_trip() {
+        for name in [
+            "offset",
+            "scale",
+            "cross-axis",
+            "drift",
+            "covariate:temp_c",
+            "cubic",
+            "cubic-centred",
+            "outliers",
+        ] {
+            assert_eq!(name.parse::<Effect>().unwrap().to_string(), name);
+        }
+        assert!("magic".parse::<Effect>().unwrap_err().contains("catalogue"));
+        assert!("covariate:".parse::<Effect>().is_err());
+    }
+
+    #[test]
+    fn the_catalogue_is_in_the_order_of_the_effects() {
+        for (i, info) in CATALOGUE.iter().enumerate() {
+            assert!(
+                std::ptr::eq(info.effect.info(), &CATALOGUE[i]),
+                "{}",
+                info.name
+            );
+        }
+        assert_eq!(
+            live(),
+            [
+                Effect::Offset,
+                Effect::Scale,
+                Effect::CrossAxis,
+                Effect::Cubic,
+                Effect::CubicCentred,
+                Effect::Outliers,
+            ]
+        );
+        assert!(!Effect::CubicCentred.is_in_3d());
+        assert_eq!(limit_of("kc").map(|l| l.max_abs), Some(MAX_CUBIC));
+        assert_eq!(limit_of("c").map(|l| l.max_abs), Some(MAX_CROSS_AXIS_SHEAR));
+    }
+
+    #[test]
+    fn lists_always_hold_the_papers_model() {
+        let effects = parse_list("drift, cross-axis").unwrap();
+        assert_eq!(model_name(&effects), "offset+scale+cross-axis+drift");
+        assert_eq!(model_name(&parse_list("paper").unwrap()), "offset+scale");
+        assert_eq!(model_name(&parse_list("").unwrap()), "offset+scale");
+    }
+}
+
+mod ellipsoid {
+    #![allow(clippy::needless_range_loop)] // indices pair fit, truth and se
+    use fieldcal::model::ellipsoid::{
+        Ellipsoid3Error, Ellipsoid3Model, MAX_ITERATIONS, closed_form, fit,
+    };
+    use fieldcal::sim3::{Motion3, SimSensor3};
+    use nalgebra::{Matrix3, Vector3};
+
+    const SOFT_IRON: [[f64; 3]; 3] = [[1.2, 0.15, -0.1], [0.15, 0.85, 0.2], [-0.1, 0.2, 1.05]];
+
+    fn tumble(matrix: [[f64; 3]; 3], noise: f64, n: usize, seed: u64) -> SimSensor3 {
+        SimSensor3 {
+            matrix,
+            offset: [0.3, -0.2, 0.45],
+            r: 0.5,
+            noise,
+            n,
+            motion: Motion3::Tumble {
+                turns: 20.0,
+                axis_path_rad: 10.0,
+            },
+            seed,
+        }
+    }
+
+    fn close(a: f64, b: f64, tol: f64) -> bool {
+        (a - b).abs() <= tol
+    }
+
+    #[test]
+    fn noiseless_full_recovers_a_strong_soft_iron() {
+        let sim = tumble(SOFT_IRON, 0.0, 600, 7);
+        let raw = sim.simulate().unwrap();
+        let (o, w, r) = sim.truth();
+        for model in [Ellipsoid3Model::Full] {
+            let fit = fit(&raw, model).unwrap();
+            for i in 0..3 {
+                assert!(close(fit.offset[i], o[i], 1e-9), "{fit:?}");
+                for j in 0..3 {
+                    assert!(close(fit.matrix[i][j], w[i][j], 1e-9), "{fit:?}");
+                }
+            }
+            assert!(close(fit.r, r, 1e-9));
+            assert!(fit.rms < 1e-10);
+        }
+    }
+
+    #[test]
+    fn raw_counts_fit_as_gauss_do() {
+        // The same readings ×10⁴ + 3·10⁴: the same W, offsets and r scaled.
+        let sim = tumble(SOFT_IRON, 0.003, 800, 11);
+        let gauss = sim.simulate().unwrap();
+        let counts: Vec<[f64; 3]> = gauss.iter().map(|p| p.map(|v| v * 1e4 + 3e4)).collect();
+        for model in Ellipsoid3Model::ALL {
+            // The closed form alone, before any refinement.
+            let (oa, aa) = closed_form(&gauss, model).unwrap();
+            let (ob, ab) = closed_form(&counts, model).unwrap();
+            for i in 0..3 {
+                assert!(
+                    close(ob[i], oa[i] * 1e4 + 3e4, 1e-7 * 1e4),
+                    "{model}: {ob:?} {oa:?}"
+                );
+                for j in 0..3 {
+                    assert!(close(ab[i][j] * 1e4, aa[i][j], 1e-7 * aa[0][0]), "{model}");
+                }
+            }
+            let a = fit(&gauss, model).unwrap();
+            let b = fit(&counts, model).unwrap();
+            for i in 0..3 {
+                assert!(
+                    close(b.offset[i], a.offset[i] * 1e4 + 3e4, 1e-6 * 1e4),
+                    "{model}"
+                );
+                assert!(close(
+                    b.se.offset[i],
+                    a.se.offset[i] * 1e4,
+                    1e-6 * 1e4 * a.se.offset[i].max(1e-6)
+                ));
+                for j in 0..3 {
+                    assert!(close(b.matrix[i][j], a.matrix[i][j], 1e-8), "{model}");
+                }
+            }
+            assert!(close(b.r, a.r * 1e4, 1e-8 * 1e4), "{model}");
+            assert!(close(b.rms, a.rms, 1e-10), "{model}");
+            assert_eq!(a.coverage.covered, b.coverage.covered);
+        }
+    }
+
+    /// Over 1000 seeds, the share of fits in which each parameter lies
+    /// within 3 reported standard errors of the truth.
+    fn within_three_se(model: Ellipsoid3Model, matrix: [[f64; 3]; 3]) -> Vec<(String, f64)> {
+        let seeds = 1000;
+        let mut hits = vec![0usize; 13];
+        let mut names = vec![String::new(); 13];
+        for seed in 0..seeds {
+            let sim = tumble(matrix, 0.005, 600, 1000 + seed);
+            let raw = sim.simulate().unwrap();
+            let (o, w, r) = sim.truth();
+            let fit = fit(&raw, model).unwrap();
+            let mut k = 0;
+            let mut check = |name: String, value: f64, truth: f64, se: f64| {
+                // A parameter the model fixes (se 0) must equal the truth.
+                if (value - truth).abs() <= 3.0 * se || (se == 0.0 && (value - truth).abs() < 1e-12)
+                {
+                    hits[k] += 1;
+                }
+                names[k] = name;
+                k += 1;
+            };
+            for i in 0..3 {
+                check(format!("o{i}"), fit.offset[i], o[i], fit.se.offset[i]);
+            }
+            for i in 0..3 {
+                for j in 0..3 {
+                    check(
+                        format!("W{i}{j}"),
+                        fit.matrix[i][j],
+                        w[i][j],
+                        fit.se.matrix[i][j],
+                    );
+                }
+            }
+            check("r".into(), fit.r, r, fit.se.r);
+        }
+        names
+            .into_iter()
+            .zip(hits)
+            .map(|(n, h)| (n, h as f64 / seeds as f64))
+            .collect()
+    }
+
+    fn assert_within(model: Ellipsoid3Model, matrix: [[f64; 3]; 3]) {
+        let fractions = within_three_se(model, matrix);
+        println!("{model}: {fractions:?}");
+        for (name, f) in &fractions {
+            assert!(
+                *f >= 0.99,
+                "{model}: {name} within 3 SE in only {f}: {fractions:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn offset_parameters_lie_within_three_standard_errors() {
+        let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        assert_within(Ellipsoid3Model::Offset, identity);
+    }
+
+    #[test]
+    fn offset_scale_parameters_lie_within_three_standard_errors() {
+        let diagonal = [[1.2, 0.0, 0.0], [0.0, 0.8, 0.0], [0.0, 0.0, 1.05]];
+        assert_within(Ellipsoid3Model::OffsetScale, diagonal);
+    }
+
+    #[test]
+    fn full_parameters_lie_within_three_standard_errors() {
+        assert_within(Ellipsoid3Model::Full, SOFT_IRON);
+    }
+
+    fn cap(half_angle_deg: f64, seed: u64) -> Vec<[f64; 3]> {
+        SimSensor3 {
+            motion: Motion3::Cap { half_angle_deg },
+            ..tumble(SOFT_IRON, 0.005, 600, seed)
+        }
+        .simulate()
+        .unwrap()
+    }
+
+    #[test]
+    fn a_cap_still_gives_an_ellipsoid_in_closed_form() {
+        // Li & Griffiths' constraint: a 40° cap of noisy points (noise 4 %
+        // of the field) fits an ellipsoid, where an unconstrained quadric
+        // fit is most often a hyperboloid or an open surface.
+        for seed in 0..20 {
+            let raw = SimSensor3 {
+                motion: Motion3::Cap {
+                    half_angle_deg: 40.0,
+                },
+                ..tumble(SOFT_IRON, 0.02, 600, seed)
+            }
+            .simulate()
+            .unwrap();
+            let (_, a) = closed_form(&raw, Ellipsoid3Model::Full).unwrap();
+            let m = Matrix3::from_fn(|i, j| a[i][j]);
+            assert!(m.cholesky().is_some(), "seed {seed}: {a:?}");
+        }
+    }
+
+    #[test]
+    fn a_cap_is_refused_and_names_what_is_missing() {
+        let raw = cap(40.0, 1);
+        for model in Ellipsoid3Model::ALL {
+            let err = fit(&raw, model).unwrap_err();
+            let Ellipsoid3Error::NotCovered {
+                missing,
+                percent,
+                supported,
+                ..
+            } = &err
+            else {
+                panic!("{model}: {err}");
+            };
+            // 11.7 % of the sphere's area; regions count when a point touches them.
+            assert!(*percent < 35.0, "{err}");
+            // A cap is no turn: no advice to fit two axes.
+            assert!(!err.to_string().contains("two axes"), "{err}");
+            assert_eq!(*supported, None, "{err}");
+            // Less than a third covered: the text names what is covered.
+            assert!(
+                missing.contains("covered only") && missing.contains("+z (elevation"),
+                "{err}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_ring_supports_no_3d_model() {
+        let raw = SimSensor3 {
+            motion: Motion3::WobblingTurn {
+                turns: 2.0,
+                inclination_deg: 0.0,
+                tilt_deg: 0.0,
+            },
+            ..tumble(SOFT_IRON, 0.005, 600, 2)
+        }
+        .simulate()
+        .unwrap();
+        for model in Ellipsoid3Model::ALL {
+            let err = fit(&raw, model).unwrap_err();
+            let Ellipsoid3Error::NotCovered {
+                missing,
+                supported,
+                plane,
+                ..
+            } = &err
+            else {
+                panic!("{model}: {err}");
+            };
+            assert_eq!(*supported, None, "{err}");
+            let plane = plane
+                .as_deref()
+                .unwrap_or_else(|| panic!("no plane named: {err}"));
+            assert!(plane.contains("about the z axis"), "{err}");
+            assert!(err.to_string().contains("fit the two axes"), "{err}");
+            // Less than a third covered: the text names what is covered (about
+            // a closed-form centre off the ring's plane, a cone of it).
+            assert!(
+                missing.contains("covered only") && missing.contains("every other direction"),
+                "{err}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_half_sphere_is_refused_for_the_full_model() {
+        let raw = cap(90.0, 3);
+        let err = fit(&raw, Ellipsoid3Model::Full).unwrap_err();
+        println!("{err}");
+        let Ellipsoid3Error::NotCovered {
+            missing, percent, ..
+        } = &err
+        else {
+            panic!("{err}");
+        };
+        assert!((40.0..=60.0).contains(percent), "{err}");
+        assert!(missing.starts_with("missing: -z"), "{err}");
+    }
+
+    /// Six static poses, each sensor axis up and down in turn (the
+    /// six-position calibration of accelerometers), with noise.
+    fn six_poses(seed: u64) -> Vec<[f64; 3]> {
+        let mut raw = Vec::new();
+        for (k, axis) in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+            .iter()
+            .enumerate()
+        {
+            for sign in [1.0, -1.0] {
+                let sim = SimSensor3 {
+                    motion: Motion3::Cap {
+                        half_angle_deg: 1e-3,
+                    },
+                    ..tumble(
+                        SOFT_IRON,
+                        0.002,
+                        100,
+                        seed + 2 * k as u64 + (sign > 0.0) as u64,
+                    )
+                };
+                let w = Matrix3::from_fn(|i, j| sim.matrix[i][j])
+                    .try_inverse()
+                    .unwrap();
+                let points = sim.simulate().unwrap();
+                let along = Vector3::from(*axis) * sign * sim.r;
+                let z = w * Vector3::new(0.0, 0.0, sim.r);
+                let target = w * along;
+                // The same noise, about this pose instead of +z.
+                raw.extend(
+                    points
+                        .iter()
+                        .map(|p| [0, 1, 2].map(|i| p[i] - z[i] + target[i])),
+                );
+            }
+        }
+        raw
+    }
+
+    #[test]
+    fn six_static_poses_support_offset_scale_only() {
+        let raw = six_poses(40);
+        let err = fit(&raw, Ellipsoid3Model::Full).unwrap_err();
+        let Ellipsoid3Error::NotCovered { supported, .. } = &err else {
+            panic!("{err}");
+        };
+        assert_eq!(*supported, Some(Ellipsoid3Model::OffsetScale), "{err}");
+        assert!(
+            err.to_string()
+                .contains("still support the offset+scale model"),
+            "{err}"
+        );
+        let f = fit(&raw, Ellipsoid3Model::OffsetScale).unwrap();
+        assert!(f.coverage.fraction <= 0.1, "{}", f.coverage.fraction);
+        // The offset is found although W's cross terms are ignored.
+        assert!(f.rms < 0.1, "{}", f.rms);
+        assert!(fit(&raw, Ellipsoid3Model::Offset).is_ok());
+    }
+
+    #[test]
+    fn a_well_covered_tumble_is_accepted() {
+        let raw = tumble(SOFT_IRON, 0.005, 600, 5).simulate().unwrap();
+        let fit = fit(&raw, Ellipsoid3Model::Full).unwrap();
+        assert!(fit.coverage.fraction >= 0.85, "{:?}", fit.coverage.fraction);
+        assert!(fit.iterations < MAX_ITERATIONS);
+    }
+
+    #[test]
+    fn bad_input_is_refused_with_its_place() {
+        let mut raw = tumble(SOFT_IRON, 0.005, 100, 5).simulate().unwrap();
+        assert!(matches!(
+            fit(&raw[..9], Ellipsoid3Model::Full),
+            Err(Ellipsoid3Error::TooFewSamples {
+                found: 9,
+                needed: 10,
+                ..
+            })
+        ));
+        raw[4][1] = f64::NAN;
+        assert!(matches!(
+            fit(&raw, Ellipsoid3Model::Offset),
+            Err(Ellipsoid3Error::NonFinite {
+                index: 4,
+                axis: "y",
+                ..
+            })
+        ));
+        raw[4][1] = 1e200;
+        assert!(matches!(
+            fit(&raw, Ellipsoid3Model::Offset),
+            Err(Ellipsoid3Error::TooLarge {
+                index: 4,
+                axis: "y",
+                ..
+            })
+        ));
+        let same = vec![[1.0, 2.0, 3.0]; 50];
+        assert_eq!(
+            fit(&same, Ellipsoid3Model::Offset),
+            Err(Ellipsoid3Error::Degenerate)
+        );
+    }
+
+    #[test]
+    fn model_names_follow_the_effects() {
+        for m in Ellipsoid3Model::ALL {
+            assert_eq!(m.name().parse::<Ellipsoid3Model>(), Ok(m));
+        }
+        assert_eq!("full".parse::<Ellipsoid3Model>(), Ok(Ellipsoid3Model::Full));
+        assert!("sphere".parse::<Ellipsoid3Model>().is_err());
+    }
+}
+
+mod heading {
+    use fieldcal::model::heading::{circle_centre, coverage};
+
+    #[test]
+    fn full_circle_of_samples_covers_nearly_360() {
+        let c = coverage((0..36).map(|i| (i as f64 * 10.0).to_radians()));
+        assert!((c.covered_deg - 350.0).abs() < 1e-9, "{c:?}");
+    }
+
+    #[test]
+    fn half_turn_reports_its_gap() {
+        let c = coverage((0..=18).map(|i| (i as f64 * 10.0 - 90.0).to_radians()));
+        assert!((c.covered_deg - 180.0).abs() < 1e-9, "{c:?}");
+        assert!((c.gap_start_deg - 90.0).abs() < 1e-9, "{c:?}");
+        let err = c.require(300.0).unwrap_err().to_string();
+        assert!(err.contains("cover only 180.0°"), "{err}");
+    }
+
+    #[test]
+    fn centre_of_an_arc() {
+        let (x, y): (Vec<f64>, Vec<f64>) = (0..20)
+            .map(|i| {
+                let a = (i as f64 * 4.0).to_radians();
+                (100.0 + 50.0 * a.cos(), -30.0 + 50.0 * a.sin())
+            })
+            .unzip();
+        let (cx, cy) = circle_centre(&x, &y).unwrap();
+        assert!(
+            (cx - 100.0).abs() < 1e-6 && (cy + 30.0).abs() < 1e-6,
+            "{cx} {cy}"
+        );
+    }
+}
+
+mod heading_analysis {
+    use fieldcal::model::gyro::HeadingDelta;
+    use fieldcal::model::heading_analysis::{
+        Declination, DeclinationSource, HeadingAnalysisError, HeadingStats, compensation_verdict,
+        fusion_verdict,
+    };
+    use fieldcal::model::tilt::HeadingSeries;
+
+    fn delta(delta_rms_deg: f64, se_deg: f64) -> HeadingDelta {
+        HeadingDelta {
+            delta_rms_deg,
+            se_deg,
+        }
+    }
+
+    #[test]
+    fn compensation_verdicts_follow_the_standard_error() {
+        assert!(
+            compensation_verdict(delta(2.0, 0.1), true, false)
+                .starts_with("tilt compensation removed 2.00°")
+        );
+        let worse = compensation_verdict(delta(-2.0, 0.1), true, false);
+        assert!(
+            worse.contains("WORSE by 2.00°") && worse.contains("still poses"),
+            "{worse}"
+        );
+        assert!(compensation_verdict(delta(-2.0, 0.1), false, true).contains("--rates names"));
+        assert!(compensation_verdict(delta(0.1, 0.1), false, false).contains("no difference"));
+        assert!(compensation_verdict(delta(f64::NAN, 0.1), false, false).starts_with("too few"));
+    }
+
+    #[test]
+    fn fusion_verdicts_follow_the_standard_error() {
+        assert!(fusion_verdict(delta(1.0, 0.1)).starts_with("the gyro removed"));
+        assert!(fusion_verdict(delta(-1.0, 0.1)).starts_with("the gyro made the vertical worse"));
+        assert!(fusion_verdict(delta(0.0, 0.1)).starts_with("no difference"));
+        assert!(fusion_verdict(delta(1.0, f64::NAN)).starts_with("too few"));
+    }
+
+    #[test]
+    fn declination_prefers_the_model_and_refuses_nonsense() {
+        let none = Declination::choose(None, None).unwrap();
+        assert_eq!(
+            (none.deg, none.source, none.north()),
+            (0.0, DeclinationSource::None, "magnetic")
+        );
+        let given = Declination::choose(None, Some(-3.5)).unwrap();
+        assert_eq!(
+            (given.deg, given.source.name(), given.north()),
+            (-3.5, "given", "true")
+        );
+        let err = Declination::choose(None, Some(200.0)).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "--declination 200: give degrees east of true north, -180 to 180"
+        );
+    }
+
+    #[test]
+    fn stats_refuse_a_series_without_a_heading() {
+        let series = HeadingSeries {
+            heading_deg: vec![f64::NAN; 3],
+            level_deg: vec![f64::NAN; 3],
+            tilt_deg: vec![f64::NAN; 3],
+            pitch_deg: vec![f64::NAN; 3],
+            inclination_deg: vec![f64::NAN; 3],
+        };
+        assert_eq!(
+            HeadingStats::of(&series),
+            Err(HeadingAnalysisError::NoHeading)
+        );
+        let series = HeadingSeries {
+            heading_deg: vec![10.0, f64::NAN, 30.0],
+            tilt_deg: vec![2.0, 9.0, f64::NAN],
+            inclination_deg: vec![60.0, 61.0, 62.0],
+            ..series
+        };
+        let stats = HeadingStats::of(&series).unwrap();
+        assert_eq!(stats.n_heading, 2);
+        assert_eq!(stats.max_tilt, 9.0);
+        assert_eq!(stats.inclination.map(|i| i.median), Some(61.0));
+    }
+}
+
+mod paper {
+    use fieldcal::model::FitError;
+    use fieldcal::model::paper::{
+        GradientDescentOptions, PaperCalibration, closed_form, closed_form_se, gradient_descent,
+    };
+
+    /// The closed form's standard errors match the scatter of its estimates
+    /// over 200 noise seeds within 20 % (the scatter of 200 draws is itself
+    /// known to ±5 %).
+    #[test]
+    fn closed_form_se_matches_the_scatter_over_seeds() {
+        use fieldcal::sim::SimSensor;
+        for (gain_x, offset_x, offset_y, noise) in
+            [(1.1, 120.0, -80.0, 8.0), (0.85, -300.0, 40.0, 20.0)]
+        {
+            let mut estimates: Vec<[f64; 4]> = Vec::new();
+            let mut ses: Vec<[f64; 4]> = Vec::new();
+            for seed in 0..200 {
+                let sensor = SimSensor {
+                    gain_x,
+                    offset_x,
+                    offset_y,
+                    noise,
+                    period: 0.05,
+                    turns: 1.0,
+                    turn_seconds: 20.0,
+                    seed,
+                    ..SimSensor::default()
+                };
+                let data = sensor.simulate().unwrap();
+                let theta = closed_form(&data.x, &data.y).unwrap();
+                let c = theta.to_calibration().unwrap();
+                let se = closed_form_se(&data.x, &data.y, &theta).unwrap();
+                estimates.push([c.a, c.b, c.d, c.r]);
+                ses.push([se.a, se.b, se.d, se.r]);
+            }
+            for (j, name) in ["a", "b", "d", "r"].iter().enumerate() {
+                let n = estimates.len() as f64;
+                let mean = estimates.iter().map(|e| e[j]).sum::<f64>() / n;
+                let sd = (estimates.iter().map(|e| (e[j] - mean).powi(2)).sum::<f64>() / (n - 1.0))
+                    .sqrt();
+                let se = ses.iter().map(|s| s[j]).sum::<f64>() / n;
+                assert!(
+                    (se / sd - 1.0).abs() < 0.2,
+                    "{name}: se {se} vs scatter {sd} (gain {gain_x}, noise {noise})"
+                );
+            }
+        }
+    }
+
+    fn ellipse(cal: &PaperCalibration, n: usize) -> (Vec<f64>, Vec<f64>) {
+        (0..n)
+            .map(|i| {
+                let phi = i as f64 / n as f64 * std::f64::consts::TAU;
+                let (sx, sy) = (cal.r * phi.cos(), cal.r * phi.sin());
+                ((sx - cal.b) / cal.a, sy - cal.d)
+            })
+            .unzip()
+    }
+
+    #[test]
+    fn theta_and_calibration_are_inverse() {
+        let cal = PaperCalibration {
+            a: 1.3,
+            b: -40.0,
+            d: 12.5,
+            r: 480.0,
+        };
+        let back = cal.to_theta().to_calibration().unwrap();
+        for (u, v) in [
+            (back.a, cal.a),
+            (back.b, cal.b),
+            (back.d, cal.d),
+            (back.r, cal.r),
+        ] {
+            assert!((u - v).abs() <= 1e-12 * v.abs(), "{u} != {v}");
+        }
+    }
+
+    #[test]
+    fn closed_form_is_exact_on_noiseless_raw_counts() {
+        // Offsets of tens of thousands of counts: the conditioning case.
+        let cal = PaperCalibration {
+            a: 0.8,
+            b: -24_000.0,
+            d: 31_000.0,
+            r: 2_000.0,
+        };
+        let (x, y) = ellipse(&cal, 50);
+        let fit = closed_form(&x, &y).unwrap().to_calibration().unwrap();
+        assert!((fit.a - cal.a).abs() < 1e-9, "a {}", fit.a);
+        assert!((fit.b - cal.b).abs() < 1e-6, "b {}", fit.b);
+        assert!((fit.d - cal.d).abs() < 1e-6, "d {}", fit.d);
+        assert!((fit.r - cal.r).abs() < 1e-6, "r {}", fit.r);
+    }
+
+    #[test]
+    fn hyperbola_is_not_an_ellipse() {
+        let x: Vec<f64> = (1..40).map(|i| i as f64).collect();
+        let y: Vec<f64> = x.iter().map(|x| (x * x + 5.0).sqrt()).collect();
+        let err = closed_form(&x, &y).unwrap().to_calibration().unwrap_err();
+        assert!(
+            matches!(err, FitError::NotAnEllipse { theta1 } if theta1 >= 0.0),
+            "{err:?}"
+        );
+    }
+
+    /// A sensor with small offsets, for the gradient descent (which starts
+    /// from no offset).
+    const CENTRED: PaperCalibration = PaperCalibration {
+        a: 1.1,
+        b: 30.0,
+        d: -20.0,
+        r: 500.0,
+    };
+
+    #[test]
+    fn gradient_descent_matches_closed_form_on_a_centred_sensor() {
+        let cal = CENTRED;
+        let (x, y) = ellipse(&cal, 200);
+        let gd = gradient_descent(&x, &y, &GradientDescentOptions::default(), &mut |_| {}).unwrap();
+        let fit = gd.theta.to_calibration().unwrap();
+        assert!(gd.iterations > 10, "{}", gd.iterations);
+        assert!((fit.a - cal.a).abs() < 1e-4 * cal.a, "a {}", fit.a);
+        assert!((fit.r - cal.r).abs() < 1e-4 * cal.r, "r {}", fit.r);
+    }
+
+    #[test]
+    fn gradient_descent_stops_at_its_cap() {
+        let cal = CENTRED;
+        let (x, y) = ellipse(&cal, 100);
+        let options = GradientDescentOptions {
+            max_iterations: 5,
+            ..Default::default()
+        };
+        let err = gradient_descent(&x, &y, &options, &mut |_| {}).unwrap_err();
+        assert!(
+            matches!(err, FitError::IterationCap { cap: 5, .. }),
+            "{err:?}"
+        );
+    }
+}
+
+mod rotation {
+    use fieldcal::model::rotation::{
+        DEFAULT_MAX_GAP_DEG, RotationBuffer, RotationConfig, RotationEvent, RotationState,
+    };
+    use fieldcal::sim::SimSensor;
+
+    /// Deterministic Gaussian noise (xorshift + Box-Muller), so tests need
+    /// no generator state from elsewhere.
+    struct Noise(u64);
+    impl Noise {
+        fn uniform(&mut self) -> f64 {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 7;
+            self.0 ^= self.0 << 17;
+            ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        }
+        fn gauss(&mut self, sigma: f64) -> f64 {
+            let (u1, u2) = (self.uniform(), self.uniform());
+            sigma * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        }
+    }
+
+    /// Samples every `period` s for `seconds` of a circle of radius 1000
+    /// around (cx, cy), heading(t) in degrees.
+    fn track(
+        seconds: f64,
+        period: f64,
+        centre: (f64, f64),
+        noise: f64,
+        heading: impl Fn(f64) -> f64,
+    ) -> Vec<(f64, f64, f64)> {
+        let mut rng = Noise(0x9E37_79B9_7F4A_7C15);
+        let n = (seconds / period).round() as usize;
+        (0..n)
+            .map(|i| {
+                let t = i as f64 * period;
+                let h = heading(t).to_radians();
+                (
+                    t,
+                    centre.0 + 1000.0 * h.cos() + rng.gauss(noise),
+                    centre.1 + 1000.0 * h.sin() + rng.gauss(noise),
+                )
+            })
+            .collect()
+    }
+
+    /// Pushes until something other than Collecting; returns its index.
+    /// The sample at which a default buffer rejects `samples`, and why;
+    /// fails when it completes or goes on collecting.
+    fn rejected(samples: &[(f64, f64, f64)]) -> (usize, String) {
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        match run(&mut buffer, samples) {
+            Some((i, RotationEvent::Rejected { reason })) => (i, reason),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    fn run(
+        buffer: &mut RotationBuffer,
+        samples: &[(f64, f64, f64)],
+    ) -> Option<(usize, RotationEvent)> {
+        for (i, &(t, x, y)) in samples.iter().enumerate() {
+            match buffer.push(t, x, y) {
+                RotationEvent::Collecting => {}
+                event => return Some((i, event)),
+            }
+        }
+        None
+    }
+
+    fn sim_samples(sim: &SimSensor) -> Vec<(f64, f64, f64)> {
+        let d = sim.simulate().unwrap();
+        let t = d.t.clone().unwrap();
+        (0..d.len()).map(|i| (t[i], d.x[i], d.y[i])).collect()
+    }
+
+    /// One and a half clean turns with noise `noise`, the sensor's default.
+    fn turn_and_a_half(noise: f64) -> SimSensor {
+        SimSensor {
+            turns: 1.5,
+            noise,
+            ..Default::default()
+        }
+    }
+
+    /// Fraction of a turn at which the buffer completed.
+    fn completes_at(sim: &SimSensor) -> f64 {
+        let samples = sim_samples(sim);
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let (i, event) = run(&mut buffer, &samples).expect("no event");
+        assert_eq!(event, RotationEvent::Complete, "{sim:?}");
+        i as f64 * sim.period / sim.turn_seconds
+    }
+
+    /// What a person watches must not run ahead of the turn and fall back:
+    /// on the first short, noisy arc the centre is not yet known, so no
+    /// heading counts until the arc bends beyond its noise.
+    #[test]
+    fn coverage_never_runs_ahead_of_the_turn_nor_falls_back() {
+        for (i, start) in [0.0, 33.0, 90.0, 200.0, 311.0].into_iter().enumerate() {
+            for noise in [1.0, 3.0, 8.0] {
+                let rate = 36.0 + 4.0 * i as f64;
+                let samples = track(12.0, 0.05, (-400.0, 250.0), noise, |t| start + rate * t);
+                let mut buffer = RotationBuffer::new(RotationConfig::default());
+                let mut best: f64 = 0.0;
+                for &(t, x, y) in &samples {
+                    if buffer.push(t, x, y) != RotationEvent::Collecting {
+                        break;
+                    }
+                    let shown = buffer.progress().coverage_pct;
+                    let turned = rate * t / 360.0 * 100.0;
+                    // A gap up to max_gap_deg counts as covered.
+                    let slack = DEFAULT_MAX_GAP_DEG / 360.0 * 100.0 + 1.0;
+                    assert!(
+                        shown <= turned + slack,
+                        "start {start}, noise {noise}: {shown:.1} % shown at {turned:.1} % turned"
+                    );
+                    assert!(
+                        shown >= best - 5.0,
+                        "start {start}, noise {noise}: fell from {best:.1} % to {shown:.1} % at t = {t}"
+                    );
+                    best = best.max(shown);
+                }
+                assert!(
+                    best > 80.0,
+                    "start {start}, noise {noise}: reached {best:.1} %"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_clean_turn_completes_at_its_end_and_not_before() {
+        let sim = turn_and_a_half(2.0);
+        let at = completes_at(&sim);
+        assert!((0.9..=1.0).contains(&at), "completed at {at} turns");
+    }
+
+    #[test]
+    fn a_turn_from_any_heading_completes() {
+        for start in [0.0, 4.0, 37.0, 90.0, 123.4, 181.0, 269.0, 333.3, 359.0] {
+            let mut sim = turn_and_a_half(2.0);
+            sim.start_heading_deg = start;
+            sim.seed = start as u64 + 7;
+            // At worst the last sector needs its samples from the second pass.
+            let at = completes_at(&sim);
+            assert!((0.9..=1.03).contains(&at), "start {start}: at {at} turns");
+        }
+    }
+
+    #[test]
+    fn a_turn_far_from_the_origin_and_with_unequal_gains_completes() {
+        for (gain_x, period) in [(1.0, 0.05), (1.4, 0.05), (0.6, 0.03)] {
+            let sim = SimSensor {
+                offset_x: 5000.0,
+                offset_y: -5000.0,
+                gain_x,
+                period,
+                start_heading_deg: 200.0,
+                ..turn_and_a_half(3.0)
+            };
+            let at = completes_at(&sim);
+            // The raw headings of an ellipse of gain ratio a run ahead of or
+            // behind the true ones by up to asin((a - 1)/(a + 1)) (9.6° at
+            // 1.4), so the raw net of 330° may be a true 311° (0.86 turn);
+            // the fit still sees no gap above 30° x 1.4 = 42°.
+            assert!(
+                (0.85..=1.05).contains(&at),
+                "gain {gain_x}: completed at {at} turns"
+            );
+        }
+    }
+
+    #[test]
+    fn clockwise_turn_completes() {
+        let samples = track(15.0, 0.05, (-300.0, 800.0), 2.0, |t| 50.0 - 36.0 * t);
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let (i, event) = run(&mut buffer, &samples).unwrap();
+        assert_eq!(event, RotationEvent::Complete);
+        let at = i as f64 * 0.05 / 10.0;
+        assert!((0.9..=1.03).contains(&at), "{at}");
+    }
+
+    #[test]
+    fn waiting_before_turning_then_turning_completes() {
+        // 8 s still, then one turn in 10 s: the wait must not spoil it.
+        let samples = track(25.0, 0.05, (2000.0, 0.0), 2.0, |t| {
+            if t < 8.0 {
+                120.0
+            } else {
+                120.0 + 36.0 * (t - 8.0)
+            }
+        });
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let (i, event) = run(&mut buffer, &samples).unwrap();
+        assert_eq!(event, RotationEvent::Complete);
+        let turned = (i as f64 * 0.05 - 8.0) / 10.0;
+        assert!((0.9..=1.03).contains(&turned), "{turned}");
+        let (t, x, y) = buffer.take();
+        assert_eq!((t.len(), x.len(), y.len()), (i + 1, i + 1, i + 1));
+        assert_eq!(buffer.progress().state, RotationState::Empty);
+    }
+
+    #[test]
+    fn half_a_turn_times_out_with_the_missing_headings() {
+        // From 5° to 185° in 5 s, then held still at 185°.
+        let samples = track(61.0, 0.05, (100.0, 100.0), 2.0, |t| 5.0 + 36.0 * t.min(5.0));
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let mut last = None;
+        for &(t, x, y) in &samples {
+            match buffer.push(t, x, y) {
+                RotationEvent::Collecting => last = Some(buffer.progress()),
+                RotationEvent::Complete => panic!("half a turn completed at {t}"),
+                RotationEvent::Rejected { reason } => {
+                    // The first sample past 60 s.
+                    assert!((t - 60.05).abs() < 1e-9, "{t}");
+                    assert_eq!(
+                        reason,
+                        "no full rotation within 60 s: 50 % of headings covered, missing 186° to 5°; turn the sensor once all the way round, steadily"
+                    );
+                    let p = last.take().unwrap();
+                    // Headings 5° to 185° are covered, 186° to 5° missing
+                    // (to a 1° bin: this progress is around the centre
+                    // before the failure's exact recount).
+                    assert!((p.coverage_pct - 50.0).abs() < 0.6, "{p:?}");
+                    let [[from, to]] = p.missing_sectors[..] else {
+                        panic!("{p:?}");
+                    };
+                    assert!(
+                        (from - 186.0).abs() <= 1.0 && (to - 5.0).abs() <= 1.0,
+                        "{p:?}"
+                    );
+                    assert!((p.turned_deg - 180.0).abs() < 2.0, "{p:?}");
+                    assert!((p.largest_gap_deg - 180.0).abs() <= 1.0, "{p:?}");
+                    // Restarted with the rejected sample as its first.
+                    assert_eq!(buffer.progress().samples, 1);
+                    return;
+                }
+            }
+        }
+        panic!("no rejection");
+    }
+
+    #[test]
+    fn a_gap_through_zero_is_one_range() {
+        // From 20° to 340° in about 9 s; stop before the timeout.
+        let samples = track(9.0, 0.05, (0.0, 0.0), 1.0, |t| {
+            20.0 + 36.0 * t.min(320.0 / 36.0)
+        });
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        assert_eq!(run(&mut buffer, &samples), None);
+        let p = buffer.progress();
+        // The first sample fell in the 19° bin (20° less noise).
+        assert_eq!(p.missing_sectors, vec![[340.0, 19.0]], "{p:?}");
+        assert!(
+            (p.coverage_pct - (1.0 - 39.0 / 360.0) * 100.0).abs() < 1e-9,
+            "{p:?}"
+        );
+        assert!((p.turned_deg - 320.0).abs() < 1.0, "{p:?}");
+        assert_eq!(p.largest_gap_deg, 40.0);
+        assert_eq!(p.samples, samples.len());
+        assert!((p.elapsed_s - samples[samples.len() - 1].0).abs() < 1e-12);
+        assert_eq!(p.state, RotationState::Collecting);
+    }
+
+    #[test]
+    fn back_and_forth_is_rejected_as_such() {
+        // Swings between 0° and 170°, 6 s per sweep, for over a minute.
+        let samples = track(62.0, 0.05, (-4000.0, 2500.0), 2.0, |t| {
+            let phase = (t / 6.0).rem_euclid(2.0);
+            170.0 * if phase < 1.0 { phase } else { 2.0 - phase }
+        });
+        let (i, reason) = rejected(&samples);
+        assert!((i as f64 * 0.05 - 60.05).abs() < 1e-9, "{i}");
+        assert!(
+            reason.starts_with("the sensor turned back and forth over 170° and never completed a rotation within 60 s"),
+            "{reason}"
+        );
+        assert!(
+            reason.ends_with("turn it once all the way round in one direction"),
+            "{reason}"
+        );
+    }
+
+    #[test]
+    fn a_still_sensor_is_rejected_as_not_turning() {
+        let samples = track(12.0, 0.05, (700.0, -300.0), 3.0, |_| 40.0);
+        let (i, reason) = rejected(&samples);
+        // The first sample 10 s after the first.
+        assert_eq!(i, 200);
+        assert!(
+            reason.starts_with("the sensor is not turning: readings spread over only "),
+            "{reason}"
+        );
+        assert!(
+            reason.contains("counts in 10.0 s (noise about "),
+            "{reason}"
+        );
+        assert!(reason.ends_with("; turn it a full rotation"), "{reason}");
+        // And it never completes on noise, however long it sits.
+        let samples = track(300.0, 0.01, (0.0, 0.0), 5.0, |_| 0.0);
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        for &(t, x, y) in &samples {
+            assert_ne!(buffer.push(t, x, y), RotationEvent::Complete, "at {t}");
+        }
+    }
+
+    #[test]
+    fn memory_stays_bounded() {
+        let config = RotationConfig {
+            max_samples: 150,
+            ..Default::default()
+        };
+        // A slow turn (a tenth of a turn in 10 s) that is clearly turning.
+        let samples = track(20.0, 0.05, (0.0, 0.0), 1.0, |t| 3.6 * t);
+        let mut buffer = RotationBuffer::new(config);
+        let mut rejected = 0;
+        for &(t, x, y) in &samples {
+            if let RotationEvent::Rejected { reason } = buffer.push(t, x, y) {
+                assert!(reason.contains("within 150 samples"), "{reason}");
+                rejected += 1;
+            }
+            assert!(buffer.progress().samples < 150);
+        }
+        assert_eq!(rejected, samples.len() / 150);
+    }
+
+    #[test]
+    fn bad_samples_are_ignored_without_harm() {
+        let sim = turn_and_a_half(2.0);
+        let clean = sim_samples(&sim);
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let mut done = None;
+        for (i, &(t, x, y)) in clean.iter().enumerate() {
+            for (bt, bx, by) in [
+                (t, f64::NAN, y),
+                (t, x, f64::INFINITY),
+                (f64::NAN, x, y),
+                (t, f64::NEG_INFINITY, f64::NAN),
+            ] {
+                assert_eq!(buffer.push(bt, bx, by), RotationEvent::Collecting);
+            }
+            if i > 0 {
+                // Out of order: earlier than the last sample.
+                assert_eq!(buffer.push(t - 1.0, x, y), RotationEvent::Collecting);
+            }
+            if buffer.push(t, x, y) == RotationEvent::Complete {
+                done = Some(i);
+                break;
+            }
+        }
+        let i = done.unwrap();
+        let at = i as f64 * sim.period / sim.turn_seconds;
+        assert!((0.9..=1.0).contains(&at), "{at}");
+        let p = buffer.progress();
+        assert_eq!(p.samples, i + 1);
+        assert_eq!(p.ignored, 5 * i as u64 + 4);
+        assert_eq!(p.state, RotationState::Complete);
+        assert_eq!(p.coverage_pct, 100.0);
+        assert!(p.missing_sectors.is_empty());
+        // Frozen until taken.
+        assert_eq!(buffer.push(1e6, 0.0, 0.0), RotationEvent::Complete);
+        let (t, _, _) = buffer.take();
+        assert_eq!(t.len(), i + 1);
+        assert_eq!(buffer.progress().samples, 0);
+    }
+
+    #[test]
+    fn the_samples_of_a_turn_fit() {
+        let sim = SimSensor {
+            gain_x: 1.2,
+            offset_x: 3000.0,
+            ..turn_and_a_half(2.0)
+        };
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        assert_eq!(
+            run(&mut buffer, &sim_samples(&sim)).unwrap().1,
+            RotationEvent::Complete
+        );
+        let (_, x, y) = buffer.take();
+        let fit = fieldcal::model::fit::fit_paper(
+            &x,
+            &y,
+            &fieldcal::model::fit::FitOptions::default(),
+            &mut |_| {},
+        )
+        .unwrap();
+        assert!(
+            fieldcal::daemon::acceptance::check(&fit, &Default::default()).is_ok(),
+            "{fit:?}"
+        );
+        assert!((fit.calibration.a - sim.truth().a).abs() < 0.01, "{fit:?}");
+    }
+
+    /// A heading that turns at `speeds[i]` deg/s for `durations[i]` s in
+    /// turn (0 for a pause), from `start`.
+    fn profile(start: f64, legs: &[(f64, f64)]) -> impl Fn(f64) -> f64 + '_ {
+        move |t| {
+            let (mut h, mut t0) = (start, 0.0);
+            for &(speed, duration) in legs {
+                let dt = (t - t0).clamp(0.0, duration);
+                h += speed * dt;
+                t0 += duration;
+            }
+            h
+        }
+    }
+
+    /// Index and turned angle (per the heading function) at completion.
+    fn completion(samples: &[(f64, f64, f64)], heading: &dyn Fn(f64) -> f64) -> (usize, f64) {
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        let (i, event) = run(&mut buffer, samples).expect("no event");
+        assert_eq!(event, RotationEvent::Complete);
+        (i, heading(samples[i].0) - heading(0.0))
+    }
+
+    #[test]
+    fn a_10_hz_robot_turn_with_stops_completes_on_one_turn() {
+        // 10 Hz, 9° to 15° a sample (one to two samples per 10° sector,
+        // where 36 sectors x 3 samples never fill), two stops of 3 s.
+        let legs = [
+            (90.0, 1.5),
+            (0.0, 3.0),
+            (150.0, 0.7),
+            (120.0, 0.5),
+            (0.0, 3.0),
+            (100.0, 0.6),
+            (0.0, 5.0),
+        ];
+        let heading = profile(77.0, &legs);
+        assert!((heading(100.0) - 77.0 - 360.0).abs() < 1e-9);
+        for direction in [1.0, -1.0] {
+            let h = |t: f64| direction * heading(t);
+            let samples = track(15.0, 0.1, (2500.0, -4000.0), 5.0, h);
+            let (_, turned) = completion(&samples, &h);
+            assert!(
+                (330.0..=360.0).contains(&turned.abs()),
+                "direction {direction}: completed at {turned}°"
+            );
+        }
+    }
+
+    #[test]
+    fn a_swing_that_covers_every_heading_never_completes() {
+        // Swinging about where the buffer starts: every heading is covered
+        // at ±180° and beyond, but the net turn never passes the amplitude.
+        for amplitude in [180.0, 200.0] {
+            for period in [4.0, 8.0, 13.0] {
+                let samples = track(60.0, 0.05, (300.0, 300.0), 3.0, |t: f64| {
+                    30.0 + amplitude * (std::f64::consts::TAU * t / period).sin()
+                });
+                let mut buffer = RotationBuffer::new(RotationConfig::default());
+                assert_eq!(
+                    run(&mut buffer, &samples),
+                    None,
+                    "±{amplitude}° every {period} s"
+                );
+                let p = buffer.progress();
+                assert!(p.largest_gap_deg <= 30.0, "{p:?}");
+                assert!(p.turned_deg.abs() <= 2.0 * amplitude + 2.0, "{p:?}");
+            }
+        }
+        // Swings narrower than a turn never complete, whatever the phase the
+        // buffer restarts at after each timeout.
+        for amplitude in [90.0, 150.0] {
+            let samples = track(300.0, 0.05, (0.0, 0.0), 3.0, |t: f64| {
+                amplitude * (std::f64::consts::TAU * t / 7.0).sin()
+            });
+            let mut buffer = RotationBuffer::new(RotationConfig::default());
+            for &(t, x, y) in &samples {
+                assert_ne!(
+                    buffer.push(t, x, y),
+                    RotationEvent::Complete,
+                    "±{amplitude}° at {t}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_sensor_that_slides_never_completes() {
+        let mut rng = Noise(0x5EED_5EED_5EED_5EED);
+        for seed in 0..20 {
+            // Along a line, slowly (a sensor carried past iron), or wandering
+            // by small steps (a random walk a few noise deviations a step).
+            let mut buffer = RotationBuffer::new(RotationConfig::default());
+            let (mut x, mut y) = (1200.0, -300.0);
+            let angle = rng.uniform() * std::f64::consts::TAU;
+            for i in 0..3000 {
+                let t = f64::from(i) * 0.04;
+                if seed % 2 == 0 {
+                    x += 0.5 * angle.cos();
+                    y += 0.5 * angle.sin();
+                } else {
+                    x += rng.gauss(4.0);
+                    y += rng.gauss(4.0);
+                }
+                let event = buffer.push(t, x + rng.gauss(2.0), y + rng.gauss(2.0));
+                assert_ne!(event, RotationEvent::Complete, "seed {seed} at {t} s");
+            }
+        }
+    }
+
+    #[test]
+    fn the_gyro_confirms_or_holds_back_a_turn() {
+        let heading = |t: f64| 10.0 + 36.0 * t;
+        let samples = track(15.0, 0.05, (400.0, -900.0), 2.0, heading);
+        // Without a gyro, with one that agrees (either sign), or with one
+        // that is not used: the same sample completes.
+        let mut plain = RotationBuffer::new(RotationConfig::default());
+        let (i, _) = run(&mut plain, &samples).unwrap();
+        let with_gyro = RotationConfig {
+            use_gyro: true,
+            ..Default::default()
+        };
+        for (sign, use_gyro) in [(1.0, true), (-1.0, true), (0.0, false)] {
+            let config = RotationConfig {
+                use_gyro,
+                ..Default::default()
+            };
+            let mut buffer = RotationBuffer::new(config);
+            let done = samples.iter().position(|&(t, x, y)| {
+                buffer.push_turned(t, x, y, Some(sign * heading(t) + 1000.0))
+                    == RotationEvent::Complete
+            });
+            assert_eq!(done, Some(i), "sign {sign}");
+        }
+        // A gyro that saw no turn (a magnet carried round a still sensor)
+        // holds it back when used, and the rejection says so.
+        let mut buffer = RotationBuffer::new(with_gyro);
+        let samples = track(61.0, 0.05, (400.0, -900.0), 2.0, heading);
+        for &(t, x, y) in &samples {
+            match buffer.push_turned(t, x, y, Some(5.0 + 0.01 * t)) {
+                RotationEvent::Collecting => {}
+                RotationEvent::Complete => panic!("completed at {t} s"),
+                RotationEvent::Rejected { reason } => {
+                    assert!(
+                        reason.starts_with("no full rotation within 60 s: the readings turned "),
+                        "{reason}"
+                    );
+                    assert!(reason.contains("but the gyro only 1°"), "{reason}");
+                    return;
+                }
+            }
+        }
+        panic!("no rejection");
+    }
+
+    #[test]
+    fn progress_reports_the_turn_and_the_gap() {
+        let samples = track(5.0, 0.05, (0.0, 0.0), 1.0, |t| 90.0 - 36.0 * t);
+        let mut buffer = RotationBuffer::new(RotationConfig::default());
+        assert_eq!(run(&mut buffer, &samples), None);
+        let p = buffer.progress();
+        // Clockwise: a negative turn, a bit under 180° (the last sample is
+        // at 4.95 s).
+        assert!((p.turned_deg + 178.2).abs() < 0.5, "{p:?}");
+        assert_eq!(p.turn_needed_deg, 330.0);
+        assert!((p.largest_gap_deg - 181.8).abs() <= 1.0, "{p:?}");
+        assert_eq!(p.gyro_turned_deg, None);
+        let json = serde_json::to_value(&p).unwrap();
+        for key in [
+            "coverage_pct",
+            "missing_sectors",
+            "turned_deg",
+            "largest_gap_deg",
+        ] {
+            assert!(json.get(key).is_some(), "{json}");
+        }
+    }
+
+    #[test]
+    fn config_validation_names_the_key() {
+        assert_eq!(RotationConfig::default().validate(), Ok(()));
+        let bad = RotationConfig {
+            max_gap_deg: 90.0,
+            ..Default::default()
+        };
+        assert_eq!(
+            bad.validate().unwrap_err(),
+            "max_gap_deg must be between 2 and 60 degrees, got 90"
+        );
+        let with = |set: fn(&mut RotationConfig)| {
+            let mut config = RotationConfig::default();
+            set(&mut config);
+            config
+        };
+        let cases = [
+            (with(|c| c.max_gap_deg = f64::NAN), "max_gap_deg"),
+            (with(|c| c.max_samples = 11), "max_samples"),
+            (with(|c| c.timeout_s = f64::NAN), "timeout_s"),
+            (with(|c| c.still_timeout_s = -1.0), "still_timeout_s"),
+            (with(|c| c.still_ratio = 0.5), "still_ratio"),
+        ];
+        for (config, key) in cases {
+            let err = config.validate().unwrap_err();
+            assert!(err.starts_with(key), "{err}");
+            // An invalid configuration still makes a working buffer.
+            let mut buffer = RotationBuffer::new(config);
+            buffer.push(0.0, 1.0, 2.0);
+            assert_eq!(buffer.progress().samples, 1);
+            assert!(buffer.config().validate().is_ok(), "{:?}", buffer.config());
+        }
+        let c: RotationConfig =
+            toml::from_str("max_gap_deg = 20.0\ntimeout_s = 30.0\nuse_gyro = true").unwrap();
+        assert_eq!((c.max_gap_deg, c.timeout_s, c.use_gyro), (20.0, 30.0, true));
+        assert_eq!(c.turn_needed_deg(), 340.0);
+        assert_eq!(c.max_samples, 20_000);
+        // The per-sector keys are gone: named, not ignored.
+        let err = toml::from_str::<RotationConfig>("sectors = 24").unwrap_err();
+        assert!(err.to_string().contains("sectors"), "{err}");
+    }
+}
+
+mod sphere {
+    use fieldcal::model::sphere::{BANDS, REGIONS, coverage, region, region_of};
+    use std::f64::consts::PI;
+
+    fn fibonacci(n: usize) -> Vec<[f64; 3]> {
+        let golden = PI * (3.0 - 5f64.sqrt());
+        (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+                let rho = (1.0 - z * z).sqrt();
+                let phi = golden * i as f64;
+                [rho * phi.cos(), rho * phi.sin(), z]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_band_is_named_by_what_it_covers() {
+        // A ring round y (a turn in the x-z plane), within 10° of the plane.
+        let ring: Vec<[f64; 3]> = (0..720)
+            .map(|i| {
+                let a = (i as f64).to_radians() * 0.5 * 2.0;
+                let tilt = (10.0f64).to_radians() * (3.0 * a).sin();
+                [a.cos() * tilt.cos(), tilt.sin(), a.sin() * tilt.cos()]
+            })
+            .collect();
+        let c = coverage(ring);
+        assert!(c.covered * 3 < c.regions, "{}", c.covered);
+        let text = c.missing_text();
+        assert!(
+            text.starts_with("covered only") && text.contains("the band round the y axis"),
+            "{text}"
+        );
+        // Most of the sphere covered: the missing ranges are named.
+        let mut most: Vec<[f64; 3]> = fibonacci(2000)
+            .into_iter()
+            .filter(|v| v[2] > -0.5)
+            .collect();
+        most.push([0.0, 0.0, 1.0]);
+        let text = coverage(most).missing_text();
+        assert!(text.starts_with("missing: -z"), "{text}");
+    }
+
+    #[test]
+    fn regions_have_equal_area() {
+        // Uniform points fall evenly into the regions: each holds 1/N of
+        // them within the lattice's discreteness.
+        let points = fibonacci(100_000);
+        let cov = coverage(points.iter().copied());
+        assert_eq!(cov.covered, REGIONS);
+        for (k, &c) in cov.counts.iter().enumerate() {
+            assert!((c as f64 - 1000.0).abs() < 30.0, "region {k} holds {c}");
+        }
+        assert_eq!(BANDS.iter().sum::<usize>(), REGIONS);
+    }
+
+    #[test]
+    fn region_centres_lie_in_their_region() {
+        for k in 0..REGIONS {
+            assert_eq!(region_of(region(k).centre), Some(k), "region {k}");
+        }
+    }
+
+    #[test]
+    fn upper_half_names_the_lower_half_missing() {
+        let points: Vec<[f64; 3]> = fibonacci(5000).into_iter().filter(|p| p[2] > 0.0).collect();
+        let cov = coverage(points);
+        assert_eq!(cov.covered, 50);
+        assert_eq!(cov.missing.len(), 1, "{}", cov.missing_text());
+        let m = &cov.missing[0];
+        assert_eq!(m.toward, "-z");
+        assert_eq!(m.regions, 50);
+        assert_eq!(m.azimuth_deg, None);
+        assert!((m.elevation_deg.0 + 90.0).abs() < 1e-9 && m.elevation_deg.1.abs() < 1e-9);
+        assert!(
+            cov.missing_text()
+                .contains("-z (elevation -90° to 0°, every azimuth)")
+        );
+    }
+
+    #[test]
+    fn ring_names_both_poles() {
+        let points: Vec<[f64; 3]> = (0..360)
+            .map(|d| {
+                let a = (d as f64).to_radians();
+                [a.cos(), a.sin(), 0.0]
+            })
+            .collect();
+        let cov = coverage(points);
+        assert_eq!(cov.covered, 17);
+        let names: Vec<&str> = cov.missing.iter().map(|m| m.toward.as_str()).collect();
+        assert_eq!(cov.missing.len(), 2, "{}", cov.missing_text());
+        assert!(names.contains(&"+z") && names.contains(&"-z"), "{names:?}");
+    }
+
+    #[test]
+    fn a_missing_octant_is_named_by_its_axes() {
+        let points: Vec<[f64; 3]> = fibonacci(20_000)
+            .into_iter()
+            .filter(|p| !(p[0] > 0.0 && p[1] > 0.0 && p[2] < 0.0))
+            .collect();
+        let cov = coverage(points);
+        assert_eq!(cov.missing.len(), 1, "{}", cov.missing_text());
+        let m = &cov.missing[0];
+        assert_eq!(m.toward, "+x+y-z");
+        let (a, b) = m.azimuth_deg.expect("an octant spans a quarter turn");
+        assert!(a >= 0.0 && b <= 90.0 && b > a, "{a}..{b}");
+    }
+}
+
+mod still {
+    use crate::common::fixtures::tumbling;
+    use fieldcal::model::still::{StillError, find_still};
+    use nalgebra::{Matrix3, Vector3};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, StandardNormal, Uniform};
+
+    /// Static poses joined by turns, at `rate_hz`: raw = W⁻¹ r u + o +
+    /// noise; the truth is the number of poses and their mean readings.
+    pub(crate) struct Poses {
+        pub points: Vec<[f64; 3]>,
+        pub t: Vec<f64>,
+        pub gyro: Vec<[f64; 3]>,
+        pub truth: Vec<[f64; 3]>,
+        pub pose_ranges: Vec<(usize, usize)>,
+    }
+
+    fn random_unit(rng: &mut ChaCha8Rng) -> Vector3<f64> {
+        loop {
+            let v = Vector3::new(
+                StandardNormal.sample(rng),
+                StandardNormal.sample(rng),
+                StandardNormal.sample(rng),
+            );
+            if v.norm() > 1e-6 {
+                return v.normalize();
+            }
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn poses(
+        directions: &[Vector3<f64>],
+        hold_s: f64,
+        turn_deg_s: f64,
+        noise: f64,
+        rate_hz: f64,
+        matrix: [[f64; 3]; 3],
+        offset: [f64; 3],
+        seed: u64,
+    ) -> Poses {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let winv = Matrix3::from_fn(|i, j| matrix[i][j]).try_inverse().unwrap();
+        let o = Vector3::from(offset);
+        let r = 1.0;
+        let dt = 1.0 / rate_hz;
+        let mut out = Poses {
+            points: vec![],
+            t: vec![],
+            gyro: vec![],
+            truth: vec![],
+            pose_ranges: vec![],
+        };
+        let push = |out: &mut Poses, u: Vector3<f64>, rate: f64, rng: &mut ChaCha8Rng| {
+            let g = Vector3::new(
+                StandardNormal.sample(rng),
+                StandardNormal.sample(rng),
+                StandardNormal.sample(rng),
+            );
+            let p = winv * (u * r) + o + g * noise;
+            out.t.push(out.points.len() as f64 * dt);
+            out.points.push(p.into());
+            out.gyro.push([rate + 3.0, -2.0, 1.5]);
+        };
+        for (k, &u) in directions.iter().enumerate() {
+            let start = out.points.len();
+            for _ in 0..(hold_s * rate_hz) as usize {
+                push(&mut out, u, 0.0, &mut rng);
+            }
+            out.pose_ranges.push((start, out.points.len()));
+            out.truth.push((winv * (u * r) + o).into());
+            if let Some(&next) = directions.get(k + 1) {
+                // Turn along the great circle to the next pose.
+                let angle = u.dot(&next).clamp(-1.0, 1.0).acos();
+                let steps = ((angle.to_degrees() / turn_deg_s) * rate_hz)
+                    .ceil()
+                    .max(1.0) as usize;
+                let axis = u.cross(&next);
+                let axis = if axis.norm() > 1e-9 {
+                    axis.normalize()
+                } else {
+                    random_unit(&mut rng).cross(&u).normalize()
+                };
+                for s in 1..steps {
+                    let a = angle * s as f64 / steps as f64;
+                    let rot = nalgebra::Rotation3::from_axis_angle(
+                        &nalgebra::Unit::new_normalize(axis),
+                        a,
+                    );
+                    push(&mut out, rot * u, turn_deg_s, &mut rng);
+                }
+            }
+        }
+        out
+    }
+
+    const SOFT: [[f64; 3]; 3] = [[1.05, 0.02, -0.01], [0.02, 0.97, 0.03], [-0.01, 0.03, 1.01]];
+
+    fn six() -> Vec<Vector3<f64>> {
+        vec![
+            Vector3::x(),
+            -Vector3::x(),
+            Vector3::y(),
+            -Vector3::y(),
+            Vector3::z(),
+            -Vector3::z(),
+        ]
+    }
+
+    #[test]
+    fn six_positions_give_six_poses() {
+        let p = poses(
+            &six(),
+            2.0,
+            90.0,
+            0.005,
+            100.0,
+            SOFT,
+            [0.04, -0.02, 0.03],
+            1,
+        );
+        let found = find_still(&p.points, Some(&p.t), None).unwrap();
+        assert_eq!(found.window, 50);
+        assert_eq!(found.segments.len(), 6, "{:?}", found.segments);
+        for (seg, truth) in found.segments.iter().zip(&p.truth) {
+            for j in 0..3 {
+                assert!((seg.mean[j] - truth[j]).abs() < 0.005, "{seg:?} {truth:?}");
+            }
+        }
+    }
+
+    /// Randomised sweep: 6 to 14 poses in random directions (at least 30°
+    /// apart), held 0.8 to 3 s, joined by turns at 30 to 180 °/s, noise
+    /// 0.1 % to 1.1 % of the field (the MPU-6050's at its widest
+    /// bandwidth), 50 to 400 Hz: the pose count is found exactly, and each
+    /// pose's mean within 5 noise SDs of the truth.
+    #[test]
+    fn randomised_poses_are_found_exactly() {
+        let mut rng = ChaCha8Rng::seed_from_u64(99);
+        for seed in 0..200 {
+            let count = Uniform::new_inclusive(6usize, 14).unwrap().sample(&mut rng);
+            let mut dirs: Vec<Vector3<f64>> = Vec::new();
+            while dirs.len() < count {
+                let u = random_unit(&mut rng);
+                if dirs.iter().all(|d| d.dot(&u) < 30f64.to_radians().cos()) {
+                    dirs.push(u);
+                }
+            }
+            let hold = Uniform::new(0.8, 3.0).unwrap().sample(&mut rng);
+            let turn = Uniform::new(30.0, 180.0).unwrap().sample(&mut rng);
+            let noise = Uniform::new(0.001, 0.011).unwrap().sample(&mut rng) / 3f64.sqrt();
+            let rate = Uniform::new(50.0, 400.0).unwrap().sample(&mut rng);
+            let offset = [0.05, -0.03, 0.02];
+            let p = poses(&dirs, hold, turn, noise, rate, SOFT, offset, seed);
+            for gyro in [None, Some(&p.gyro[..])] {
+                let found = find_still(&p.points, Some(&p.t), gyro).unwrap();
+                assert_eq!(
+                    found.segments.len(),
+                    count,
+                    "seed {seed}: hold {hold} turn {turn} noise {noise} rate {rate}: {:?}",
+                    found.segments
+                );
+                for (seg, truth) in found.segments.iter().zip(&p.truth) {
+                    let tol = 5.0 * noise + 0.01;
+                    for j in 0..3 {
+                        assert!(
+                            (seg.mean[j] - truth[j]).abs() < tol,
+                            "seed {seed}: {seg:?} {truth:?}"
+                        );
+                    }
+                }
+                if gyro.is_some() {
+                    let bias = found.gyro_bias_deg_s.unwrap();
+                    assert!((bias[0] - 3.0).abs() < 1e-9, "{bias:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_continuous_tumble_never_holds_still() {
+        for seed in 0..50 {
+            let raw = tumbling(SOFT, [0.1, 0.0, -0.1], 1.0, 0.005, 3000, seed)
+                .simulate()
+                .unwrap();
+            // 30 s at 100 Hz: 20 turns, 240 °/s on average.
+            let t: Vec<f64> = (0..raw.len()).map(|i| i as f64 * 0.01).collect();
+            let err = find_still(&raw, Some(&t), None).unwrap_err();
+            assert!(matches!(err, StillError::NeverStill { .. }), "{err}");
+        }
+    }
+
+    #[test]
+    fn the_gyro_rejects_a_slow_turn_the_readings_miss() {
+        // Two poses joined by a slow turn at 15 °/s with a noisy sensor:
+        // the readings of the turn spread less than the threshold over a
+        // short window, the gyro does not.
+        let dirs = [Vector3::z(), Vector3::x()];
+        let p = poses(&dirs, 3.0, 15.0, 0.015, 100.0, SOFT, [0.0; 3], 5);
+        let found = find_still(&p.points, Some(&p.t), Some(&p.gyro)).unwrap();
+        assert_eq!(found.segments.len(), 2, "{:?}", found.segments);
+        // Every still sample belongs to a pose.
+        for i in found.indices() {
+            assert!(
+                p.pose_ranges.iter().any(|&(a, b)| (a..b).contains(&i)),
+                "sample {i} is in the turn"
+            );
+        }
+    }
+
+    #[test]
+    fn bad_input_is_refused() {
+        let p = [[0.0, 0.0, 1.0]; 5];
+        assert!(matches!(
+            find_still(&p, None, None),
+            Err(StillError::TooFew { found: 5, .. })
+        ));
+        let p = vec![[0.0, 0.0, 1.0]; 100];
+        let g = vec![[0.0; 3]; 99];
+        assert!(matches!(
+            find_still(&p, None, Some(&g)),
+            Err(StillError::GyroLength { .. })
+        ));
+    }
+}
+
+mod still_stream {
+    use crate::common::fixtures::{Samples, six_faces};
+    use fieldcal::model::still_stream::{POSE_SAMPLES, StillStream};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    /// Six faces in g with cross-axis terms and offsets of tens of mg.
+    fn six_poses(hold_s: f64, noise: f64, rate_hz: f64, seed: u64) -> (Samples, Vec<[f64; 3]>) {
+        let w = [[1.05, 0.02, 0.0], [0.02, 0.97, 0.01], [0.0, 0.01, 1.02]];
+        six_faces(hold_s, rate_hz, (w, [0.04, -0.03, 0.06], 1.0, noise), seed)
+    }
+
+    #[test]
+    fn six_poses_are_found_with_their_means_over_many_seeds() {
+        for seed in 0..20 {
+            for rate in [50.0, 100.0] {
+                let noise = 0.003;
+                let (samples, truth) = six_poses(2.0, noise, rate, seed);
+                let mut s = StillStream::new(None);
+                let mut ended = 0;
+                for &(t, p) in &samples {
+                    if let Some(p) = s.push(t, p) {
+                        ended += 1;
+                        eprintln!(
+                            "pose {:.2}-{:.2} n {} spread {:.5} state {:?}",
+                            p.start,
+                            p.end,
+                            p.count,
+                            p.spread,
+                            s.state()
+                        );
+                    }
+                }
+                let poses = s.poses();
+                // The last pose is still being held: it counts once it
+                // spans a window.
+                assert_eq!(ended, 5, "seed {seed} at {rate} Hz");
+                assert_eq!(poses.len(), 6, "seed {seed} at {rate} Hz: {poses:?}");
+                for (p, t) in poses.iter().zip(&truth) {
+                    let e = (0..3)
+                        .map(|k| (p.mean[k] - t[k]).powi(2))
+                        .sum::<f64>()
+                        .sqrt();
+                    // The mean of ≥ 1.5 s of samples: noise/√75 per axis.
+                    assert!(
+                        e < 5.0 * noise / 75f64.sqrt() * 3f64.sqrt(),
+                        "seed {seed}: {e}"
+                    );
+                    assert!(
+                        p.samples.len() <= 2 * POSE_SAMPLES && p.samples.len() >= POSE_SAMPLES / 2
+                    );
+                    // The first pose counts from the 20th window (the
+                    // noise is not known before), the others from the
+                    // first still window.
+                    assert!(
+                        p.count as f64 >= 1.2 * rate,
+                        "seed {seed} at {rate} Hz: {} in {:?}",
+                        p.count,
+                        poses.iter().map(|p| (p.start, p.count)).collect::<Vec<_>>()
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_sensor_that_never_rests_gives_no_pose() {
+        // Turning at 60 °/s about a tilted axis, with 2 % of the field in
+        // hand accelerations: no window is quiet.
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut s = StillStream::new(None);
+        for i in 0..3000 {
+            let t = i as f64 * 0.01;
+            let a = (60.0 * t).to_radians();
+            let b = (23.0 * t).to_radians();
+            let u = [a.cos() * b.cos(), a.sin() * b.cos(), b.sin()];
+            let p = u.map(|v| {
+                let g: f64 = StandardNormal.sample(&mut rng);
+                v + 0.02 * g
+            });
+            assert!(s.push(t, p).is_none());
+        }
+        assert!(s.poses().is_empty());
+        assert!(s.state().never_still, "{:?}", s.state());
+    }
+
+    #[test]
+    fn a_gap_or_a_time_that_goes_back_ends_the_pose_and_bad_values_are_ignored() {
+        let (samples, _) = six_poses(2.0, 0.003, 50.0, 1);
+        let mut s = StillStream::new(None);
+        // The first pose (2 s at 50 Hz), held.
+        for &(t, p) in &samples[..100] {
+            assert!(s.push(t, p).is_none());
+        }
+        assert!(s.state().still_now, "{:?}", s.state());
+        assert!(s.push(f64::NAN, [0.0; 3]).is_none());
+        assert!(s.push(3.0, [f64::INFINITY, 0.0, 0.0]).is_none());
+        assert!(s.state().still_now, "a bad value changed nothing");
+        // 2 s of silence: the pose ends there, with its samples.
+        let (t, p) = samples[99];
+        let pose = s.push(t + 2.0, p).expect("the gap ends the pose");
+        assert!(pose.count >= 50 && pose.end <= t, "{pose:?}");
+        // A new pose, then a time that goes back: it ends too.
+        for k in 0..60 {
+            s.push(t + 2.0 + f64::from(k) * 0.02, p);
+        }
+        assert!(
+            s.push(t, p).is_some(),
+            "a time that goes back ends the pose"
+        );
+        assert_eq!(s.poses().len(), 2);
+        assert_eq!(s.pose_count(), 2);
+        s.clear_poses();
+        assert!(s.poses().is_empty());
+        // A 4 kHz sensor: its window is find_still's cap of 1000 samples
+        // (0.25 s), and a pose is still found.
+        let mut fast = StillStream::new(Some(1.0));
+        for i in 0..20_000 {
+            let wobble = if i % 2 == 0 { 0.001 } else { -0.001 };
+            fast.push(f64::from(i) / 4000.0, [wobble, 0.0, 1.0]);
+        }
+        assert_eq!(fast.pose_count(), 1);
+        // Raw counts in the tens of thousands: the same poses.
+        let mut big = StillStream::new(Some(16384.0));
+        let mut ended = 0;
+        for &(t, p) in &samples {
+            ended += usize::from(big.push(t, p.map(|v| v * 16384.0 + 20000.0)).is_some());
+        }
+        assert_eq!(ended, 5);
+        assert_eq!(big.poses().len(), 6);
+    }
+}
+
+mod turn {
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    use fieldcal::model::FitError;
+    use fieldcal::model::turn::{CentreFrom, RADIUS_OVER_NOISE, check_turn, check_turn_of};
+    use fieldcal::sample::Dataset;
+
+    fn ring(n: usize, arc_deg: f64, r: f64, noise: f64, seed: u64) -> (Vec<f64>, Vec<f64>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let g = Normal::new(0.0, 1.0).unwrap();
+        (0..n)
+            .map(|i| {
+                let h = (i as f64 / n as f64 * arc_deg).to_radians();
+                (
+                    1.2 * r * h.cos() + 300.0 + noise * g.sample(&mut rng),
+                    r * h.sin() - 100.0 + noise * g.sample(&mut rng),
+                )
+            })
+            .unzip()
+    }
+
+    fn cloud(n: usize, noise: f64, quantum: f64, seed: u64) -> (Vec<f64>, Vec<f64>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let g = Normal::new(0.0, noise).unwrap();
+        let q = |v: f64| {
+            if quantum > 0.0 {
+                (v / quantum).round() * quantum
+            } else {
+                v
+            }
+        };
+        (0..n)
+            .map(|_| {
+                (
+                    q(-120.0 + g.sample(&mut rng)),
+                    q(455.0 + g.sample(&mut rng)),
+                )
+            })
+            .unzip()
+    }
+
+    #[test]
+    fn a_noisy_ring_passes_with_its_figures() {
+        let (x, y) = ring(400, 360.0, 1000.0, 10.0, 1);
+        let c = check_turn(&x, &y, 300.0).unwrap();
+        assert_eq!(c.centre_from, CentreFrom::Paper);
+        assert!((c.centre[0] - 300.0).abs() < 5.0 && (c.centre[1] + 100.0).abs() < 5.0);
+        assert!((c.noise - 10.0).abs() < 2.0, "{c:?}");
+        assert!(c.spread_over_noise > 80.0, "{c:?}");
+        assert_eq!(c.hole_fraction, 0.0);
+        assert!(c.coverage.covered_deg > 355.0, "{c:?}");
+    }
+
+    #[test]
+    fn still_clouds_are_refused_at_every_size_and_quantum() {
+        for (i, n) in [12, 13, 20, 50, 200, 1000, 20_000].into_iter().enumerate() {
+            for seed in 0..20 {
+                for quantum in [0.0, 0.5, 2.0, 10.0] {
+                    let (x, y) = cloud(n, 1.0, quantum, seed * 31 + i as u64);
+                    match check_turn(&x, &y, 300.0) {
+                        Err(FitError::NotTurning { ratio, .. }) => {
+                            assert!(ratio < RADIUS_OVER_NOISE, "n {n} q {quantum}: {ratio}")
+                        }
+                        other => panic!("n {n} seed {seed} q {quantum}: {other:?}"),
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_cloud_message_gives_its_size_centre_and_ratio() {
+        let (x, y) = cloud(300, 0.2, 0.0, 3);
+        let msg = check_turn(&x, &y, 300.0).unwrap_err().to_string();
+        assert!(msg.starts_with("the readings form a cloud 0."), "{msg}");
+        assert!(msg.contains("around (-120.0, 455.0)"), "{msg}");
+        assert!(msg.contains("the sensor did not turn"), "{msg}");
+        // Constant readings: no spread at all.
+        let msg = check_turn(&[5.0; 20], &[7.0; 20], 300.0)
+            .unwrap_err()
+            .to_string();
+        assert!(msg.contains("across around (5.000, 7.000)"), "{msg}");
+        assert!(msg.contains("the sensor did not turn"), "{msg}");
+    }
+
+    #[test]
+    fn a_filled_disc_is_not_a_ring() {
+        // A spiral that fills the disc evenly and moves smoothly, as a
+        // tumble does from one sample to the next.
+        let (x, y): (Vec<f64>, Vec<f64>) = (0..2000)
+            .map(|i| {
+                let r = 500.0 * (i as f64 / 2000.0).sqrt();
+                let h = i as f64 * 0.05;
+                (r * h.cos() + 40.0, r * h.sin())
+            })
+            .unzip();
+        let data = Dataset::new("mag_x", "mag_y", None, x, y, vec![]).unwrap();
+        let err = check_turn_of(&data, 300.0).unwrap_err();
+        let FitError::DiscNotRing { percent, .. } = err else {
+            panic!("{err:?}")
+        };
+        assert!((8.0..16.0).contains(&percent), "{percent}");
+        let msg = err.to_string();
+        assert!(msg.contains("plane of mag_x and mag_y"), "{msg}");
+    }
+
+    #[test]
+    fn arcs_lines_and_few_samples_are_refused() {
+        let (x, y) = ring(200, 120.0, 1000.0, 5.0, 2);
+        match check_turn(&x, &y, 300.0) {
+            Err(FitError::NoFullTurn { covered_deg, .. }) => {
+                assert!((covered_deg - 120.0).abs() < 5.0, "{covered_deg}")
+            }
+            other => panic!("{other:?}"),
+        }
+        // The user may lower the coverage on purpose.
+        assert!(check_turn(&x, &y, 100.0).is_ok());
+        // A line with noise across it.
+        let (x, y) = (
+            (0..300).map(|i| i as f64).collect::<Vec<_>>(),
+            (0..300)
+                .map(|i| 0.5 * i as f64 + (i % 3) as f64)
+                .collect::<Vec<_>>(),
+        );
+        assert!(check_turn(&x, &y, 300.0).is_err());
+        let (x, y) = ring(11, 360.0, 1000.0, 0.0, 0);
+        assert_eq!(
+            check_turn(&x, &y, 300.0).unwrap_err(),
+            FitError::TooFewToTurn {
+                found: 11,
+                needed: 12
+            }
+        );
+    }
+
+    #[test]
+    fn extreme_and_non_finite_values_end_in_an_answer() {
+        let (x, y) = ring(50, 360.0, 1e307, 0.0, 0);
+        let x: Vec<f64> = x.iter().map(|v| v.clamp(-1.7e308, 1.7e308)).collect();
+        // Finite, but their squares overflow: refused with that reason
+        // (the fits after the gate square them), naming the column.
+        assert!(matches!(
+            check_turn(&x, &y, 300.0),
+            Err(FitError::TooLarge { ref column, index: 0, .. }) if column == "x"
+        ));
+        // Up to the limit, the gate's own scaling still sees a turn.
+        let (x, y) = ring(50, 360.0, 1e149, 0.0, 0);
+        assert!(check_turn(&x, &y, 300.0).is_ok());
+        let (mut x, y) = ring(50, 360.0, 1.0, 0.0, 0);
+        x[7] = f64::NAN;
+        assert!(matches!(
+            check_turn(&x, &y, 300.0),
+            Err(FitError::NonFiniteReading { index: 7, .. })
+        ));
+    }
+}
+
+mod vertical {
+    use fieldcal::model::vertical::{
+        DEFAULT_TAU_S, VerticalError, fuse_vertical, rate_about_vertical,
+    };
+    use nalgebra::Vector3;
+    use nalgebra::{Rotation3, Unit};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Uniform};
+
+    /// A hand-held board turning about the vertical while it wobbles by
+    /// up to `wobble_deg`, its accelerometer reading gravity (1 g up) plus
+    /// the hand's accelerations (`hand_g` at 1.5 Hz and 4 Hz) and noise,
+    /// its gyro the true body rates plus `bias_deg_s` and noise. Returns
+    /// the times, accel, rates (rad/s) and the true vertical in the body.
+    #[allow(clippy::type_complexity)]
+    fn hand_turn(
+        seed: u64,
+        wobble_deg: f64,
+        hand_g: f64,
+        bias_deg_s: [f64; 3],
+    ) -> (Vec<f64>, Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let (dt, n) = (0.01, 2000);
+        let phase: Vec<f64> = (0..6)
+            .map(|_| uniform(&mut rng, std::f64::consts::TAU))
+            .collect();
+        let attitude = |t: f64| {
+            let yaw = 0.6 * t; // rad/s: a turn in ~10 s
+            let roll = wobble_deg.to_radians() * (0.7 * t + phase[0]).sin();
+            let pitch = wobble_deg.to_radians() * (0.45 * t + phase[1]).cos();
+            Rotation3::from_axis_angle(&Vector3::z_axis(), yaw)
+                * Rotation3::from_axis_angle(&Vector3::y_axis(), pitch)
+                * Rotation3::from_axis_angle(&Vector3::x_axis(), roll)
+        };
+        let (mut ts, mut acc, mut rates, mut truth) = (vec![], vec![], vec![], vec![]);
+        for k in 0..n {
+            let t = k as f64 * dt;
+            let r = attitude(t);
+            // Body rates from the attitude's change over a small step.
+            let h = 1e-5;
+            let dr = r.inverse() * attitude(t + h);
+            let w = dr.scaled_axis() / h;
+            let up_body = r.inverse() * Vector3::z();
+            let hand_world = Vector3::new(
+                (2.0 * std::f64::consts::PI * 1.5 * t + phase[2]).sin(),
+                (2.0 * std::f64::consts::PI * 4.0 * t + phase[3]).sin(),
+                0.5 * (2.0 * std::f64::consts::PI * 1.5 * t + phase[4]).cos(),
+            ) * hand_g;
+            let f = up_body + r.inverse() * hand_world;
+            let noise = |rng: &mut ChaCha8Rng, s: f64| {
+                Vector3::new(
+                    uniform(rng, s) * 2.0 - s,
+                    uniform(rng, s) * 2.0 - s,
+                    uniform(rng, s) * 2.0 - s,
+                )
+            };
+            let f = f + noise(&mut rng, 0.005);
+            let w = w + Vector3::from(bias_deg_s).map(f64::to_radians) + noise(&mut rng, 0.002);
+            ts.push(t);
+            acc.push([f.x, f.y, f.z]);
+            rates.push([w.x, w.y, w.z]);
+            truth.push([up_body.x, up_body.y, up_body.z]);
+        }
+        (ts, acc, rates, truth)
+    }
+
+    /// Uniform on [0, top).
+    fn uniform(rng: &mut ChaCha8Rng, top: f64) -> f64 {
+        Uniform::new(0.0, top).unwrap().sample(rng)
+    }
+
+    fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
+        let (a, b) = (Vector3::from(a), Vector3::from(b));
+        a.angle(&b).to_degrees()
+    }
+
+    fn rms(v: &[f64]) -> f64 {
+        (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
+    }
+
+    /// After the first 3 τ (the filter's start-up), the fused vertical's
+    /// rms error and the accelerometer's own.
+    fn errors(seed: u64, hand_g: f64, bias: [f64; 3], tau: f64) -> (f64, f64) {
+        let (t, acc, rates, truth) = hand_turn(seed, 15.0, hand_g, bias);
+        let up = fuse_vertical(&t, &acc, &rates, tau).unwrap();
+        let skip = (3.0 * tau / 0.01) as usize;
+        let fused: Vec<f64> = (skip..t.len())
+            .map(|i| angle_deg(up[i], truth[i]))
+            .collect();
+        let alone: Vec<f64> = (skip..t.len())
+            .map(|i| angle_deg(acc[i], truth[i]))
+            .collect();
+        (rms(&fused), rms(&alone))
+    }
+
+    #[test]
+    fn the_gyro_removes_the_hands_accelerations_from_the_vertical() {
+        // A hand's 0.1 g tilts the accelerometer's vertical by several
+        // degrees; the fused one stays within a degree, over many seeds.
+        for seed in 0..30 {
+            let (fused, alone) = errors(seed, 0.1, [0.0; 3], DEFAULT_TAU_S);
+            assert!(alone > 3.0, "seed {seed}: accelerometer alone {alone:.2}°");
+            assert!(
+                fused < 1.0,
+                "seed {seed}: fused {fused:.2}° (alone {alone:.2}°)"
+            );
+        }
+    }
+
+    #[test]
+    fn a_gyro_bias_tilts_the_vertical_by_about_bias_times_tau() {
+        // 1 °/s on x and y: the vertical's error stays within b·τ·√2 and
+        // the bound grows with τ, as the module's text says.
+        for seed in 0..20 {
+            for tau in [0.5, 1.0, 2.0] {
+                let (fused, _) = errors(seed, 0.0, [1.0, 1.0, 0.0], tau);
+                let bound = 1.0 * tau * 2f64.sqrt();
+                assert!(
+                    fused <= bound * 1.1 + 0.3,
+                    "seed {seed} τ {tau}: {fused:.2}° > {bound:.2}°"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_still_board_gives_the_accelerometers_vertical() {
+        let n = 500;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.02).collect();
+        let g = [0.1, -0.2, 0.97];
+        let up = fuse_vertical(&t, &vec![g; n], &vec![[0.0; 3]; n], 1.0).unwrap();
+        let expect = Vector3::from(g).normalize();
+        for u in &up {
+            assert!((Vector3::from(*u) - expect).norm() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn missing_readings_gaps_and_bad_time_restart_or_carry() {
+        let n = 100;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.01).collect();
+        let mut acc = vec![[0.0, 0.0, 1.0]; n];
+        let mut rates = vec![[0.0; 3]; n];
+        acc[0] = [f64::NAN; 3]; // no vertical yet
+        acc[10] = [0.0; 3]; // carried by the gyro
+        rates[20] = [f64::NAN, 0.0, 0.0]; // restart from the accelerometer
+        let up = fuse_vertical(&t, &acc, &rates, 1.0).unwrap();
+        assert!(up[0].iter().all(|v| v.is_nan()));
+        for u in &up[1..] {
+            assert!((Vector3::from(*u) - Vector3::z()).norm() < 1e-12);
+        }
+        // A gap longer than τ: the gyro's angle is unknown, the vertical
+        // restarts from the accelerometer.
+        let t = vec![0.0, 0.01, 5.0];
+        let acc = vec![[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]];
+        let up = fuse_vertical(&t, &acc, &[[0.0, 3.0, 0.0]; 3], 1.0).unwrap();
+        assert_eq!(up[2], [1.0, 0.0, 0.0]);
+        // Time that goes back restarts too.
+        let t = vec![0.0, 0.01, 0.005];
+        let up = fuse_vertical(&t, &acc, &[[0.0, 0.0, 0.0]; 3], 1.0).unwrap();
+        assert_eq!(up[2], [1.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn the_gyro_turns_the_vertical_between_readings() {
+        // A board rolling at 90 °/s about x with its accelerometer silent
+        // (zero): after one second the vertical has turned by 90°.
+        let n = 1001;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.001).collect();
+        let mut acc = vec![[0.0; 3]; n];
+        acc[0] = [0.0, 0.0, 1.0];
+        let w = [std::f64::consts::FRAC_PI_2, 0.0, 0.0];
+        let up = fuse_vertical(&t, &acc, &vec![w; n], 1.0).unwrap();
+        let expect = Rotation3::from_axis_angle(
+            &Unit::new_normalize(Vector3::x()),
+            -std::f64::consts::FRAC_PI_2,
+        ) * Vector3::z();
+        assert!(
+            (Vector3::from(up[n - 1]) - expect).norm() < 1e-3,
+            "{:?} vs {expect:?}",
+            up[n - 1]
+        );
+    }
+
+    #[test]
+    fn bad_arguments_are_refused() {
+        assert!(matches!(
+            fuse_vertical(&[0.0], &[[0.0, 0.0, 1.0]], &[[0.0; 3]], 0.0),
+            Err(VerticalError::Tau { .. })
+        ));
+        assert!(matches!(
+            fuse_vertical(&[0.0], &[[0.0, 0.0, 1.0]], &[[0.0; 3]], f64::NAN),
+            Err(VerticalError::Tau { .. })
+        ));
+        assert!(matches!(
+            fuse_vertical(&[0.0, 1.0], &[[0.0, 0.0, 1.0]], &[[0.0; 3]], 1.0),
+            Err(VerticalError::Lengths { .. })
+        ));
+    }
+
+    #[test]
+    fn the_rate_about_the_vertical_is_the_dot_product() {
+        let r = rate_about_vertical(
+            &[[1.0, 2.0, 3.0], [1.0, 0.0, 0.0]],
+            &[[0.0, 0.0, 1.0], [f64::NAN; 3]],
+        );
+        assert_eq!(r[0], 3.0);
+        assert!(r[1].is_nan());
+    }
+}
