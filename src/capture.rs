@@ -355,11 +355,6 @@ impl<W: Write> CaptureWriter<W> {
         &self.out
     }
 
-    /// The underlying writer. Writing to it directly corrupts the capture.
-    pub fn get_mut(&mut self) -> &mut W {
-        &mut self.out
-    }
-
     fn check_usable(&self) -> io::Result<()> {
         if self.failed {
             return Err(io::Error::other(

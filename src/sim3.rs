@@ -260,13 +260,6 @@ pub struct SimAxes3 {
 }
 
 impl SimAxes3 {
-    /// A perfect sensor: W = I, no offset, no noise.
-    pub const IDEAL: SimAxes3 = SimAxes3 {
-        matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        offset: [0.0; 3],
-        noise: 0.0,
-    };
-
     fn inverse(&self, name: &'static str) -> Result<Matrix3<f64>, Sim3Error> {
         let w = Matrix3::from_fn(|i, j| self.matrix[i][j]);
         if w.iter().chain(self.offset.iter()).any(|v| !v.is_finite()) {

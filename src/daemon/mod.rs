@@ -29,8 +29,6 @@ pub mod state_writer;
 // The publisher's transports, also at the paths they had before they moved
 // under [`publish`].
 pub use publish::http;
-pub use publish::http::conn as http_conn;
-pub use publish::unix as unix_socket;
 
 // The calibration values live in the model ([`crate::model::calibration`]),
 // which the state file, `check` and the corrector share; also here, at the

@@ -32,10 +32,7 @@ use std::sync::Arc;
 
 // The sphere buffer's settings and progress, at the paths they had before
 // the buffer moved to [`crate::model::sphere_buffer`].
-pub use crate::model::sphere_buffer::{
-    CHECK_EVERY, DEFAULT_MAX_SAMPLES, DEFAULT_MIN_SAMPLES, SAMPLES_RANGE, SphereProgress,
-    SphereSettings, StillProgress,
-};
+pub use crate::model::sphere_buffer::{SphereProgress, SphereSettings};
 
 /// ArduPilot's field radius bounds, milligauss: `FIELD_RADIUS_MIN` 150 and
 /// `FIELD_RADIUS_MAX` 950 (CompassCalibrator.cpp, "Earth's magnetic field

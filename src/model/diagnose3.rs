@@ -37,6 +37,7 @@
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
+use super::diagnose::EXTREME_SDS;
 use super::diagnose::{
     BIC_MARGIN, FOLD_DEG, MAX_CROSS_AXIS_SHEAR, MAX_CUBIC, MAX_GAIN_CHANGE, MAX_OFFSET_SWING,
     MIN_EXPLAINED_NOISE, MIN_RMS_DROP,
@@ -51,8 +52,6 @@ use super::residuals::{
 };
 use super::sphere::{self, SphereCoverage};
 use crate::sample::Dataset3;
-
-pub use super::diagnose::EXTREME_SDS;
 
 /// The 2-D fold rule ([`FOLD_DEG`] of a 360° turn) as a share of the
 /// sphere: a candidate whose calibrated samples cover this share of the

@@ -264,12 +264,6 @@ impl HeadingReference {
         &self.column
     }
 
-    /// The gyro's integrated angle at each sample, in degrees (NaN outside
-    /// the gyro's time span).
-    pub fn angle_deg(&self) -> &[f64] {
-        &self.angle_deg
-    }
-
     /// Heading error of a model against the gyro: `headings_rad` are the
     /// model's calibrated headings atan2(s_y, s_x), one per dataset sample in
     /// dataset order; samples whose index is in `skip` (ascending; a robust

@@ -215,12 +215,6 @@ pub struct AxisMapParseError {
 }
 
 impl AxisMap {
-    /// The magnetometer's axes are the body's.
-    pub const IDENTITY: AxisMap = AxisMap {
-        from: [0, 1, 2],
-        negate: [false; 3],
-    };
-
     /// All 48 signed permutations of the axes (24 rotations, 24 mirrors).
     pub fn all() -> Vec<AxisMap> {
         const PERMUTATIONS: [[usize; 3]; 6] = [

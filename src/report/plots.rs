@@ -18,15 +18,6 @@ use super::chart::{
 };
 use super::scale::{equal_aspect, residual_scale, span, tick_label, with_legend_room};
 
-/// One named series of (x, y) values, for callers that want to hand over
-/// extra curves; kept for the lead's use after the merge.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Series {
-    pub label: String,
-    pub x: Vec<f64>,
-    pub y: Vec<f64>,
-}
-
 /// Everything a report shows. Per-sample vectors (`heading_deg`,
 /// `residual_before`, `residual_after`, `time`, each covariate) have one
 /// value per sample and the same length; non-finite values are skipped when

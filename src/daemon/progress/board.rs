@@ -545,10 +545,6 @@ impl Board {
         logs
     }
 
-    pub fn views(&self) -> impl Iterator<Item = &SensorView> {
-        self.tracks.iter().map(|t| &t.view)
-    }
-
     /// The live lines, one per sensor, names aligned.
     pub fn lines(&self) -> Vec<String> {
         let width = self

@@ -166,11 +166,6 @@ impl Hub {
         }
     }
 
-    /// The limits and rights the hub applies.
-    pub fn policy(&self) -> &Policy {
-        &self.inner.policy
-    }
-
     /// Whether [`Policy::max_subscribers`] are connected now.
     pub fn is_full(&self) -> bool {
         counted(&self.inner.read_subs()) >= self.inner.policy.max_subscribers

@@ -38,20 +38,8 @@ impl Hub {
     /// the hub's lines, reads command lines and forwards them with a
     /// [`ReplyTo`]. Ends when the client hangs up (EOF on its side counts:
     /// as in gpsd), on an I/O error, on eviction, or after [`Hub::close`].
-    pub async fn serve_connection<S>(
-        &self,
-        stream: S,
-        peer: String,
-        commands: mpsc::Sender<(ClientCommand, ReplyTo)>,
-    ) where
-        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
-    {
-        self.serve_connection_from(stream, peer, Origin::Tcp, commands)
-            .await;
-    }
-
-    /// [`Hub::serve_connection`] for a subscriber that came through
-    /// `origin`, which decides what it may do. At
+    /// The subscriber came through `origin`, which decides what it may
+    /// do. At
     /// [`Policy::max_subscribers`](super::Policy::max_subscribers) it is
     /// sent one ERROR line and closed.
     pub async fn serve_connection_from<S>(

@@ -187,12 +187,6 @@ pub struct ReplyTo {
 }
 
 impl ReplyTo {
-    /// A reply that goes nowhere, for commands that did not come from a
-    /// subscriber.
-    pub fn nobody() -> ReplyTo {
-        ReplyTo::default()
-    }
-
     /// Answers go to `sub`, while it exists.
     pub(super) fn to(sub: &Arc<Subscriber>) -> ReplyTo {
         ReplyTo {

@@ -115,25 +115,12 @@ pub async fn run(config: Config, shutdown: watch::Receiver<bool>) -> Result<(), 
     run_with(config, shutdown, RunOptions::default()).await
 }
 
-/// [`run`], feeding `progress` (the live lines or milestone log of
-/// [`super::progress`]) with a snapshot of the sensors every
-/// [`super::progress::REDRAW`] and with every CALIBRATION line.
-pub async fn run_with_progress(
-    config: Config,
-    shutdown: watch::Receiver<bool>,
-    progress: Option<ProgressFeed>,
-) -> Result<(), DaemonError> {
-    let options = RunOptions {
-        progress,
-        ..RunOptions::default()
-    };
-    run_with(config, shutdown, options).await
-}
-
 /// What drives [`run_with`] beside its configuration and `shutdown`.
 #[derive(Default)]
 pub struct RunOptions {
-    /// Fed as in [`run_with_progress`].
+    /// Fed a snapshot of the sensors every [`super::progress::REDRAW`] and
+    /// every CALIBRATION line (the live lines or milestone log of
+    /// [`super::progress`]).
     pub progress: Option<ProgressFeed>,
     /// Each message asks for the configuration to be read again from the
     /// file it came from ([`Config::path`]) and applied as far as it can be

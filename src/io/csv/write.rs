@@ -69,20 +69,9 @@ pub fn write_calibrated3(path: &Path, t: Option<&[f64]>, points: &[[f64; 3]]) ->
     file.commit()
 }
 
-/// Writes a recording as CSV (`t,x,y` then its covariate columns by name),
-/// atomically, so a simulated sensor's covariates travel with its readings.
-/// With no covariates the bytes are those of [`write_calibrated`].
-pub fn write_dataset(path: &Path, data: &Dataset) -> io::Result<()> {
-    let mut file = AtomicFile::create(path)?;
-    {
-        let mut out = BufWriter::with_capacity(1 << 16, file.as_file_mut());
-        write_dataset_to(&mut out, data)?;
-        out.flush()?;
-    }
-    file.commit()
-}
-
-/// Writes a recording as CSV to any writer; see [`write_dataset`].
+/// Writes a recording as CSV (`t,x,y` then its covariate columns by name)
+/// to any writer, so a simulated sensor's covariates travel with its
+/// readings. With no covariates the bytes are those of [`write_calibrated`].
 pub fn write_dataset_to<W: Write>(out: &mut W, data: &Dataset) -> io::Result<()> {
     if data.covariates.is_empty() {
         return write_calibrated_to(out, data.t.as_deref(), &data.x, &data.y);
