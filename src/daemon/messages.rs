@@ -46,6 +46,13 @@ pub struct ReadingMessage<'a> {
     pub calibration: Option<u64>,
     /// False until the sensor has a calibration: the reading is raw only.
     pub calibrated: bool,
+    /// Whether the calibrated reading can be believed (see
+    /// [`crate::model::trust`]); absent while uncalibrated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub trusted: Option<bool>,
+    /// Why not, with the deciding numbers; absent when trusted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub distrust: Option<&'a [String]>,
     /// A csv source's other columns (all but the time and the two axes),
     /// by header name, where the row holds a number: `{"temp_c": 21.3}`.
     /// Omitted when there are none.
@@ -307,6 +314,10 @@ pub struct SensorStatus<'a> {
     /// ([`super::sensor3::MAX_TILT_AGE_S`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub headings_stale: Option<u64>,
+    /// Readings trusted and distrusted under the current calibration, and
+    /// the longest distrusted stretch ([`crate::model::trust`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub trust: Option<crate::model::trust::TrustCounts>,
     pub readings: u64,
     pub fits_accepted: u64,
     pub fits_rejected: u64,

@@ -29,6 +29,7 @@ use crate::model::gyro::{GyroUnits, HeadingReference};
 use crate::model::heading::coverage;
 use crate::model::nonlinear::{cubic_scale, fit_model, turn_frame};
 use crate::model::rotation::{Progress, RotationBuffer, RotationEvent};
+use crate::model::trust::{GyroModel, Observation, TrustCounts, TrustLimits, TrustMonitor};
 use crate::model::turn::check_turn;
 use crate::sample::Dataset;
 use crate::sample::Reading;
@@ -47,6 +48,11 @@ pub struct Plane {
     /// A sensor of a csv source: its columns, resolved once against the
     /// file's header by [`Plane::bind_csv`].
     csv: Option<CsvBinding>,
+    /// The gyro as the accepted calibration's heading check found it, by
+    /// the calibration's id, for the trust monitor.
+    gyro_model: Option<(u64, GyroModel, f64)>,
+    /// Trust at every reading, under the calibration of the id it holds.
+    trust: Option<(u64, TrustMonitor)>,
 }
 
 /// Where a csv sensor's values are in each row: indices into
@@ -82,6 +88,8 @@ pub(super) struct GyroTrack {
     /// degrees from an arbitrary origin: the rotation buffer takes its
     /// change since a rotation's first sample.
     angle_deg: f64,
+    /// The latest rate seen, deg/s, for the trust monitor.
+    latest: Option<f64>,
 }
 
 impl GyroTrack {
@@ -121,7 +129,28 @@ impl GyroTrack {
             // a gyro polled beside it adds as many.
             cap: 2 * max_samples.max(1),
             angle_deg: 0.0,
+            latest: None,
         })
+    }
+
+    /// The latest rate seen, deg/s, kept or not.
+    fn latest_deg_s(&self) -> Option<f64> {
+        self.latest
+    }
+
+    /// Notes the rate of a reading that carries this gyro, for the trust
+    /// monitor, collecting or not.
+    fn observe(&mut self, reading: &Reading) {
+        if let Some(triad) = reading.gyro.filter(|_| reading.stream == self.stream) {
+            self.observe_value(f64::from(triad[self.axis]));
+        }
+    }
+
+    /// Notes a rate in the gyro's units (counts, or a column's deg/s or
+    /// rad/s).
+    fn observe_value(&mut self, value: f64) {
+        let rate = value / self.lsb_per_deg_s;
+        self.latest = rate.is_finite().then_some(rate);
     }
 
     /// Keeps the rate of a reading that carries this gyro. O(1) amortised.
@@ -218,6 +247,8 @@ impl Plane {
             buffer,
             gyro,
             csv: None,
+            gyro_model: None,
+            trust: None,
         }
     }
 
@@ -234,18 +265,39 @@ impl Plane {
         }
     }
 
+    /// The READING line of a sample, calibrated and judged by the trust
+    /// monitor when the sensor has a calibration.
     fn line_xy(
-        &self,
+        &mut self,
         life: &Lifecycle,
         time: f64,
-        x: f64,
-        y: f64,
-        columns: Option<ColumnValues<'_>>,
+        [x, y]: [f64; 2],
+        row: Option<&CsvRow>,
     ) -> String {
         let corrected = life.current.as_ref().map(|c| {
             let (sx, sy) = c.apply(x, y);
             (c.id, [sx, sy], sy.atan2(sx).to_degrees().rem_euclid(360.0))
         });
+        let gyro_deg_s = self.gyro.as_ref().and_then(GyroTrack::latest_deg_s);
+        let verdict = life
+            .current
+            .as_ref()
+            .zip(corrected)
+            .map(|(c, (_, s, heading))| {
+                self.trust_of(c).check(Observation {
+                    time,
+                    field_ratio: s[0].hypot(s[1]) / c.params.r,
+                    heading_deg: heading,
+                    gyro_deg_s,
+                })
+            });
+        let columns = row
+            .zip(self.csv.as_ref())
+            .map(|(row, binding)| ColumnValues {
+                names: &binding.layout.names,
+                indices: &binding.others,
+                values: &row.values,
+            });
         to_line(&ReadingMessage {
             class: "READING",
             sensor: &self.config.name,
@@ -258,8 +310,31 @@ impl Plane {
                 .map(|(c, n)| n.true_heading(c.2)),
             calibration: corrected.map(|c| c.0),
             calibrated: corrected.is_some(),
+            trusted: verdict.as_ref().map(|v| v.trusted),
+            distrust: verdict
+                .as_ref()
+                .map(|v| v.reasons.as_slice())
+                .filter(|r| !r.is_empty()),
             columns: columns.filter(|c| !c.is_empty()),
         })
+    }
+
+    /// The trust monitor of calibration `c`, started afresh when `c` is
+    /// new: its limits from the calibration's rms and, when this run
+    /// accepted it with a heading check, the gyro that check found.
+    fn trust_of(&mut self, c: &Calibration) -> &mut TrustMonitor {
+        if self.trust.as_ref().is_none_or(|(id, _)| *id != c.id) {
+            let (gyro, heading_rms) = match self.gyro_model {
+                Some((id, gyro, rms)) if id == c.id => (Some(gyro), Some(rms)),
+                _ => (None, None),
+            };
+            let limits = TrustLimits::from_rms(c.rms, heading_rms, gyro);
+            self.trust = Some((c.id, TrustMonitor::new(limits)));
+        }
+        match &mut self.trust {
+            Some((_, monitor)) => monitor,
+            None => unreachable!("set above"),
+        }
     }
 
     fn fit(
@@ -356,6 +431,13 @@ impl Plane {
                 why.as_deref().unwrap_or("no gyro")
             ),
         }
+        self.gyro_model = message.heading_vs_gyro.as_ref().map(|h| {
+            let gyro = GyroModel {
+                scale: h.gyro_scale,
+                bias_deg_s: h.gyro_bias_deg_s,
+            };
+            (calibration.id, gyro, h.rms_deg)
+        });
         life.accept(calibration.clone());
         Some(calibration)
     }
@@ -509,6 +591,9 @@ impl Plane {
 }
 
 impl Geometry for Plane {
+    fn trust(&self) -> Option<TrustCounts> {
+        self.trust.as_ref().map(|(_, m)| m.counts())
+    }
     fn row_sample(&mut self, life: &Lifecycle, row: &CsvRow) -> Option<Sample> {
         let binding = self.csv.as_ref()?;
         if row.file != binding.file {
@@ -521,11 +606,13 @@ impl Geometry for Plane {
         if !(x.is_finite() && y.is_finite()) {
             return None;
         }
-        if life.collecting()
-            && let (Some(gyro), Some(i)) = (&mut self.gyro, binding.gyro)
+        if let (Some(gyro), Some(i)) = (&mut self.gyro, binding.gyro)
             && let Some(&rate) = row.values.get(i)
         {
-            gyro.keep_value(row.time, rate);
+            gyro.observe_value(rate);
+            if life.collecting() {
+                gyro.keep_value(row.time, rate);
+            }
         }
         Some(Sample {
             time: row.time,
@@ -533,10 +620,11 @@ impl Geometry for Plane {
         })
     }
     fn reading_sample(&mut self, life: &Lifecycle, reading: &Reading) -> Option<Sample> {
-        if life.collecting()
-            && let Some(gyro) = &mut self.gyro
-        {
-            gyro.keep(reading);
+        if let Some(gyro) = &mut self.gyro {
+            gyro.observe(reading);
+            if life.collecting() {
+                gyro.keep(reading);
+            }
         }
         if reading.stream != self.config.stream {
             // Only the gyro of another chip: kept above, nothing to publish.
@@ -549,15 +637,8 @@ impl Geometry for Plane {
         })
     }
     fn reading_line(&mut self, life: &Lifecycle, sample: Sample, row: Option<&CsvRow>) -> String {
-        let columns = row
-            .zip(self.csv.as_ref())
-            .map(|(row, binding)| ColumnValues {
-                names: &binding.layout.names,
-                indices: &binding.others,
-                values: &row.values,
-            });
         let [x, y, _] = sample.raw;
-        self.line_xy(life, sample.time, x, y, columns)
+        self.line_xy(life, sample.time, [x, y], row)
     }
     fn push(
         &mut self,

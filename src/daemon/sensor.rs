@@ -155,6 +155,11 @@ pub trait Geometry: Send {
     fn sphere(&self, _collecting: bool) -> (Option<super::sensor3::SphereProgress>, Option<u64>) {
         (None, None)
     }
+    /// Readings trusted and distrusted under the current calibration,
+    /// where the geometry judges them.
+    fn trust(&self) -> Option<crate::model::trust::TrustCounts> {
+        None
+    }
     /// The sphere this is, if it is one.
     fn as_sphere(&self) -> Option<&Sensor3> {
         None
@@ -330,6 +335,7 @@ impl Sensor {
             sphere: collecting.then_some(sphere).flatten(),
             calibration: self.life.current.as_ref().map(|c| c.id),
             headings_stale,
+            trust: self.geometry.trust(),
             readings: self.life.readings,
             fits_accepted: self.life.fits_accepted,
             fits_rejected: self.life.fits_rejected,

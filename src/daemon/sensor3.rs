@@ -27,6 +27,7 @@ use crate::model::paper::PaperCalibration;
 use crate::model::sphere::SphereCoverage;
 use crate::model::sphere_buffer::SphereBuffer;
 use crate::model::tilt::{inclination_deg, robust_spread, tilt_heading_or_why};
+use crate::model::trust::{Observation, TrustCounts, TrustLimits, TrustMonitor};
 use crate::sample::Reading;
 use std::sync::Arc;
 
@@ -245,6 +246,13 @@ struct Reading3Message<'a> {
     /// Why a calibrated magnetometer with a tilt source has no heading.
     #[serde(skip_serializing_if = "Option::is_none")]
     heading_omitted: Option<String>,
+    /// Whether the calibrated reading can be believed; absent while
+    /// uncalibrated ([`crate::model::trust`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    trusted: Option<bool>,
+    /// Why not, with the deciding numbers; absent when trusted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    distrust: Option<&'a [String]>,
 }
 
 #[derive(Serialize)]
@@ -337,6 +345,8 @@ pub struct Sensor3 {
     /// A sensor of a csv source: where its values (and its tilt source's)
     /// are in the rows, resolved by [`Sensor3::bind_csv`].
     csv: Option<Csv3Binding>,
+    /// Trust at every reading, under the calibration of the id it holds.
+    trust: Option<(u64, TrustMonitor)>,
 }
 
 /// Where a 3-axis csv sensor's values are: (file, column indices of x, y,
@@ -377,6 +387,7 @@ impl Sensor3 {
             north: config.north.clone(),
             headings_stale: 0,
             csv: None,
+            trust: None,
             config: three,
         }
     }
@@ -631,6 +642,23 @@ impl Sensor3 {
     }
 }
 
+/// The trust monitor of calibration `c` in `slot`, started afresh when `c`
+/// is new: its limits from the calibration's rms (the field check; a
+/// 3-axis sensor has no heading check against a gyro yet).
+fn trust_of<'a>(
+    slot: &'a mut Option<(u64, TrustMonitor)>,
+    c: &Calibration,
+) -> &'a mut TrustMonitor {
+    if slot.as_ref().is_none_or(|(id, _)| *id != c.id) {
+        let limits = TrustLimits::from_rms(c.rms, None, None);
+        *slot = Some((c.id, TrustMonitor::new(limits)));
+    }
+    match slot {
+        Some((_, monitor)) => monitor,
+        None => unreachable!("set above"),
+    }
+}
+
 impl Geometry for Sensor3 {
     fn reading_line(&mut self, life: &Lifecycle, sample: Sample, _row: Option<&CsvRow>) -> String {
         let Sample { time, raw } = sample;
@@ -693,6 +721,20 @@ impl Geometry for Sensor3 {
         let true_heading_deg = heading_deg
             .zip(self.north.as_ref())
             .map(|(h, n)| n.true_heading(h));
+        let magnitude = corrected.map(|(_, c)| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt());
+        let verdict = life
+            .current
+            .as_ref()
+            .zip(magnitude)
+            .and_then(|(c, m)| Some((c, m / c.ellipsoid.as_ref()?.r)))
+            .map(|(c, ratio)| {
+                trust_of(&mut self.trust, c).check(Observation {
+                    time,
+                    field_ratio: ratio,
+                    heading_deg: heading_deg.unwrap_or(0.0),
+                    gyro_deg_s: None,
+                })
+            });
         to_line(&Reading3Message {
             class: "READING",
             sensor: &self.name,
@@ -700,14 +742,22 @@ impl Geometry for Sensor3 {
             axes: 3,
             raw,
             corrected: corrected.map(|c| c.1),
-            magnitude: corrected.map(|(_, c)| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt()),
+            magnitude,
             calibration: corrected.map(|c| c.0),
             calibrated: corrected.is_some(),
             heading_deg,
             true_heading_deg,
             tilt,
             heading_omitted,
+            trusted: verdict.as_ref().map(|v| v.trusted),
+            distrust: verdict
+                .as_ref()
+                .map(|v| v.reasons.as_slice())
+                .filter(|r| !r.is_empty()),
         })
+    }
+    fn trust(&self) -> Option<TrustCounts> {
+        self.trust.as_ref().map(|(_, m)| m.counts())
     }
     fn push(
         &mut self,

@@ -54,6 +54,7 @@ pub mod sphere_buffer;
 pub mod still;
 pub mod still_stream;
 pub mod tilt;
+pub mod trust;
 pub mod turn;
 pub mod vertical;
 

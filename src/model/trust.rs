@@ -1,0 +1,501 @@
+//! Trust at every reading: whether a calibrated reading can be believed,
+//! from what can be checked at that moment, and why not.
+//!
+//! A calibration is a claim about the sensor; the world changes after it is
+//! made (a magnet near the compass, a steel cabinet passing). The monitor
+//! checks each calibrated reading against the calibration's own noise:
+//!
+//! - **The field.** |corrected|/r − 1 against the calibration's rms, with
+//!   hysteresis: distrusted beyond [`ENTER_SIGMAS`] σ, trusted again within
+//!   [`LEAVE_SIGMAS`] σ, so the flag does not flicker at the edge.
+//! - **The gyro.** The heading's change over [`WINDOW_S`] against the
+//!   integrated gyro (its scale and bias from the calibration's heading
+//!   check). Once they disagree, the gyro carries the heading reference
+//!   from the last trusted reading, and trust returns when the heading
+//!   agrees with that reference again.
+//!
+//! Pure: no I/O, no clock but the readings' times. Memory is bounded: the
+//! window holds at most [`MAX_WINDOW_READINGS`].
+
+use std::collections::VecDeque;
+
+/// Distrusted beyond this many σ: for Gaussian noise one reading in
+/// 1.7 million, so a quiet sensor is not flagged in a day at 20 Hz.
+pub const ENTER_SIGMAS: f64 = 5.0;
+/// Trusted again within this many σ (hysteresis).
+pub const LEAVE_SIGMAS: f64 = 3.0;
+/// The span over which the heading's change is compared with the gyro's.
+pub const WINDOW_S: f64 = 2.0;
+/// Readings the window holds at most (2 s at 1 kHz, with room).
+pub const MAX_WINDOW_READINGS: usize = 4096;
+/// The gyro's scale known to within this fraction: MEMS gyros' sensitivity
+/// tolerance over temperature (MPU-6050 ±3 % initial, ±2 % over
+/// temperature; the heading check fits the scale, which leaves less).
+pub const GYRO_SCALE_SD: f64 = 0.03;
+/// The gyro's bias known to within this, deg/s, beyond what the monitor
+/// follows ([`BIAS_TAU_S`]): the MPU-6050's zero-rate output moves about
+/// 0.16 °/s per °C (±20 °/s over −40…85 °C), and within a disturbance of
+/// a minute the temperature moves by well under 1 °C.
+pub const GYRO_BIAS_SD_DEG_S: f64 = 0.1;
+/// The time constant over which the monitor follows the gyro's bias while
+/// the heading is trusted (the heading's rate less the gyro's), seconds: a
+/// warming gyro drifts over minutes, a magnet swings the heading in one.
+pub const BIAS_TAU_S: f64 = 60.0;
+/// The smallest field noise the monitor assumes, as a fraction of r: a
+/// noiseless fit's rms says nothing of the next reading.
+pub const MIN_FIELD_SIGMA: f64 = 1e-3;
+/// The smallest heading noise the monitor assumes, degrees.
+pub const MIN_HEADING_SIGMA_DEG: f64 = 0.1;
+
+/// The gyro about the turn's axis, as the calibration's heading check
+/// found it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GyroModel {
+    /// Heading turned per degree of gyro angle (±1 and the sign of its
+    /// mounting).
+    pub scale: f64,
+    /// What the gyro reads at rest, deg/s.
+    pub bias_deg_s: f64,
+}
+
+/// What the monitor measures a reading against.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrustLimits {
+    /// The calibration's noise in |corrected|/r − 1 (its rms).
+    pub field_sigma: f64,
+    /// The heading's noise, degrees.
+    pub heading_sigma_deg: f64,
+    /// The gyro, when the sensor has one.
+    pub gyro: Option<GyroModel>,
+}
+
+impl TrustLimits {
+    /// The limits of a calibration of rms `rms` (in |corrected|/r − 1),
+    /// with the heading check's rms in degrees when there was one.
+    pub fn from_rms(rms: f64, heading_rms_deg: Option<f64>, gyro: Option<GyroModel>) -> Self {
+        let field_sigma = if rms.is_finite() {
+            rms.max(MIN_FIELD_SIGMA)
+        } else {
+            MIN_FIELD_SIGMA
+        };
+        // A field error of e is a heading error of up to e radians.
+        let from_field = field_sigma.to_degrees();
+        let heading_sigma_deg = heading_rms_deg
+            .filter(|h| h.is_finite())
+            .map_or(from_field, |h| h.max(from_field))
+            .max(MIN_HEADING_SIGMA_DEG);
+        TrustLimits {
+            field_sigma,
+            heading_sigma_deg,
+            gyro,
+        }
+    }
+}
+
+/// One calibrated reading, as the monitor sees it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Observation {
+    /// Seconds, on the readings' clock.
+    pub time: f64,
+    /// |corrected| / r.
+    pub field_ratio: f64,
+    /// The corrected heading, degrees.
+    pub heading_deg: f64,
+    /// The gyro's rate about the turn's axis, deg/s, when there is one.
+    pub gyro_deg_s: Option<f64>,
+}
+
+/// The monitor's word on one reading.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Verdict {
+    pub trusted: bool,
+    /// Why not, with the deciding numbers; empty when trusted.
+    pub reasons: Vec<String>,
+}
+
+/// Counts over the readings checked.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct TrustCounts {
+    pub trusted: u64,
+    pub distrusted: u64,
+    /// The longest run of distrusted readings, seconds (first to last).
+    pub longest_distrusted_s: f64,
+}
+
+/// A point of the heading's and the gyro's history.
+#[derive(Debug, Clone, Copy)]
+struct Point {
+    time: f64,
+    /// The heading, unwrapped (continuous across 0/360), degrees.
+    heading: f64,
+    /// The gyro's bias-corrected angle times its scale, degrees.
+    gyro: f64,
+}
+
+/// The monitor of one sensor under one calibration.
+#[derive(Debug, Clone)]
+pub struct TrustMonitor {
+    limits: TrustLimits,
+    field_distrusted: bool,
+    window: VecDeque<Point>,
+    /// The last trusted point while the gyro carries the reference.
+    reference: Option<Point>,
+    /// The last gyro rate and its time.
+    last: Option<(f64, f64)>,
+    /// The gyro angle so far (scaled, bias-corrected), degrees.
+    gyro_angle: f64,
+    /// The previous reading's time and heading (unwrapped).
+    previous: Option<(f64, f64)>,
+    /// The heading's rate less the gyro's, followed while trusted, deg/s.
+    drift: f64,
+    counts: TrustCounts,
+    stretch_start: Option<f64>,
+}
+
+impl TrustMonitor {
+    pub fn new(limits: TrustLimits) -> Self {
+        TrustMonitor {
+            limits,
+            field_distrusted: false,
+            window: VecDeque::new(),
+            reference: None,
+            last: None,
+            gyro_angle: 0.0,
+            previous: None,
+            drift: 0.0,
+            counts: TrustCounts::default(),
+            stretch_start: None,
+        }
+    }
+
+    pub fn limits(&self) -> &TrustLimits {
+        &self.limits
+    }
+
+    pub fn counts(&self) -> TrustCounts {
+        self.counts
+    }
+
+    /// Checks one reading. Readings out of time order, or not finite, are
+    /// distrusted and leave the history as it was.
+    pub fn check(&mut self, obs: Observation) -> Verdict {
+        let mut reasons = Vec::new();
+        let ordered = self.previous.is_none_or(|(t, _)| obs.time >= t);
+        if !(obs.time.is_finite()
+            && obs.field_ratio.is_finite()
+            && obs.heading_deg.is_finite()
+            && ordered)
+        {
+            reasons.push("the reading is not a finite, time-ordered one".to_string());
+            return self.record(obs.time, reasons);
+        }
+        self.check_field(obs.field_ratio, &mut reasons);
+        let point = self.advance(obs);
+        if self.limits.gyro.is_some() && obs.gyro_deg_s.is_some() {
+            self.check_gyro(point, &mut reasons);
+        }
+        self.record(obs.time, reasons)
+    }
+
+    fn check_field(&mut self, ratio: f64, reasons: &mut Vec<String>) {
+        let sigma = self.limits.field_sigma;
+        let e = ratio - 1.0;
+        let bound = if self.field_distrusted {
+            LEAVE_SIGMAS
+        } else {
+            ENTER_SIGMAS
+        } * sigma;
+        self.field_distrusted = e.abs() > bound;
+        if self.field_distrusted {
+            let (sigmas, until) = if bound == ENTER_SIGMAS * sigma {
+                (ENTER_SIGMAS, "")
+            } else {
+                (LEAVE_SIGMAS, ", trusted again within it")
+            };
+            reasons.push(format!(
+                "the field is {:.1} % {} the calibration's r (limit {:.1} %: {sigmas} σ of its noise{until})",
+                e.abs() * 100.0,
+                if e < 0.0 { "below" } else { "above" },
+                bound * 100.0,
+            ));
+        }
+    }
+
+    /// Moves the heading and the gyro on to `obs`, and the window with them.
+    fn advance(&mut self, obs: Observation) -> Point {
+        let heading = match self.previous {
+            Some((_, h)) => h + wrap180(obs.heading_deg - h),
+            None => obs.heading_deg,
+        };
+        if let (Some(g), Some(rate)) = (self.limits.gyro, obs.gyro_deg_s)
+            && rate.is_finite()
+        {
+            if let Some((t0, rate0)) = self.last {
+                let dt = obs.time - t0;
+                if dt > 0.0 {
+                    let mean = 0.5 * (rate + rate0) - g.bias_deg_s;
+                    self.gyro_angle += g.scale * mean * dt;
+                }
+            }
+            self.last = Some((obs.time, rate));
+        }
+        self.previous = Some((obs.time, heading));
+        let point = Point {
+            time: obs.time,
+            heading,
+            gyro: self.gyro_angle,
+        };
+        self.window.push_back(point);
+        // Keep one point at or before the window's start as its anchor.
+        while self.window.len() > MAX_WINDOW_READINGS
+            || (self.window.len() > 1 && self.window[1].time <= obs.time - WINDOW_S)
+        {
+            self.window.pop_front();
+        }
+        point
+    }
+
+    /// The heading's change against the gyro's: over the window while
+    /// trusted, from the last trusted point while not.
+    fn check_gyro(&mut self, now: Point, reasons: &mut Vec<String>) {
+        let anchor = match self.reference {
+            Some(r) => r,
+            None => match self.window.front() {
+                Some(a) => *a,
+                None => return,
+            },
+        };
+        let dt = now.time - anchor.time;
+        let turned = now.gyro - anchor.gyro + self.drift * dt;
+        let moved = now.heading - anchor.heading;
+        let mismatch = wrap180(moved - turned);
+        let h = self.limits.heading_sigma_deg;
+        let sigma =
+            (2.0 * h * h + (GYRO_SCALE_SD * turned).powi(2) + (GYRO_BIAS_SD_DEG_S * dt).powi(2))
+                .sqrt();
+        match self.reference {
+            None if mismatch.abs() > ENTER_SIGMAS * sigma => {
+                self.reference = Some(anchor);
+                reasons.push(format!(
+                    "the heading moved {:.1}° in {:.1} s while the gyro turned {:.1}° (limit {:.1}°: 5 σ)",
+                    moved,
+                    dt,
+                    turned,
+                    ENTER_SIGMAS * sigma
+                ));
+            }
+            None => {
+                // Trusted: follow the gyro's slow drift against the heading.
+                let step = self.window.iter().rev().nth(1).map_or(0.0, |p| now.time - p.time);
+                if dt >= 0.5 * WINDOW_S && step > 0.0 {
+                    let weight = (step / BIAS_TAU_S).min(1.0);
+                    self.drift += weight * mismatch / dt;
+                }
+            }
+            Some(_) if mismatch.abs() <= LEAVE_SIGMAS * sigma => {
+                // Back on the gyro's reference: the window starts afresh.
+                self.reference = None;
+                self.window.clear();
+                self.window.push_back(now);
+            }
+            Some(_) => reasons.push(format!(
+                "the heading is {:.1}° off the gyro's since the last trusted reading {:.1} s ago (trusted again within {:.1}°)",
+                mismatch,
+                dt,
+                LEAVE_SIGMAS * sigma
+            )),
+        }
+    }
+
+    fn record(&mut self, time: f64, reasons: Vec<String>) -> Verdict {
+        let trusted = reasons.is_empty();
+        if trusted {
+            self.counts.trusted += 1;
+            self.stretch_start = None;
+        } else {
+            self.counts.distrusted += 1;
+            let start = *self.stretch_start.get_or_insert(time);
+            let span = time - start;
+            if span.is_finite() && span > self.counts.longest_distrusted_s {
+                self.counts.longest_distrusted_s = span;
+            }
+        }
+        Verdict { trusted, reasons }
+    }
+}
+
+/// An angle in (−180, 180].
+fn wrap180(deg: f64) -> f64 {
+    let w = deg.rem_euclid(360.0);
+    if w > 180.0 { w - 360.0 } else { w }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const RATE_HZ: f64 = 20.0;
+
+    /// A sensor turning at `deg_s` with a gyro that reads it, its heading
+    /// and field disturbed by `disturb(t) -> (field factor, heading offset)`.
+    fn run(
+        seconds: f64,
+        deg_s: f64,
+        noise: f64,
+        disturb: impl Fn(f64) -> (f64, f64),
+    ) -> Vec<(f64, Verdict)> {
+        let limits = TrustLimits::from_rms(
+            noise,
+            None,
+            Some(GyroModel {
+                scale: 1.0,
+                bias_deg_s: 0.0,
+            }),
+        );
+        let mut monitor = TrustMonitor::new(limits);
+        let n = (seconds * RATE_HZ) as usize;
+        (0..n)
+            .map(|k| {
+                let t = k as f64 / RATE_HZ;
+                // Deterministic noise of about `noise` rms.
+                let wobble = noise * 1.2 * ((k as f64) * 2.39).sin();
+                let (factor, offset) = disturb(t);
+                let obs = Observation {
+                    time: t,
+                    field_ratio: (1.0 + wobble) * factor,
+                    heading_deg: (deg_s * t + offset + wobble.to_degrees()).rem_euclid(360.0),
+                    gyro_deg_s: Some(deg_s),
+                };
+                (t, monitor.check(obs))
+            })
+            .collect()
+    }
+
+    fn distrusted_in(v: &[(f64, Verdict)], from: f64, to: f64) -> (usize, usize) {
+        let inside: Vec<_> = v.iter().filter(|(t, _)| *t >= from && *t < to).collect();
+        let bad = inside.iter().filter(|(_, v)| !v.trusted).count();
+        (bad, inside.len())
+    }
+
+    #[test]
+    fn a_quiet_sensor_turning_or_still_is_always_trusted() {
+        for deg_s in [0.0, 18.0, -90.0] {
+            let v = run(120.0, deg_s, 0.005, |_| (1.0, 0.0));
+            assert_eq!(distrusted_in(&v, 0.0, 1e9).0, 0, "{deg_s} °/s");
+        }
+    }
+
+    #[test]
+    fn a_field_five_percent_low_is_distrusted_at_once_and_trusted_after() {
+        let v = run(60.0, 18.0, 0.005, |t| {
+            if (20.0..35.0).contains(&t) {
+                (0.95, 0.0)
+            } else {
+                (1.0, 0.0)
+            }
+        });
+        let (bad, all) = distrusted_in(&v, 20.0, 35.0);
+        assert_eq!(bad, all, "every disturbed reading is distrusted");
+        assert_eq!(distrusted_in(&v, 35.2, 60.0).0, 0);
+        assert_eq!(distrusted_in(&v, 0.0, 20.0).0, 0);
+        let reason = &v.iter().find(|(t, _)| *t >= 20.0).unwrap().1.reasons[0];
+        assert!(
+            reason.contains("% below the calibration's r (limit 2.5 %: 5 σ"),
+            "{reason}"
+        );
+    }
+
+    #[test]
+    fn a_heading_swing_the_gyro_did_not_see_is_distrusted_while_it_lasts() {
+        // 160° of swing for 15 s, the field unchanged.
+        let v = run(60.0, 0.0, 0.005, |t| {
+            if (20.0..35.0).contains(&t) {
+                (1.0, 160.0)
+            } else {
+                (1.0, 0.0)
+            }
+        });
+        let (bad, all) = distrusted_in(&v, 20.0, 35.0);
+        assert_eq!(bad, all);
+        assert_eq!(distrusted_in(&v, 35.0, 60.0).0, 0);
+        assert_eq!(distrusted_in(&v, 0.0, 20.0).0, 0);
+    }
+
+    #[test]
+    fn a_twenty_degree_swing_while_turning_is_flagged_within_a_reading() {
+        let v = run(40.0, 30.0, 0.005, |t| {
+            if (10.0..12.0).contains(&t) {
+                (1.0, 20.0)
+            } else {
+                (1.0, 0.0)
+            }
+        });
+        let (bad, all) = distrusted_in(&v, 10.0, 12.0);
+        assert!(bad * 100 >= all * 99, "{bad} of {all}");
+        assert_eq!(distrusted_in(&v, 12.0, 40.0).0, 0);
+    }
+
+    #[test]
+    fn a_still_sensor_whose_gyro_warms_is_followed_not_flagged() {
+        // The gyro's bias walks from 0 to 3 °/s over ten minutes.
+        let limits = TrustLimits::from_rms(
+            0.005,
+            None,
+            Some(GyroModel {
+                scale: 1.0,
+                bias_deg_s: 0.0,
+            }),
+        );
+        let mut m = TrustMonitor::new(limits);
+        for k in 0..(600 * 20) {
+            let t = k as f64 / RATE_HZ;
+            let v = m.check(Observation {
+                time: t,
+                field_ratio: 1.0,
+                heading_deg: 42.0,
+                gyro_deg_s: Some(3.0 * t / 600.0),
+            });
+            assert!(v.trusted, "{t}: {:?}", v.reasons);
+        }
+    }
+
+    #[test]
+    fn counts_and_the_longest_stretch_are_kept() {
+        let limits = TrustLimits::from_rms(0.005, None, None);
+        let mut m = TrustMonitor::new(limits);
+        for k in 0..100 {
+            let t = k as f64 * 0.05;
+            let ratio = if (20..60).contains(&k) { 1.2 } else { 1.0 };
+            m.check(Observation {
+                time: t,
+                field_ratio: ratio,
+                heading_deg: 10.0,
+                gyro_deg_s: None,
+            });
+        }
+        let c = m.counts();
+        assert_eq!((c.trusted, c.distrusted), (60, 40));
+        assert!((c.longest_distrusted_s - 39.0 * 0.05).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_reading_out_of_order_or_not_finite_is_distrusted() {
+        let mut m = TrustMonitor::new(TrustLimits::from_rms(0.01, None, None));
+        let ok = Observation {
+            time: 1.0,
+            field_ratio: 1.0,
+            heading_deg: 0.0,
+            gyro_deg_s: None,
+        };
+        assert!(m.check(ok).trusted);
+        assert!(!m.check(Observation { time: 0.5, ..ok }).trusted);
+        assert!(
+            !m.check(Observation {
+                field_ratio: f64::NAN,
+                ..ok
+            })
+            .trusted
+        );
+        assert!(m.check(Observation { time: 1.05, ..ok }).trusted);
+    }
+}

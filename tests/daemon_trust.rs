@@ -1,0 +1,226 @@
+//! Trust at every reading: a calibrated READING says `"trusted": false`,
+//! with the deciding numbers, while a magnet near the compass moves the
+//! field or swings the heading the gyro did not see, and `true` otherwise,
+//! turning or still. STATUS counts both.
+
+mod common;
+
+use serde_json::Value;
+
+/// A 2-axis compass at 20 Hz with a gyro about its turn: `heading(t)` the
+/// true heading (degrees), `rate(t)` the gyro (deg/s), and
+/// `magnet(t) -> (field factor, heading swing)` what a magnet does.
+fn recording(
+    seconds: f64,
+    heading: impl Fn(f64) -> f64,
+    rate: impl Fn(f64) -> f64,
+    magnet: impl Fn(f64) -> (f64, f64),
+) -> String {
+    let mut text = String::from("t,x,y,gyro_z\n");
+    let mut state: u64 = 0x2545_f491_4f6c_dd1d;
+    let mut noise = || {
+        // xorshift: deterministic, about uniform in (-1, 1) counts.
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % 20_001) as f64 / 10_000.0 - 1.0
+    };
+    let n = (seconds * 20.0) as usize;
+    for k in 0..n {
+        let t = k as f64 / 20.0;
+        let (factor, swing) = magnet(t);
+        let h = (heading(t) + swing).to_radians();
+        let b = 500.0 * factor;
+        let x = 120.0 + 1.1 * b * h.cos() + noise();
+        let y = -80.0 + b * h.sin() + noise();
+        text.push_str(&format!("{t:.2},{x:.3},{y:.3},{:.4}\n", rate(t)));
+    }
+    text
+}
+
+/// Replays `csv` through the daemon with a gyro; the lines out.
+fn replay(csv: &str, dir: &std::path::Path) -> Vec<Value> {
+    let file = dir.join("robot.csv");
+    std::fs::write(&file, csv).unwrap();
+    let config = dir.join("robot.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[daemon]\nstate_dir = \"{}\"\nstatus_interval_s = 1.0\n[outputs]\nstdout = true\n\
+             [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"robot.csv\"\n\
+             [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"x\", \"y\"]\ngyro = \"gyro_z\"\n",
+            dir.join("state").display()
+        ),
+    )
+    .unwrap();
+    let out = common::run_ok(&[
+        "replay",
+        file.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--speed",
+        "max",
+    ]);
+    out.lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+/// The calibrated readings with `from <= t < to`: (all, distrusted).
+fn judged(lines: &[Value], from: f64, to: f64) -> (usize, usize) {
+    let inside: Vec<&Value> = lines
+        .iter()
+        .filter(|v| v["class"] == "READING" && v["calibrated"] == true)
+        .filter(|v| (from..to).contains(&v["time"].as_f64().unwrap()))
+        .collect();
+    let bad = inside.iter().filter(|v| v["trusted"] == false).count();
+    (inside.len(), bad)
+}
+
+/// Turning at 18 °/s for 60 s (the daemon calibrates on the first
+/// turn), then still, with a magnet between 70 and 75 s, then turning
+/// again from 100 s.
+fn heading(t: f64) -> f64 {
+    if t < 60.0 {
+        18.0 * t
+    } else if t < 100.0 {
+        0.0
+    } else {
+        18.0 * (t - 100.0)
+    }
+}
+
+fn rate(t: f64) -> f64 {
+    if (60.0..100.0).contains(&t) {
+        0.0
+    } else {
+        18.0
+    }
+}
+
+#[test]
+fn a_field_five_percent_low_is_distrusted_with_its_numbers_and_nothing_else_is() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = recording(140.0, heading, rate, |t| {
+        if (70.0..75.0).contains(&t) {
+            (0.95, 0.0)
+        } else {
+            (1.0, 0.0)
+        }
+    });
+    let lines = replay(&csv, dir.path());
+    let (all, bad) = judged(&lines, 70.0, 75.0);
+    assert_eq!((all, bad), (100, 100), "every reading near the magnet");
+    let first = lines
+        .iter()
+        .find(|v| v["class"] == "READING" && v["time"].as_f64() == Some(70.0))
+        .unwrap();
+    let reason = first["distrust"][0].as_str().unwrap();
+    assert!(reason.starts_with("the field is "), "{reason}");
+    assert!(
+        reason.contains("% below the calibration's r (limit"),
+        "{reason}"
+    );
+    // Turning after calibration, and still, away from the magnet.
+    for (from, to) in [(20.0, 70.0), (75.05, 140.0)] {
+        let (all, bad) = judged(&lines, from, to);
+        assert!(all > 500, "{from}..{to}: {all}");
+        assert_eq!(bad, 0, "{from}..{to}");
+    }
+    let status = lines.iter().rev().find(|v| v["class"] == "STATUS").unwrap();
+    let trust = &status["sensors"][0]["trust"];
+    assert_eq!(trust["distrusted"], 100, "{status}");
+    assert!((trust["longest_distrusted_s"].as_f64().unwrap() - 4.95).abs() < 1e-6);
+}
+
+#[test]
+fn a_heading_swing_the_gyro_did_not_see_is_distrusted_until_it_ends() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = recording(140.0, heading, rate, |t| {
+        if (70.0..85.0).contains(&t) {
+            (1.0, 20.0)
+        } else {
+            (1.0, 0.0)
+        }
+    });
+    let lines = replay(&csv, dir.path());
+    let (all, bad) = judged(&lines, 70.0, 85.0);
+    assert_eq!((all, bad), (300, 300), "every swung reading");
+    let reason = lines
+        .iter()
+        .find(|v| v["class"] == "READING" && v["time"].as_f64() == Some(70.0))
+        .unwrap()["distrust"][0]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert!(reason.starts_with("the heading moved 2"), "{reason}");
+    assert!(reason.contains("while the gyro turned 0.0°"), "{reason}");
+    for (from, to) in [(20.0, 70.0), (85.0, 140.0)] {
+        assert_eq!(judged(&lines, from, to).1, 0, "{from}..{to}");
+    }
+}
+
+#[test]
+fn a_three_axis_compass_distrusts_a_field_six_percent_high_and_nothing_else() {
+    let dir = tempfile::tempdir().unwrap();
+    // A spiral over the whole sphere for 100 s (the daemon calibrates on
+    // it), then still, with a magnet between 110 and 115 s.
+    let mut text = String::from("t,x,y,z\n");
+    let n = 2600;
+    let spiral = 2000;
+    for k in 0..n {
+        let t = k as f64 / 20.0;
+        let i = k.min(spiral - 1) as f64;
+        let zc = 1.0 - 2.0 * (i + 0.5) / spiral as f64;
+        let ring = (1.0 - zc * zc).sqrt();
+        let phi = i * 2.399_963_229_728_653;
+        let factor = if (110.0..115.0).contains(&t) {
+            1.06
+        } else {
+            1.0
+        };
+        let b = 500.0 * factor;
+        let wobble = ((k as f64) * 1.7).sin() * 0.8;
+        let (x, y, z) = (
+            40.0 + 1.05 * b * ring * phi.cos() + wobble,
+            -25.0 + b * ring * phi.sin() - wobble,
+            10.0 + 0.97 * b * zc + 0.5 * wobble,
+        );
+        text.push_str(&format!("{t:.2},{x:.3},{y:.3},{z:.3}\n"));
+    }
+    std::fs::write(dir.path().join("board.csv"), text).unwrap();
+    let config = dir.path().join("board.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[daemon]\nstate_dir = \"{}\"\n[outputs]\nstdout = true\n\
+             [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"board.csv\"\n\
+             [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"x\", \"y\", \"z\"]\n\
+             field = \"mag\"\nlsb_per_gauss = 1090\n",
+            dir.path().join("state").display()
+        ),
+    )
+    .unwrap();
+    let out = common::run_ok(&[
+        "replay",
+        dir.path().join("board.csv").to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--speed",
+        "max",
+    ]);
+    let lines: Vec<Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let calibrated = lines
+        .iter()
+        .find(|v| v["class"] == "CALIBRATION" && v["accepted"] == true);
+    assert!(calibrated.is_some(), "no calibration:\n{out}");
+    let (all, bad) = judged(&lines, 110.0, 115.0);
+    assert_eq!((all, bad), (100, 100));
+    let (all, bad) = judged(&lines, 0.0, 110.0);
+    assert!(all > 100, "{all}");
+    assert_eq!(bad, 0);
+    assert_eq!(judged(&lines, 115.05, 1e9).1, 0);
+}
