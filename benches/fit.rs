@@ -173,9 +173,45 @@ fn live_diagnosis(c: &mut Criterion) {
     group.finish();
 }
 
+/// The trust monitor's cost per calibrated reading (field and gyro checks
+/// with the 2 s window full), beside the reading path's (`cargo bench
+/// --bench replay` gives the whole path per reading).
+fn trust_monitor(c: &mut Criterion) {
+    use fieldcal::model::trust::{GyroModel, Observation, TrustLimits, TrustMonitor};
+    let gyro = GyroModel {
+        scale: 1.0,
+        bias_deg_s: 0.0,
+    };
+    let limits = TrustLimits::from_rms(0.003, Some(0.2), Some(gyro));
+    let readings: Vec<Observation> = (0..20_000)
+        .map(|k| {
+            let t = k as f64 / 20.0;
+            Observation {
+                time: t,
+                field_ratio: 1.0 + 0.003 * (k as f64 * 2.39).sin(),
+                heading_deg: (18.0 * t).rem_euclid(360.0),
+                gyro_deg_s: Some(18.0),
+            }
+        })
+        .collect();
+    let mut group = c.benchmark_group("trust monitor");
+    group.throughput(criterion::Throughput::Elements(readings.len() as u64));
+    group.bench_function("20,000 readings with a gyro", |b| {
+        b.iter(|| {
+            let mut monitor = TrustMonitor::new(limits);
+            let mut trusted = 0usize;
+            for r in &readings {
+                trusted += usize::from(monitor.check(*black_box(r)).trusted);
+            }
+            trusted
+        })
+    });
+    group.finish();
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(20).measurement_time(Duration::from_secs(3));
-    targets = shipped_turns, by_size, live_diagnosis
+    targets = shipped_turns, by_size, live_diagnosis, trust_monitor
 }
 criterion_main!(benches);

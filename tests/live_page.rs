@@ -523,3 +523,87 @@ fn the_live_page_maps_the_sphere_of_a_tumbling_3_axis_sensor_in_chromium() {
     }
     drop(daemon);
 }
+
+/// What the page shows of trust: its banner and the strip's red readings.
+const READ_TRUST: &str = r#"
+const card = document.querySelector('.sensor[data-sensor="compass"]');
+if (!card) return null;
+const banner = card.querySelector('.distrust');
+return {
+  trusted: card.dataset.trusted || '',
+  bannerShown: !banner.hidden,
+  banner: banner.textContent,
+  distrustedShown: Number(card.dataset.distrustedShown || 0),
+};
+"#;
+
+#[test]
+fn the_live_page_shows_a_distrusted_reading_in_chromium() {
+    if !browser_present() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut driver = Driver::start();
+    driver.open_session(&dir.path().join("profile"));
+    // A turn of 20 s (calibrated), then still with a magnet that lowers
+    // the field by 8 % from 40 s to the end (80 s), played 5x faster:
+    // about 4 s of trusted readings on the page, then 8 s of distrusted.
+    let mut csv = String::from("t,x,y\n");
+    for k in 0..1600 {
+        let t = k as f64 / 20.0;
+        let h = (18.0 * t.min(20.0)).to_radians();
+        let b = if t >= 40.0 { 460.0 } else { 500.0 };
+        let wobble = ((k as f64) * 2.39).sin() * 0.7;
+        let (x, y) = (120.0 + b * h.cos() + wobble, -80.0 + b * h.sin() - wobble);
+        csv.push_str(&format!("{t:.2},{x:.3},{y:.3}\n"));
+    }
+    std::fs::write(dir.path().join("robot.csv"), csv).unwrap();
+    let config = common::daemon::write_config(
+        dir.path(),
+        &format!(
+            "[daemon]\nstate_dir = \"{}\"\nstatus_interval_s = 0.2\n\
+             [outputs]\nstdout = false\nhttp = \"127.0.0.1:0\"\n\
+             [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"{}\"\nspeed = 5.0\n\
+             [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"x\", \"y\"]\n",
+            dir.path().join("state").display(),
+            dir.path().join("robot.csv").display()
+        ),
+    );
+    let daemon = Daemon::start(&config, &[]);
+    let addr = live_address(&daemon.wait_for_log(T, "live page at http://"));
+    driver.session_call(
+        "POST",
+        "url",
+        Some(json!({"url": format!("http://{addr}/")})),
+    );
+    let deadline = Instant::now() + T;
+    let mut trusted_seen = false;
+    let page = loop {
+        let page = driver.script(READ_TRUST);
+        if page["trusted"] == "true" {
+            trusted_seen = true;
+            assert_eq!(page["bannerShown"], false, "{page}");
+        }
+        if page["trusted"] == "false" && page["bannerShown"] == true {
+            break page;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the page showed no distrusted reading within {T:?}; it shows {page}; daemon log:\n{}",
+            daemon.stderr()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert!(
+        trusted_seen,
+        "the calibrated readings before the magnet were trusted"
+    );
+    let banner = page["banner"].as_str().unwrap();
+    assert!(
+        banner.starts_with("DISTRUSTED: the field is ")
+            && banner.contains("% below the calibration's r"),
+        "{banner}"
+    );
+    assert!(page["distrustedShown"].as_f64().unwrap() >= 1.0, "{page}");
+    drop(daemon);
+}

@@ -594,6 +594,9 @@ impl Geometry for Plane {
     fn trust(&self) -> Option<TrustCounts> {
         self.trust.as_ref().map(|(_, m)| m.counts())
     }
+    fn distrust_now(&self) -> Option<&str> {
+        self.trust.as_ref().and_then(|(_, m)| m.distrust_now())
+    }
     fn row_sample(&mut self, life: &Lifecycle, row: &CsvRow) -> Option<Sample> {
         let binding = self.csv.as_ref()?;
         if row.file != binding.file {

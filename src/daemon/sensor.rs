@@ -160,6 +160,10 @@ pub trait Geometry: Send {
     fn trust(&self) -> Option<crate::model::trust::TrustCounts> {
         None
     }
+    /// Why the latest calibrated reading was distrusted, if it was.
+    fn distrust_now(&self) -> Option<&str> {
+        None
+    }
     /// The sphere this is, if it is one.
     fn as_sphere(&self) -> Option<&Sensor3> {
         None
@@ -322,6 +326,11 @@ impl Sensor {
         out: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         self.geometry.on_reading(&mut self.life, reading, out)
+    }
+
+    /// Why the latest calibrated reading was distrusted, if it was.
+    pub fn distrust_now(&self) -> Option<&str> {
+        self.geometry.distrust_now()
     }
 
     pub fn status(&self) -> SensorStatus<'_> {

@@ -759,6 +759,9 @@ impl Geometry for Sensor3 {
     fn trust(&self) -> Option<TrustCounts> {
         self.trust.as_ref().map(|(_, m)| m.counts())
     }
+    fn distrust_now(&self) -> Option<&str> {
+        self.trust.as_ref().and_then(|(_, m)| m.distrust_now())
+    }
     fn push(
         &mut self,
         life: &mut Lifecycle,

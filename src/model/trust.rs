@@ -150,6 +150,8 @@ pub struct TrustMonitor {
     drift: f64,
     counts: TrustCounts,
     stretch_start: Option<f64>,
+    /// The latest reading's first reason, while it is distrusted.
+    now: Option<String>,
 }
 
 impl TrustMonitor {
@@ -165,6 +167,7 @@ impl TrustMonitor {
             drift: 0.0,
             counts: TrustCounts::default(),
             stretch_start: None,
+            now: None,
         }
     }
 
@@ -174,6 +177,11 @@ impl TrustMonitor {
 
     pub fn counts(&self) -> TrustCounts {
         self.counts
+    }
+
+    /// Why the latest reading was distrusted (its first reason), if it was.
+    pub fn distrust_now(&self) -> Option<&str> {
+        self.now.as_deref()
     }
 
     /// Checks one reading. Readings out of time order, or not finite, are
@@ -309,6 +317,7 @@ impl TrustMonitor {
 
     fn record(&mut self, time: f64, reasons: Vec<String>) -> Verdict {
         let trusted = reasons.is_empty();
+        self.now = reasons.first().cloned();
         if trusted {
             self.counts.trusted += 1;
             self.stretch_start = None;

@@ -117,6 +117,8 @@ pub struct SensorView {
     /// The rotation being collected (None once calibrated).
     pub rotation: Option<RotationView>,
     pub outcome: Option<Outcome>,
+    /// Why the latest calibrated reading is distrusted, while it is.
+    pub distrust: Option<String>,
 }
 
 /// What the loop hands the board about one sensor.
@@ -126,6 +128,8 @@ pub struct SensorSnapshot {
     pub rotation: Option<RotationView>,
     /// The calibration correcting now: (id, rms).
     pub calibration: Option<(u64, f64)>,
+    /// Why the latest calibrated reading is distrusted, while it is.
+    pub distrust: Option<String>,
 }
 
 impl SensorSnapshot {
@@ -148,6 +152,7 @@ impl SensorSnapshot {
                     })
                 }),
             calibration: sensor.calibration().map(|c| (c.id, c.rms)),
+            distrust: sensor.distrust_now().map(str::to_string),
         }
     }
 }
@@ -321,7 +326,11 @@ pub fn render_line(view: &SensorView, name_width: usize) -> String {
                 suggested,
             }),
         ) => {
-            let words = accepted_words(*id, *rms, heading, *stored, suggested.as_deref());
+            let mut words = accepted_words(*id, *rms, heading, *stored, suggested.as_deref());
+            if let Some(why) = &view.distrust {
+                words.push_str("  DISTRUSTED: ");
+                words.push_str(why);
+            }
             if *stored {
                 format!("{name}  {words}")
             } else {
@@ -366,6 +375,7 @@ impl Board {
                         sensor: sensor.to_string(),
                         rotation: None,
                         outcome: None,
+                        distrust: None,
                     },
                     attempt: false,
                     quarter: 0,
@@ -384,6 +394,12 @@ impl Board {
         for s in snapshots {
             let track = self.track(&s.sensor);
             track.view.rotation = s.rotation.clone();
+            match (&track.view.distrust, &s.distrust) {
+                (None, Some(why)) => logs.push(format!("{}: readings distrusted: {why}", s.sensor)),
+                (Some(_), None) => logs.push(format!("{}: readings trusted again", s.sensor)),
+                _ => {}
+            }
+            track.view.distrust = s.distrust.clone();
             if track.view.outcome.is_none()
                 && let Some((id, rms)) = s.calibration
             {
@@ -577,6 +593,32 @@ mod tests {
     }
 
     #[test]
+    fn a_distrusted_reading_is_logged_shown_and_cleared() {
+        let mut board = Board::new();
+        let snapshot = |distrust: Option<&str>| SensorSnapshot {
+            sensor: "compass".into(),
+            rotation: None,
+            calibration: Some((3, 0.004)),
+            distrust: distrust.map(str::to_string),
+        };
+        assert!(board.update(&[snapshot(None)]).is_empty());
+        let why = "the field is 5.1 % below the calibration's r (limit 0.6 %: 5 σ of its noise)";
+        assert_eq!(
+            board.update(&[snapshot(Some(why))]),
+            [format!("compass: readings distrusted: {why}")]
+        );
+        let line = render_line(&board.tracks[0].view, 7);
+        assert!(line.ends_with(&format!("DISTRUSTED: {why}")), "{line}");
+        assert!(board.update(&[snapshot(Some(why))]).is_empty());
+        assert_eq!(
+            board.update(&[snapshot(None)]),
+            ["compass: readings trusted again"]
+        );
+        let line = render_line(&board.tracks[0].view, 7);
+        assert!(!line.contains("DISTRUSTED"), "{line}");
+    }
+
+    #[test]
     fn a_sphere_is_tumbled_not_turned() {
         let r = RotationView {
             coverage_pct: 62.0,
@@ -595,6 +637,7 @@ mod tests {
             sensor: "compass".into(),
             rotation: Some(r),
             calibration: None,
+            distrust: None,
         }]);
         assert_eq!(
             logs,
@@ -610,6 +653,7 @@ mod tests {
             sensor: "compass".into(),
             rotation,
             outcome,
+            distrust: None,
         }
     }
 
@@ -814,6 +858,7 @@ mod tests {
             sensor: "compass".into(),
             rotation: Some(collecting(pct, missing, samples)),
             calibration: None,
+            distrust: None,
         }]
     }
 
@@ -965,6 +1010,7 @@ mod tests {
             sensor: "compass".into(),
             rotation: None,
             calibration: Some((4, 0.002)),
+            distrust: None,
         }]);
         assert!(logs.is_empty());
         assert_eq!(
