@@ -897,3 +897,326 @@ mod state_writer {
         assert!(started.elapsed() < Duration::from_millis(1200));
     }
 }
+
+mod reload {
+    use std::path::Path;
+    use std::time::Duration;
+
+    use fieldcal::daemon::config::{self, *};
+    use fieldcal::daemon::messages::SensorState;
+    use fieldcal::daemon::reload::*;
+    use fieldcal::daemon::sensor::Sensor;
+    use fieldcal::sample::Reading;
+
+    const BASE: &str = r#"
+[daemon]
+state_dir = "/tmp/fieldcal-reload-unit"
+status_interval_s = 1.0
+
+[outputs]
+stdout = true
+tcp = "127.0.0.1:2947"
+
+[[source]]
+name = "imu"
+kind = "falcon"
+port = "/dev/null"
+
+[[sensor]]
+name = "compass"
+source = "imu"
+field = "mag"
+axes = ["x", "y"]
+
+[[sensor]]
+name = "tilt"
+source = "imu"
+field = "accel"
+axes = ["x", "y"]
+"#;
+
+    fn parse(text: &str) -> Config {
+        config::parse(text, Path::new("/etc/fieldcal/fieldcal.toml")).unwrap()
+    }
+
+    #[test]
+    fn the_same_file_plans_nothing() {
+        let p = plan(&parse(BASE), &parse(BASE));
+        assert!(p.is_empty(), "{p:?}");
+        assert_eq!(
+            p.sensors,
+            [
+                SensorPlan::Unchanged("compass".into()),
+                SensorPlan::Unchanged("tilt".into())
+            ]
+        );
+    }
+
+    #[test]
+    fn a_sensor_section_change_names_its_keys() {
+        let new = BASE.replacen(
+            "axes = [\"x\", \"y\"]\n",
+            "axes = [\"x\", \"y\"]\nmodel = [\"paper\", \"cross-axis\"]\n[sensor.limits]\nmax_rms = 0.04\n",
+            1,
+        );
+        let p = plan(&parse(BASE), &parse(&new));
+        assert_eq!(
+            p.sensors,
+            [
+                SensorPlan::Changed {
+                    name: "compass".into(),
+                    keys: vec!["model", "limits"]
+                },
+                SensorPlan::Unchanged("tilt".into())
+            ]
+        );
+        assert!(p.restart.is_empty() && p.status_interval.is_none());
+    }
+
+    #[test]
+    fn outputs_sources_and_state_dir_need_a_restart_and_say_what_is_kept() {
+        let new = BASE
+            .replace("127.0.0.1:2947", "127.0.0.1:2950")
+            .replace("/tmp/fieldcal-reload-unit", "/tmp/elsewhere")
+            .replace("status_interval_s = 1.0", "status_interval_s = 0.5")
+            .replace(
+                "port = \"/dev/null\"",
+                "port = \"/dev/null\"\nbaud = 115200",
+            );
+        let p = plan(&parse(BASE), &parse(&new));
+        assert_eq!(p.status_interval, Some(Duration::from_millis(500)));
+        assert_eq!(
+            p.restart,
+            [
+                "[daemon] state_dir changed to /tmp/elsewhere: restart fieldcal to apply; kept /tmp/fieldcal-reload-unit",
+                "[outputs] tcp changed to 127.0.0.1:2950: restart fieldcal to apply; kept 127.0.0.1:2947",
+                "[[source]] imu changed (baud): restart fieldcal to apply; it keeps running as it started",
+            ]
+        );
+        // Sensors whose sections did not change are unchanged, though
+        // their source changed: they keep running on it.
+        assert!(
+            p.sensors
+                .iter()
+                .all(|s| matches!(s, SensorPlan::Unchanged(_)))
+        );
+    }
+
+    #[test]
+    fn sensors_added_removed_and_held_for_a_new_source() {
+        let new = BASE.replace("name = \"tilt\"", "name = \"level\"")
+            + "\n[[source]]\nname = \"bench\"\nkind = \"falcon\"\nport = \"/dev/zero\"\n\n\
+               [[sensor]]\nname = \"bench-compass\"\nsource = \"bench\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n";
+        let p = plan(&parse(BASE), &parse(&new));
+        assert_eq!(
+            p.sensors,
+            [
+                SensorPlan::Unchanged("compass".into()),
+                SensorPlan::Added("level".into()),
+                SensorPlan::Held {
+                    name: "bench-compass".into(),
+                    source: "bench".into(),
+                    added: true
+                },
+                SensorPlan::Removed("tilt".into()),
+            ]
+        );
+        assert_eq!(
+            p.restart,
+            ["[[source]] bench added: restart fieldcal to start it"]
+        );
+    }
+
+    #[test]
+    fn a_changed_declination_applies_live_keeping_the_rotation_and_calibration() {
+        let (mut config, mut sensors) = running(BASE);
+        turn(&mut sensors[0].1, 0, 201);
+        assert_eq!(sensors[0].1.calibration().map(|c| c.id), Some(1));
+        sensors[0].1.recalibrate();
+        turn(&mut sensors[0].1, 201, 100);
+        let new = BASE.replacen(
+            "field = \"mag\"\naxes = [\"x\", \"y\"]",
+            "field = \"mag\"\naxes = [\"x\", \"y\"]\ndeclination_deg = 10.0",
+            1,
+        );
+        assert_eq!(
+            plan(&parse(BASE), &parse(&new)).sensors[0],
+            SensorPlan::North("compass".into())
+        );
+        let out = apply(Ok(parse(&new)), &mut config, &mut sensors, &SOURCES, None);
+        assert!(
+            out.lines[0].contains(
+                "sensor 'compass': no declination -> declination +10.00° (config): applied; its \
+                 calibration and rotation are kept"
+            ),
+            "{:?}",
+            out.lines
+        );
+        let status = sensors[0].1.status();
+        assert_eq!(status.rotation.unwrap().samples, 100);
+        assert_eq!(status.calibration, Some(1));
+        let lines = turn(&mut sensors[0].1, 301, 1);
+        let v: serde_json::Value = serde_json::from_str(&lines[0]).unwrap();
+        let (h, t) = (
+            v["heading_deg"].as_f64().unwrap(),
+            v["true_heading_deg"].as_f64().unwrap(),
+        );
+        assert!(((h + 10.0) % 360.0 - t).abs() < 1e-9, "{v}");
+        // A declination change beside another change: a new rotation.
+        let new2 = new.replace(
+            "declination_deg = 10.0",
+            "declination_deg = 5.0\nmodel = [\"paper\", \"cross-axis\"]",
+        );
+        let p = plan(&parse(&new), &parse(&new2));
+        assert!(
+            matches!(&p.sensors[0], SensorPlan::Changed { keys, .. } if keys.contains(&"declination or location")),
+            "{p:?}"
+        );
+    }
+
+    /// Readings of a compass turning at 36°/s around (300, -200), radius
+    /// 1000, every 50 ms from `from` for `n` readings.
+    fn turn(sensor: &mut Sensor, from: usize, n: usize) -> Vec<String> {
+        let mut lines = Vec::new();
+        for i in from..from + n {
+            let t = i as f64 * 0.05;
+            let h = (36.0 * t).to_radians();
+            let r = Reading {
+                time: t,
+                mag: Some([
+                    (300.0 + 1000.0 * h.cos()).round() as i16,
+                    (-200.0 + 1000.0 * h.sin()).round() as i16,
+                    0,
+                ]),
+                accel: Some([0, 0, 4096]),
+                ..Reading::default()
+            };
+            sensor.on_reading(&r, &mut |_, line| lines.push(line));
+        }
+        lines
+    }
+
+    fn running(text: &str) -> (Config, Vec<(usize, Sensor)>) {
+        let config = parse(text);
+        let sensors = config
+            .sensors
+            .iter()
+            .map(|s| (0, Sensor::new(s.clone(), None)))
+            .collect();
+        (config, sensors)
+    }
+
+    const SOURCES: [RunningSource<'static>; 1] = [RunningSource {
+        name: "imu",
+        csv: None,
+    }];
+
+    #[test]
+    fn unchanged_sensors_keep_their_rotation_and_calibration_a_changed_one_starts_anew() {
+        let (mut config, mut sensors) = running(BASE);
+        // compass: calibrated (#1), then asked to recalibrate and halfway
+        // through its next turn; tilt: collecting, never calibrated.
+        let lines = turn(&mut sensors[0].1, 0, 201);
+        assert!(lines.iter().any(|l| l.contains("\"accepted\":true")));
+        assert_eq!(sensors[0].1.calibration().map(|c| c.id), Some(1));
+        sensors[0].1.recalibrate();
+        turn(&mut sensors[0].1, 201, 100);
+        let held = sensors[0].1.status().rotation.unwrap().samples;
+        assert_eq!(held, 100);
+
+        // The same file: nothing moves.
+        let out = apply(Ok(parse(BASE)), &mut config, &mut sensors, &SOURCES, None);
+        assert_eq!(out.lines.len(), 1, "{:?}", out.lines);
+        assert!(out.lines[0].contains("no change"), "{:?}", out.lines);
+        let status = sensors[0].1.status();
+        assert_eq!(status.rotation.unwrap().samples, 100);
+        assert_eq!(status.calibration, Some(1));
+        assert_eq!(status.state, SensorState::Recalibrating);
+
+        // tilt's model changes: compass keeps its half turn, tilt starts
+        // afresh under the new model.
+        let new = BASE.replace(
+            "field = \"accel\"\naxes = [\"x\", \"y\"]",
+            "field = \"accel\"\naxes = [\"x\", \"y\"]\nmodel = [\"paper\", \"cubic\"]",
+        );
+        let out = apply(Ok(parse(&new)), &mut config, &mut sensors, &SOURCES, None);
+        assert_eq!(out.lines.len(), 2, "{:?}", out.lines);
+        assert!(
+            out.lines[0].contains("sensor 'tilt': model offset+scale -> offset+scale+cubic"),
+            "{:?}",
+            out.lines
+        );
+        assert_eq!(sensors[0].1.status().rotation.unwrap().samples, 100);
+        assert_eq!(sensors[0].1.calibration().map(|c| c.id), Some(1));
+        assert_eq!(config.sensors[1].effects(), ["offset", "scale", "cubic"]);
+
+        // compass's model changes mid-turn: a new rotation under the new
+        // model, and calibration #1 (the paper's) corrects meanwhile.
+        let new2 = new.replacen(
+            "field = \"mag\"\naxes = [\"x\", \"y\"]",
+            "field = \"mag\"\naxes = [\"x\", \"y\"]\nmodel = [\"paper\", \"cross-axis\"]",
+            1,
+        );
+        let out = apply(Ok(parse(&new2)), &mut config, &mut sensors, &SOURCES, None);
+        assert!(
+            out.lines[0].contains("calibration #1 (offset+scale) keeps correcting"),
+            "{:?}",
+            out.lines
+        );
+        let status = sensors[0].1.status();
+        assert_eq!(status.rotation.unwrap().samples, 0);
+        assert_eq!(status.calibration, Some(1));
+        assert_eq!(status.state, SensorState::Recalibrating);
+        assert_eq!(status.readings, 301);
+        let lines = turn(&mut sensors[0].1, 400, 201);
+        assert!(
+            lines[0].contains("\"calibration\":1"),
+            "corrected by #1 meanwhile: {}",
+            lines[0]
+        );
+        let accepted: Vec<&String> = lines
+            .iter()
+            .filter(|l| l.contains("\"accepted\":true"))
+            .collect();
+        assert_eq!(accepted.len(), 1, "{lines:?}");
+        assert!(
+            accepted[0].contains("\"id\":2") && accepted[0].contains("offset+scale+cross-axis"),
+            "{}",
+            accepted[0]
+        );
+    }
+
+    #[test]
+    fn a_refused_file_changes_nothing() {
+        let (mut config, mut sensors) = running(BASE);
+        turn(&mut sensors[0].1, 0, 50);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("fieldcal.toml");
+        std::fs::write(
+            &path,
+            BASE.replace(
+                "axes = [\"x\", \"y\"]\n\n[[sensor]]",
+                "axes = [\"x\", \"y\"]\nmodle = \"paper\"\n\n[[sensor]]",
+            ),
+        )
+        .unwrap();
+        let out = apply(check(&path), &mut config, &mut sensors, &SOURCES, None);
+        assert_eq!(out.lines.len(), 1);
+        let line: serde_json::Value = serde_json::from_str(&out.lines[0]).unwrap();
+        assert_eq!(line["class"], "ERROR");
+        assert_eq!(line["key"], "sensor[0].modle");
+        assert_eq!(line["line"], 20);
+        let message = line["message"].as_str().unwrap();
+        assert!(
+            message.starts_with("reload of /etc/fieldcal/fieldcal.toml refused: "),
+            "{message}"
+        );
+        assert!(
+            message.ends_with("; the running configuration is kept"),
+            "{message}"
+        );
+        assert_eq!(sensors.len(), 2);
+        assert_eq!(sensors[0].1.status().rotation.unwrap().samples, 50);
+        assert_eq!(config.sensors.len(), 2);
+    }
+}

@@ -858,3 +858,650 @@ mod sim3 {
         ));
     }
 }
+
+mod capture {
+    use std::io::{self, Write};
+
+    use fieldcal::capture::*;
+    use fieldcal::protocol::chips::Chip;
+
+    fn header() -> CaptureHeader {
+        CaptureHeader {
+            version: VERSION,
+            streams: vec![
+                StreamInfo {
+                    id: 0,
+                    kind: StreamKind::Falcon,
+                },
+                StreamInfo {
+                    id: 3,
+                    kind: StreamKind::Chip {
+                        chip: Chip::Mpu6050,
+                        address: 0x68,
+                    },
+                },
+            ],
+            port: Some("/dev/ttyUSB0".into()),
+            baud: Some(38400),
+            started_unix: 1_700_000_000.25,
+            nominal_period_s: 0.05,
+            note: Some("bench, turned by hand".into()),
+        }
+    }
+
+    fn chunks() -> Vec<Chunk> {
+        vec![
+            Chunk {
+                time: nanos_to_seconds(0),
+                stream: 0,
+                bytes: vec![0x02, 0xFF, 0x00],
+            },
+            Chunk {
+                time: nanos_to_seconds(1_234_567_891),
+                stream: 3,
+                bytes: (0..14).collect(),
+            },
+            Chunk {
+                time: nanos_to_seconds(1_234_567_891),
+                stream: 0,
+                bytes: vec![],
+            },
+            Chunk {
+                time: nanos_to_seconds(86_400_000_000_001),
+                stream: 0,
+                bytes: vec![0x10; 23],
+            },
+        ]
+    }
+
+    fn write(header: &CaptureHeader, chunks: &[Chunk]) -> Vec<u8> {
+        let mut w = CaptureWriter::new(Vec::new(), header).unwrap();
+        for c in chunks {
+            w.write_chunk(c.time, c.stream, &c.bytes).unwrap();
+        }
+        w.into_inner().unwrap()
+    }
+
+    /// Where each record starts, and the end of the file.
+    fn record_starts(header: &CaptureHeader, chunks: &[Chunk]) -> Vec<usize> {
+        let json = serde_json::to_vec(header).unwrap();
+        let mut at = MAGIC.len() + 4 + json.len();
+        let mut starts = vec![at];
+        for c in chunks {
+            at += RECORD_OVERHEAD + c.bytes.len();
+            starts.push(at);
+        }
+        starts
+    }
+
+    /// A record with a correct CRC, whatever its stream.
+    fn record(time_ns: u64, stream: u8, data: &[u8]) -> Vec<u8> {
+        let mut r = time_ns.to_le_bytes().to_vec();
+        r.push(stream);
+        r.extend_from_slice(&(data.len() as u32).to_le_bytes());
+        r.extend_from_slice(data);
+        let crc = crc32(&r);
+        r.extend_from_slice(&crc.to_le_bytes());
+        r
+    }
+
+    fn with_header_json(json: &str) -> Vec<u8> {
+        let mut f = MAGIC.to_vec();
+        f.extend_from_slice(&(json.len() as u32).to_le_bytes());
+        f.extend_from_slice(json.as_bytes());
+        f
+    }
+
+    fn capture(file: CaptureFile) -> (CaptureHeader, Vec<Chunk>, Option<Truncation>) {
+        match file {
+            CaptureFile::Capture {
+                header,
+                chunks,
+                truncated,
+            } => (header, chunks, truncated),
+            CaptureFile::Raw { .. } => panic!("read as a raw dump"),
+        }
+    }
+
+    #[test]
+    fn crc32_matches_the_standard_check_value() {
+        assert_eq!(crc32(b"123456789"), 0xCBF4_3926);
+        assert_eq!(crc32(b""), 0);
+    }
+
+    #[test]
+    fn header_json_has_the_documented_shape() {
+        let json = serde_json::to_string(&header()).unwrap();
+        assert_eq!(
+            json,
+            r#"{"version":1,"streams":[{"id":0,"kind":"falcon"},{"id":3,"kind":"chip","chip":"mpu6050","address":104}],"port":"/dev/ttyUSB0","baud":38400,"started_unix":1700000000.25,"nominal_period_s":0.05,"note":"bench, turned by hand"}"#
+        );
+        let bare = CaptureHeader {
+            port: None,
+            baud: None,
+            note: None,
+            ..header()
+        };
+        let json = serde_json::to_string(&bare).unwrap();
+        assert!(!json.contains("port") && !json.contains("null"), "{json}");
+    }
+
+    #[test]
+    fn round_trip_keeps_header_bytes_and_nanoseconds() {
+        let file = write(&header(), &chunks());
+        assert!(file.starts_with(MAGIC));
+        assert_eq!(
+            file.len(),
+            *record_starts(&header(), &chunks()).last().unwrap()
+        );
+        let (h, c, t) = capture(parse_capture(&file, "rt.cap").unwrap());
+        assert_eq!(h, header());
+        assert_eq!(c, chunks());
+        assert_eq!(t, None);
+        assert_eq!(seconds_to_nanos(c[3].time), Some(86_400_000_000_001));
+    }
+
+    #[test]
+    fn write_chunk_ns_is_exact_and_counts() {
+        let mut w = CaptureWriter::new(Vec::new(), &header()).unwrap();
+        w.write_chunk_ns(u64::MAX, 3, b"x").unwrap();
+        w.write_chunk_ns(7, 0, b"y").unwrap();
+        assert_eq!(w.chunks_written(), 2);
+        let file = w.into_inner().unwrap();
+        let (_, c, _) = capture(parse_capture(&file, "ns.cap").unwrap());
+        assert_eq!(c[0].time, nanos_to_seconds(u64::MAX));
+        assert_eq!(c[1].time, 7e-9);
+    }
+
+    #[test]
+    fn a_capture_with_no_chunks_is_valid() {
+        let file = write(&header(), &[]);
+        let (h, c, t) = capture(parse_capture(&file, "none.cap").unwrap());
+        assert_eq!((h, c.len(), t), (header(), 0, None));
+    }
+
+    #[test]
+    fn header_times_read_back_exactly() {
+        // serde_json alone reads these one unit in the last place off.
+        for started_unix in [1_609_942_654.659_391_9, 195_678_736.821_979_46, -4.0e-7] {
+            let h = CaptureHeader {
+                started_unix,
+                nominal_period_s: 0.030_000_000_000_000_002,
+                ..header()
+            };
+            let (back, _, _) = capture(parse_capture(&write(&h, &[]), "t.cap").unwrap());
+            assert_eq!(back, h);
+        }
+        // A look-alike key elsewhere does not change the value.
+        let json = r#"{"version":1,"streams":[{"id":0,"kind":"falcon","started_unix":5}],"started_unix":1609942654.6593919,"nominal_period_s":0.05}"#;
+        let (h, _, _) = capture(parse_capture(&with_header_json(json), "k.cap").unwrap());
+        assert_eq!(h.started_unix, 1_609_942_654.659_391_9);
+    }
+
+    #[test]
+    fn seconds_to_nanos_rounds_and_rejects_non_times() {
+        assert_eq!(seconds_to_nanos(0.0), Some(0));
+        assert_eq!(seconds_to_nanos(1.5e-9), Some(2));
+        assert_eq!(seconds_to_nanos(0.05), Some(50_000_000));
+        assert_eq!(seconds_to_nanos(-1e-12), None);
+        assert_eq!(seconds_to_nanos(f64::NAN), None);
+        assert_eq!(seconds_to_nanos(f64::INFINITY), None);
+        assert_eq!(seconds_to_nanos(1.9e10), None);
+    }
+
+    #[test]
+    fn other_files_are_raw_dumps() {
+        for bytes in [
+            &b"\x02\x00\x01garbage"[..],
+            b"x",
+            b"FIELDCAL-CAPTURX and more",
+            b"fieldcal-capture",
+        ] {
+            match parse_capture(bytes, "dump.bin").unwrap() {
+                CaptureFile::Raw { bytes: b } => assert_eq!(b, bytes),
+                other => panic!("{other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn empty_file_is_an_error_naming_it() {
+        let err = parse_capture(b"", "empty.cap").unwrap_err();
+        assert!(matches!(err, CaptureError::Empty { .. }));
+        let msg = err.to_string();
+        assert!(
+            msg.starts_with("empty.cap: ") && msg.contains("nothing to replay"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn bad_header_json_names_file_and_offset() {
+        let json = "{\"version\": 1,";
+        let err = parse_capture(&with_header_json(json), "bad.cap").unwrap_err();
+        // Where serde_json noticed: at the end of the text.
+        assert!(
+            matches!(err, CaptureError::BadHeader { offset: 33, .. }),
+            "{err:?}"
+        );
+        let msg = err.to_string();
+        assert!(
+            msg.starts_with("bad.cap: byte 33: ") && msg.contains("not valid JSON"),
+            "{msg}"
+        );
+        assert!(msg.contains("record again"), "{msg}");
+    }
+
+    #[test]
+    fn damaged_headers_are_errors() {
+        let cases: &[(&str, &str)] = &[
+            ("[1, 2]", "not a JSON object"),
+            ("{}", "no `version`"),
+            (r#"{"version": "1"}"#, "not a whole number"),
+            (r#"{"version": 1}"#, "missing field `streams`"),
+            (
+                r#"{"version":1,"streams":[],"started_unix":0,"nominal_period_s":0.05}"#,
+                "no streams",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":0,"kind":"falcon"},{"id":0,"kind":"falcon"}],"started_unix":0,"nominal_period_s":0.05}"#,
+                "stream 0 twice",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":0,"kind":"telepathy"}],"started_unix":0,"nominal_period_s":0.05}"#,
+                "telepathy",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":1,"kind":"chip","chip":"bmp280","address":118}],"started_unix":0,"nominal_period_s":0.05}"#,
+                "bmp280",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":1,"kind":"chip","chip":"adxl345","address":166}],"started_unix":0,"nominal_period_s":0.05}"#,
+                "not a 7-bit",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":0,"kind":"falcon"}],"started_unix":0,"nominal_period_s":0}"#,
+                "not a positive",
+            ),
+            (
+                r#"{"version":1,"streams":[{"id":0,"kind":"falcon"}],"started_unix":null,"nominal_period_s":0.05}"#,
+                "expected f64",
+            ),
+        ];
+        for (json, expected) in cases {
+            let err = parse_capture(&with_header_json(json), "h.cap").unwrap_err();
+            let msg = err.to_string();
+            let CaptureError::BadHeader { offset, .. } = err else {
+                panic!("{json}: {err:?}");
+            };
+            assert!(msg.contains(expected), "{json}: {msg}");
+            assert!((20..=20 + json.len() as u64).contains(&offset), "{msg}");
+            assert!(msg.starts_with(&format!("h.cap: byte {offset}: ")), "{msg}");
+        }
+        // A misfit field is located: here just after the `null`.
+        let json = r#"{"version":1,"streams":[{"id":0,"kind":"falcon"}],"started_unix":null,"nominal_period_s":0.05}"#;
+        let null_end = 20 + json.find("null").unwrap() + 4;
+        match parse_capture(&with_header_json(json), "h.cap") {
+            Err(CaptureError::BadHeader { offset, .. }) => {
+                assert!(
+                    offset.abs_diff(null_end as u64) <= 1,
+                    "{offset} vs {null_end}"
+                )
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn header_length_over_the_limit_is_damage_not_a_cut() {
+        let mut file = MAGIC.to_vec();
+        file.extend_from_slice(&u32::MAX.to_le_bytes());
+        file.extend_from_slice(b"{}");
+        let err = parse_capture(&file, "len.cap").unwrap_err();
+        assert!(
+            matches!(err, CaptureError::BadHeader { offset: 16, .. }),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains("4294967295"), "{err}");
+    }
+
+    #[test]
+    fn unknown_version_is_reported_as_such() {
+        // Even when the rest of the header no longer fits version 1.
+        for json in [
+            r#"{"version":2,"streams":[{"id":0,"kind":"falcon"}],"started_unix":0,"nominal_period_s":0.05}"#,
+            r#"{"version":2,"channels":{}}"#,
+        ] {
+            let err = parse_capture(&with_header_json(json), "v2.cap").unwrap_err();
+            assert!(
+                matches!(
+                    err,
+                    CaptureError::UnsupportedVersion {
+                        offset: 20,
+                        found: 2,
+                        supported: 1,
+                        ..
+                    }
+                ),
+                "{err:?}"
+            );
+            let msg = err.to_string();
+            assert!(
+                msg.starts_with("v2.cap: byte 20: ") && msg.contains("version 2"),
+                "{msg}"
+            );
+        }
+    }
+
+    #[test]
+    fn undeclared_stream_is_an_error_at_its_record() {
+        let mut file = write(&header(), &chunks()[..1]);
+        let at = file.len();
+        file.extend(record(5, 7, b"abc"));
+        file.extend(record(6, 0, b"def"));
+        let err = parse_capture(&file, "u.cap").unwrap_err();
+        match &err {
+            CaptureError::UndeclaredStream {
+                offset,
+                index,
+                stream,
+                declared,
+                ..
+            } => {
+                assert_eq!((*offset, *index, *stream), (at as u64, 1, 7));
+                assert_eq!(declared, "0, 3");
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(err.to_string().starts_with(&format!("u.cap: byte {at}: ")));
+    }
+
+    #[test]
+    fn undeclared_stream_in_a_torn_tail_is_only_truncation() {
+        let mut file = write(&header(), &chunks()[..1]);
+        let mut bad = record(5, 7, b"abc");
+        bad.pop();
+        file.extend(bad);
+        let (_, c, t) = capture(parse_capture(&file, "t.cap").unwrap());
+        assert_eq!(c.len(), 1);
+        assert_eq!(t.unwrap().reason, TruncationReason::Torn);
+    }
+
+    /// The writer killed at any byte: each prefix either is an error about
+    /// the header (cut inside the magic or header) or reads back every
+    /// complete record, and reports a torn tail exactly when there is one.
+    #[test]
+    fn every_prefix_reads_back_its_complete_records() {
+        let file = write(&header(), &chunks());
+        let starts = record_starts(&header(), &chunks());
+        let records_at = starts[0];
+        for cut in 0..=file.len() {
+            let result = parse_capture(&file[..cut], "cut.cap");
+            if cut == 0 {
+                assert!(matches!(result, Err(CaptureError::Empty { .. })));
+                continue;
+            }
+            if cut < records_at {
+                let part = match result {
+                    Err(CaptureError::TruncatedHeader {
+                        offset,
+                        part,
+                        needed,
+                        present,
+                        ..
+                    }) => {
+                        assert_eq!(offset, cut as u64);
+                        assert!(present < needed);
+                        part
+                    }
+                    other => panic!("cut at {cut}: {other:?}"),
+                };
+                let expected = if cut < 16 {
+                    "magic"
+                } else if cut < 20 {
+                    "header length"
+                } else {
+                    "header"
+                };
+                assert_eq!(part, expected, "cut at {cut}");
+                let msg = parse_capture(&file[..cut], "cut.cap")
+                    .unwrap_err()
+                    .to_string();
+                assert!(msg.starts_with(&format!("cut.cap: byte {cut}: ")), "{msg}");
+                continue;
+            }
+            let (h, c, t) = capture(result.unwrap_or_else(|e| panic!("cut at {cut}: {e}")));
+            assert_eq!(h, header());
+            let complete = starts.iter().filter(|&&s| s <= cut).count() - 1;
+            assert_eq!(c, chunks()[..complete], "cut at {cut}");
+            if starts.contains(&cut) {
+                assert_eq!(t, None, "cut at {cut}");
+            } else {
+                let start = starts[complete];
+                assert_eq!(
+                    t,
+                    Some(Truncation {
+                        offset: start as u64,
+                        chunks_intact: complete,
+                        bytes_dropped: (cut - start) as u64,
+                        reason: TruncationReason::Torn,
+                    }),
+                    "cut at {cut}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn zero_filled_tail_fails_its_checksum() {
+        // What a power cut can leave: the file grew, its last blocks did not land.
+        let mut file = write(&header(), &chunks());
+        let end = file.len();
+        file.extend([0u8; 40]);
+        let (_, c, t) = capture(parse_capture(&file, "z.cap").unwrap());
+        assert_eq!(c, chunks());
+        assert_eq!(
+            t,
+            Some(Truncation {
+                offset: end as u64,
+                chunks_intact: 4,
+                bytes_dropped: 40,
+                reason: TruncationReason::BadChecksum,
+            })
+        );
+    }
+
+    #[test]
+    fn a_damaged_record_ends_the_read_there() {
+        let mut file = write(&header(), &chunks());
+        let starts = record_starts(&header(), &chunks());
+        // One flipped bit in the data of the second record.
+        file[starts[1] + 13 + 5] ^= 0x10;
+        let (_, c, t) = capture(parse_capture(&file, "flip.cap").unwrap());
+        assert_eq!(c, chunks()[..1]);
+        let t = t.unwrap();
+        assert_eq!((t.offset, t.chunks_intact), (starts[1] as u64, 1));
+        assert_eq!(t.bytes_dropped, (file.len() - starts[1]) as u64);
+        assert_eq!(t.reason, TruncationReason::BadChecksum);
+        // A damaged length that runs past the end reads as a torn record.
+        let mut file = write(&header(), &chunks());
+        file[starts[1] + 12] = 0x7F;
+        let (_, c, t) = capture(parse_capture(&file, "len.cap").unwrap());
+        assert_eq!((c.len(), t.unwrap().reason), (1, TruncationReason::Torn));
+    }
+
+    #[test]
+    fn truncation_message_says_where_and_what_is_kept() {
+        let t = Truncation {
+            offset: 1234,
+            chunks_intact: 56,
+            bytes_dropped: 7,
+            reason: TruncationReason::Torn,
+        };
+        let msg = t.to_string();
+        assert!(
+            msg.contains("byte 1234") && msg.contains("56 chunks") && msg.contains("killed"),
+            "{msg}"
+        );
+        let msg = Truncation {
+            reason: TruncationReason::BadChecksum,
+            ..t
+        }
+        .to_string();
+        assert!(
+            msg.contains("byte 1234") && msg.contains("checksum"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn writer_rejects_what_it_could_not_read_back_and_stays_usable() {
+        for bad in [
+            CaptureHeader {
+                version: 2,
+                ..header()
+            },
+            CaptureHeader {
+                streams: vec![],
+                ..header()
+            },
+            CaptureHeader {
+                nominal_period_s: f64::NAN,
+                ..header()
+            },
+            CaptureHeader {
+                started_unix: f64::INFINITY,
+                ..header()
+            },
+        ] {
+            let err = CaptureWriter::new(Vec::new(), &bad).unwrap_err();
+            assert_eq!(err.kind(), io::ErrorKind::InvalidInput, "{bad:?}");
+        }
+        let mut w = CaptureWriter::new(Vec::new(), &header()).unwrap();
+        let before = w.get_ref().len();
+        for (time, stream) in [(0.0, 1), (-0.001, 0), (f64::NAN, 0), (f64::INFINITY, 3)] {
+            let err = w.write_chunk(time, stream, b"abc").unwrap_err();
+            assert_eq!(err.kind(), io::ErrorKind::InvalidInput);
+        }
+        assert_eq!(w.get_ref().len(), before);
+        w.write_chunk(0.5, 3, b"ok").unwrap();
+        let (_, c, t) = capture(parse_capture(&w.into_inner().unwrap(), "w.cap").unwrap());
+        assert_eq!((c.len(), t), (1, None));
+    }
+
+    /// A disk that fills up after `room` bytes: it takes what fits, then fails.
+    struct FullDisk {
+        data: Vec<u8>,
+        room: usize,
+    }
+
+    impl Write for FullDisk {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            let n = buf.len().min(self.room - self.data.len());
+            if n == 0 && !buf.is_empty() {
+                return Err(io::Error::new(io::ErrorKind::StorageFull, "disk full"));
+            }
+            self.data.extend_from_slice(&buf[..n]);
+            Ok(n)
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// The recorder's way of writing (through a `BufWriter`, flushing now and
+    /// then) on a disk that fills up at any byte: what landed reads back.
+    #[test]
+    fn disk_full_at_any_byte_leaves_a_readable_capture() {
+        let full = write(&header(), &chunks());
+        let records_at = record_starts(&header(), &chunks())[0];
+        for room in 0..=full.len() {
+            let disk = FullDisk {
+                data: Vec::new(),
+                room,
+            };
+            let Ok(mut w) = CaptureWriter::new(io::BufWriter::with_capacity(16, disk), &header())
+            else {
+                assert!(room < records_at, "room {room}");
+                continue;
+            };
+            let mut failed = false;
+            for (i, c) in chunks().iter().enumerate() {
+                let result = w
+                    .write_chunk(c.time, c.stream, &c.bytes)
+                    .and_then(|()| if i % 2 == 1 { w.flush() } else { Ok(()) });
+                if failed {
+                    assert!(result.is_err(), "a write after a failure must fail too");
+                }
+                failed |= result.is_err();
+            }
+            let _ = w.flush();
+            let landed = &w.get_ref().get_ref().data;
+            assert!(full.starts_with(landed));
+            let (_, c, _) = capture(parse_capture(landed, "full.cap").unwrap());
+            assert_eq!(c, chunks()[..c.len()]);
+        }
+    }
+
+    #[test]
+    fn read_capture_reads_files_and_names_missing_ones() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bench.cap");
+        std::fs::write(&path, write(&header(), &chunks())).unwrap();
+        let (h, c, _) = capture(read_capture(&path).unwrap());
+        assert_eq!((h, c), (header(), chunks()));
+
+        let raw = dir.path().join("dump.bin");
+        std::fs::write(&raw, b"\x02\x00").unwrap();
+        assert_eq!(
+            read_capture(&raw).unwrap(),
+            CaptureFile::Raw {
+                bytes: b"\x02\x00".to_vec()
+            }
+        );
+
+        let missing = dir.path().join("missing.cap");
+        let err = read_capture(&missing).unwrap_err();
+        assert!(matches!(err, CaptureError::Io { .. }));
+        assert!(err.to_string().contains("missing.cap"), "{err}");
+    }
+
+    fn hex_lines(bytes: &[u8]) -> String {
+        bytes
+            .chunks(16)
+            .map(|line| {
+                line.iter()
+                    .map(|b| format!("{b:02x}"))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            })
+            .collect::<Vec<_>>()
+            .join("\n")
+    }
+
+    /// The worked example of docs/capture-format.md is what the writer writes.
+    #[test]
+    fn documented_example_matches_the_writer() {
+        let header = CaptureHeader {
+            version: 1,
+            streams: vec![StreamInfo {
+                id: 0,
+                kind: StreamKind::Falcon,
+            }],
+            port: Some("/dev/ttyUSB0".into()),
+            baud: Some(38400),
+            started_unix: 1_700_000_000.25,
+            nominal_period_s: 0.05,
+            note: None,
+        };
+        let mut w = CaptureWriter::new(Vec::new(), &header).unwrap();
+        w.write_chunk_ns(1_500_000, 0, &[0x02, 0x01, 0x2C]).unwrap();
+        let file = w.into_inner().unwrap();
+        let doc = include_str!("../docs/capture-format.md");
+        let hex = hex_lines(&file);
+        assert!(
+            doc.contains(&hex),
+            "the example in the doc should read:\n{hex}"
+        );
+    }
+}

@@ -2406,3 +2406,172 @@ mod vertical {
         assert!(r[1].is_nan());
     }
 }
+
+mod trust {
+    use fieldcal::model::trust::*;
+
+    const RATE_HZ: f64 = 20.0;
+
+    /// A sensor turning at `deg_s` with a gyro that reads it, its heading
+    /// and field disturbed by `disturb(t) -> (field factor, heading offset)`.
+    fn run(
+        seconds: f64,
+        deg_s: f64,
+        noise: f64,
+        disturb: impl Fn(f64) -> (f64, f64),
+    ) -> Vec<(f64, Verdict)> {
+        let limits = TrustLimits::from_rms(
+            noise,
+            None,
+            Some(GyroModel {
+                scale: 1.0,
+                bias_deg_s: 0.0,
+            }),
+        );
+        let mut monitor = TrustMonitor::new(limits);
+        let n = (seconds * RATE_HZ) as usize;
+        (0..n)
+            .map(|k| {
+                let t = k as f64 / RATE_HZ;
+                // Deterministic noise of about `noise` rms.
+                let wobble = noise * 1.2 * ((k as f64) * 2.39).sin();
+                let (factor, offset) = disturb(t);
+                let obs = Observation {
+                    time: t,
+                    field_ratio: (1.0 + wobble) * factor,
+                    heading_deg: (deg_s * t + offset + wobble.to_degrees()).rem_euclid(360.0),
+                    gyro_deg_s: Some(deg_s),
+                };
+                (t, monitor.check(obs))
+            })
+            .collect()
+    }
+
+    fn distrusted_in(v: &[(f64, Verdict)], from: f64, to: f64) -> (usize, usize) {
+        let inside: Vec<_> = v.iter().filter(|(t, _)| *t >= from && *t < to).collect();
+        let bad = inside.iter().filter(|(_, v)| !v.trusted).count();
+        (bad, inside.len())
+    }
+
+    #[test]
+    fn a_quiet_sensor_turning_or_still_is_always_trusted() {
+        for deg_s in [0.0, 18.0, -90.0] {
+            let v = run(120.0, deg_s, 0.005, |_| (1.0, 0.0));
+            assert_eq!(distrusted_in(&v, 0.0, 1e9).0, 0, "{deg_s} °/s");
+        }
+    }
+
+    #[test]
+    fn a_field_five_percent_low_is_distrusted_at_once_and_trusted_after() {
+        let v = run(60.0, 18.0, 0.005, |t| {
+            if (20.0..35.0).contains(&t) {
+                (0.95, 0.0)
+            } else {
+                (1.0, 0.0)
+            }
+        });
+        let (bad, all) = distrusted_in(&v, 20.0, 35.0);
+        assert_eq!(bad, all, "every disturbed reading is distrusted");
+        assert_eq!(distrusted_in(&v, 35.2, 60.0).0, 0);
+        assert_eq!(distrusted_in(&v, 0.0, 20.0).0, 0);
+        let reason = &v.iter().find(|(t, _)| *t >= 20.0).unwrap().1.reasons[0];
+        assert!(
+            reason.contains("% below the calibration's r (limit 2.5 %: 5 σ"),
+            "{reason}"
+        );
+    }
+
+    #[test]
+    fn a_heading_swing_the_gyro_did_not_see_is_distrusted_while_it_lasts() {
+        // 160° of swing for 15 s, the field unchanged.
+        let v = run(60.0, 0.0, 0.005, |t| {
+            if (20.0..35.0).contains(&t) {
+                (1.0, 160.0)
+            } else {
+                (1.0, 0.0)
+            }
+        });
+        let (bad, all) = distrusted_in(&v, 20.0, 35.0);
+        assert_eq!(bad, all);
+        assert_eq!(distrusted_in(&v, 35.0, 60.0).0, 0);
+        assert_eq!(distrusted_in(&v, 0.0, 20.0).0, 0);
+    }
+
+    #[test]
+    fn a_twenty_degree_swing_while_turning_is_flagged_within_a_reading() {
+        let v = run(40.0, 30.0, 0.005, |t| {
+            if (10.0..12.0).contains(&t) {
+                (1.0, 20.0)
+            } else {
+                (1.0, 0.0)
+            }
+        });
+        let (bad, all) = distrusted_in(&v, 10.0, 12.0);
+        assert!(bad * 100 >= all * 99, "{bad} of {all}");
+        assert_eq!(distrusted_in(&v, 12.0, 40.0).0, 0);
+    }
+
+    #[test]
+    fn a_still_sensor_whose_gyro_warms_is_followed_not_flagged() {
+        // The gyro's bias walks from 0 to 3 °/s over ten minutes.
+        let limits = TrustLimits::from_rms(
+            0.005,
+            None,
+            Some(GyroModel {
+                scale: 1.0,
+                bias_deg_s: 0.0,
+            }),
+        );
+        let mut m = TrustMonitor::new(limits);
+        for k in 0..(600 * 20) {
+            let t = k as f64 / RATE_HZ;
+            let v = m.check(Observation {
+                time: t,
+                field_ratio: 1.0,
+                heading_deg: 42.0,
+                gyro_deg_s: Some(3.0 * t / 600.0),
+            });
+            assert!(v.trusted, "{t}: {:?}", v.reasons);
+        }
+    }
+
+    #[test]
+    fn counts_and_the_longest_stretch_are_kept() {
+        let limits = TrustLimits::from_rms(0.005, None, None);
+        let mut m = TrustMonitor::new(limits);
+        for k in 0..100 {
+            let t = k as f64 * 0.05;
+            let ratio = if (20..60).contains(&k) { 1.2 } else { 1.0 };
+            m.check(Observation {
+                time: t,
+                field_ratio: ratio,
+                heading_deg: 10.0,
+                gyro_deg_s: None,
+            });
+        }
+        let c = m.counts();
+        assert_eq!((c.trusted, c.distrusted), (60, 40));
+        assert!((c.longest_distrusted_s - 39.0 * 0.05).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_reading_out_of_order_or_not_finite_is_distrusted() {
+        let mut m = TrustMonitor::new(TrustLimits::from_rms(0.01, None, None));
+        let ok = Observation {
+            time: 1.0,
+            field_ratio: 1.0,
+            heading_deg: 0.0,
+            gyro_deg_s: None,
+        };
+        assert!(m.check(ok).trusted);
+        assert!(!m.check(Observation { time: 0.5, ..ok }).trusted);
+        assert!(
+            !m.check(Observation {
+                field_ratio: f64::NAN,
+                ..ok
+            })
+            .trusted
+        );
+        assert!(m.check(Observation { time: 1.05, ..ok }).trusted);
+    }
+}
