@@ -1197,3 +1197,31 @@ fn a_csv_file_is_checked_before_anything_starts() {
         &["file, files, speed, time_column, period_s"],
     );
 }
+
+#[test]
+fn a_wrong_element_is_named_at_its_index_and_a_date_is_no_path() {
+    let text = format!("{SOURCES}\n").replace(
+        "chips = [\"mpu6050\", \"lsm303dlhc-mag@0x1e\"]",
+        "chips = [\"mpu6050\", 5]",
+    );
+    assert_refused(
+        &text,
+        "source[1].chips[1]",
+        Some(line_of(&text, "chips")),
+        &["invalid type: integer `5`, expected a string"],
+    );
+    let text = format!("{SOURCES}\n").replace("port = \"/dev/ttyUSB0\"", "port = 1979-05-27");
+    assert_refused(
+        &text,
+        "source[0].port",
+        Some(line_of(&text, "1979-05-27")),
+        &["invalid type: map, expected path string"],
+    );
+    let text = "[outputs]\nrecalibrate_from = [\"unix\", 5]\n";
+    assert_refused(
+        text,
+        "outputs.recalibrate_from[1]",
+        Some(2),
+        &["expected a string"],
+    );
+}

@@ -269,13 +269,15 @@ fn restart_changes(old: &Config, new: &Config) -> Vec<String> {
     // Each kind of output, named by its address or path (or its "off"
     // word) when that changed.
     for (kind, _, off) in crate::daemon::output_kinds::TABLE {
-        let of = |c: &config::OutputsConfig| {
-            c.outputs
-                .iter()
-                .find(|o| o.name() == *kind)
-                .map_or(off.to_string(), |o| o.describe())
-        };
-        let (was, now) = (of(oo), of(no));
+        let (was, now) = (
+            oo.outputs.iter().find(|o| o.name() == *kind),
+            no.outputs.iter().find(|o| o.name() == *kind),
+        );
+        if was == now {
+            continue;
+        }
+        let describe = |o: Option<&config::Output>| o.map_or(off.to_string(), |o| o.describe());
+        let (was, now) = (describe(was), describe(now));
         if was != now {
             changed(&mut out, &format!("[outputs] {kind}"), now, was);
         }

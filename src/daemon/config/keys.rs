@@ -6,6 +6,21 @@ use super::*;
 /// A section's keys as written, before a kind takes its own.
 pub(crate) type RawKeys = std::collections::BTreeMap<String, toml::Value>;
 
+/// A value as reading the document gives it to serde: a date-time is a
+/// table there (so a string key refuses it, as "invalid type: map"), not
+/// the text `toml::Value` would hand over.
+fn as_read(value: &toml::Value) -> toml::Value {
+    match value {
+        toml::Value::Datetime(d) => {
+            let mut table = toml::Table::new();
+            table.insert("datetime".into(), toml::Value::String(d.to_string()));
+            toml::Value::Table(table)
+        }
+        toml::Value::Array(items) => toml::Value::Array(items.iter().map(as_read).collect()),
+        other => other.clone(),
+    }
+}
+
 /// The keys of one section (a `[[source]]` besides its name, kind and
 /// retry_s, or `[outputs]`), with the checker that reports their errors
 /// at their place in the file.
@@ -40,7 +55,8 @@ impl<'a> Keys<'_, 'a> {
     }
 
     /// The value of `name` as a `T`, if given; a value of the wrong type is
-    /// refused with serde's words, at its place in the file.
+    /// refused with serde's words, at its place in the file (an array's
+    /// element at its own, `chips[1]`), as reading the document did.
     pub fn get<T: serde::de::DeserializeOwned>(
         &self,
         name: &str,
@@ -48,10 +64,24 @@ impl<'a> Keys<'_, 'a> {
         let Some(value) = self.values.get(name) else {
             return Ok(None);
         };
-        value.clone().try_into::<T>().map(Some).map_err(|e| {
-            self.checker
-                .error(&self.key(name), e.message().trim_end().to_string())
-        })
+        let refused = |key: String, e: toml::de::Error| {
+            self.checker.error(&key, e.message().trim_end().to_string())
+        };
+        match as_read(value).try_into::<T>() {
+            Ok(v) => Ok(Some(v)),
+            Err(e) => {
+                if let toml::Value::Array(items) = value {
+                    // The first element that is refused alone.
+                    for (i, item) in items.iter().enumerate() {
+                        let alone = toml::Value::Array(vec![as_read(item)]);
+                        if let Err(e) = alone.try_into::<T>() {
+                            return Err(refused(self.key(&format!("{name}[{i}]")), e));
+                        }
+                    }
+                }
+                Err(refused(self.key(name), e))
+            }
+        }
     }
 
     /// An error about `name`, at its place in the file.

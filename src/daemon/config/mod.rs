@@ -191,8 +191,6 @@ pub type RotationSettings = crate::daemon::rotation::RotationConfig;
 /// The limits a fit must meet to be accepted (`[sensor.limits]`).
 pub type LimitSettings = crate::daemon::acceptance::Limits;
 
-/// Polls per second are bounded by what a USB-ISS can do; a minute between
-/// polls is already useless for a turning sensor.
 /// Shortest `daemon.status_interval_s`: 50 ms, the Falcon-GX's frame period
 /// (the I2C bridge polls every 30 ms by default). A STATUS line more often
 /// than readings arrive says nothing new, and a microsecond interval filled

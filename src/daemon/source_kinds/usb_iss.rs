@@ -29,7 +29,7 @@ impl UsbIss {
         BridgeConfig {
             period: self.poll,
             retry_interval: retry,
-            speed: if self.i2c_khz >= 400 {
+            speed: if self.i2c_khz == 400 {
                 I2cSpeed::Khz400
             } else {
                 I2cSpeed::Khz100
