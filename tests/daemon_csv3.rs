@@ -463,15 +463,6 @@ fn a_3_axis_csv_sensor_and_a_source_of_several_files_are_checked_naming_the_key(
         "sensor[0].lsb_per_gauss",
         &["three columns in axes, with field"],
     );
-    // A 2-axis sensor's gyro from the other file.
-    refused(
-        &with(
-            "",
-            &format!("{COMPASS}axes = [\"mag_x\", \"mag_y\"]\ngyro = \"gyro_z\"\n"),
-        ),
-        "sensor[0].gyro",
-        &["imu.csv", "the axes' file"],
-    );
     // The tilt source must be a 3-axis accelerometer of the source.
     refused(
         &with(

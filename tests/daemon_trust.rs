@@ -224,3 +224,78 @@ fn a_three_axis_compass_distrusts_a_field_six_percent_high_and_nothing_else() {
     assert_eq!(bad, 0);
     assert_eq!(judged(&lines, 115.05, 1e9).1, 0);
 }
+
+#[test]
+fn a_gyro_in_another_file_of_the_source_checks_the_heading() {
+    let dir = tempfile::tempdir().unwrap();
+    // The compass in one file, the gyro in another (as a magnetometer and
+    // an MPU-6050 logged apart on one clock), the gyro's rows 25 ms later.
+    let one = recording(140.0, heading, rate, |t| {
+        if (70.0..85.0).contains(&t) {
+            (1.0, 20.0)
+        } else {
+            (1.0, 0.0)
+        }
+    });
+    let (mut mag, mut gyro) = (String::from("t,x,y\n"), String::from("t,gyro_z\n"));
+    for line in one.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        mag.push_str(&format!("{},{},{}\n", f[0], f[1], f[2]));
+        let t: f64 = f[0].parse().unwrap();
+        gyro.push_str(&format!("{:.3},{}\n", t + 0.025, f[3]));
+    }
+    std::fs::write(dir.path().join("mag.csv"), mag).unwrap();
+    std::fs::write(dir.path().join("imu.csv"), gyro).unwrap();
+    let config = dir.path().join("two.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[daemon]\nstate_dir = \"{}\"\n[outputs]\nstdout = true\n\
+             [[source]]\nname = \"log\"\nkind = \"csv\"\nfiles = [\"mag.csv\", \"imu.csv\"]\n\
+             speed = \"max\"\n\
+             [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"x\", \"y\"]\ngyro = \"gyro_z\"\n",
+            dir.path().join("state").display()
+        ),
+    )
+    .unwrap();
+    let r = common::run(&[
+        "run",
+        "--config",
+        config.to_str().unwrap(),
+        "--progress",
+        "never",
+    ]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    let lines: Vec<Value> = r
+        .stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let calibration = lines
+        .iter()
+        .find(|v| v["class"] == "CALIBRATION" && v["accepted"] == true)
+        .unwrap_or_else(|| panic!("no calibration: {}", r.stderr));
+    assert_eq!(
+        calibration["heading_vs_gyro"]["gyro_column"], "gyro_z",
+        "{calibration}"
+    );
+    // Times are on the host's clock under `run`: count from the first.
+    let t0 = lines
+        .iter()
+        .find(|v| v["class"] == "READING")
+        .and_then(|v| v["time"].as_f64())
+        .unwrap();
+    let shifted: Vec<Value> = lines
+        .iter()
+        .filter(|v| v["class"] == "READING")
+        .map(|v| {
+            let mut v = v.clone();
+            v["time"] = serde_json::json!(v["time"].as_f64().unwrap() - t0);
+            v
+        })
+        .collect();
+    let (all, bad) = judged(&shifted, 70.0, 85.0);
+    assert!(all >= 290 && bad == all, "{bad} of {all}");
+    assert_eq!(judged(&shifted, 20.0, 69.9).1, 0);
+    assert_eq!(judged(&shifted, 85.1, 140.0).1, 0);
+}

@@ -63,7 +63,8 @@ struct CsvBinding {
     file: usize,
     layout: Arc<CsvLayout>,
     axes: [usize; 2],
-    gyro: Option<usize>,
+    /// The gyro column: (file, index), in any file of the source.
+    gyro: Option<(usize, usize)>,
     /// The other columns, published with each reading.
     others: Vec<usize>,
 }
@@ -599,6 +600,15 @@ impl Geometry for Plane {
     }
     fn row_sample(&mut self, life: &Lifecycle, row: &CsvRow) -> Option<Sample> {
         let binding = self.csv.as_ref()?;
+        if let (Some(gyro), Some((file, i))) = (&mut self.gyro, binding.gyro)
+            && row.file == file
+            && let Some(&rate) = row.values.get(i)
+        {
+            gyro.observe_value(rate);
+            if life.collecting() {
+                gyro.keep_value(row.time, rate);
+            }
+        }
         if row.file != binding.file {
             return None;
         }
@@ -608,14 +618,6 @@ impl Geometry for Plane {
         );
         if !(x.is_finite() && y.is_finite()) {
             return None;
-        }
-        if let (Some(gyro), Some(i)) = (&mut self.gyro, binding.gyro)
-            && let Some(&rate) = row.values.get(i)
-        {
-            gyro.observe_value(rate);
-            if life.collecting() {
-                gyro.keep_value(row.time, rate);
-            }
         }
         Some(Sample {
             time: row.time,
@@ -683,23 +685,30 @@ impl Geometry for Plane {
         let Some(columns) = &self.plane.columns else {
             return Ok(Vec::new());
         };
-        let mut names = vec![
+        let names = [
             (columns[0].as_str(), "the sensor's x axis"),
             (columns[1].as_str(), "the sensor's y axis"),
         ];
-        if let GyroChoice::Column { name, .. } = &self.plane.gyro {
-            names.push((name.as_str(), "the sensor's gyro"));
-        }
         let (file, found) = crate::source::csv::locate_columns(files, &refs, &names)?;
         let Some(layout) = layouts.get(file) else {
             return Ok(Vec::new());
         };
         let axes = [found[0], found[1]];
-        let gyro = found.get(2).copied();
+        // The gyro may be in another file of the source: its rows come on
+        // the same clock, merged in time order.
+        let gyro = match &self.plane.gyro {
+            GyroChoice::Column { name, .. } => {
+                let wanted = [(name.as_str(), "the sensor's gyro")];
+                let (gyro_file, at) = crate::source::csv::locate_columns(files, &refs, &wanted)?;
+                at.first().map(|&i| (gyro_file, i))
+            }
+            _ => None,
+        };
         let others = (0..layout.names.len())
             .filter(|i| !axes.contains(i) && Some(*i) != layout.time_index())
             .collect();
-        let required = found.iter().map(|&i| (file, i)).collect();
+        let mut required: Vec<(usize, usize)> = axes.iter().map(|&i| (file, i)).collect();
+        required.extend(gyro);
         self.csv = Some(CsvBinding {
             file,
             layout: layout.clone(),

@@ -185,9 +185,8 @@ impl Checker<'_> {
                 ));
             }
         };
-        let file_of_axes = axes[0].0;
         let names = [axes[0].1.clone(), axes[1].1.clone()];
-        let gyro = self.check_csv_gyro(key, &s, &columns, &names, file_of_axes)?;
+        let gyro = self.check_csv_gyro(key, &s, &columns, &names)?;
         let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
         let plane = PlaneSensor {
             stream: 0,
@@ -232,15 +231,15 @@ impl Checker<'_> {
         })
     }
 
-    /// A csv sensor's gyro column (in the axes' file, not one of `axes`)
-    /// and its units, or why there is no heading check.
+    /// A csv sensor's gyro column (in any file of the source, which plays
+    /// them on one clock; not one of `axes`) and its units, or why there
+    /// is no heading check.
     fn check_csv_gyro(
         &self,
         key: &str,
         s: &RawSensor,
         columns: &Columns<'_>,
         axes: &[String; 2],
-        file_of_axes: usize,
     ) -> Result<GyroChoice, ConfigError> {
         let units_key = format!("{key}.gyro_units");
         let units = match s.gyro_units.as_deref().map(str::trim) {
@@ -272,23 +271,12 @@ impl Checker<'_> {
             }
             Some(name) => {
                 let gyro_key = format!("{key}.gyro");
-                let (gyro_file, name) = columns.find(
+                // Any file of the source: its rows are on the axes' clock.
+                let (_, name) = columns.find(
                     gyro_key.clone(),
                     name,
                     "the angular rate about the turn's axis",
                 )?;
-                if gyro_file != file_of_axes {
-                    let of = |f: usize| columns.name_of(f);
-                    return Err(self.error(
-                        &gyro_key,
-                        format!(
-                            "'{name}' is a column of {}, but the axes are of {}: a row carries \
-                             only its own file's columns, so the gyro must be in the axes' file",
-                            of(gyro_file),
-                            of(file_of_axes)
-                        ),
-                    ));
-                }
                 if axes.contains(&name) {
                     return Err(self.error(
                         &gyro_key,
