@@ -2575,3 +2575,153 @@ mod trust {
         assert!(m.check(Observation { time: 1.05, ..ok }).trusted);
     }
 }
+
+/// The trust monitor's thresholds on randomised sensors: quiet ones are
+/// not flagged, disturbed ones are, over a sweep of noise, gyro and motion.
+mod trust_sweep {
+    use fieldcal::model::trust::{GyroModel, Observation, TrustLimits, TrustMonitor};
+
+    /// xorshift64*: deterministic, so the sweep is the same on every run.
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> f64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
+        }
+        fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+            lo + (hi - lo) * self.next()
+        }
+        /// A standard normal draw (Box–Muller).
+        fn normal(&mut self) -> f64 {
+            let u = self.next().max(1e-300);
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * self.next()).cos()
+        }
+    }
+
+    struct Scenario {
+        noise: f64,
+        scale: f64,
+        rate_deg_s: f64,
+        gyro_noise: f64,
+        bias_error: f64,
+    }
+
+    fn scenario(rng: &mut Rng, max_noise: f64) -> Scenario {
+        Scenario {
+            // |corrected|/r noise: 0.1 % to `max_noise` (a good HMC5883L
+            // turn is about 0.3 %, a hand-held one 3 %).
+            noise: rng.uniform(0.001, max_noise),
+            scale: if rng.next() < 0.5 { 1.0 } else { -1.0 },
+            rate_deg_s: if rng.next() < 0.3 {
+                0.0
+            } else {
+                rng.uniform(-90.0, 90.0)
+            },
+            // MPU-6050 rate noise: 0.005 °/s/√Hz, about 0.02–0.1 °/s at 20 Hz.
+            gyro_noise: rng.uniform(0.01, 0.1),
+            // What the heading check's bias missed, and a slow walk on top.
+            bias_error: rng.uniform(-0.05, 0.05),
+        }
+    }
+
+    /// Runs `s` for `seconds` at 20 Hz; `disturb(t) -> (field factor,
+    /// heading swing)`. Returns each reading's time and whether it was
+    /// trusted.
+    fn run(
+        s: &Scenario,
+        rng: &mut Rng,
+        seconds: f64,
+        disturb: &dyn Fn(f64) -> (f64, f64),
+    ) -> Vec<(f64, bool)> {
+        let gyro = GyroModel {
+            scale: s.scale,
+            bias_deg_s: 0.0,
+        };
+        let limits = TrustLimits::from_rms(s.noise, Some(s.noise.to_degrees()), Some(gyro));
+        let mut monitor = TrustMonitor::new(limits);
+        let n = (seconds * 20.0) as usize;
+        (0..n)
+            .map(|k| {
+                let t = k as f64 / 20.0;
+                let (factor, swing) = disturb(t);
+                let heading = s.rate_deg_s * t + swing + s.noise.to_degrees() * rng.normal();
+                let walk = 0.02 * (t / 60.0).sin();
+                let obs = Observation {
+                    time: t,
+                    field_ratio: factor * (1.0 + s.noise * rng.normal()),
+                    heading_deg: heading.rem_euclid(360.0),
+                    gyro_deg_s: Some(
+                        s.rate_deg_s / s.scale + s.bias_error + walk + s.gyro_noise * rng.normal(),
+                    ),
+                };
+                (t, monitor.check(obs).trusted)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn quiet_sensors_are_not_flagged_over_a_randomised_sweep() {
+        let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+        let (mut readings, mut flagged) = (0usize, 0usize);
+        for _ in 0..200 {
+            let s = scenario(&mut rng, 0.03);
+            let v = run(&s, &mut rng, 120.0, &|_| (1.0, 0.0));
+            readings += v.len();
+            let bad = v.iter().filter(|(_, ok)| !ok).count();
+            assert!(
+                bad <= 1,
+                "{bad} flagged at noise {}, rate {}",
+                s.noise,
+                s.rate_deg_s
+            );
+            flagged += bad;
+        }
+        // 5 σ: about 6e-7 of Gaussian readings; allow ten times that.
+        assert!(
+            (flagged as f64) < 6e-6 * readings as f64 + 1.0,
+            "{flagged} of {readings}"
+        );
+    }
+
+    #[test]
+    fn a_magnet_of_five_percent_or_a_twenty_degree_swing_is_flagged_at_once() {
+        let mut rng = Rng(0x2545_f491_4f6c_dd1d);
+        for case in 0..200 {
+            // 5 σ of the noise must stay below the 5 % to be found: noise
+            // up to 0.8 %.
+            let s = scenario(&mut rng, 0.008);
+            let (field, swing) = if case % 2 == 0 {
+                (1.0 + if rng.next() < 0.5 { -0.05 } else { 0.05 }, 0.0)
+            } else {
+                (1.0, if rng.next() < 0.5 { -20.0 } else { 20.0 })
+            };
+            let from = rng.uniform(30.0, 60.0);
+            let v = run(&s, &mut rng, 90.0, &|t| {
+                if (from..from + 5.0).contains(&t) {
+                    (field, swing)
+                } else {
+                    (1.0, 0.0)
+                }
+            });
+            let inside: Vec<bool> = v
+                .iter()
+                .filter(|(t, _)| (from..from + 5.0).contains(t))
+                .map(|&(_, ok)| ok)
+                .collect();
+            let caught = inside.iter().filter(|ok| !**ok).count();
+            assert!(
+                caught * 100 >= inside.len() * 99,
+                "case {case}: {caught} of {} flagged (noise {}, field {field}, swing {swing})",
+                inside.len(),
+                s.noise
+            );
+            // Within 0.2 s: one of the first four readings at 20 Hz.
+            assert!(
+                inside.iter().take(4).any(|ok| !ok),
+                "case {case}: not flagged within 0.2 s"
+            );
+        }
+    }
+}

@@ -28,10 +28,12 @@ pub const LEAVE_SIGMAS: f64 = 3.0;
 pub const WINDOW_S: f64 = 2.0;
 /// Readings the window holds at most (2 s at 1 kHz, with room).
 pub const MAX_WINDOW_READINGS: usize = 4096;
-/// The gyro's scale known to within this fraction: MEMS gyros' sensitivity
-/// tolerance over temperature (MPU-6050 ±3 % initial, ±2 % over
-/// temperature; the heading check fits the scale, which leaves less).
-pub const GYRO_SCALE_SD: f64 = 0.03;
+/// The gyro's scale known to within this fraction. The heading check fits
+/// the scale over a whole turn: a hand-held turn's 2° rms heading error
+/// over 360° leaves about 0.6 %; the MPU-6050's sensitivity moves ±2 % over
+/// its 125 °C range, 0.016 % per °C. (Its ±3 % initial tolerance is what
+/// the fit removes.)
+pub const GYRO_SCALE_SD: f64 = 0.01;
 /// The gyro's bias known to within this, deg/s, beyond what the monitor
 /// follows ([`BIAS_TAU_S`]): the MPU-6050's zero-rate output moves about
 /// 0.16 °/s per °C (±20 °/s over −40…85 °C), and within a disturbance of
