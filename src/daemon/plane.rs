@@ -29,7 +29,9 @@ use crate::model::gyro::{GyroUnits, HeadingReference};
 use crate::model::heading::coverage;
 use crate::model::nonlinear::{cubic_scale, fit_model, turn_frame};
 use crate::model::rotation::{Progress, RotationBuffer, RotationEvent};
-use crate::model::trust::{GyroModel, Observation, TrustCounts, TrustLimits, TrustMonitor};
+use crate::model::trust::{
+    GyroModel, Observation, TrustCounts, TrustLimits, TrustMonitor, monitor_of,
+};
 use crate::model::turn::check_turn;
 use crate::sample::Dataset;
 use crate::sample::Reading;
@@ -320,22 +322,18 @@ impl Plane {
         })
     }
 
-    /// The trust monitor of calibration `c`, started afresh when `c` is
-    /// new: its limits from the calibration's rms and, when this run
-    /// accepted it with a heading check, the gyro that check found.
+    /// The trust monitor of calibration `c`: its limits from the
+    /// calibration's rms and, when this run accepted it with a heading
+    /// check, the gyro that check found.
     fn trust_of(&mut self, c: &Calibration) -> &mut TrustMonitor {
-        if self.trust.as_ref().is_none_or(|(id, _)| *id != c.id) {
-            let (gyro, heading_rms) = match self.gyro_model {
+        let gyro_model = self.gyro_model;
+        monitor_of(&mut self.trust, c.id, || {
+            let (gyro, heading_rms) = match gyro_model {
                 Some((id, gyro, rms)) if id == c.id => (Some(gyro), Some(rms)),
                 _ => (None, None),
             };
-            let limits = TrustLimits::from_rms(c.rms, heading_rms, gyro);
-            self.trust = Some((c.id, TrustMonitor::new(limits)));
-        }
-        match &mut self.trust {
-            Some((_, monitor)) => monitor,
-            None => unreachable!("set above"),
-        }
+            TrustLimits::from_rms(c.rms, heading_rms, gyro)
+        })
     }
 
     fn fit(

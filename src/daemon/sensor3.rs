@@ -27,7 +27,7 @@ use crate::model::paper::PaperCalibration;
 use crate::model::sphere::SphereCoverage;
 use crate::model::sphere_buffer::SphereBuffer;
 use crate::model::tilt::{inclination_deg, robust_spread, tilt_heading_or_why};
-use crate::model::trust::{Observation, TrustCounts, TrustLimits, TrustMonitor};
+use crate::model::trust::{Observation, TrustCounts, TrustLimits, TrustMonitor, monitor_of};
 use crate::sample::Reading;
 use std::sync::Arc;
 
@@ -642,23 +642,6 @@ impl Sensor3 {
     }
 }
 
-/// The trust monitor of calibration `c` in `slot`, started afresh when `c`
-/// is new: its limits from the calibration's rms (the field check; a
-/// 3-axis sensor has no heading check against a gyro yet).
-fn trust_of<'a>(
-    slot: &'a mut Option<(u64, TrustMonitor)>,
-    c: &Calibration,
-) -> &'a mut TrustMonitor {
-    if slot.as_ref().is_none_or(|(id, _)| *id != c.id) {
-        let limits = TrustLimits::from_rms(c.rms, None, None);
-        *slot = Some((c.id, TrustMonitor::new(limits)));
-    }
-    match slot {
-        Some((_, monitor)) => monitor,
-        None => unreachable!("set above"),
-    }
-}
-
 impl Geometry for Sensor3 {
     fn reading_line(&mut self, life: &Lifecycle, sample: Sample, _row: Option<&CsvRow>) -> String {
         let Sample { time, raw } = sample;
@@ -728,7 +711,12 @@ impl Geometry for Sensor3 {
             .zip(magnitude)
             .and_then(|(c, m)| Some((c, m / c.ellipsoid.as_ref()?.r)))
             .map(|(c, ratio)| {
-                trust_of(&mut self.trust, c).check(Observation {
+                // The field check; a 3-axis heading against a gyro is not
+                // checked yet.
+                monitor_of(&mut self.trust, c.id, || {
+                    TrustLimits::from_rms(c.rms, None, None)
+                })
+                .check(Observation {
                     time,
                     field_ratio: ratio,
                     heading_deg: heading_deg.unwrap_or(0.0),

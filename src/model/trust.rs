@@ -335,6 +335,21 @@ impl TrustMonitor {
     }
 }
 
+/// The monitor of calibration `id` in `slot`, started afresh with
+/// `limits()` when the slot holds none or another calibration's.
+pub fn monitor_of(
+    slot: &mut Option<(u64, TrustMonitor)>,
+    id: u64,
+    limits: impl FnOnce() -> TrustLimits,
+) -> &mut TrustMonitor {
+    if slot.as_ref().is_some_and(|(held, _)| *held != id) {
+        *slot = None;
+    }
+    &mut slot
+        .get_or_insert_with(|| (id, TrustMonitor::new(limits())))
+        .1
+}
+
 /// An angle in (−180, 180].
 fn wrap180(deg: f64) -> f64 {
     let w = deg.rem_euclid(360.0);
