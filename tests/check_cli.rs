@@ -724,3 +724,143 @@ fn correlated_residuals_widen_the_check_and_say_what_it_can_see() {
         "{report}"
     );
 }
+
+/// A log after a run: a compass at 20 Hz turning at 18 °/s for 60 s, then
+/// still, with a magnet lowering the field by 5 % from 70 to 75 s and a
+/// swing of 20° the gyro does not see from 90 to 95 s; uniform noise of ±1
+/// count on a field of 500.
+fn disturbed_log(dir: &Path) -> std::path::PathBuf {
+    let mut text = String::from("t,x,y,gyro_z\n");
+    let mut state: u64 = 0x2545_f491_4f6c_dd1d;
+    let mut noise = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % 20_001) as f64 / 10_000.0 - 1.0
+    };
+    for k in 0..2400 {
+        let t = k as f64 / 20.0;
+        let (heading, rate) = if t < 60.0 {
+            (18.0 * t, 18.0)
+        } else {
+            (1080.0, 0.0)
+        };
+        let factor = if (70.0..75.0).contains(&t) { 0.95 } else { 1.0 };
+        let swing = if (90.0..95.0).contains(&t) { 20.0 } else { 0.0 };
+        let h = f64::to_radians(heading + swing);
+        let x = 120.0 + 1.1 * 500.0 * factor * h.cos() + noise();
+        let y = -80.0 + 500.0 * factor * h.sin() + noise();
+        text.push_str(&format!("{t:.2},{x:.3},{y:.3},{rate:.1}\n"));
+    }
+    let path = dir.join("log.csv");
+    fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn monitor_lists_where_the_compass_lied_and_draws_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = disturbed_log(dir.path());
+    // Calibrated on the first 60 s (the turn), as the daemon would.
+    let text = fs::read_to_string(&log).unwrap();
+    let turn = dir.path().join("turn.csv");
+    fs::write(
+        &turn,
+        text.lines().take(1201).collect::<Vec<_>>().join("\n"),
+    )
+    .unwrap();
+    let (cal, _) = fit_json(dir.path(), &turn, &[]);
+    let report = dir.path().join("report");
+    let out = run_ok(&[
+        "check",
+        s(&log),
+        "--calibration",
+        s(&cal),
+        "--gyro",
+        "gyro_z",
+        "--monitor",
+        "--json",
+        "--report",
+        s(&report),
+    ]);
+    let v: Value = serde_json::from_str(&out).unwrap();
+    let monitor = &v["monitor"];
+    assert_eq!(
+        (monitor["trusted"].as_u64(), monitor["distrusted"].as_u64()),
+        (Some(2200), Some(200)),
+        "{monitor}"
+    );
+    assert_eq!(monitor["gyro_checked"], true);
+    let stretches = monitor["stretches"].as_array().unwrap();
+    assert_eq!(stretches.len(), 2, "{monitor}");
+    let (field, heading) = (&stretches[0], &stretches[1]);
+    assert_eq!(
+        (
+            field["from_s"].as_f64(),
+            field["to_s"].as_f64(),
+            field["readings"].as_u64()
+        ),
+        (Some(70.0), Some(74.95), Some(100))
+    );
+    assert!(
+        field["reason"]
+            .as_str()
+            .unwrap()
+            .starts_with("the field is 4.9 % below"),
+        "{field}"
+    );
+    assert_eq!(
+        (heading["from_s"].as_f64(), heading["readings"].as_u64()),
+        (Some(90.0), Some(100))
+    );
+    assert!(
+        heading["reason"]
+            .as_str()
+            .unwrap()
+            .starts_with("the heading moved 19.9°"),
+        "{heading}"
+    );
+    // The parameters were compared too.
+    assert!(v["check"]["parameters"].is_array(), "{v}");
+    // The report draws the stretches and lists them.
+    let svg = fs::read_to_string(report.join("trust.svg")).unwrap();
+    assert!(svg.contains("distrusted"));
+    let page = fs::read_to_string(report.join("index.html")).unwrap();
+    assert!(
+        page.contains("distrusted  70.00–74.95 s (100 readings)"),
+        "{page}"
+    );
+    assert!(
+        page.contains("distrusted  90.00–94.95 s (100 readings)"),
+        "{page}"
+    );
+}
+
+#[test]
+fn monitor_needs_no_turn_and_says_why_nothing_was_compared() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = disturbed_log(dir.path());
+    let text = fs::read_to_string(&log).unwrap();
+    let turn = dir.path().join("turn.csv");
+    fs::write(
+        &turn,
+        text.lines().take(1201).collect::<Vec<_>>().join("\n"),
+    )
+    .unwrap();
+    let (cal, _) = fit_json(dir.path(), &turn, &[]);
+    // Only the still part, from 65 s: no turn to refit.
+    let still = dir.path().join("still.csv");
+    let mut lines = vec!["t,x,y,gyro_z"];
+    lines.extend(text.lines().skip(1301));
+    fs::write(&still, lines.join("\n")).unwrap();
+    let out = run_ok(&["check", s(&still), "--calibration", s(&cal), "--monitor"]);
+    assert!(out.contains("parameters  not compared: "), "{out}");
+    assert!(
+        out.contains("distrusted  70.00–74.95 s (100 readings): the field is 4.9 % below"),
+        "{out}"
+    );
+    assert!(
+        out.contains("monitor     1000 of 1100 readings trusted"),
+        "{out}"
+    );
+}

@@ -808,6 +808,10 @@ mod state_writer {
             time: 1.0,
             terms: Default::default(),
             ellipsoid: None,
+            se: Default::default(),
+            parent: None,
+            history: Vec::new(),
+            gyro: None,
         }
     }
 

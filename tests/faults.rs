@@ -342,6 +342,10 @@ fn calibration(id: u64) -> Calibration {
         time: 1.7e9 + k,
         terms: Default::default(),
         ellipsoid: None,
+        se: Default::default(),
+        parent: None,
+        history: Vec::new(),
+        gyro: None,
     }
 }
 

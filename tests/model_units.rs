@@ -2725,3 +2725,228 @@ mod trust_sweep {
         }
     }
 }
+
+/// The watch's thresholds on a randomised sweep: two rotations of the same
+/// sensor are never called stale; a permanent magnet of 5 % of the field
+/// between them is, on the second.
+mod watch_sweep {
+    use fieldcal::model::calibration::Calibration;
+    use fieldcal::model::fit::{FitOptions, fit_paper};
+    use fieldcal::model::watch::{self, Refit};
+
+    /// xorshift64*: deterministic, so the sweep is the same on every run.
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> f64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
+        }
+        fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+            lo + (hi - lo) * self.next()
+        }
+        fn normal(&mut self) -> f64 {
+            let u = self.next().max(1e-300);
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * self.next()).cos()
+        }
+    }
+
+    struct Sensor {
+        gain: f64,
+        offset: [f64; 2],
+        field: f64,
+        noise: f64,
+        samples: usize,
+    }
+
+    /// One turn of `s` with `extra` added to its offset.
+    fn rotation(s: &Sensor, extra: [f64; 2], rng: &mut Rng) -> (Vec<f64>, Vec<f64>) {
+        let phase = rng.uniform(0.0, 360.0);
+        (0..s.samples)
+            .map(|k| {
+                let h = (phase + 360.0 * k as f64 / s.samples as f64).to_radians();
+                (
+                    s.offset[0]
+                        + extra[0]
+                        + s.gain * s.field * h.cos()
+                        + s.noise * s.field * rng.normal(),
+                    s.offset[1] + extra[1] + s.field * h.sin() + s.noise * s.field * rng.normal(),
+                )
+            })
+            .unzip()
+    }
+
+    fn fitted(x: &[f64], y: &[f64]) -> (Calibration, Refit) {
+        let report = fit_paper(x, y, &FitOptions::default(), &mut |_| {}).unwrap();
+        let refit = watch::paper_refit(x, y, &report);
+        let calibration = Calibration {
+            sensor: "compass".into(),
+            id: 1,
+            model: "offset+scale".into(),
+            params: report.calibration,
+            rms: report.rms,
+            coverage_deg: report.coverage.covered_deg,
+            n: report.n,
+            time: 0.0,
+            terms: Default::default(),
+            ellipsoid: None,
+            se: watch::se_map(&refit.params),
+            parent: None,
+            history: Vec::new(),
+            gyro: None,
+        };
+        (calibration, refit)
+    }
+
+    /// Whether the second turn shows the first's calibration stale.
+    fn stale(first: (&[f64], &[f64]), second: (&[f64], &[f64])) -> bool {
+        let (stored, _) = fitted(first.0, first.1);
+        let (now, refit) = fitted(second.0, second.1);
+        let error = watch::heading_error_deg(
+            |x, y| stored.apply(x, y),
+            |x, y| now.apply(x, y),
+            second.0,
+            second.1,
+        );
+        watch::compare(&stored, &refit, error).stale()
+    }
+
+    #[test]
+    fn the_same_sensor_is_never_stale_and_a_magnet_always_is() {
+        let mut rng = Rng(0x5eed_cafe_f00d_0001);
+        let (mut false_alarms, mut missed) = (0, 0);
+        for _ in 0..300 {
+            let field = rng.uniform(0.2, 2000.0);
+            let s = Sensor {
+                gain: rng.uniform(0.7, 1.4),
+                offset: [
+                    rng.uniform(-2.0, 2.0) * field,
+                    rng.uniform(-2.0, 2.0) * field,
+                ],
+                field,
+                // 0.1 % (a good sensor) to 1 % of the field.
+                noise: rng.uniform(0.001, 0.01),
+                samples: rng.uniform(60.0, 800.0) as usize,
+            };
+            let (x1, y1) = rotation(&s, [0.0; 2], &mut rng);
+            let (x2, y2) = rotation(&s, [0.0; 2], &mut rng);
+            false_alarms += usize::from(stale((&x1, &y1), (&x2, &y2)));
+            let angle = rng.uniform(0.0, std::f64::consts::TAU);
+            let magnet = [0.05 * field * angle.cos(), 0.05 * field * angle.sin()];
+            let (x3, y3) = rotation(&s, magnet, &mut rng);
+            missed += usize::from(!stale((&x1, &y1), (&x3, &y3)));
+        }
+        eprintln!("watch sweep: {false_alarms} false alarms, {missed} missed of 300");
+        assert_eq!(false_alarms, 0, "the same sensor called stale");
+        assert!(missed <= 3, "{missed} of 300 magnets missed");
+    }
+}
+
+/// Moved from `src/model/diagnose.rs`: the diagnosis on simulated recordings.
+mod diagnose_data {
+    use fieldcal::model::diagnose::*;
+    use fieldcal::model::effects::Effect;
+    use fieldcal::sample::Dataset;
+    use fieldcal::sim::SimSensor;
+
+    fn clean(seed: u64) -> Dataset {
+        SimSensor {
+            offset_x: 30.0,
+            offset_y: -20.0,
+            gain_x: 1.05,
+            noise: 3.0,
+            seed,
+            ..Default::default()
+        }
+        .simulate()
+        .unwrap()
+    }
+
+    #[test]
+    fn clean_recordings_suggest_nothing() {
+        let mut fired = 0;
+        for seed in 1..=40 {
+            let d = diagnose(&clean(seed), &[], None).unwrap();
+            assert!(d.baseline.rms.is_finite() && d.noise_floor.rms > 0.0);
+            if d.suggested.is_some() {
+                fired += 1;
+            }
+        }
+        assert!(
+            fired <= 2,
+            "{fired} of 40 clean recordings got a suggestion"
+        );
+    }
+
+    /// A strongly coupled sensor turned once: drift, with time following
+    /// heading, could fold the turn onto a 150° arc of a larger circle and
+    /// reach a lower relative rms than the true effect. It is refused, and
+    /// cross-axis is suggested.
+    #[test]
+    fn a_fit_that_folds_the_turn_is_not_an_effect() {
+        let data = SimSensor {
+            gain_x: 1.471,
+            gain_y: 1.179,
+            offset_x: 325.7,
+            offset_y: 1731.7,
+            noise: 5.0,
+            period: 0.03,
+            turn_seconds: 5.0,
+            seed: 155_379,
+            effects: fieldcal::sim::SimEffects {
+                cross_axis_deg: 10.0,
+                ..Default::default()
+            },
+            ..Default::default()
+        }
+        .simulate()
+        .unwrap();
+        let d = diagnose(&data, &[], None).unwrap();
+        assert_eq!(d.suggested, Some(Effect::CrossAxis), "{:?}", d.candidates);
+        let drift = d.candidates.iter().find(|c| c.effect == Effect::Drift);
+        let drift = drift.expect("drift is a candidate");
+        assert!(!drift.supported, "{drift:?}");
+        assert!(
+            drift.evidence.contains("folds the turn"),
+            "{}",
+            drift.evidence
+        );
+        // What is left is the simulated noise, 5 counts on about 1180.
+        let last = d.ladder.last().unwrap();
+        assert!(last.rms > 0.003 && last.rms < 0.0045, "{last:?}");
+        // Nothing else comes close.
+        assert_eq!(d.close_second, None);
+    }
+
+    /// Through a single turn, a temperature that warms and cools follows
+    /// heading, and cross-axis coupling explains its effect about as well:
+    /// the suggestion names both rather than pretend to know.
+    #[test]
+    fn a_cause_that_follows_heading_is_named_with_its_rival() {
+        let data = SimSensor {
+            gain_x: 1.536,
+            gain_y: 1.035,
+            offset_x: -1058.0,
+            offset_y: -1723.0,
+            noise: 10.0,
+            period: 0.2,
+            start_heading_deg: 17.5,
+            seed: 14_685_220_468_055_014_633,
+            effects: fieldcal::sim::SimEffects {
+                temp_per_c: Some([0.0, 17.1]),
+                ..Default::default()
+            },
+            ..Default::default()
+        }
+        .simulate()
+        .unwrap();
+        let d = diagnose(&data, &[], None).unwrap();
+        let temp = Effect::Covariate("temp".into());
+        let pair = [d.suggested.clone(), d.close_second.clone()];
+        assert!(
+            pair.contains(&Some(temp)) && pair.contains(&Some(Effect::CrossAxis)),
+            "{pair:?}"
+        );
+    }
+}

@@ -491,8 +491,13 @@ proptest! {
                 prop_assert_eq!(&value["command"], "status");
                 prop_assert_eq!(value.as_object().unwrap().len(), 1);
             }
-            Ok(ClientCommand::Recalibrate { sensor }) => {
-                prop_assert_eq!(&value["command"], "recalibrate");
+            Ok(command @ (ClientCommand::Recalibrate { .. } | ClientCommand::Rollback { .. })) => {
+                let (name, sensor) = match command {
+                    ClientCommand::Rollback { sensor } => ("rollback", sensor),
+                    ClientCommand::Recalibrate { sensor } => ("recalibrate", sensor),
+                    ClientCommand::Status => unreachable!(),
+                };
+                prop_assert_eq!(&value["command"], name);
                 match sensor {
                     Some(s) => prop_assert_eq!(&value["sensor"], s.as_str()),
                     None => prop_assert!(value.get("sensor").is_none()),

@@ -35,6 +35,10 @@ fn calibration(sensor: &str, id: u64) -> Calibration {
         time: 1_700_000_000.5,
         terms: Default::default(),
         ellipsoid: None,
+        se: Default::default(),
+        parent: None,
+        history: Vec::new(),
+        gyro: None,
     }
 }
 

@@ -6,6 +6,7 @@
 
 use super::Calibration;
 use super::messages::SensorState;
+use crate::model::watch::HISTORY;
 
 /// A sensor's state, current calibration, ids and counts.
 #[derive(Debug, Clone)]
@@ -22,6 +23,10 @@ pub struct Lifecycle {
     pub fits_rejected: u64,
     /// Why the last fit was refused.
     pub last_rejection: Option<String>,
+    /// Why the current calibration no longer holds (a later rotation moved
+    /// it, `on_stale = "warn"`): every reading is distrusted with it until
+    /// a new calibration is accepted or an older one rolled back to.
+    pub stale: Option<String>,
 }
 
 impl Lifecycle {
@@ -40,6 +45,7 @@ impl Lifecycle {
             fits_accepted: 0,
             fits_rejected: 0,
             last_rejection: None,
+            stale: None,
         }
     }
 
@@ -61,11 +67,37 @@ impl Lifecycle {
 
     /// A fit was accepted as `calibration`: it corrects from now on, and
     /// the sensor stops collecting.
-    pub fn accept(&mut self, calibration: Calibration) {
-        self.next_id += 1;
+    /// The one it replaces goes to the new one's history (at most
+    /// [`HISTORY`] kept), for `rollback`.
+    pub fn accept(&mut self, mut calibration: Calibration) {
+        self.next_id = self.next_id.saturating_add(1);
         self.fits_accepted += 1;
         self.state = SensorState::Calibrated;
+        self.stale = None;
+        if let Some(mut old) = self.current.take() {
+            let mut history = std::mem::take(&mut old.history);
+            history.push(old);
+            let excess = history.len().saturating_sub(HISTORY);
+            history.drain(..excess);
+            calibration.history = history;
+        }
         self.current = Some(calibration);
+    }
+
+    /// Returns to the calibration before the current one (kept in its
+    /// history): it corrects from now on, and the sensor stops collecting.
+    /// Err says why there is none to return to.
+    pub fn rollback(&mut self) -> Result<&Calibration, &'static str> {
+        let Some(current) = self.current.as_mut() else {
+            return Err("it has no calibration");
+        };
+        let Some(mut previous) = current.history.pop() else {
+            return Err("no earlier calibration is kept");
+        };
+        previous.history = std::mem::take(&mut current.history);
+        self.state = SensorState::Calibrated;
+        self.stale = None;
+        Ok(self.current.insert(previous))
     }
 
     /// A fit (or a rotation) was refused for `reason`: counted, and the
@@ -87,6 +119,7 @@ impl Lifecycle {
         self.fits_accepted = old.fits_accepted;
         self.fits_rejected = old.fits_rejected;
         self.last_rejection = old.last_rejection;
+        self.stale = old.stale;
         self.restart();
     }
 }

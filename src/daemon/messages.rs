@@ -126,9 +126,17 @@ pub struct CalibrationMessage<'a> {
     /// Where the calibration came from: `rotation` (fitted now) or `state`
     /// (loaded from the state directory at start).
     pub origin: &'static str,
+    /// The calibration this one refined or replaced (`origin` `refined`
+    /// or `replaced`), by id.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub parent: Option<u64>,
     /// Terms of the effects beyond the paper's, when the model has them.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub terms: Option<super::Terms>,
+    /// Each parameter's standard error, widened for residuals correlated
+    /// in time.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub se: Option<&'a std::collections::BTreeMap<String, f64>>,
     /// The noise floor estimated from the rotation itself (rms, fraction of the field).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub noise_floor: Option<f64>,
@@ -159,6 +167,33 @@ pub struct CalibrationMessage<'a> {
     pub declination_uncertainty_deg: Option<f64>,
 }
 
+/// A `STALE` line: a later rotation moved the calibration further than
+/// its standard errors allow, by enough to turn the heading beyond a
+/// reading's noise ([`crate::model::watch`]).
+#[derive(Debug, Serialize)]
+pub struct StaleMessage<'a> {
+    pub class: &'static str,
+    pub sensor: &'a str,
+    /// The rotation's last sample, on the clock of the READINGs.
+    pub time: f64,
+    /// The id of the calibration that no longer holds.
+    pub calibration: u64,
+    /// Each parameter compared: stored, now (`refitted`), z, moved.
+    pub parameters: &'a [crate::model::check::ParamShift],
+    pub z_threshold: f64,
+    /// The largest heading error the move causes over the rotation.
+    pub heading_error_deg: f64,
+    /// One reading's heading noise, for scale.
+    pub heading_noise_deg: f64,
+    /// The heading error beyond which a move is stale (3 × the noise).
+    pub heading_limit_deg: f64,
+    /// `warn` (readings distrusted until recalibrated) or `replace` (the
+    /// new fit is the calibration now).
+    pub action: &'static str,
+    /// What happened and what to do, in words.
+    pub message: &'a str,
+}
+
 impl<'a> CalibrationMessage<'a> {
     /// A rejected fit of `model` for `sensor` with nothing else known: the
     /// start of every message.
@@ -177,7 +212,9 @@ impl<'a> CalibrationMessage<'a> {
             fit_ms: 0.0,
             time: 0.0,
             origin: "rotation",
+            parent: None,
             terms: None,
+            se: None,
             noise_floor: None,
             suggested: None,
             close_second: None,
@@ -199,7 +236,9 @@ impl<'a> CalibrationMessage<'a> {
             n: calibration.n,
             time: calibration.time,
             origin: "state",
+            parent: calibration.parent,
             terms: (!calibration.terms.is_none()).then_some(calibration.terms),
+            se: (!calibration.se.is_empty()).then_some(&calibration.se),
             ..Self::rejected(&calibration.sensor, &calibration.model, None)
         }
     }
@@ -318,6 +357,10 @@ pub struct SensorStatus<'a> {
     /// the longest distrusted stretch ([`crate::model::trust`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub trust: Option<crate::model::trust::TrustCounts>,
+    /// Why the current calibration is stale, while it is (a `STALE` line
+    /// said so; `on_stale = "warn"`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stale: Option<&'a str>,
     pub readings: u64,
     pub fits_accepted: u64,
     pub fits_rejected: u64,

@@ -141,9 +141,14 @@ pub trait Geometry: Send {
     ) -> Result<Vec<(usize, usize)>, CsvError>;
     /// Empties the samples collected, to collect anew.
     fn restart(&mut self);
-    /// The `CALIBRATION` line of the calibration loaded from the state
-    /// directory, if any, with its outcome for the progress board.
-    fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)>;
+    /// The `CALIBRATION` line of the current calibration as `origin` put
+    /// it in place (`state`: loaded from the state directory at start;
+    /// `rollback`), if any, with its outcome for the progress board.
+    fn loaded_line(
+        &self,
+        life: &Lifecycle,
+        origin: &'static str,
+    ) -> Option<(String, Option<CalibrationEvent>)>;
     /// Takes a new true north.
     fn set_north(&mut self, north: Option<North>);
     /// The rotation being collected (a plane).
@@ -226,7 +231,29 @@ impl Sensor {
 
     /// [`Sensor::loaded_line`], with its outcome for the progress board.
     pub fn loaded_calibration(&self) -> Option<(String, Option<CalibrationEvent>)> {
-        self.geometry.loaded_line(&self.life)
+        self.geometry.loaded_line(&self.life, "state")
+    }
+
+    /// Returns to the calibration before the current one: its `CALIBRATION`
+    /// line (`origin` `rollback`) with its outcome for the progress board,
+    /// and the calibration to store; Err says why there is none.
+    pub fn rollback(&mut self) -> Result<(String, Option<CalibrationEvent>, Calibration), String> {
+        self.life
+            .rollback()
+            .map_err(|why| format!("sensor '{}' cannot roll back: {why}", self.config.name))?;
+        // What was collected under the calibration rolled back from is
+        // not watched against the one rolled back to.
+        self.geometry.restart();
+        let (line, event) = self
+            .geometry
+            .loaded_line(&self.life, "rollback")
+            .ok_or_else(|| format!("sensor '{}' has no calibration", self.config.name))?;
+        let calibration = self
+            .life
+            .current
+            .clone()
+            .ok_or_else(|| format!("sensor '{}' has no calibration", self.config.name))?;
+        Ok((line, event, calibration))
     }
 
     /// Resolves a csv sensor's columns against the headers of the files
@@ -345,6 +372,7 @@ impl Sensor {
             calibration: self.life.current.as_ref().map(|c| c.id),
             headings_stale,
             trust: self.geometry.trust(),
+            stale: self.life.stale.as_deref(),
             readings: self.life.readings,
             fits_accepted: self.life.fits_accepted,
             fits_rejected: self.life.fits_rejected,

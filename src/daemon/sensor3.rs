@@ -483,6 +483,10 @@ impl Sensor3 {
                 r: fit.r,
                 coverage: fit.coverage.fraction,
             }),
+            se: Default::default(),
+            parent: None,
+            history: Vec::new(),
+            gyro: None,
         };
         let earth = self.earth_of(&fit);
         if let Some(e) = &earth {
@@ -499,9 +503,9 @@ impl Sensor3 {
             fit.n,
             fit.coverage.fraction * 100.0
         );
-        life.accept(calibration.clone());
+        life.accept(calibration);
         self.buffer.accepted();
-        Some(calibration)
+        life.current.clone()
     }
 
     fn message<'a>(
@@ -846,7 +850,11 @@ impl Geometry for Sensor3 {
             raw: pick(field_of(reading, self.field)?, self.config.axes),
         })
     }
-    fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
+    fn loaded_line(
+        &self,
+        life: &Lifecycle,
+        origin: &'static str,
+    ) -> Option<(String, Option<CalibrationEvent>)> {
         let c = life.current.as_ref()?;
         let earth = match (&self.north, &c.ellipsoid) {
             (Some(north), Some(p)) if self.field == Field::Mag => earth(
@@ -863,7 +871,7 @@ impl Geometry for Sensor3 {
             ),
             _ => None,
         };
-        let message = self.message(c, None, 0.0, "state", earth);
+        let message = self.message(c, None, 0.0, origin, earth);
         Some((to_line(&message), Some(message.event())))
     }
     fn restart(&mut self) {

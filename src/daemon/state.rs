@@ -499,6 +499,20 @@ fn calibration_problem(c: &Calibration) -> Option<String> {
     if c.rms < 0.0 {
         return Some(format!("rms is {}, it cannot be negative", c.rms));
     }
+    if let Some(g) = &c.gyro {
+        // A heading check's scale is near ±1 (a gyro about the turn's
+        // axis, either way round); its noise and bias are finite.
+        let sane = g.scale.is_finite()
+            && (0.5..=2.0).contains(&g.scale.abs())
+            && g.bias_deg_s.is_finite()
+            && g.heading_rms_deg.is_finite()
+            && g.heading_rms_deg >= 0.0;
+        if !sane {
+            return Some(format!(
+                "gyro is {g:?}: a heading check's scale is within 0.5-2 either way and its numbers finite"
+            ));
+        }
+    }
     if let Some(e) = &c.ellipsoid {
         use crate::model::calibration3::Calibration3Invalid;
         match e.calibration().validate() {

@@ -45,6 +45,33 @@ pub struct Calibration {
     /// files stay as they were.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ellipsoid: Option<Ellipsoid3Params>,
+    /// Each parameter's standard error by name, widened for the fitted
+    /// residuals' correlation in time ([`crate::model::watch`]); empty for
+    /// a calibration stored without them.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub se: std::collections::BTreeMap<String, f64>,
+    /// The calibration this one refined or replaced, by id.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub parent: Option<u64>,
+    /// The calibrations before this one, oldest first, at most
+    /// [`crate::model::watch::HISTORY`] (each with an empty history of its
+    /// own): what `rollback` returns to.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub history: Vec<Calibration>,
+    /// The gyro as the calibration's heading check found it, when it had
+    /// one: kept so the trust monitor checks the heading against the gyro
+    /// after a restart too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gyro: Option<GyroFit>,
+}
+
+/// A heading check's gyro: heading ≈ scale · ∫(rate − bias), and the
+/// heading's rms error against it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GyroFit {
+    pub scale: f64,
+    pub bias_deg_s: f64,
+    pub heading_rms_deg: f64,
 }
 
 /// The 3-D model of a 3-axis sensor: calibrated = W·(raw − o), with

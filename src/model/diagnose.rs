@@ -701,7 +701,7 @@ mod tests {
 }
 
 #[cfg(test)]
-mod data_tests {
+mod tail_tests {
     use super::*;
     use crate::sim::SimSensor;
 
@@ -716,22 +716,6 @@ mod data_tests {
         }
         .simulate()
         .unwrap()
-    }
-
-    #[test]
-    fn clean_recordings_suggest_nothing() {
-        let mut fired = 0;
-        for seed in 1..=40 {
-            let d = diagnose(&clean(seed), &[], None).unwrap();
-            assert!(d.baseline.rms.is_finite() && d.noise_floor.rms > 0.0);
-            if d.suggested.is_some() {
-                fired += 1;
-            }
-        }
-        assert!(
-            fired <= 2,
-            "{fired} of 40 clean recordings got a suggestion"
-        );
     }
 
     #[test]
@@ -801,77 +785,6 @@ mod data_tests {
         }
         let fit = fit_model(&spiky, &effects::PAPER).unwrap();
         assert!(tails_heavy(&analyse(&spiky, &fit)));
-    }
-
-    /// A strongly coupled sensor turned once: drift, with time following
-    /// heading, could fold the turn onto a 150° arc of a larger circle and
-    /// reach a lower relative rms than the true effect. It is refused, and
-    /// cross-axis is suggested.
-    #[test]
-    fn a_fit_that_folds_the_turn_is_not_an_effect() {
-        let data = SimSensor {
-            gain_x: 1.471,
-            gain_y: 1.179,
-            offset_x: 325.7,
-            offset_y: 1731.7,
-            noise: 5.0,
-            period: 0.03,
-            turn_seconds: 5.0,
-            seed: 155_379,
-            effects: crate::sim::SimEffects {
-                cross_axis_deg: 10.0,
-                ..Default::default()
-            },
-            ..Default::default()
-        }
-        .simulate()
-        .unwrap();
-        let d = diagnose(&data, &[], None).unwrap();
-        assert_eq!(d.suggested, Some(Effect::CrossAxis), "{:?}", d.candidates);
-        let drift = d.candidates.iter().find(|c| c.effect == Effect::Drift);
-        let drift = drift.expect("drift is a candidate");
-        assert!(!drift.supported, "{drift:?}");
-        assert!(
-            drift.evidence.contains("folds the turn"),
-            "{}",
-            drift.evidence
-        );
-        // What is left is the simulated noise, 5 counts on about 1180.
-        let last = d.ladder.last().unwrap();
-        assert!(last.rms > 0.003 && last.rms < 0.0045, "{last:?}");
-        // Nothing else comes close.
-        assert_eq!(d.close_second, None);
-    }
-
-    /// Through a single turn, a temperature that warms and cools follows
-    /// heading, and cross-axis coupling explains its effect about as well:
-    /// the suggestion names both rather than pretend to know.
-    #[test]
-    fn a_cause_that_follows_heading_is_named_with_its_rival() {
-        let data = SimSensor {
-            gain_x: 1.536,
-            gain_y: 1.035,
-            offset_x: -1058.0,
-            offset_y: -1723.0,
-            noise: 10.0,
-            period: 0.2,
-            start_heading_deg: 17.5,
-            seed: 14_685_220_468_055_014_633,
-            effects: crate::sim::SimEffects {
-                temp_per_c: Some([0.0, 17.1]),
-                ..Default::default()
-            },
-            ..Default::default()
-        }
-        .simulate()
-        .unwrap();
-        let d = diagnose(&data, &[], None).unwrap();
-        let temp = Effect::Covariate("temp".into());
-        let pair = [d.suggested.clone(), d.close_second.clone()];
-        assert!(
-            pair.contains(&Some(temp)) && pair.contains(&Some(Effect::CrossAxis)),
-            "{pair:?}"
-        );
     }
 }
 

@@ -259,6 +259,12 @@ impl HeadingReference {
         })
     }
 
+    /// The gyro's integrated angle at each sample time, degrees (NaN
+    /// outside its time span): no scale or bias applied.
+    pub fn angles_deg(&self) -> &[f64] {
+        &self.angle_deg
+    }
+
     /// The gyro column's name.
     pub fn column(&self) -> &str {
         &self.column

@@ -57,6 +57,7 @@ pub mod tilt;
 pub mod trust;
 pub mod turn;
 pub mod vertical;
+pub mod watch;
 
 use crate::numfmt::significant;
 

@@ -189,7 +189,14 @@ impl TrustMonitor {
     /// Checks one reading. Readings out of time order, or not finite, are
     /// distrusted and leave the history as it was.
     pub fn check(&mut self, obs: Observation) -> Verdict {
-        let mut reasons = Vec::new();
+        self.check_under(obs, None)
+    }
+
+    /// [`TrustMonitor::check`] under a calibration known to be stale
+    /// (`stale`: why), which distrusts every reading with that reason
+    /// first, the other checks going on beside it.
+    pub fn check_under(&mut self, obs: Observation, stale: Option<&str>) -> Verdict {
+        let mut reasons: Vec<String> = stale.map(str::to_string).into_iter().collect();
         let ordered = self.previous.is_none_or(|(t, _)| obs.time >= t);
         if !(obs.time.is_finite()
             && obs.field_ratio.is_finite()
@@ -354,4 +361,111 @@ pub fn monitor_of(
 fn wrap180(deg: f64) -> f64 {
     let w = deg.rem_euclid(360.0);
     if w > 180.0 { w - 360.0 } else { w }
+}
+
+/// Most stretches a recording's report lists; more are counted.
+pub const MAX_STRETCHES: usize = 1000;
+
+/// A run of distrusted readings in a recording.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Stretch {
+    /// Times of its first and last reading, seconds.
+    pub from_s: f64,
+    pub to_s: f64,
+    pub readings: usize,
+    /// Why its first reading was distrusted.
+    pub reason: String,
+}
+
+/// The monitor run over a whole recording ([`monitor_recording`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RecordingTrust {
+    #[serde(flatten)]
+    pub counts: TrustCounts,
+    /// The field's limit when it enters distrust (5 σ), fraction of r.
+    pub field_limit: f64,
+    /// Whether the heading was checked against a gyro.
+    pub gyro_checked: bool,
+    /// The distrusted stretches in time order, at most [`MAX_STRETCHES`].
+    pub stretches: Vec<Stretch>,
+    /// Stretches beyond [`MAX_STRETCHES`], counted only.
+    pub stretches_left_out: usize,
+    /// Per reading: trusted or not.
+    #[serde(skip)]
+    pub trusted: Vec<bool>,
+}
+
+/// Runs one monitor over a recording's calibrated readings in time order:
+/// `t` (seconds), `field_ratio` (|corrected|/r), `heading_deg`, and the
+/// gyro's integrated angle at each time (degrees, NaN where it has none)
+/// when there is a gyro; its rate between readings is what the monitor
+/// integrates. O(n).
+pub fn monitor_recording(
+    limits: TrustLimits,
+    t: &[f64],
+    field_ratio: &[f64],
+    heading_deg: &[f64],
+    gyro_angle_deg: Option<&[f64]>,
+) -> RecordingTrust {
+    let field_limit = ENTER_SIGMAS * limits.field_sigma;
+    let gyro_checked = limits.gyro.is_some() && gyro_angle_deg.is_some();
+    let mut monitor = TrustMonitor::new(limits);
+    let n = t.len().min(field_ratio.len()).min(heading_deg.len());
+    let rate = |i: usize| -> Option<f64> {
+        let angles = gyro_angle_deg?;
+        let (j, k) = if i == 0 { (0, 1) } else { (i - 1, i) };
+        let dt = t.get(k)? - t.get(j)?;
+        let r = (angles.get(k)? - angles.get(j)?) / dt;
+        (dt > 0.0 && r.is_finite()).then_some(r)
+    };
+    let mut trusted = Vec::with_capacity(n);
+    let (mut stretches, mut left_out) = (Vec::new(), 0usize);
+    let mut open: Option<Stretch> = None;
+    for i in 0..n {
+        let verdict = monitor.check(Observation {
+            time: t[i],
+            field_ratio: field_ratio[i],
+            heading_deg: heading_deg[i],
+            gyro_deg_s: rate(i),
+        });
+        trusted.push(verdict.trusted);
+        match (&mut open, verdict.trusted) {
+            (Some(s), false) => {
+                s.to_s = t[i];
+                s.readings += 1;
+            }
+            (None, false) => {
+                open = Some(Stretch {
+                    from_s: t[i],
+                    to_s: t[i],
+                    readings: 1,
+                    reason: verdict.reasons.into_iter().next().unwrap_or_default(),
+                });
+            }
+            (_, true) => {
+                if let Some(s) = open.take() {
+                    push_capped(&mut stretches, &mut left_out, s);
+                }
+            }
+        }
+    }
+    if let Some(s) = open.take() {
+        push_capped(&mut stretches, &mut left_out, s);
+    }
+    RecordingTrust {
+        counts: monitor.counts(),
+        field_limit,
+        gyro_checked,
+        stretches,
+        stretches_left_out: left_out,
+        trusted,
+    }
+}
+
+fn push_capped(stretches: &mut Vec<Stretch>, left_out: &mut usize, s: Stretch) {
+    if stretches.len() < MAX_STRETCHES {
+        stretches.push(s);
+    } else {
+        *left_out += 1;
+    }
 }

@@ -7,6 +7,7 @@ pub mod fit;
 pub mod fit3;
 pub mod heading;
 pub mod html;
+pub mod monitor;
 pub mod plots;
 pub mod plots3;
 mod scale;

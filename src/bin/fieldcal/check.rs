@@ -2,8 +2,13 @@
 
 use anyhow::{Context, Result};
 
-use fieldcal::model::check::{CheckReport, ParamShift, check as check_calibration, parse_stored};
+use fieldcal::model::check::{
+    CheckReport, ParamShift, StoredCalibration, check as check_calibration, parse_stored,
+};
 use fieldcal::model::check3::{Check3Report, check3, is_three_axes, parse_stored3};
+use fieldcal::model::gyro::HeadingReference;
+use fieldcal::model::nonlinear::apply_model;
+use fieldcal::model::trust::{GyroModel, RecordingTrust, TrustLimits, monitor_recording};
 use fieldcal::report::significant;
 
 use crate::CheckArgs;
@@ -37,20 +42,199 @@ pub fn check(args: CheckArgs) -> Result<()> {
     let stored = parse_stored(&bytes).with_context(|| format!("{cal_name}"))?;
     let (data, reference) = args.input.read_with_reference()?;
     let file = args.input.file.display().to_string();
-    let report = check_calibration(&data, &stored, reference.as_ref(), args.min_coverage)
-        .with_context(|| format!("{file}: cannot check {cal_name} against it"))?;
-    let text = if args.json {
-        serde_json::to_string(&report)? + "\n"
-    } else {
-        render(
-            &report,
+    let checked = check_calibration(&data, &stored, reference.as_ref(), args.min_coverage)
+        .with_context(|| format!("{file}: cannot check {cal_name} against it"));
+    if !args.monitor {
+        let report = checked?;
+        let text = if args.json {
+            serde_json::to_string(&report)? + "\n"
+        } else {
+            render(
+                &report,
+                &file,
+                &cal_name.to_string(),
+                &data.x_name,
+                &data.y_name,
+            )
+        };
+        return write_stdout(text.as_bytes());
+    }
+    // The monitor judges every reading even where the recording cannot be
+    // refitted (a log that mostly stands still): the refit's reason is said.
+    let (report, unchecked) = match checked {
+        Ok(report) => (Some(report), None),
+        Err(e) => (None, Some(format!("{e:#}"))),
+    };
+    let monitored = monitor(&data, &stored, reference.as_ref(), report.as_ref())
+        .with_context(|| format!("{file}: cannot monitor {cal_name} over it"))?;
+    let mut text = match &report {
+        Some(report) => render(
+            report,
             &file,
             &cal_name.to_string(),
             &data.x_name,
             &data.y_name,
-        )
+        ),
+        None => String::new(),
     };
+    if let Some(why) = &unchecked {
+        text.push_str(&format!("parameters  not compared: {why}\n"));
+    }
+    text.push_str(&render_monitor(&monitored.trust));
+    if let Some(dir) = &args.report {
+        let written = fieldcal::report::monitor::write_monitor_report(
+            dir,
+            &fieldcal::report::monitor::MonitorData {
+                title: format!("{file} under {cal_name}"),
+                summary: text.clone(),
+                t: &monitored.t,
+                field_ratio: &monitored.field_ratio,
+                trust: &monitored.trust,
+            },
+        )
+        .with_context(|| format!("{}: cannot write the report", dir.display()))?;
+        if let Some(page) = written.last() {
+            text.push_str(&format!("report      {}\n", page.display()));
+        }
+    }
+    if args.json {
+        let json = serde_json::json!({
+            "check": report,
+            "not_compared": unchecked,
+            "monitor": monitored.trust,
+        });
+        return write_stdout((json.to_string() + "\n").as_bytes());
+    }
     write_stdout(text.as_bytes())
+}
+
+/// The monitor's judgement of every reading, with what it was judged on.
+struct Monitored {
+    t: Vec<f64>,
+    field_ratio: Vec<f64>,
+    trust: RecordingTrust,
+}
+
+/// Runs the daemon's trust monitor over the recording under the stored
+/// calibration: the field against the calibration's own noise (its rms;
+/// the rms here when the file gives none), and with a gyro, the heading
+/// against it (its scale and bias from the heading check).
+fn monitor(
+    data: &fieldcal::sample::Dataset,
+    stored: &StoredCalibration,
+    reference: Option<&HeadingReference>,
+    report: Option<&CheckReport>,
+) -> Result<Monitored> {
+    let Some(t) = data.t.clone() else {
+        anyhow::bail!(
+            "--monitor judges readings over time, and the recording has no time column (t, t_s, time or time_s; choose one with --t)"
+        );
+    };
+    let applied = apply_model(data, &stored.effects, &stored.params, stored.cubic_scale)?;
+    let field_ratio: Vec<f64> = applied.iter().map(|&(_, _, e)| 1.0 + e).collect();
+    let headings_rad: Vec<f64> = applied.iter().map(|&(sx, sy, _)| sy.atan2(sx)).collect();
+    let heading = match (report.and_then(|r| r.heading_vs_gyro.clone()), reference) {
+        (Some(h), _) => Some(h),
+        (None, Some(r)) => r.check(&headings_rad, &[]).ok(),
+        (None, None) => None,
+    };
+    let rms = stored.rms.or(report.map(|r| r.rms)).unwrap_or_else(|| {
+        let ss: f64 = applied.iter().map(|&(_, _, e)| e * e).sum();
+        (ss / applied.len().max(1) as f64).sqrt()
+    });
+    // The heading's noise from the middle of its errors (1.4826 × their
+    // median absolute deviation): the stretches the monitor is to find
+    // are in this recording, and must not widen its own limit.
+    let limits = TrustLimits::from_rms(
+        rms,
+        heading.as_ref().map(robust_heading_sigma),
+        heading.as_ref().map(|h| GyroModel {
+            scale: h.gyro_scale,
+            bias_deg_s: h.gyro_bias_deg_s,
+        }),
+    );
+    let heading_deg: Vec<f64> = headings_rad
+        .iter()
+        .map(|h| h.to_degrees().rem_euclid(360.0))
+        .collect();
+    let trust = monitor_recording(
+        limits,
+        &t,
+        &field_ratio,
+        &heading_deg,
+        reference.map(HeadingReference::angles_deg),
+    );
+    Ok(Monitored {
+        t,
+        field_ratio,
+        trust,
+    })
+}
+
+/// The heading check's error scatter, robust to the stretches a
+/// disturbance adds: 1.4826 × the median absolute deviation of its
+/// errors (the rms when there are too few).
+fn robust_heading_sigma(h: &fieldcal::model::gyro::HeadingCheck) -> f64 {
+    let mut e: Vec<f64> = h
+        .errors_deg
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .collect();
+    if e.len() < 10 {
+        return h.rms_deg;
+    }
+    let median = |v: &mut Vec<f64>| {
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
+    let m = median(&mut e);
+    let mut dev: Vec<f64> = e.iter().map(|v| (v - m).abs()).collect();
+    1.482_602_218_505_602 * median(&mut dev)
+}
+
+/// Most stretches the text lists (`--json` lists up to
+/// [`fieldcal::model::trust::MAX_STRETCHES`]).
+const TEXT_STRETCHES: usize = 50;
+
+fn render_monitor(trust: &RecordingTrust) -> String {
+    let c = trust.counts;
+    let all = c.trusted + c.distrusted;
+    let mut out = format!(
+        "monitor     {} of {} readings trusted ({:.1} %); field limit ±{:.2} % (5 σ of the calibration's noise); {}; longest distrusted stretch {:.2} s\n",
+        c.trusted,
+        all,
+        if all > 0 {
+            100.0 * c.trusted as f64 / all as f64
+        } else {
+            0.0
+        },
+        trust.field_limit * 100.0,
+        if trust.gyro_checked {
+            "heading checked against the gyro"
+        } else {
+            "no gyro: the heading's change not checked"
+        },
+        c.longest_distrusted_s
+    );
+    for s in trust.stretches.iter().take(TEXT_STRETCHES) {
+        out.push_str(&format!(
+            "distrusted  {:.2}–{:.2} s ({} reading{}): {}\n",
+            s.from_s,
+            s.to_s,
+            s.readings,
+            if s.readings == 1 { "" } else { "s" },
+            s.reason
+        ));
+    }
+    let more = trust.stretches.len().saturating_sub(TEXT_STRETCHES) + trust.stretches_left_out;
+    if more > 0 {
+        out.push_str(&format!(
+            "distrusted  and {more} more stretches (--json lists the first {})\n",
+            fieldcal::model::trust::MAX_STRETCHES
+        ));
+    }
+    out
 }
 
 fn render(report: &CheckReport, file: &str, cal: &str, x: &str, y: &str) -> String {
@@ -100,6 +284,11 @@ fn render(report: &CheckReport, file: &str, cal: &str, x: &str, y: &str) -> Stri
 fn check_three(args: &CheckArgs, root: &serde_json::Value) -> Result<()> {
     let cal_name = args.calibration.display().to_string();
     let stored = parse_stored3(root).with_context(|| cal_name.clone())?;
+    if args.monitor {
+        anyhow::bail!(
+            "{cal_name}: --monitor judges a 2-axis sensor's readings (as the daemon's trust monitor does); a 3-D calibration's readings are not monitored offline yet"
+        );
+    }
     if args.input.gyro.is_some() {
         anyhow::bail!(
             "--gyro checks a 2-axis heading; a 3-D calibration's heading needs the accelerometer: `fieldcal heading FILE --mag-cal {cal_name} --accel X,Y,Z --gyro COLUMN`"

@@ -424,6 +424,12 @@ struct CheckArgs {
     /// Heading coverage the new recording must reach, in degrees.
     #[arg(long, value_name = "DEG", default_value_t = DEFAULT_MIN_COVERAGE_DEG, value_parser = parse_coverage)]
     min_coverage: f64,
+    /// Also judge every reading as the daemon's trust monitor does, and list the stretches where the heading could not be trusted, with their reasons (needs the time column; with --gyro, the heading against it too).
+    #[arg(long)]
+    monitor: bool,
+    /// With --monitor: write a report with the field and the distrusted stretches over time into this directory.
+    #[arg(long, value_name = "DIR", requires = "monitor")]
+    report: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]

@@ -514,7 +514,7 @@ use columns::Columns;
 pub(crate) use keys::{Keys, RawKeys};
 use raw::*;
 use sensors::PlaneSensor;
-pub use sensors::{PlaneConfig, Sensor3Config, SensorGeometry, TiltSource};
+pub use sensors::{OnStale, PlaneConfig, Sensor3Config, SensorGeometry, TiltSource, WatchSettings};
 pub use sources::StreamDesc;
 use sources::*;
 use spans::*;

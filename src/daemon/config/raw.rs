@@ -71,4 +71,8 @@ pub(super) struct RawSensor {
     /// A magnetometer's true north: a declination, or a place for the WMM.
     pub(super) declination_deg: Option<f64>,
     pub(super) location: Option<LocationKeys>,
+    /// A 2-axis sensor: refine the calibration with later rotations that agree.
+    pub(super) learn: Option<bool>,
+    /// A 2-axis sensor: what a later rotation that moved the calibration does.
+    pub(super) on_stale: Option<super::sensors::OnStale>,
 }

@@ -28,6 +28,29 @@ pub struct PlaneConfig {
     /// y, in that order); then the sensor's `stream`, `field` and `axes`
     /// are unused (0, mag, x and y).
     pub columns: Option<[String; 2]>,
+    /// What is done with each later rotation after a calibration is accepted.
+    pub watch: WatchSettings,
+}
+
+/// What a 2-axis sensor does with each later rotation once calibrated
+/// (`learn`, `on_stale`; see [`crate::model::watch`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct WatchSettings {
+    /// Refine the calibration with each rotation that agrees with it.
+    pub learn: bool,
+    pub on_stale: OnStale,
+}
+
+/// What a rotation that shows the calibration stale does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OnStale {
+    /// Keep the calibration, and distrust every reading until the sensor is
+    /// recalibrated.
+    #[default]
+    Warn,
+    /// Accept the new fit in its place.
+    Replace,
 }
 
 /// What a `[[sensor]]` with three axes adds to [`SensorConfig`].
@@ -226,6 +249,10 @@ impl Checker<'_> {
                 limits: s.limits,
                 gyro: plane.gyro,
                 columns: plane.columns,
+                watch: WatchSettings {
+                    learn: s.learn.unwrap_or(false),
+                    on_stale: s.on_stale.unwrap_or_default(),
+                },
             }),
             north: plane.north,
         })
@@ -464,6 +491,18 @@ impl Checker<'_> {
                 &format!("{key}.{unit_key}"),
                 format!("must be a positive number of counts (at most 1e9), got {u}"),
             ));
+        }
+        for (name, given) in [
+            ("learn", s.learn.is_some()),
+            ("on_stale", s.on_stale.is_some()),
+        ] {
+            if given {
+                return Err(self.error(
+                    &format!("{key}.{name}"),
+                    "a 3-axis sensor's later spheres are not watched yet: `learn` and \
+                     `on_stale` apply to 2-axis sensors; remove the key",
+                ));
+            }
         }
         let sphere = s.sphere.unwrap_or_default();
         if let Err(problem) = sphere.validate() {

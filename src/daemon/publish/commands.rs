@@ -13,13 +13,16 @@ use serde_json::Value;
 pub const MAX_COMMAND_LEN: usize = 4096;
 
 /// What every refused command line is told is allowed.
-const ALLOWED: &str = r#"allowed: {"command":"recalibrate"} with an optional "sensor":"<name>" (and "token":"<token>" where one is configured), and {"command":"status"}, one JSON object a line"#;
+const ALLOWED: &str = r#"allowed: {"command":"recalibrate"} and {"command":"rollback"}, each with an optional "sensor":"<name>" (and "token":"<token>" where one is configured), and {"command":"status"}, one JSON object a line"#;
 
 /// A command a subscriber sent.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ClientCommand {
     /// Start a new calibration of one sensor, or of all when `None`.
     Recalibrate { sensor: Option<String> },
+    /// Return to the calibration before the current one, of one sensor or
+    /// of all when `None`; the same rights as `Recalibrate`.
+    Rollback { sensor: Option<String> },
     /// Send a STATUS line back to the asking subscriber.
     Status,
 }
@@ -149,7 +152,7 @@ pub fn parse_request(line: &[u8]) -> Result<Request, CommandError> {
         Some(_) => return Err(CommandError::CommandNotString),
     };
     let fields: &[&str] = match command {
-        "recalibrate" => &["command", "sensor", "token"],
+        "recalibrate" | "rollback" => &["command", "sensor", "token"],
         "status" => &["command", "token"],
         other => return Err(CommandError::UnknownCommand(other.to_owned())),
     };
@@ -170,10 +173,12 @@ pub fn parse_request(line: &[u8]) -> Result<Request, CommandError> {
         Some(Value::String(s)) if !s.is_empty() => Some(s.clone()),
         Some(_) => return Err(CommandError::BadSensor),
     };
-    Ok(Request {
-        command: ClientCommand::Recalibrate { sensor },
-        token,
-    })
+    let command = if command == "rollback" {
+        ClientCommand::Rollback { sensor }
+    } else {
+        ClientCommand::Recalibrate { sensor }
+    };
+    Ok(Request { command, token })
 }
 
 /// An `{"class":"ERROR","message":...}` line, for replies.

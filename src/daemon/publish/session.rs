@@ -240,7 +240,7 @@ async fn read_loop<R: AsyncRead + Unpin>(
             let parsed = match line {
                 Ok(line) if line.iter().all(u8::is_ascii_whitespace) => continue,
                 Ok(line) => parse_request(&line).and_then(|r| match &r.command {
-                    ClientCommand::Recalibrate { .. } => access
+                    ClientCommand::Recalibrate { .. } | ClientCommand::Rollback { .. } => access
                         .check_recalibrate(origin, r.token.as_deref())
                         .map(|()| r.command)
                         .map_err(CommandError::Refused),

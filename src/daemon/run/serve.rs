@@ -180,6 +180,42 @@ impl Daemon {
                     }))));
                 }
             }
+            ClientCommand::Rollback { sensor } => {
+                let (mut rolled, mut refused) = (0, Vec::new());
+                for (_, s) in &mut self.sensors.sensors {
+                    if sensor.as_deref().is_some_and(|name| s.name() != name) {
+                        continue;
+                    }
+                    match s.rollback() {
+                        Ok((line, event, calibration)) => {
+                            tracing::info!(
+                                sensor = %s.name(),
+                                id = calibration.id,
+                                "rolled back to calibration #{} at a client's request",
+                                calibration.id
+                            );
+                            if let (Some(progress), Some(event)) = (&self.progress, event) {
+                                progress.calibration(&event);
+                            }
+                            self.hub.publish(Lane::Control, Arc::from(line));
+                            self.writer.save(&calibration);
+                            rolled += 1;
+                        }
+                        Err(why) => refused.push(why),
+                    }
+                }
+                if rolled == 0 {
+                    let message = if refused.is_empty() {
+                        format!("no sensor named '{}'", sensor.unwrap_or_default())
+                    } else {
+                        refused.join("; ")
+                    };
+                    reply.send(Arc::from(to_line(&serde_json::json!({
+                        "class": "ERROR",
+                        "message": message,
+                    }))));
+                }
+            }
             ClientCommand::Status => {}
         }
         reply.send_status(&self.status_line());

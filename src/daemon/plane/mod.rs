@@ -9,18 +9,23 @@
 //! these, or a sphere, beside the sensor's [`Lifecycle`]): readings in,
 //! lines to publish and calibrations to store out, no I/O, no clock.
 
+mod gyro_track;
+mod watching;
+
 use std::sync::Arc;
 use std::time::Instant;
 
 use super::acceptance::{self, Limits};
-use super::config::{Axis, Field, GyroChoice, PlaneConfig, SensorConfig};
+use super::config::{Axis, Field, GyroChoice, OnStale, PlaneConfig, SensorConfig};
 use super::lifecycle::Lifecycle;
 use super::messages::{
-    CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, to_line,
+    CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, StaleMessage, to_line,
 };
+use super::publish::Lane;
 use super::sensor::{Emitter, Geometry, Sample};
 use super::{Calibration, Terms};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
+use crate::model::calibration::GyroFit;
 use crate::model::diagnose::diagnose;
 use crate::model::effects::{Effect, parse_list};
 use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper};
@@ -33,8 +38,11 @@ use crate::model::trust::{
     GyroModel, Observation, TrustCounts, TrustLimits, TrustMonitor, monitor_of,
 };
 use crate::model::turn::check_turn;
+use crate::model::watch::{self, Refit};
 use crate::sample::Dataset;
 use crate::sample::Reading;
+
+pub(super) use gyro_track::GyroTrack;
 
 /// A 2-axis sensor's rotation buffer, model and gyro.
 pub struct Plane {
@@ -50,11 +58,16 @@ pub struct Plane {
     /// A sensor of a csv source: its columns, resolved once against the
     /// file's header by [`Plane::bind_csv`].
     csv: Option<CsvBinding>,
-    /// The gyro as the accepted calibration's heading check found it, by
-    /// the calibration's id, for the trust monitor.
-    gyro_model: Option<(u64, GyroModel, f64)>,
     /// Trust at every reading, under the calibration of the id it holds.
     trust: Option<(u64, TrustMonitor)>,
+    /// The raw x and y of the last rotation fitted (the one behind the
+    /// calibration, or the last one watched against it): a refinement
+    /// must not be worse than its parent over it and the next.
+    last_rotation: Option<(Vec<f64>, Vec<f64>)>,
+    /// A stale calibration's id while a clean rotation is collected to
+    /// replace it (`on_stale = "replace"`, the rotation that showed the
+    /// change having straddled it).
+    replacing: Option<u64>,
 }
 
 /// Where a csv sensor's values are in each row: indices into
@@ -69,166 +82,6 @@ struct CsvBinding {
     gyro: Option<(usize, usize)>,
     /// The other columns, published with each reading.
     others: Vec<usize>,
-}
-
-/// The angular rate about the turn's axis, in degrees/second, with its
-/// times, kept while the sensor collects a rotation: one push per reading;
-/// integrated and compared once per rotation.
-#[derive(Debug, Clone)]
-pub(super) struct GyroTrack {
-    stream: u8,
-    /// Index of the axis in the reading's gyro triad.
-    axis: usize,
-    lsb_per_deg_s: f64,
-    /// `gyro_x`, `gyro_y` or `gyro_z`, as the messages name it.
-    column: String,
-    pub(super) t: Vec<f64>,
-    pub(super) rate: Vec<f64>,
-    /// Most entries held: the older half is dropped when full, so memory
-    /// stays bounded however long the sensor collects.
-    cap: usize,
-    /// The rate integrated (trapezoids) over every reading kept, in
-    /// degrees from an arbitrary origin: the rotation buffer takes its
-    /// change since a rotation's first sample.
-    angle_deg: f64,
-    /// The latest rate seen, deg/s, for the trust monitor.
-    latest: Option<f64>,
-}
-
-impl GyroTrack {
-    fn new(choice: &GyroChoice, max_samples: usize) -> Option<Self> {
-        let (stream, axis, lsb_per_deg_s, column) = match choice {
-            GyroChoice::Rate {
-                stream,
-                axis,
-                lsb_per_deg_s,
-            } => (
-                *stream,
-                axis.index(),
-                *lsb_per_deg_s,
-                format!("gyro_{}", axis.name()),
-            ),
-            // A column's value in its units: one deg/s is 1 deg/s, or
-            // pi/180 rad/s.
-            GyroChoice::Column { name, units } => (
-                0,
-                0,
-                match units {
-                    GyroUnits::DegPerSecond => 1.0,
-                    GyroUnits::RadPerSecond => std::f64::consts::PI / 180.0,
-                },
-                name.clone(),
-            ),
-            GyroChoice::Off(_) => return None,
-        };
-        Some(GyroTrack {
-            stream,
-            axis,
-            lsb_per_deg_s,
-            column,
-            t: Vec::new(),
-            rate: Vec::new(),
-            // A rotation holds at most max_samples readings of the sensor;
-            // a gyro polled beside it adds as many.
-            cap: 2 * max_samples.max(1),
-            angle_deg: 0.0,
-            latest: None,
-        })
-    }
-
-    /// The latest rate seen, deg/s, kept or not.
-    fn latest_deg_s(&self) -> Option<f64> {
-        self.latest
-    }
-
-    /// Notes the rate of a reading that carries this gyro, for the trust
-    /// monitor, collecting or not.
-    fn observe(&mut self, reading: &Reading) {
-        if let Some(triad) = reading.gyro.filter(|_| reading.stream == self.stream) {
-            self.observe_value(f64::from(triad[self.axis]));
-        }
-    }
-
-    /// Notes a rate in the gyro's units (counts, or a column's deg/s or
-    /// rad/s).
-    fn observe_value(&mut self, value: f64) {
-        let rate = value / self.lsb_per_deg_s;
-        self.latest = rate.is_finite().then_some(rate);
-    }
-
-    /// Keeps the rate of a reading that carries this gyro. O(1) amortised.
-    fn keep(&mut self, reading: &Reading) {
-        let Some(triad) = reading.gyro.filter(|_| reading.stream == self.stream) else {
-            return;
-        };
-        self.keep_value(reading.time, f64::from(triad[self.axis]));
-    }
-
-    /// Keeps a rate at `time` in the gyro's units (counts, or a column's
-    /// deg/s or rad/s). O(1) amortised.
-    fn keep_value(&mut self, time: f64, value: f64) {
-        if !value.is_finite() {
-            return;
-        }
-        // The integration needs increasing times; a repeated or earlier
-        // time (as the rotation buffer also ignores) is left out.
-        if !time.is_finite() || self.t.last().is_some_and(|&last| time <= last) {
-            return;
-        }
-        if self.t.len() >= self.cap {
-            let half = self.cap / 2;
-            self.t.drain(..half);
-            self.rate.drain(..half);
-        }
-        let rate = value / self.lsb_per_deg_s;
-        if let (Some(&t0), Some(&r0)) = (self.t.last(), self.rate.last()) {
-            self.angle_deg += (time - t0) * (rate + r0) / 2.0;
-        }
-        self.t.push(time);
-        self.rate.push(rate);
-    }
-
-    /// The integrated angle, once a rate has been kept.
-    fn angle(&self) -> Option<f64> {
-        (!self.t.is_empty()).then_some(self.angle_deg)
-    }
-
-    fn clear(&mut self) {
-        self.t.clear();
-        self.rate.clear();
-    }
-
-    /// Drops the rates of a rotation that was given up, keeping the last
-    /// one at or before `time` (where the new rotation starts) and after.
-    fn forget_before(&mut self, time: f64) {
-        let keep_from = self.t.partition_point(|&g| g < time).saturating_sub(1);
-        self.t.drain(..keep_from);
-        self.rate.drain(..keep_from);
-    }
-
-    /// The heading check of a rotation: samples at times `t` whose model
-    /// headings are `headings_rad`. Uses the rates from the last one at or
-    /// before the rotation's first sample to the first at or after its last.
-    fn check(&self, t: &[f64], headings_rad: &[f64]) -> Result<HeadingCheck, String> {
-        let (Some(&first), Some(&last)) = (t.first(), t.last()) else {
-            return Err("no samples to check".into());
-        };
-        let lo = self.t.partition_point(|&g| g <= first).saturating_sub(1);
-        let hi = (self.t.partition_point(|&g| g < last) + 1).min(self.t.len());
-        let (gyro_t, rate) = match (self.t.get(lo..hi), self.rate.get(lo..hi)) {
-            (Some(gt), Some(r)) if !gt.is_empty() => (gt, r),
-            _ => {
-                return Err(format!("no {} readings during the rotation", self.column));
-            }
-        };
-        let reference =
-            HeadingReference::from_rates(&self.column, t, gyro_t, rate, GyroUnits::DegPerSecond)
-                .map_err(|e| e.to_string())?;
-        let check = reference
-            .check(headings_rad, &[])
-            .map_err(|e| e.to_string())?;
-        Ok(check)
-    }
 }
 
 impl Plane {
@@ -250,8 +103,9 @@ impl Plane {
             buffer,
             gyro,
             csv: None,
-            gyro_model: None,
             trust: None,
+            last_rotation: None,
+            replacing: None,
         }
     }
 
@@ -262,6 +116,7 @@ impl Plane {
 
     /// Starts a new rotation (the [`Lifecycle`] restarts beside it).
     pub fn recalibrate(&mut self) {
+        self.replacing = None;
         self.buffer.reset();
         if let Some(gyro) = &mut self.gyro {
             gyro.clear();
@@ -287,12 +142,15 @@ impl Plane {
             .as_ref()
             .zip(corrected)
             .map(|(c, (_, s, heading))| {
-                self.trust_of(c).check(Observation {
-                    time,
-                    field_ratio: s[0].hypot(s[1]) / c.params.r,
-                    heading_deg: heading,
-                    gyro_deg_s,
-                })
+                self.trust_of(c).check_under(
+                    Observation {
+                        time,
+                        field_ratio: s[0].hypot(s[1]) / c.params.r,
+                        heading_deg: heading,
+                        gyro_deg_s,
+                    },
+                    life.stale.as_deref(),
+                )
             });
         let columns = row
             .zip(self.csv.as_ref())
@@ -323,16 +181,15 @@ impl Plane {
     }
 
     /// The trust monitor of calibration `c`: its limits from the
-    /// calibration's rms and, when this run accepted it with a heading
-    /// check, the gyro that check found.
+    /// calibration's rms and, when it was accepted with a heading check,
+    /// the gyro that check found (kept with it, across restarts).
     fn trust_of(&mut self, c: &Calibration) -> &mut TrustMonitor {
-        let gyro_model = self.gyro_model;
         monitor_of(&mut self.trust, c.id, || {
-            let (gyro, heading_rms) = match gyro_model {
-                Some((id, gyro, rms)) if id == c.id => (Some(gyro), Some(rms)),
-                _ => (None, None),
-            };
-            TrustLimits::from_rms(c.rms, heading_rms, gyro)
+            let gyro = c.gyro.map(|g| GyroModel {
+                scale: g.scale,
+                bias_deg_s: g.bias_deg_s,
+            });
+            TrustLimits::from_rms(c.rms, c.gyro.map(|g| g.heading_rms_deg), gyro)
         })
     }
 
@@ -346,7 +203,7 @@ impl Plane {
         let started = Instant::now();
         let fitted = self.fit_rotation(t, x, y);
         let fit_ms = started.elapsed().as_secs_f64() * 1e3;
-        let (report, terms, rotation) = match fitted {
+        let (report, terms, rotation, refit) = match fitted {
             Ok(found) => found,
             Err((reason, n)) => {
                 self.reject(life, time, format!("no fit: {reason}"), (n, fit_ms), emit);
@@ -388,21 +245,18 @@ impl Plane {
             self.note_rejection(life, reason);
             return None;
         }
-        let calibration = Calibration {
-            sensor: self.config.name.clone(),
-            id: life.next_id,
-            model: self.model.clone(),
-            params: report.calibration,
-            rms: report.rms,
-            coverage_deg: report.coverage.covered_deg,
-            n: report.n,
-            time,
-            terms,
-            ellipsoid: None,
-        };
+        let mut calibration = self.calibration_of(life, &report, terms, &refit, time);
+        calibration.gyro = heading_vs_gyro.as_ref().map(gyro_fit);
+        // The clean rotation collected to replace a stale calibration.
+        calibration.parent = self.replacing.take();
+        self.last_rotation = Some((rotation.x.clone(), rotation.y.clone()));
         let message = CalibrationMessage {
             fit_ms,
-            origin: "rotation",
+            origin: if calibration.parent.is_some() {
+                "replaced"
+            } else {
+                "rotation"
+            },
             noise_floor,
             suggested,
             close_second,
@@ -430,15 +284,35 @@ impl Plane {
                 why.as_deref().unwrap_or("no gyro")
             ),
         }
-        self.gyro_model = message.heading_vs_gyro.as_ref().map(|h| {
-            let gyro = GyroModel {
-                scale: h.gyro_scale,
-                bias_deg_s: h.gyro_bias_deg_s,
-            };
-            (calibration.id, gyro, h.rms_deg)
-        });
-        life.accept(calibration.clone());
-        Some(calibration)
+        life.accept(calibration);
+        life.current.clone()
+    }
+
+    /// The calibration a fit gives, as the sensor's next id.
+    fn calibration_of(
+        &self,
+        life: &Lifecycle,
+        report: &FitReport,
+        terms: Terms,
+        refit: &Refit,
+        time: f64,
+    ) -> Calibration {
+        Calibration {
+            sensor: self.config.name.clone(),
+            id: life.next_id,
+            model: self.model.clone(),
+            params: report.calibration,
+            rms: report.rms,
+            coverage_deg: report.coverage.covered_deg,
+            n: report.n,
+            time,
+            terms,
+            ellipsoid: None,
+            se: watch::se_map(&refit.params),
+            parent: None,
+            history: Vec::new(),
+            gyro: None,
+        }
     }
 
     /// The fitted model's heading against the gyro kept beside the
@@ -464,7 +338,7 @@ impl Plane {
             .iter()
             .zip(&rotation.y)
             .map(|(&x, &y)| {
-                let (cx, cy) = super::apply(&report.calibration, terms, x, y);
+                let (cx, cy) = crate::daemon::apply(&report.calibration, terms, x, y);
                 cy.atan2(cx)
             })
             .collect();
@@ -484,7 +358,7 @@ impl Plane {
         t: Vec<f64>,
         x: Vec<f64>,
         y: Vec<f64>,
-    ) -> Result<(FitReport, Terms, Dataset), (String, usize)> {
+    ) -> Result<(FitReport, Terms, Dataset, Refit), (String, usize)> {
         let n = x.len();
         let rotation =
             Dataset::new("x", "y", Some(t), x, y, Vec::new()).map_err(|e| (e.to_string(), n))?;
@@ -495,7 +369,8 @@ impl Plane {
         if self.effects.iter().all(Effect::is_paper) {
             let report = fit_paper(&rotation.x, &rotation.y, &options, &mut |_| {})
                 .map_err(|e| (e.to_string(), n))?;
-            return Ok((report, Terms::default(), rotation));
+            let refit = watch::paper_refit(&rotation.x, &rotation.y, &report);
+            return Ok((report, Terms::default(), rotation, refit));
         }
         // fit_paper runs the turn gate itself; the general model must too.
         check_turn(&rotation.x, &rotation.y, options.min_coverage_deg)
@@ -530,6 +405,14 @@ impl Plane {
         } else {
             terms
         };
+        let residuals: Vec<f64> = fit
+            .residuals
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| fit.flagged.binary_search(i).is_err())
+            .map(|(_, &e)| e)
+            .collect();
+        let refit = watch::widened(fit.params.clone(), &residuals, fit.rms);
         let report = FitReport {
             solver: Solver::Lsq,
             calibration,
@@ -540,7 +423,7 @@ impl Plane {
             coverage: covered,
             elapsed: started.elapsed(),
         };
-        Ok((report, terms, rotation))
+        Ok((report, terms, rotation, refit))
     }
 
     /// A rotation of `n` samples refused for `reason`: published with no
@@ -589,6 +472,15 @@ impl Plane {
     }
 }
 
+/// What a heading check found of the gyro, kept with the calibration.
+fn gyro_fit(h: &HeadingCheck) -> GyroFit {
+    GyroFit {
+        scale: h.gyro_scale,
+        bias_deg_s: h.gyro_bias_deg_s,
+        heading_rms_deg: h.rms_deg,
+    }
+}
+
 impl Geometry for Plane {
     fn trust(&self) -> Option<TrustCounts> {
         self.trust.as_ref().map(|(_, m)| m.counts())
@@ -596,16 +488,14 @@ impl Geometry for Plane {
     fn distrust_now(&self) -> Option<&str> {
         self.trust.as_ref().and_then(|(_, m)| m.distrust_now())
     }
-    fn row_sample(&mut self, life: &Lifecycle, row: &CsvRow) -> Option<Sample> {
+    fn row_sample(&mut self, _life: &Lifecycle, row: &CsvRow) -> Option<Sample> {
         let binding = self.csv.as_ref()?;
         if let (Some(gyro), Some((file, i))) = (&mut self.gyro, binding.gyro)
             && row.file == file
             && let Some(&rate) = row.values.get(i)
         {
             gyro.observe_value(rate);
-            if life.collecting() {
-                gyro.keep_value(row.time, rate);
-            }
+            gyro.keep_value(row.time, rate);
         }
         if row.file != binding.file {
             return None;
@@ -622,12 +512,10 @@ impl Geometry for Plane {
             raw: [x, y, 0.0],
         })
     }
-    fn reading_sample(&mut self, life: &Lifecycle, reading: &Reading) -> Option<Sample> {
+    fn reading_sample(&mut self, _life: &Lifecycle, reading: &Reading) -> Option<Sample> {
         if let Some(gyro) = &mut self.gyro {
             gyro.observe(reading);
-            if life.collecting() {
-                gyro.keep(reading);
-            }
+            gyro.keep(reading);
         }
         if reading.stream != self.config.stream {
             // Only the gyro of another chip: kept above, nothing to publish.
@@ -650,7 +538,10 @@ impl Geometry for Plane {
         emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         let (time, [x, y, _]) = (sample.time, sample.raw);
-        if !life.collecting() {
+        // Calibrated: each later rotation is watched against the
+        // calibration, until it is found stale.
+        let watching = !life.collecting();
+        if watching && life.stale.is_some() {
             return None;
         }
         // The gyro's integrated angle lets the buffer check the turn.
@@ -661,16 +552,28 @@ impl Geometry for Plane {
                 if let Some(gyro) = &mut self.gyro {
                     gyro.forget_before(time);
                 }
+                if watching {
+                    tracing::debug!(sensor = %self.config.name, "later rotation: {reason}");
+                    return None;
+                }
                 tracing::warn!(sensor = %self.config.name, "{reason}");
                 self.reject(life, time, reason, (0, 0.0), emit);
                 None
             }
+            RotationEvent::Complete if watching => self.watch(life, time, emit),
             RotationEvent::Complete => self.fit(life, time, emit),
         }
     }
-    fn loaded_line(&self, life: &Lifecycle) -> Option<(String, Option<CalibrationEvent>)> {
+    fn loaded_line(
+        &self,
+        life: &Lifecycle,
+        origin: &'static str,
+    ) -> Option<(String, Option<CalibrationEvent>)> {
         life.current.as_ref().map(|c| {
-            let message = CalibrationMessage::loaded(c).with_north(self.config.north.as_ref());
+            let message = CalibrationMessage {
+                origin,
+                ..CalibrationMessage::loaded(c).with_north(self.config.north.as_ref())
+            };
             (to_line(&message), message.event())
         })
     }
