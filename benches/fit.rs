@@ -209,9 +209,70 @@ fn trust_monitor(c: &mut Criterion) {
     group.finish();
 }
 
+/// What the daemon does with each later rotation of a calibrated sensor
+/// (`model/watch.rs`): the fit of 400 samples (a 20 s turn at 20 Hz), its
+/// widened standard errors, the heading error against the calibration,
+/// and the comparison. Per reading it is this over 400.
+fn watch_rotation(c: &mut Criterion) {
+    use fieldcal::model::calibration::Calibration;
+    use fieldcal::model::fit::{FitOptions, fit_paper};
+    use fieldcal::model::watch;
+    let turn = |phase: f64| -> (Vec<f64>, Vec<f64>) {
+        (0..400)
+            .map(|k| {
+                let h = (phase + k as f64 * 0.9).to_radians();
+                let wobble = 0.002 * (k as f64 * 2.39).sin();
+                (
+                    120.0 + 1.1 * 500.0 * (1.0 + wobble) * h.cos(),
+                    -80.0 + 500.0 * (1.0 - wobble) * h.sin(),
+                )
+            })
+            .unzip()
+    };
+    let (x0, y0) = turn(0.0);
+    let report = fit_paper(&x0, &y0, &FitOptions::default(), &mut |_| {}).expect("a turn");
+    let refit = watch::paper_refit(&x0, &y0, &report);
+    let stored = Calibration {
+        sensor: "compass".into(),
+        id: 1,
+        model: "offset+scale".into(),
+        params: report.calibration,
+        rms: report.rms,
+        coverage_deg: 360.0,
+        n: 400,
+        time: 0.0,
+        terms: Default::default(),
+        ellipsoid: None,
+        se: watch::se_map(&refit.params),
+        parent: None,
+        history: Vec::new(),
+        gyro: None,
+    };
+    let (x, y) = turn(37.0);
+    let mut group = c.benchmark_group("watch");
+    group.throughput(criterion::Throughput::Elements(x.len() as u64));
+    group.bench_function("one later rotation of 400 samples", |b| {
+        b.iter(|| {
+            let (x, y) = (black_box(&x), black_box(&y));
+            let now =
+                fieldcal::model::fit::fit_paper_turned(x, y, &FitOptions::default(), &mut |_| {})
+                    .expect("a turn");
+            let refit = watch::paper_refit(x, y, &now);
+            let error = watch::heading_error_deg(
+                |x, y| stored.apply(x, y),
+                |x, y| fieldcal::model::calibration::apply(&now.calibration, &stored.terms, x, y),
+                x,
+                y,
+            );
+            watch::compare(&stored, &refit, error).stale()
+        })
+    });
+    group.finish();
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(20).measurement_time(Duration::from_secs(3));
-    targets = shipped_turns, by_size, live_diagnosis, trust_monitor
+    targets = shipped_turns, by_size, live_diagnosis, trust_monitor, watch_rotation
 }
 criterion_main!(benches);

@@ -1225,3 +1225,43 @@ fn a_wrong_element_is_named_at_its_index_and_a_date_is_no_path() {
         &["expected a string"],
     );
 }
+
+#[test]
+fn learn_and_on_stale_are_read_for_a_plane_and_refused_for_a_sphere() {
+    use fieldcal::daemon::config::{OnStale, WatchSettings};
+    let plane = format!(
+        "{SOURCES}\n[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\nlearn = true\non_stale = \"replace\"\n"
+    );
+    let config = parse(&plane, &config_path()).unwrap();
+    assert_eq!(
+        config.sensors[0].plane().map(|p| p.watch),
+        Some(WatchSettings {
+            learn: true,
+            on_stale: OnStale::Replace
+        })
+    );
+    let default = plane.replace("learn = true\non_stale = \"replace\"\n", "");
+    let config = parse(&default, &config_path()).unwrap();
+    assert_eq!(
+        config.sensors[0].plane().map(|p| p.watch),
+        Some(WatchSettings {
+            learn: false,
+            on_stale: OnStale::Warn
+        })
+    );
+    let wrong = plane.replace("on_stale = \"replace\"", "on_stale = \"ignore\"");
+    let message = refused(&wrong).to_string();
+    assert!(
+        message.contains("unknown variant `ignore`, expected `warn` or `replace`"),
+        "{message}"
+    );
+    let sphere = format!(
+        "{SOURCES}\n[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\", \"z\"]\nlearn = true\n"
+    );
+    assert_refused(
+        &sphere,
+        "sensor[0].learn",
+        None,
+        &["3-axis", "not watched yet"],
+    );
+}

@@ -83,6 +83,19 @@ pub fn fit_paper(
     // A turn, or no calibration: before any solver, so that no solver's
     // failure (or success on noise) speaks for readings that never turned.
     check_turn(x, y, options.min_coverage_deg)?;
+    fit_paper_turned(x, y, options, progress)
+}
+
+/// [`fit_paper`] of samples already known to be a turn (the daemon's
+/// rotation buffer judged it complete): without the turn gate, which is
+/// most of the cost. The coverage the fitted model gives is still
+/// required.
+pub fn fit_paper_turned(
+    x: &[f64],
+    y: &[f64],
+    options: &FitOptions,
+    progress: &mut dyn FnMut(GradientDescentProgress),
+) -> Result<FitReport, FitError> {
     let started = Instant::now();
     let (theta, iterations) = match options.solver {
         Solver::Lsq => (closed_form(x, y), None),

@@ -28,7 +28,7 @@ use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::model::calibration::GyroFit;
 use crate::model::diagnose::diagnose;
 use crate::model::effects::{Effect, parse_list};
-use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper};
+use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper, fit_paper_turned};
 use crate::model::gyro::HeadingCheck;
 use crate::model::gyro::{GyroUnits, HeadingReference};
 use crate::model::heading::coverage;
@@ -201,7 +201,7 @@ impl Plane {
     ) -> Option<Calibration> {
         let (t, x, y) = self.buffer.take();
         let started = Instant::now();
-        let fitted = self.fit_rotation(t, x, y);
+        let fitted = self.fit_rotation(t, x, y, true);
         let fit_ms = started.elapsed().as_secs_f64() * 1e3;
         let (report, terms, rotation, refit) = match fitted {
             Ok(found) => found,
@@ -353,11 +353,14 @@ impl Plane {
     /// or the general model when the configuration adds effects. Returns
     /// the report the acceptance limits judge, the extra terms, and the
     /// rotation as a recording (for the diagnosis).
+    /// `gate`: run the turn gate (the first fit of a calibration); a later
+    /// rotation's fit, only compared with the calibration, skips it.
     fn fit_rotation(
         &self,
         t: Vec<f64>,
         x: Vec<f64>,
         y: Vec<f64>,
+        gate: bool,
     ) -> Result<(FitReport, Terms, Dataset, Refit), (String, usize)> {
         let n = x.len();
         let rotation =
@@ -367,14 +370,17 @@ impl Plane {
             ..FitOptions::default()
         };
         if self.effects.iter().all(Effect::is_paper) {
-            let report = fit_paper(&rotation.x, &rotation.y, &options, &mut |_| {})
+            let fit = if gate { fit_paper } else { fit_paper_turned };
+            let report = fit(&rotation.x, &rotation.y, &options, &mut |_| {})
                 .map_err(|e| (e.to_string(), n))?;
             let refit = watch::paper_refit(&rotation.x, &rotation.y, &report);
             return Ok((report, Terms::default(), rotation, refit));
         }
         // fit_paper runs the turn gate itself; the general model must too.
-        check_turn(&rotation.x, &rotation.y, options.min_coverage_deg)
-            .map_err(|e| (e.to_string(), n))?;
+        if gate {
+            check_turn(&rotation.x, &rotation.y, options.min_coverage_deg)
+                .map_err(|e| (e.to_string(), n))?;
+        }
         let started = Instant::now();
         let fit = fit_model(&rotation, &self.effects).map_err(|e| (e.to_string(), n))?;
         let covered = coverage(fit.headings.iter().copied());

@@ -25,7 +25,7 @@ impl Plane {
         let (t, x, y) = self.buffer.take();
         let current = life.current.as_ref()?;
         let fitted = self
-            .fit_rotation(t, x, y)
+            .fit_rotation(t, x, y, false)
             .map_err(|(reason, _)| reason)
             .and_then(|fit| match acceptance::check(&fit.0, &self.limits) {
                 Ok(()) => Ok(fit),
