@@ -493,3 +493,41 @@ fn from_env_child() {
     notifier.ready();
     notifier.ping();
 }
+
+/// The history a calibration carries is stored with it and read back; an
+/// earlier calibration that could not correct readings (another sensor's,
+/// a 3-D one under a 2-D sensor, a gain of zero) is dropped from it, never
+/// rolled back to, and the file is still loaded.
+#[test]
+fn the_history_round_trips_and_impossible_entries_are_dropped() {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = StateStore::open(tmp.path()).unwrap();
+    let mut current = calibration("compass", 3);
+    current.history = vec![calibration("compass", 1), calibration("compass", 2)];
+    current.parent = Some(2);
+    store.save(&current).unwrap();
+    assert_eq!(store.load("compass").unwrap(), Some(current.clone()));
+
+    let mut zero_gain = calibration("compass", 2);
+    zero_gain.params.a = 0.0;
+    let mut sphere = calibration("compass", 4);
+    sphere.ellipsoid = Some(fieldcal::model::calibration::Ellipsoid3Params {
+        offset: [0.0; 3],
+        matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        r: 1000.0,
+        coverage: 0.9,
+    });
+    let mut written = current.clone();
+    written.history = vec![
+        calibration("tilt", 1),
+        zero_gain,
+        sphere,
+        calibration("compass", 1),
+    ];
+    // Written by hand, as an edited file would be.
+    let text = serde_json::json!({ "format": 1, "calibration": written }).to_string();
+    fs::write(store.path_for("compass"), text).unwrap();
+    let loaded = store.load("compass").unwrap().unwrap();
+    assert_eq!(loaded.id, 3);
+    assert_eq!(loaded.history, vec![calibration("compass", 1)]);
+}

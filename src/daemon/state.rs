@@ -460,7 +460,30 @@ fn decode(bytes: &[u8], sensor: &str) -> Result<Calibration, String> {
     }
     let stored: Stored =
         serde_json::from_slice(bytes).map_err(|e| format!("not a calibration file: {e}"))?;
-    let calibration = stored.calibration;
+    let mut calibration = stored.calibration;
+    // An earlier calibration that could not correct readings (another
+    // sensor's, the other geometry's, an impossible number) is dropped from
+    // the history, never rolled back to; the current one is judged below.
+    let geometry = calibration.ellipsoid.is_some();
+    let before = calibration.history.len();
+    calibration.history.retain(|h| {
+        h.sensor == sensor && h.ellipsoid.is_some() == geometry && calibration_problem(h).is_none()
+    });
+    let excess = calibration
+        .history
+        .len()
+        .saturating_sub(crate::model::watch::HISTORY);
+    calibration.history.drain(..excess);
+    for h in &mut calibration.history {
+        h.history.clear();
+    }
+    if calibration.history.len() + excess < before {
+        tracing::warn!(
+            sensor,
+            dropped = before - excess - calibration.history.len(),
+            "earlier calibrations in the state file that could not correct readings were dropped from its history"
+        );
+    }
     if calibration.sensor != sensor {
         return Err(format!(
             "it holds the calibration of sensor '{}', not of '{sensor}'",
