@@ -592,13 +592,7 @@ fn refit(
             .require(min_coverage_deg)
             .map_err(CheckError::Refit)?;
         // The samples the refit set aside are not its residuals' series.
-        let residuals: Vec<f64> = fit
-            .residuals
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| fit.flagged.binary_search(i).is_err())
-            .map(|(_, &e)| e)
-            .collect();
+        let residuals = fit.used_residuals();
         (fit.params, fit.rms, fit.headings, fit.flagged, residuals)
     };
     Ok(Refit {

@@ -93,6 +93,18 @@ pub struct ModelFit {
 }
 
 impl ModelFit {
+    /// The residuals of the samples the fit used (those it set aside left
+    /// out), in input order: the series whose correlation in time widens
+    /// its standard errors.
+    pub fn used_residuals(&self) -> Vec<f64> {
+        self.residuals
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| self.flagged.binary_search(i).is_err())
+            .map(|(_, &e)| e)
+            .collect()
+    }
+
     /// The parameter of that name, if the model has it.
     pub fn param(&self, name: &str) -> Option<&Param> {
         self.params.iter().find(|p| p.name == name)

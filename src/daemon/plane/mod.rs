@@ -411,14 +411,7 @@ impl Plane {
         } else {
             terms
         };
-        let residuals: Vec<f64> = fit
-            .residuals
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| fit.flagged.binary_search(i).is_err())
-            .map(|(_, &e)| e)
-            .collect();
-        let refit = watch::widened(fit.params.clone(), &residuals, fit.rms);
+        let refit = watch::widened(fit.params.clone(), &fit.used_residuals(), fit.rms);
         let report = FitReport {
             solver: Solver::Lsq,
             calibration,
