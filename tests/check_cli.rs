@@ -757,19 +757,25 @@ fn disturbed_log(dir: &Path) -> std::path::PathBuf {
     path
 }
 
-#[test]
-fn monitor_lists_where_the_compass_lied_and_draws_it() {
-    let dir = tempfile::tempdir().unwrap();
-    let log = disturbed_log(dir.path());
-    // Calibrated on the first 60 s (the turn), as the daemon would.
-    let text = fs::read_to_string(&log).unwrap();
-    let turn = dir.path().join("turn.csv");
+/// The calibration of the log's first 60 s (the turn), as the daemon would
+/// make it, and the log's text.
+fn calibrated_on_the_turn(dir: &Path, log: &Path) -> (std::path::PathBuf, String) {
+    let text = fs::read_to_string(log).unwrap();
+    let turn = dir.join("turn.csv");
     fs::write(
         &turn,
         text.lines().take(1201).collect::<Vec<_>>().join("\n"),
     )
     .unwrap();
-    let (cal, _) = fit_json(dir.path(), &turn, &[]);
+    let (cal, _) = fit_json(dir, &turn, &[]);
+    (cal, text)
+}
+
+#[test]
+fn monitor_lists_where_the_compass_lied_and_draws_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = disturbed_log(dir.path());
+    let (cal, _) = calibrated_on_the_turn(dir.path(), &log);
     let report = dir.path().join("report");
     let out = run_ok(&[
         "check",
@@ -840,14 +846,7 @@ fn monitor_lists_where_the_compass_lied_and_draws_it() {
 fn monitor_needs_no_turn_and_says_why_nothing_was_compared() {
     let dir = tempfile::tempdir().unwrap();
     let log = disturbed_log(dir.path());
-    let text = fs::read_to_string(&log).unwrap();
-    let turn = dir.path().join("turn.csv");
-    fs::write(
-        &turn,
-        text.lines().take(1201).collect::<Vec<_>>().join("\n"),
-    )
-    .unwrap();
-    let (cal, _) = fit_json(dir.path(), &turn, &[]);
+    let (cal, text) = calibrated_on_the_turn(dir.path(), &log);
     // Only the still part, from 65 s: no turn to refit.
     let still = dir.path().join("still.csv");
     let mut lines = vec!["t,x,y,gyro_z"];

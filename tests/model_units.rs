@@ -2582,19 +2582,19 @@ mod trust_sweep {
     use fieldcal::model::trust::{GyroModel, Observation, TrustLimits, TrustMonitor};
 
     /// xorshift64*: deterministic, so the sweep is the same on every run.
-    struct Rng(u64);
+    pub(super) struct Rng(pub(super) u64);
     impl Rng {
-        fn next(&mut self) -> f64 {
+        pub(super) fn next(&mut self) -> f64 {
             self.0 ^= self.0 >> 12;
             self.0 ^= self.0 << 25;
             self.0 ^= self.0 >> 27;
             (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
         }
-        fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        pub(super) fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
             lo + (hi - lo) * self.next()
         }
         /// A standard normal draw (Box–Muller).
-        fn normal(&mut self) -> f64 {
+        pub(super) fn normal(&mut self) -> f64 {
             let u = self.next().max(1e-300);
             (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * self.next()).cos()
         }
@@ -2734,23 +2734,7 @@ mod watch_sweep {
     use fieldcal::model::fit::{FitOptions, fit_paper};
     use fieldcal::model::watch::{self, Refit};
 
-    /// xorshift64*: deterministic, so the sweep is the same on every run.
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> f64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
-        }
-        fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-            lo + (hi - lo) * self.next()
-        }
-        fn normal(&mut self) -> f64 {
-            let u = self.next().max(1e-300);
-            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * self.next()).cos()
-        }
-    }
+    use super::trust_sweep::Rng;
 
     struct Sensor {
         gain: f64,
