@@ -191,6 +191,7 @@ fn trust_monitor(c: &mut Criterion) {
                 field_ratio: 1.0 + 0.003 * (k as f64 * 2.39).sin(),
                 heading_deg: (18.0 * t).rem_euclid(360.0),
                 gyro_deg_s: Some(18.0),
+                dip_deg: None,
             }
         })
         .collect();
@@ -247,6 +248,7 @@ fn watch_rotation(c: &mut Criterion) {
         parent: None,
         history: Vec::new(),
         gyro: None,
+        dip: None,
     };
     let (x, y) = turn(37.0);
     let mut group = c.benchmark_group("watch");

@@ -512,6 +512,55 @@ fn a_3_axis_csv_sensor_and_a_source_of_several_files_are_checked_naming_the_key(
     );
 }
 
+#[test]
+fn mag_axes_maps_a_tilted_compass_onto_its_accelerometer_and_is_refused_where_it_means_nothing() {
+    let mag3 = "axes = [\"mag_x\", \"mag_y\", \"mag_z\"]\nfield = \"mag\"\n";
+    let level = "[[sensor]]\nname = \"level\"\nsource = \"board\"\n\
+                 axes = [\"acc_x\", \"acc_y\", \"acc_z\"]\nfield = \"accel\"\n";
+    let text = |extra: &str| with("", &format!("{COMPASS}{mag3}{extra}\n{level}"));
+    let config = parse(
+        &text("tilt = \"level\"\nmag_axes = \" -x, -z,y \"\n"),
+        &config_path(),
+    )
+    .unwrap();
+    let three = config.sensors[0].sphere().unwrap();
+    assert_eq!(three.mag_axes.to_string(), "-x,-z,y");
+    assert_eq!(three.mag_axes.apply([1.0, 2.0, 3.0]), [-1.0, -3.0, 2.0]);
+    // The default is the identity.
+    let config = parse(&text("tilt = \"level\"\n"), &config_path()).unwrap();
+    assert_eq!(
+        config.sensors[0].sphere().unwrap().mag_axes.to_string(),
+        "x,y,z"
+    );
+    // Not a mapping: an axis twice, two axes, a word.
+    for bad in ["x,x,z", "x,y", "north"] {
+        refused(
+            &text(&format!("tilt = \"level\"\nmag_axes = \"{bad}\"\n")),
+            "sensor[0].mag_axes",
+            &[
+                &format!("\"{bad}\" is not an axis mapping"),
+                "x,-z,y",
+                "--mag-axes auto",
+            ],
+        );
+    }
+    // Without tilt it maps onto nothing.
+    refused(
+        &text("mag_axes = \"x,z,-y\"\n"),
+        "sensor[0].mag_axes",
+        &["give `tilt`"],
+    );
+    // A 2-axis sensor has no tilt accelerometer.
+    refused(
+        &with(
+            "",
+            &format!("{COMPASS}axes = [\"mag_x\", \"mag_y\"]\nmag_axes = \"x,z,-y\"\n"),
+        ),
+        "sensor[0].mag_axes",
+        &["has no `mag_axes`", "a 3-axis sensor names three columns"],
+    );
+}
+
 /// An accelerometer in g, rested on its six faces for 2 s each and turned
 /// between them at 90 °/s, at 100 Hz, with 3 mg of noise: `t_s, acc_x,
 /// acc_y, acc_z` of W⁻¹u + o. Returns the file's text, o and W's diagonal.

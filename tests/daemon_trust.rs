@@ -299,3 +299,193 @@ fn a_gyro_in_another_file_of_the_source_checks_the_heading() {
     assert_eq!(judged(&shifted, 20.0, 69.9).1, 0);
     assert_eq!(judged(&shifted, 85.1, 140.0).1, 0);
 }
+
+/// The rotation matrix (row-major) of `angle` radians about unit `axis`.
+fn rotation(axis: [f64; 3], angle: f64) -> [[f64; 3]; 3] {
+    let (s, c) = angle.sin_cos();
+    let [x, y, z] = axis;
+    let t = 1.0 - c;
+    [
+        [t * x * x + c, t * x * y - s * z, t * x * z + s * y],
+        [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
+        [t * x * z - s * y, t * y * z + s * x, t * z * z + c],
+    ]
+}
+
+fn times(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|i| m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2])
+}
+
+fn product(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    [0, 1, 2].map(|i| [0, 1, 2].map(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum::<f64>()))
+}
+
+fn transpose(m: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    [0, 1, 2].map(|i| [0, 1, 2].map(|j| m[j][i]))
+}
+
+/// A board with a 3-axis magnetometer (columns mx, my, mz) and an
+/// accelerometer (ax, ay, az) at 20 Hz: tumbling through every orientation
+/// for 150 s, then still and level. `magnet(t)` turns the Earth's field
+/// (dip 65°, 500 counts) about the east axis by that many degrees, its
+/// magnitude kept. The magnetometer lies on the board as body x = −mag x,
+/// body y = −mag z, body z = mag y (`mag_axes = "-x,-z,y"`).
+fn board(magnet: impl Fn(f64) -> f64) -> String {
+    let mut text = String::from("t,mx,my,mz,ax,ay,az\n");
+    let mut state: u64 = 0x9e37_79b9_7f4a_7c15;
+    let mut noise = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % 20_001) as f64 / 10_000.0 - 1.0
+    };
+    let dip = 65f64.to_radians();
+    for k in 0..4000 {
+        let t = k as f64 / 20.0;
+        // Body to world (north, east, down): yaw, pitch and roll at rates
+        // that do not divide one another, until 150 s; then level.
+        let tumble = t.min(150.0);
+        let level = t >= 150.0;
+        let r = if level {
+            rotation([0.0, 0.0, 1.0], 0.6)
+        } else {
+            let a = rotation([0.0, 0.0, 1.0], 0.53 * tumble);
+            let b = rotation([0.0, 1.0, 0.0], 0.31 * tumble);
+            let c = rotation([1.0, 0.0, 0.0], 0.17 * tumble);
+            product(&product(&a, &b), &c)
+        };
+        let turn = rotation([0.0, 1.0, 0.0], magnet(t).to_radians());
+        let field = times(&turn, [500.0 * dip.cos(), 0.0, 500.0 * dip.sin()]);
+        let to_body = transpose(&r);
+        let m = times(&to_body, field);
+        // The specific force points up: −down.
+        let g = times(&to_body, [0.0, 0.0, -1.0]);
+        // Magnetometer axes from body axes: mag x = −body x, mag y = body
+        // z, mag z = −body y; with an offset and a scale per axis.
+        let mag = [-m[0], m[2], -m[1]];
+        let (mx, my, mz) = (
+            30.0 + 1.04 * mag[0] + noise(),
+            -45.0 + 0.97 * mag[1] + noise(),
+            12.0 + mag[2] + noise(),
+        );
+        let (ax, ay, az) = (
+            g[0] + 0.002 * noise(),
+            g[1] + 0.002 * noise(),
+            g[2] + 0.002 * noise(),
+        );
+        text.push_str(&format!(
+            "{t:.2},{mx:.3},{my:.3},{mz:.3},{ax:.5},{ay:.5},{az:.5}\n"
+        ));
+    }
+    text
+}
+
+/// Replays a [`board`] with the compass's `mag_axes`; the lines out.
+fn replay_board(csv: &str, mag_axes: &str, dir: &std::path::Path) -> Vec<Value> {
+    let file = dir.join("board.csv");
+    std::fs::write(&file, csv).unwrap();
+    let config = dir.join("board.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[daemon]\nstate_dir = \"{}\"\n[outputs]\nstdout = true\n\
+             [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"board.csv\"\n\
+             [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"mx\", \"my\", \"mz\"]\n\
+             field = \"mag\"\nlsb_per_gauss = 1000\ntilt = \"level\"\nmag_axes = \"{mag_axes}\"\n\
+             [[sensor]]\nname = \"level\"\nsource = \"log\"\naxes = [\"ax\", \"ay\", \"az\"]\n\
+             field = \"accel\"\nlsb_per_g = 1\n",
+            dir.join("state").display()
+        ),
+    )
+    .unwrap();
+    let out = common::run_ok(&[
+        "replay",
+        file.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--speed",
+        "max",
+    ]);
+    out.lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+/// The compass's calibrated readings with a heading, `from <= t < to`:
+/// (all, distrusted), and the first reason.
+fn compass_judged(lines: &[Value], from: f64, to: f64) -> (usize, usize, String) {
+    let inside: Vec<&Value> = lines
+        .iter()
+        .filter(|v| v["class"] == "READING" && v["sensor"] == "compass")
+        .filter(|v| v["calibrated"] == true && v.get("heading_deg").is_some())
+        .filter(|v| (from..to).contains(&v["time"].as_f64().unwrap()))
+        .collect();
+    let bad: Vec<&&Value> = inside.iter().filter(|v| v["trusted"] == false).collect();
+    let why = bad
+        .first()
+        .map(|v| v["distrust"][0].as_str().unwrap().to_string())
+        .unwrap_or_default();
+    (inside.len(), bad.len(), why)
+}
+
+#[test]
+fn a_magnet_that_turns_the_field_without_changing_it_is_caught_by_the_dip() {
+    let dir = tempfile::tempdir().unwrap();
+    // 20° about the east axis, between 170 and 175 s: the magnitude is the
+    // same, the dip is 45° where it was 65°.
+    let csv = board(|t| {
+        if (170.0..175.0).contains(&t) {
+            20.0
+        } else {
+            0.0
+        }
+    });
+    let lines = replay_board(&csv, "-x,-z,y", dir.path());
+    let cal = lines
+        .iter()
+        .find(|v| v["class"] == "CALIBRATION" && v["sensor"] == "compass" && v["accepted"] == true)
+        .unwrap_or_else(|| panic!("no calibration"));
+    // The calibration's dip: 65° over the tumble, and the mapping fits.
+    let dip = &cal["dip"];
+    assert!(
+        (dip["median_deg"].as_f64().unwrap() - 65.0).abs() < 0.5,
+        "{dip}"
+    );
+    assert!(dip.get("mounting").is_none(), "{dip}");
+    let (all, bad, why) = compass_judged(&lines, 170.0, 175.0);
+    assert_eq!((all, bad), (100, 100), "{why}");
+    assert!(
+        why.starts_with("the dip is 45.0° where the calibration measured 65.0°"),
+        "{why}"
+    );
+    // Before and after it, turning or still, every heading is trusted.
+    let (all, bad, why) = compass_judged(&lines, 0.0, 170.0);
+    assert!(all > 500, "{all}");
+    assert_eq!(bad, 0, "{why}");
+    let (all, bad, why) = compass_judged(&lines, 175.05, 1e9);
+    assert!(all > 400, "{all}");
+    assert_eq!(bad, 0, "{why}");
+}
+
+#[test]
+fn a_magnetometer_mounted_otherwise_than_configured_has_every_heading_distrusted() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = board(|_| 0.0);
+    // The identity: the dip wanders as the board tumbles.
+    let lines = replay_board(&csv, "x,y,z", dir.path());
+    let cal = lines
+        .iter()
+        .find(|v| v["class"] == "CALIBRATION" && v["sensor"] == "compass" && v["accepted"] == true)
+        .unwrap_or_else(|| panic!("no calibration"));
+    let why = cal["dip"]["mounting"]
+        .as_str()
+        .unwrap_or_else(|| panic!("{cal}"));
+    // The tumble tells the mapping up to its mirror; with no place, the
+    // right-handed one of the two is named.
+    assert!(why.contains("with mag_axes = \"x,y,z\""), "{why}");
+    assert!(why.ends_with("set mag_axes = \"x,z,-y\""), "{why}");
+    let (all, bad, first) = compass_judged(&lines, 0.0, 1e9);
+    assert!(all > 1000, "{all}");
+    assert_eq!(bad, all);
+    assert_eq!(first, why);
+}

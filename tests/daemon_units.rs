@@ -812,6 +812,7 @@ mod state_writer {
             parent: None,
             history: Vec::new(),
             gyro: None,
+            dip: None,
         }
     }
 

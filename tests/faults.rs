@@ -346,6 +346,7 @@ fn calibration(id: u64) -> Calibration {
         parent: None,
         history: Vec::new(),
         gyro: None,
+        dip: None,
     }
 }
 

@@ -2441,6 +2441,7 @@ mod trust {
                     field_ratio: (1.0 + wobble) * factor,
                     heading_deg: (deg_s * t + offset + wobble.to_degrees()).rem_euclid(360.0),
                     gyro_deg_s: Some(deg_s),
+                    dip_deg: None,
                 };
                 (t, monitor.check(obs))
             })
@@ -2530,6 +2531,7 @@ mod trust {
                 field_ratio: 1.0,
                 heading_deg: 42.0,
                 gyro_deg_s: Some(3.0 * t / 600.0),
+                dip_deg: None,
             });
             assert!(v.trusted, "{t}: {:?}", v.reasons);
         }
@@ -2547,11 +2549,70 @@ mod trust {
                 field_ratio: ratio,
                 heading_deg: 10.0,
                 gyro_deg_s: None,
+                dip_deg: None,
             });
         }
         let c = m.counts();
         assert_eq!((c.trusted, c.distrusted), (60, 40));
         assert!((c.longest_distrusted_s - 39.0 * 0.05).abs() < 1e-9);
+    }
+
+    /// The dip against the calibration's, 1° spread: distrusted beyond
+    /// 5 σ, trusted again within 3 σ, and left out for a limit that is not
+    /// a dip.
+    #[test]
+    fn the_dip_is_distrusted_beyond_five_sigma_and_trusted_again_within_three() {
+        let limits = TrustLimits::from_rms(0.001, None, None).with_dip(60.0, 1.0);
+        let mut m = TrustMonitor::new(limits);
+        let at = |t: f64, dip: f64| Observation {
+            time: t,
+            field_ratio: 1.0,
+            heading_deg: 0.0,
+            gyro_deg_s: None,
+            dip_deg: Some(dip),
+        };
+        assert!(m.check(at(0.0, 64.9)).trusted);
+        assert!(m.check(at(0.1, 55.1)).trusted);
+        let v = m.check(at(0.2, 65.1));
+        assert!(!v.trusted);
+        assert_eq!(
+            v.reasons,
+            [
+                "the dip is 65.1° where the calibration measured 60.0° (+5.1°, limit 5.0°: 5 σ of its spread)"
+            ]
+        );
+        let v = m.check(at(0.3, 63.5));
+        assert!(!v.trusted, "within 5 σ but not 3 σ: still distrusted");
+        assert!(
+            v.reasons[0].ends_with("3 σ of its spread, trusted again within it)"),
+            "{v:?}"
+        );
+        assert!(m.check(at(0.4, 62.9)).trusted);
+        // No dip this reading (no fresh accelerometer): not checked.
+        assert!(
+            m.check(Observation {
+                dip_deg: None,
+                ..at(0.5, 0.0)
+            })
+            .trusted
+        );
+        // The spread is held to what the field's noise gives (2 % rms:
+        // 1.15°), and a limit that is not a dip is left out.
+        let l = TrustLimits::from_rms(0.02, None, None).with_dip(60.0, 0.0);
+        assert!((l.dip.unwrap().sigma_deg - 0.02f64.to_degrees()).abs() < 1e-12);
+        for (median, spread) in [
+            (f64::NAN, 1.0),
+            (95.0, 1.0),
+            (60.0, f64::INFINITY),
+            (60.0, -1.0),
+        ] {
+            assert_eq!(
+                TrustLimits::from_rms(0.01, None, None)
+                    .with_dip(median, spread)
+                    .dip,
+                None
+            );
+        }
     }
 
     #[test]
@@ -2562,6 +2623,7 @@ mod trust {
             field_ratio: 1.0,
             heading_deg: 0.0,
             gyro_deg_s: None,
+            dip_deg: None,
         };
         assert!(m.check(ok).trusted);
         assert!(!m.check(Observation { time: 0.5, ..ok }).trusted);
@@ -2655,6 +2717,7 @@ mod trust_sweep {
                     gyro_deg_s: Some(
                         s.rate_deg_s / s.scale + s.bias_error + walk + s.gyro_noise * rng.normal(),
                     ),
+                    dip_deg: None,
                 };
                 (t, monitor.check(obs).trusted)
             })
@@ -2779,6 +2842,7 @@ mod watch_sweep {
             parent: None,
             history: Vec::new(),
             gyro: None,
+            dip: None,
         };
         (calibration, refit)
     }
@@ -3465,6 +3529,33 @@ mod tilt_moved {
             // The mirror is chosen when the model's dip says so.
             let other = choose_axis_map(&mag, &acc, Some(-60.0)).unwrap();
             assert_eq!(other.chosen.map, truth.mirrored());
+            // The daemon's check of a configured mapping: the truth and,
+            // with no place, its mirror pass; any other is named wrong with
+            // the truth to set; with the model's dip, the mirror is wrong.
+            assert_eq!(mounting_problem(&mag, &acc, truth, None), None);
+            assert_eq!(mounting_problem(&mag, &acc, truth, Some(60.0)), None);
+            assert_eq!(mounting_problem(&mag, &acc, truth.mirrored(), None), None);
+            let mirror = mounting_problem(&mag, &acc, truth.mirrored(), Some(60.0)).unwrap();
+            assert!(
+                mirror.contains("mirrored, so every heading is 180° off"),
+                "{mirror}"
+            );
+            assert!(
+                mirror.ends_with(&format!("set mag_axes = \"{truth}\"")),
+                "{mirror}"
+            );
+            for wrong in AxisMap::all() {
+                if wrong == truth || wrong == truth.mirrored() {
+                    continue;
+                }
+                let why = mounting_problem(&mag, &acc, wrong, Some(60.0))
+                    .unwrap_or_else(|| panic!("{wrong} passed for {truth}"));
+                assert!(why.starts_with("the dip wanders"), "{why}");
+                assert!(
+                    why.ends_with(&format!("set mag_axes = \"{truth}\"")),
+                    "{why}"
+                );
+            }
         }
         // A flat turn: z stays vertical.
         let mut board = NoisyBoard::new(8, 0.01, 0.01);
@@ -3476,6 +3567,11 @@ mod tilt_moved {
         }
         let err = choose_axis_map(&mag, &acc, None).unwrap_err();
         assert!(matches!(err, AxisChoiceError::Ambiguous { .. }), "{err}");
+        // A flat turn cannot tell a mapping wrong: nothing is said.
+        assert_eq!(
+            mounting_problem(&mag, &acc, "y,x,-z".parse().unwrap(), Some(60.0)),
+            None
+        );
         assert!(err.to_string().contains("--mag-axes"), "{err}");
         let err = choose_axis_map(&mag[..10], &acc[..10], None).unwrap_err();
         assert!(matches!(err, AxisChoiceError::TooFew { .. }), "{err}");

@@ -39,6 +39,7 @@ fn calibration(sensor: &str, id: u64) -> Calibration {
         parent: None,
         history: Vec::new(),
         gyro: None,
+        dip: None,
     }
 }
 

@@ -22,6 +22,7 @@ pub mod rotation;
 pub mod run;
 pub mod sensor;
 pub mod sensor3;
+pub mod sphere_limits;
 pub mod source_kinds;
 pub mod state;
 pub mod state_writer;

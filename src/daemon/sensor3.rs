@@ -22,44 +22,26 @@ use super::north::{Earth, MeasuredDip, North, earth};
 use super::sensor::{Emitter, Geometry, Sample};
 use super::{Calibration, Ellipsoid3Params};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
+use crate::model::calibration::DipFit;
 use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Se};
 use crate::model::paper::PaperCalibration;
 use crate::model::sphere::SphereCoverage;
 use crate::model::sphere_buffer::SphereBuffer;
-use crate::model::tilt::{inclination_deg, robust_spread, tilt_heading_or_why};
-use crate::model::trust::{Observation, TrustCounts, TrustLimits, TrustMonitor, monitor_of};
+use crate::model::tilt::{
+    AxisMap, inclination_deg, mounting_problem, robust_spread, tilt_heading_or_why,
+};
+use crate::model::trust::{
+    Observation, TrustCounts, TrustLimits, TrustMonitor, Verdict, monitor_of,
+};
 use crate::sample::Reading;
 use std::sync::Arc;
 
 // The sphere buffer's settings and progress, at the paths they had before
 // the buffer moved to [`crate::model::sphere_buffer`].
 pub use crate::model::sphere_buffer::{SphereProgress, SphereSettings};
-
-/// ArduPilot's field radius bounds, milligauss: `FIELD_RADIUS_MIN` 150 and
-/// `FIELD_RADIUS_MAX` 950 (CompassCalibrator.cpp, "Earth's magnetic field
-/// strength range: 250-850mG").
-pub const FIELD_RADIUS_MGAUSS: (f64, f64) = (150.0, 950.0);
-/// ArduPilot's largest offset per axis, milligauss: `COMPASS_OFFS_MAX`,
-/// default 1800 (AP_Compass.cpp).
-pub const MAX_OFFSET_MGAUSS: f64 = 1800.0;
-/// ArduPilot's fitness tolerance: the rms residual in milligauss,
-/// `COMPASS_CAL_FIT` default 16 (`AP_COMPASS_CALIBRATION_FITNESS_DEFAULT`).
-pub const MAX_FITNESS_MGAUSS: f64 = 16.0;
-/// ArduPilot's bounds of the soft-iron matrix's diagonal, 0.2 to 5, and of
-/// its off-diagonal entries, |·| < 1 (CompassCalibrator::fit_acceptable).
-pub const MAG_DIAGONAL: (f64, f64) = (0.2, 5.0);
-pub const MAG_MAX_OFF_DIAGONAL: f64 = 1.0;
-/// ArduPilot's accelerometer bounds (AccelCalibrator::accept_result): each
-/// offset at most 1 g (`GRAVITY_MSS`), each diagonal scale 0.8 to 1.2.
-pub const ACCEL_MAX_OFFSET_G: f64 = 1.0;
-pub const ACCEL_DIAGONAL: (f64, f64) = (0.8, 1.2);
-/// When the sensor's units are not configured, the limits are relative to
-/// the fitted radius: offsets at most 5 radii (the 2-D daemon's
-/// `max_offset_ratio`, from the same COMPASS_OFFS_MAX beside the Earth's
-/// 250-850 mG) and an rms of at most 5 % of the field (the 2-D `max_rms`;
-/// ArduPilot's 16 mG is 2-6 % of the Earth's field).
-pub const RELATIVE_MAX_OFFSET: f64 = 5.0;
-pub const RELATIVE_MAX_RMS: f64 = 0.05;
+// ArduPilot's acceptance limits, at the paths they had before they moved
+// to [`super::sphere_limits`].
+pub use super::sphere_limits::*;
 
 /// The oldest accelerometer reading a heading is tilt-compensated with,
 /// seconds before the magnetometer's reading: 0.1 s. A hand turns a board
@@ -85,127 +67,6 @@ fn unit_of(field: Field) -> &'static str {
     }
 }
 
-/// Why a 3-D fit is refused: every failed limit, named with its value and
-/// its source, joined by "; ". `field` and `lsb_per_unit` give the units.
-pub fn check_limits(
-    fit: &Ellipsoid3Fit,
-    field: Field,
-    lsb_per_unit: Option<f64>,
-    max_rms: Option<f64>,
-) -> Result<(), String> {
-    let extra = [fit.r, fit.rms];
-    let mut numbers = fit
-        .offset
-        .iter()
-        .chain(fit.matrix.iter().flatten())
-        .chain(extra.iter());
-    if numbers.any(|v| !v.is_finite()) || !(fit.r > 0.0) {
-        return Err("the fit produced a non-finite or non-positive parameter".into());
-    }
-    let mut failures = Vec::new();
-    let w = &fit.matrix;
-    let diagonal = [w[0][0], w[1][1], w[2][2]];
-    let off_diagonal = [w[0][1], w[0][2], w[1][2]];
-    match (field, lsb_per_unit) {
-        (Field::Mag, Some(u)) => {
-            let to_mg = |counts: f64| counts / u * 1000.0;
-            let r_mg = to_mg(fit.r);
-            let (lo, hi) = FIELD_RADIUS_MGAUSS;
-            if !(r_mg > lo && r_mg < hi) {
-                failures.push(format!(
-                    "field radius {r_mg:.0} mG is outside ArduPilot's {lo:.0}-{hi:.0} mG (FIELD_RADIUS_MIN/MAX; {:.1} counts at lsb_per_gauss {u})",
-                    fit.r
-                ));
-            }
-            for (axis, o) in ["x", "y", "z"].iter().zip(fit.offset) {
-                if to_mg(o).abs() >= MAX_OFFSET_MGAUSS {
-                    failures.push(format!(
-                        "offset {axis} {:.0} mG exceeds ArduPilot's {MAX_OFFSET_MGAUSS:.0} mG (COMPASS_OFFS_MAX)",
-                        to_mg(o)
-                    ));
-                }
-            }
-            let fitness = to_mg(fit.rms * fit.r);
-            let limit_mg = max_rms.map_or(MAX_FITNESS_MGAUSS, |f| to_mg(f * fit.r));
-            if fitness > limit_mg {
-                failures.push(format!(
-                    "rms {fitness:.1} mG ({:.2} % of the field) exceeds {limit_mg:.1} mG ({})",
-                    fit.rms * 100.0,
-                    if max_rms.is_some() {
-                        "sphere.max_rms"
-                    } else {
-                        "ArduPilot's COMPASS_CAL_FIT"
-                    }
-                ));
-            }
-        }
-        (Field::Accel, Some(u)) => {
-            for (axis, o) in ["x", "y", "z"].iter().zip(fit.offset) {
-                if (o / u).abs() > ACCEL_MAX_OFFSET_G {
-                    failures.push(format!(
-                        "offset {axis} {:.3} g exceeds ArduPilot's {ACCEL_MAX_OFFSET_G} g (AccelCalibrator)",
-                        o / u
-                    ));
-                }
-            }
-            let (lo, hi) = ACCEL_DIAGONAL;
-            let g = fit.r / u;
-            if !(lo..=hi).contains(&g) {
-                failures.push(format!(
-                    "gravity reads {g:.3} g at lsb_per_g {u}: the overall scale is outside ArduPilot's {lo}-{hi} (AccelCalibrator)"
-                ));
-            }
-        }
-        _ => {
-            for (axis, o) in ["x", "y", "z"].iter().zip(fit.offset) {
-                if o.abs() > RELATIVE_MAX_OFFSET * fit.r {
-                    failures.push(format!(
-                        "offset {axis} {o:.1} counts is more than {RELATIVE_MAX_OFFSET} field radii ({:.1} counts)",
-                        fit.r
-                    ));
-                }
-            }
-        }
-    }
-    if !(field == Field::Mag && lsb_per_unit.is_some()) {
-        let limit = max_rms.unwrap_or(RELATIVE_MAX_RMS);
-        if fit.rms > limit {
-            failures.push(format!(
-                "rms {:.2} % of the field exceeds {:.2} % ({})",
-                fit.rms * 100.0,
-                limit * 100.0,
-                if max_rms.is_some() {
-                    "sphere.max_rms"
-                } else {
-                    "the default"
-                }
-            ));
-        }
-    }
-    let (lo, hi, off) = match field {
-        Field::Accel => (ACCEL_DIAGONAL.0, ACCEL_DIAGONAL.1, MAG_MAX_OFF_DIAGONAL),
-        _ => (MAG_DIAGONAL.0, MAG_DIAGONAL.1, MAG_MAX_OFF_DIAGONAL),
-    };
-    for (axis, d) in ["xx", "yy", "zz"].iter().zip(diagonal) {
-        if !(d > lo && d < hi) {
-            failures.push(format!(
-                "matrix {axis} {d:.3} is outside ArduPilot's {lo}-{hi} (diagonal bound)"
-            ));
-        }
-    }
-    for (axis, d) in ["xy", "xz", "yz"].iter().zip(off_diagonal) {
-        if d.abs() >= off {
-            failures.push(format!(
-                "matrix {axis} {d:.3} is beyond ArduPilot's ±{off} (off-diagonal bound)"
-            ));
-        }
-    }
-    if failures.is_empty() {
-        Ok(())
-    } else {
-        Err(failures.join("; "))
-    }
-}
 
 #[derive(Serialize)]
 struct TiltFields<'a> {
@@ -300,6 +161,10 @@ struct Calibration3Message<'a> {
     /// With `still`: the poses the fit was made on.
     #[serde(skip_serializing_if = "Option::is_none")]
     poses: Option<usize>,
+    /// A magnetometer with a tilt accelerometer: the dip over the fit's
+    /// samples, and whether `mag_axes` can be right.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    dip: Option<&'a DipFit>,
 }
 
 impl Calibration3Message<'_> {
@@ -368,6 +233,64 @@ fn field_of(reading: &Reading, field: Field) -> Option<[i16; 3]> {
         Field::Gyro => reading.gyro,
     }
 }
+
+/// The trust monitor's verdict on a calibrated reading: `mag` corrected
+/// by `c`, `accel_raw` the tilt accelerometer's raw reading beside it
+/// when there is a fresh one. The field, and the dip
+/// through the accelerometer correction the calibration's own dip was
+/// measured with (so that a later accelerometer calibration does not
+/// read as a change of the field); a mounting the calibration's samples
+/// showed wrong distrusts every tilt-compensated heading. A 3-axis
+/// heading against a gyro is not checked yet.
+fn judge(
+    trust: &mut Option<(u64, TrustMonitor)>,
+    mag_axes: AxisMap,
+    c: &Calibration,
+    (time, mag, heading_deg): (f64, [f64; 3], Option<f64>),
+    accel_raw: Option<[f64; 3]>,
+) -> Verdict {
+    let magnitude = (mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2]).sqrt();
+    let ratio = magnitude / c.ellipsoid.as_ref().map_or(f64::NAN, |p| p.r);
+    let dip = c.dip.as_ref();
+    let dip_deg = dip.zip(accel_raw).and_then(|(d, raw)| {
+        let accel = d.accel.as_ref().map_or(raw, |p| apply3(p, raw));
+        inclination_deg(mag_axes.apply(mag), accel)
+    });
+    let mounting = dip
+        .and_then(|d| d.mounting.as_deref())
+        .filter(|_| heading_deg.is_some());
+    monitor_of(trust, c.id, || {
+        let limits = TrustLimits::from_rms(c.rms, None, None);
+        match dip {
+            Some(d) => limits.with_dip(d.median_deg, d.spread_deg),
+            None => limits,
+        }
+    })
+    .check_under(
+        Observation {
+            time,
+            field_ratio: ratio,
+            heading_deg: heading_deg.unwrap_or(0.0),
+            gyro_deg_s: None,
+            dip_deg,
+        },
+        mounting,
+    )
+}
+
+/// A fit's calibration as the state file keeps it.
+fn params_of(fit: &Ellipsoid3Fit) -> Ellipsoid3Params {
+    Ellipsoid3Params {
+        offset: fit.offset,
+        matrix: fit.matrix,
+        r: fit.r,
+        coverage: fit.coverage.fraction,
+    }
+}
+
+/// A magnetometer's corrected readings, each with the tilt accelerometer's
+/// beside it.
+type DipPairs = Vec<([f64; 3], [f64; 3])>;
 
 /// W·(raw − o) of a stored 3-D calibration.
 pub fn apply3(p: &Ellipsoid3Params, raw: [f64; 3]) -> [f64; 3] {
@@ -477,18 +400,22 @@ impl Sensor3 {
             n: fit.n,
             time,
             terms: Default::default(),
-            ellipsoid: Some(Ellipsoid3Params {
-                offset: fit.offset,
-                matrix: fit.matrix,
-                r: fit.r,
-                coverage: fit.coverage.fraction,
-            }),
+            ellipsoid: Some(params_of(&fit)),
             se: Default::default(),
             parent: None,
             history: Vec::new(),
             gyro: None,
+            dip: None,
         };
-        let earth = self.earth_of(&fit);
+        let dip = (self.field == Field::Mag).then(|| self.measured_inclination(&params_of(&fit)));
+        let calibration = Calibration {
+            dip: dip
+                .as_ref()
+                .and_then(|d| d.as_ref().ok())
+                .map(|d| self.dip_fit(&params_of(&fit), d)),
+            ..calibration
+        };
+        let earth = dip.and_then(|d| self.earth_of(fit.r, || d));
         if let Some(e) = &earth {
             tracing::info!(sensor = %self.name, "against the World Magnetic Model: {}", e.verdict);
         }
@@ -542,25 +469,17 @@ impl Sensor3 {
             declination_uncertainty_deg: self.north.as_ref().and_then(North::uncertainty_deg),
             earth,
             poses: self.buffer.still_poses().filter(|_| origin == "sphere"),
+            dip: c.dip.as_ref(),
         }
     }
 
     /// The fitted field beside the World Magnetic Model's, when the sensor
     /// is a magnetometer with a location.
-    fn earth_of(&self, fit: &Ellipsoid3Fit) -> Option<Earth> {
+    /// `dip`: the inclination over the fit's samples, measured only when
+    /// there is a model to compare it with.
+    fn earth_of(&self, r: f64, dip: impl FnOnce() -> Result<MeasuredDip, String>) -> Option<Earth> {
         let north = self.north.as_ref().filter(|_| self.field == Field::Mag)?;
-        let params = Ellipsoid3Params {
-            offset: fit.offset,
-            matrix: fit.matrix,
-            r: fit.r,
-            coverage: fit.coverage.fraction,
-        };
-        earth(
-            north,
-            fit.r,
-            self.config.lsb_per_unit,
-            self.measured_inclination(&params),
-        )
+        earth(north, r, self.config.lsb_per_unit, dip())
     }
 
     /// The inclination over the samples held, each corrected by `params`
@@ -568,6 +487,26 @@ impl Sensor3 {
     /// calibration, when it has one): median and robust spread, as
     /// `fieldcal heading` measures it.
     fn measured_inclination(&self, params: &Ellipsoid3Params) -> Result<MeasuredDip, String> {
+        let (pairs, accelerometer_calibrated) = self.dip_pairs(params)?;
+        let values: Vec<f64> = pairs
+            .iter()
+            .filter_map(|(mag, accel)| inclination_deg(self.config.mag_axes.apply(*mag), *accel))
+            .collect();
+        robust_spread(&values)
+            .map(|spread| MeasuredDip {
+                spread,
+                accelerometer_calibrated,
+            })
+            .ok_or_else(|| "no fitted sample had a tilt accelerometer reading beside it".into())
+    }
+
+    /// The samples held, each corrected by `params` (in the magnetometer's
+    /// own axes), with the tilt accelerometer's reading beside it
+    /// (corrected by its calibration, when it has one: then `true`).
+    fn dip_pairs(
+        &self,
+        params: &Ellipsoid3Params,
+    ) -> Result<(DipPairs, bool), String> {
         if self.config.tilt.is_none() {
             return Err(
                 "the sensor has no tilt accelerometer (tilt = the 3-axis accelerometer \
@@ -579,7 +518,7 @@ impl Sensor3 {
             .tilt_calibration
             .as_ref()
             .and_then(|c| c.ellipsoid.as_ref());
-        let values: Vec<f64> = self
+        let pairs = self
             .buffer
             .points()
             .iter()
@@ -590,15 +529,39 @@ impl Sensor3 {
                     Some(p) => apply3(p, accel),
                     None => accel,
                 };
-                inclination_deg(apply3(params, *raw), accel)
+                Some((apply3(params, *raw), accel))
             })
             .collect();
-        robust_spread(&values)
-            .map(|spread| MeasuredDip {
-                spread,
-                accelerometer_calibrated: accel_cal.is_some(),
-            })
-            .ok_or_else(|| "no fitted sample had a tilt accelerometer reading beside it".into())
+        Ok((pairs, accel_cal.is_some()))
+    }
+
+    /// The calibration's dip, and whether `mag_axes` can be how the
+    /// magnetometer lies on the accelerometer: what the trust monitor
+    /// checks each reading against.
+    fn dip_fit(&self, params: &Ellipsoid3Params, dip: &MeasuredDip) -> DipFit {
+        let expected = self
+            .north
+            .as_ref()
+            .and_then(|n| n.model.as_ref())
+            .map(|m| m.inclination_deg);
+        let mounting = self.dip_pairs(params).ok().and_then(|(pairs, _)| {
+            let (mag, accel): (Vec<_>, Vec<_>) = pairs.into_iter().unzip();
+            mounting_problem(&mag, &accel, self.config.mag_axes, expected)
+        });
+        if let Some(why) = &mounting {
+            tracing::warn!(sensor = %self.name, "{why}");
+        }
+        DipFit {
+            median_deg: dip.spread.median,
+            spread_deg: dip.spread.spread,
+            n: dip.spread.n,
+            accel: self
+                .tilt_calibration
+                .as_ref()
+                .filter(|_| dip.accelerometer_calibrated)
+                .and_then(|c| c.ellipsoid),
+            mounting,
+        }
     }
 
     /// The sphere's samples refused for `reason` (with the fit, when there
@@ -635,8 +598,10 @@ impl Sensor3 {
             declination_deg: self.north.as_ref().map(|n| n.declination_deg),
             declination_source: self.north.as_ref().map(|n| n.source.as_str()),
             declination_uncertainty_deg: self.north.as_ref().and_then(North::uncertainty_deg),
-            earth: fit.and_then(|f| self.earth_of(f)),
+            earth: fit
+                .and_then(|f| self.earth_of(f.r, || self.measured_inclination(&params_of(f)))),
             poses: self.buffer.still_poses(),
+            dip: None,
         };
         emit.calibration(|| Some(message.event()), to_line(&message));
         tracing::warn!(sensor = %self.name, "3-D calibration rejected: {reason}");
@@ -681,6 +646,7 @@ impl Geometry for Sensor3 {
                     Some(p) => apply3(p, accel_raw),
                     None => accel_raw,
                 };
+                let mag = self.config.mag_axes.apply(mag);
                 match tilt_heading_or_why(mag, accel, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]) {
                     Ok(h) => Some((
                         h.heading_deg,
@@ -709,24 +675,15 @@ impl Geometry for Sensor3 {
             .zip(self.north.as_ref())
             .map(|(h, n)| n.true_heading(h));
         let magnitude = corrected.map(|(_, c)| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt());
-        let verdict = life
-            .current
-            .as_ref()
-            .zip(magnitude)
-            .and_then(|(c, m)| Some((c, m / c.ellipsoid.as_ref()?.r)))
-            .map(|(c, ratio)| {
-                // The field check; a 3-axis heading against a gyro is not
-                // checked yet.
-                monitor_of(&mut self.trust, c.id, || {
-                    TrustLimits::from_rms(c.rms, None, None)
-                })
-                .check(Observation {
-                    time,
-                    field_ratio: ratio,
-                    heading_deg: heading_deg.unwrap_or(0.0),
-                    gyro_deg_s: None,
-                })
-            });
+        let verdict = life.current.as_ref().zip(corrected).map(|(c, (_, mag))| {
+            judge(
+                &mut self.trust,
+                self.config.mag_axes,
+                c,
+                (time, mag, heading_deg),
+                accel,
+            )
+        });
         to_line(&Reading3Message {
             class: "READING",
             sensor: &self.name,

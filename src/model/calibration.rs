@@ -63,6 +63,30 @@ pub struct Calibration {
     /// after a restart too.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gyro: Option<GyroFit>,
+    /// A 3-axis compass's dip over its calibration's sphere, against its
+    /// tilt accelerometer's vertical, when it has one: kept so the trust
+    /// monitor checks each reading's dip against it, after a restart too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dip: Option<DipFit>,
+}
+
+/// The dip measured over a calibration's samples: median and robust
+/// spread (1.4826 × MAD), degrees, how many samples had a dip, and the
+/// tilt accelerometer's calibration that corrected its readings (none:
+/// raw): a reading's dip is comparable only through the same correction,
+/// whatever the accelerometer's calibration is by then.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DipFit {
+    pub median_deg: f64,
+    pub spread_deg: f64,
+    pub n: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub accel: Option<Ellipsoid3Params>,
+    /// Why the configured `mag_axes` cannot be how the magnetometer lies on
+    /// the accelerometer ([`crate::model::tilt::mounting_problem`]): then
+    /// every tilt-compensated heading is distrusted with this reason.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mounting: Option<String>,
 }
 
 /// A heading check's gyro: heading ≈ scale · ∫(rate − bias), and the

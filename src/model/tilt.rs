@@ -215,6 +215,12 @@ pub struct AxisMapParseError {
 }
 
 impl AxisMap {
+    /// Body axis i is the magnetometer's axis i.
+    pub const IDENTITY: AxisMap = AxisMap {
+        from: [0, 1, 2],
+        negate: [false; 3],
+    };
+
     /// All 48 signed permutations of the axes (24 rotations, 24 mirrors).
     pub fn all() -> Vec<AxisMap> {
         const PERMUTATIONS: [[usize; 3]; 6] = [
@@ -536,6 +542,53 @@ pub fn choose_axis_map(
         runner_up,
         tilt_range_deg,
         mirror_rule,
+    })
+}
+
+/// Whether `configured`, the mapping of the magnetometer's axes onto the
+/// accelerometer's that a configuration gives, keeps the dip as constant
+/// as the data allow: `None` when it does, or when the data cannot tell
+/// (too few pairs, or a choice [`choose_axis_map`] calls ambiguous, as on
+/// a flat turn); else why not and what to set, in a sentence. A mapping
+/// is wrong when the dip's robust spread with it is at least
+/// [`AUTO_MIN_SPREAD_RATIO`] times the best mapping's (which is neither it
+/// nor its mirror), or, with the model's inclination, when it is the best
+/// one's mirror and reads the dip with the opposite sign (its headings
+/// are then 180° off).
+pub fn mounting_problem(
+    mag: &[[f64; 3]],
+    accel: &[[f64; 3]],
+    configured: AxisMap,
+    expected_inclination_deg: Option<f64>,
+) -> Option<String> {
+    let choice = choose_axis_map(mag, accel, expected_inclination_deg).ok()?;
+    let best = choice.chosen;
+    if configured == best.map {
+        return None;
+    }
+    if configured == best.map.mirrored() {
+        let expected = expected_inclination_deg.filter(|e| e.is_finite() && *e != 0.0)?;
+        return Some(format!(
+            "with mag_axes = \"{configured}\" the dip reads {:+.1}° where the World Magnetic \
+             Model gives {expected:+.1}°: the mapping is mirrored, so every heading is 180° off; \
+             set mag_axes = \"{}\"",
+            -best.inclination.median, best.map
+        ));
+    }
+    let dips: Vec<f64> = mag
+        .iter()
+        .zip(accel)
+        .filter_map(|(m, a)| inclination_deg(configured.apply(*m), *a))
+        .collect();
+    let spread = robust_spread(&dips)?.spread;
+    let b = best.inclination.spread;
+    (spread >= AUTO_MIN_SPREAD_RATIO * b).then(|| {
+        format!(
+            "the dip wanders {spread:.1}° (robust SD) with mag_axes = \"{configured}\" and \
+             {b:.1}° with \"{}\": the magnetometer's axes do not lie on the accelerometer's as \
+             configured, so tilt-compensated headings are wrong; set mag_axes = \"{}\"",
+            best.map, best.map
+        )
     })
 }
 

@@ -8,6 +8,11 @@
 //! - **The field.** |corrected|/r − 1 against the calibration's rms, with
 //!   hysteresis: distrusted beyond [`ENTER_SIGMAS`] σ, trusted again within
 //!   [`LEAVE_SIGMAS`] σ, so the flag does not flicker at the edge.
+//! - **The dip.** A 3-axis compass with a tilt accelerometer: the field's
+//!   angle below the accelerometer's horizontal against the dip measured
+//!   over the calibration's sphere, beyond [`ENTER_SIGMAS`] of that
+//!   sphere's spread (with the same hysteresis). A magnet can turn the
+//!   field without changing its magnitude; it cannot keep the dip.
 //! - **The gyro.** The heading's change over [`WINDOW_S`] against the
 //!   integrated gyro (its scale and bias from the calibration's heading
 //!   check). Once they disagree, the gyro carries the heading reference
@@ -69,6 +74,17 @@ pub struct TrustLimits {
     pub heading_sigma_deg: f64,
     /// The gyro, when the sensor has one.
     pub gyro: Option<GyroModel>,
+    /// The dip, when the calibration measured it.
+    pub dip: Option<DipLimit>,
+}
+
+/// The dip a calibration measured (its median over the sphere's samples,
+/// against the tilt accelerometer's vertical) and one reading's spread
+/// about it, degrees.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DipLimit {
+    pub reference_deg: f64,
+    pub sigma_deg: f64,
 }
 
 impl TrustLimits {
@@ -90,7 +106,28 @@ impl TrustLimits {
             field_sigma,
             heading_sigma_deg,
             gyro,
+            dip: None,
         }
+    }
+
+    /// These limits with the dip check: the calibration's measured dip
+    /// (median, robust spread over the sphere, degrees). The spread is held
+    /// at least to what the field's noise alone gives (its rms read as an
+    /// angle) and [`MIN_HEADING_SIGMA_DEG`]; a dip that is not finite, or
+    /// not within ±90°, or a spread that is not a finite, non-negative
+    /// number, leaves the check out.
+    pub fn with_dip(mut self, median_deg: f64, spread_deg: f64) -> Self {
+        let usable = median_deg.is_finite()
+            && median_deg.abs() <= 90.0
+            && spread_deg.is_finite()
+            && spread_deg >= 0.0;
+        self.dip = usable.then(|| DipLimit {
+            reference_deg: median_deg,
+            sigma_deg: spread_deg
+                .max(self.field_sigma.to_degrees())
+                .max(MIN_HEADING_SIGMA_DEG),
+        });
+        self
     }
 }
 
@@ -105,6 +142,9 @@ pub struct Observation {
     pub heading_deg: f64,
     /// The gyro's rate about the turn's axis, deg/s, when there is one.
     pub gyro_deg_s: Option<f64>,
+    /// The field's angle below the accelerometer's horizontal, degrees,
+    /// when the sensor has a tilt accelerometer.
+    pub dip_deg: Option<f64>,
 }
 
 /// The monitor's word on one reading.
@@ -139,6 +179,7 @@ struct Point {
 pub struct TrustMonitor {
     limits: TrustLimits,
     field_distrusted: bool,
+    dip_distrusted: bool,
     window: VecDeque<Point>,
     /// The last trusted point while the gyro carries the reference.
     reference: Option<Point>,
@@ -161,6 +202,7 @@ impl TrustMonitor {
         TrustMonitor {
             limits,
             field_distrusted: false,
+            dip_distrusted: false,
             window: VecDeque::new(),
             reference: None,
             last: None,
@@ -207,6 +249,9 @@ impl TrustMonitor {
             return self.record(obs.time, reasons);
         }
         self.check_field(obs.field_ratio, &mut reasons);
+        if let (Some(limit), Some(dip)) = (self.limits.dip, obs.dip_deg) {
+            self.check_dip(limit, dip, &mut reasons);
+        }
         let point = self.advance(obs);
         if self.limits.gyro.is_some() && obs.gyro_deg_s.is_some() {
             self.check_gyro(point, &mut reasons);
@@ -234,6 +279,32 @@ impl TrustMonitor {
                 e.abs() * 100.0,
                 if e < 0.0 { "below" } else { "above" },
                 bound * 100.0,
+            ));
+        }
+    }
+
+    fn check_dip(&mut self, limit: DipLimit, dip: f64, reasons: &mut Vec<String>) {
+        if !dip.is_finite() {
+            return;
+        }
+        let sigmas = if self.dip_distrusted {
+            LEAVE_SIGMAS
+        } else {
+            ENTER_SIGMAS
+        };
+        let off = dip - limit.reference_deg;
+        self.dip_distrusted = off.abs() > sigmas * limit.sigma_deg;
+        if self.dip_distrusted {
+            let until = if sigmas == LEAVE_SIGMAS {
+                ", trusted again within it"
+            } else {
+                ""
+            };
+            reasons.push(format!(
+                "the dip is {dip:.1}° where the calibration measured {:.1}° ({:+.1}°, limit {:.1}°: {sigmas} σ of its spread{until})",
+                limit.reference_deg,
+                off,
+                sigmas * limit.sigma_deg,
             ));
         }
     }
@@ -427,6 +498,7 @@ pub fn monitor_recording(
             field_ratio: field_ratio[i],
             heading_deg: heading_deg[i],
             gyro_deg_s: rate(i),
+            dip_deg: None,
         });
         trusted.push(verdict.trusted);
         match (&mut open, verdict.trusted) {

@@ -153,6 +153,8 @@
 //! model = "offset+scale+cross-axis"  # or "offset", "offset+scale"; default "full"
 //! lsb_per_gauss = 1090.0    # a magnetometer's counts per gauss (lsb_per_g: an accelerometer's)
 //! tilt = "level"            # the 3-axis accelerometer sensor of the same source
+//! mag_axes = "-x,-z,y"      # with tilt: the magnetometer's axis along the
+//!                           # accelerometer's x, y, z; default "x,y,z"
 //! [sensor.location]         # the WMM's declination, and its field beside the fitted one
 //! latitude = 50.1109
 //! longitude = 8.6821
@@ -507,6 +509,7 @@ mod sensors;
 mod settings;
 mod sources;
 mod spans;
+mod tilt;
 
 pub use crate::daemon::output_kinds::Output;
 pub use crate::daemon::source_kinds::SourceKind;
@@ -805,6 +808,7 @@ impl Checker<'_> {
             }
             for (name, given) in [
                 ("tilt", s.tilt.is_some()),
+                ("mag_axes", s.mag_axes.is_some()),
                 ("lsb_per_gauss", s.lsb_per_gauss.is_some()),
                 ("lsb_per_g", s.lsb_per_g.is_some()),
                 ("sphere", s.sphere.is_some()),

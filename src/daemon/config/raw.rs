@@ -62,6 +62,9 @@ pub(super) struct RawSensor {
     /// A 3-axis sensor: the accelerometer sensor of the same source whose
     /// readings tilt-compensate its heading.
     pub(super) tilt: Option<String>,
+    /// A 3-axis magnetometer with `tilt`: how its axes lie on the
+    /// accelerometer's (as `fieldcal heading --mag-axes`).
+    pub(super) mag_axes: Option<String>,
     /// A 3-axis magnetometer's counts per gauss.
     pub(super) lsb_per_gauss: Option<f64>,
     /// A 3-axis accelerometer's counts per g.

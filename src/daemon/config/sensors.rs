@@ -2,6 +2,7 @@
 //! effects, rotation and limits, gyro, tilt and true north.
 
 use super::*;
+use crate::model::tilt::AxisMap;
 
 /// A sensor's geometry, with the settings that geometry uses.
 #[derive(Debug, Clone, PartialEq)]
@@ -63,6 +64,11 @@ pub struct Sensor3Config {
     /// accelerometer, `lsb_per_g`), when configured.
     pub lsb_per_unit: Option<f64>,
     pub tilt: Option<TiltSource>,
+    /// How the magnetometer's axes lie on its tilt accelerometer's (the
+    /// board's): `mag_axes`, as `fieldcal heading --mag-axes`; the
+    /// identity when not given. Used for the heading and the dip only: the
+    /// calibration and `corrected` stay in the magnetometer's own axes.
+    pub mag_axes: AxisMap,
     pub sphere: crate::model::sphere_buffer::SphereSettings,
     /// A sensor of a csv source: the columns of its x, y, z (then `axes`
     /// is x, y, z and unused).
@@ -152,6 +158,7 @@ impl Checker<'_> {
             ("field", s.field.is_some()),
             ("chip", s.chip.is_some()),
             ("tilt", s.tilt.is_some()),
+            ("mag_axes", s.mag_axes.is_some()),
             ("lsb_per_gauss", s.lsb_per_gauss.is_some()),
             ("lsb_per_g", s.lsb_per_g.is_some()),
             ("sphere", s.sphere.is_some()),
@@ -166,7 +173,12 @@ impl Checker<'_> {
                          of {file} in axes (and a gyro column in gyro, with gyro_units){}",
                         if matches!(
                             name,
-                            "field" | "tilt" | "lsb_per_gauss" | "lsb_per_g" | "sphere"
+                            "field"
+                                | "tilt"
+                                | "mag_axes"
+                                | "lsb_per_gauss"
+                                | "lsb_per_g"
+                                | "sphere"
                         ) {
                             "; a 3-axis sensor names three columns in axes, with field"
                         } else {
@@ -520,10 +532,12 @@ impl Checker<'_> {
             ));
         }
         let _ = src_name;
+        let mag_axes = self.check_mag_axes(key, s.mag_axes.as_deref(), s.tilt.is_some())?;
         let three = Sensor3Config {
             axes,
             model,
             lsb_per_unit: unit,
+            mag_axes,
             // Resolved by link_tilts.
             tilt: None,
             sphere,
@@ -540,82 +554,6 @@ impl Checker<'_> {
             },
             s.tilt,
         ))
-    }
-
-    /// Resolves each 3-axis sensor's `tilt`: another 3-axis accelerometer
-    /// sensor of the same source.
-    pub(super) fn link_tilts(
-        &self,
-        sensors: &mut [SensorConfig],
-        pending: &[(usize, String)],
-    ) -> Result<(), ConfigError> {
-        for (i, name) in pending {
-            let key = format!("sensor[{i}].tilt");
-            let Some(me) = sensors.get(*i) else { continue };
-            let found = sensors.iter().position(|s| &s.name == name);
-            let Some(j) = found else {
-                let names: Vec<&str> = sensors
-                    .iter()
-                    .filter(|s| s.sphere().is_some() && s.field == Field::Accel)
-                    .map(|s| s.name.as_str())
-                    .collect();
-                return Err(self.error(
-                    &key,
-                    format!(
-                        "no sensor named '{name}': give the 3-axis accelerometer sensor of source \
-                         '{}' ({})",
-                        me.source,
-                        if names.is_empty() {
-                            "the file has none: add one with field = \"accel\" and axes = \
-                             [\"x\", \"y\", \"z\"]"
-                                .to_string()
-                        } else {
-                            format!("the file has {}", names.join(", "))
-                        }
-                    ),
-                ));
-            };
-            let other = &sensors[j];
-            let problem = if j == *i {
-                Some("a sensor cannot be its own tilt source".to_string())
-            } else if other.sphere().is_none() {
-                Some(format!(
-                    "'{name}' is a 2-axis sensor: the tilt source must be a 3-axis accelerometer \
-                     (axes = [\"x\", \"y\", \"z\"], field = \"accel\")"
-                ))
-            } else if other.field != Field::Accel {
-                Some(format!(
-                    "'{name}' measures {}: the tilt source must be an accelerometer (field = \"accel\")",
-                    other.field.name()
-                ))
-            } else if other.source != me.source {
-                Some(format!(
-                    "'{name}' is a sensor of source '{}', not of '{}': the tilt source must be on \
-                     the same board, read by the same source",
-                    other.source, me.source
-                ))
-            } else if me.field != Field::Mag {
-                Some(format!(
-                    "a tilt-compensated heading is a magnetometer's: this sensor measures {}",
-                    me.field.name()
-                ))
-            } else {
-                None
-            };
-            if let Some(problem) = problem {
-                return Err(self.error(&key, problem));
-            }
-            let tilt = other.sphere().map(|t| TiltSource {
-                sensor: name.clone(),
-                stream: other.stream,
-                axes: t.axes,
-                columns: t.columns.clone(),
-            });
-            if let Some(three) = sensors.get_mut(*i).and_then(SensorConfig::sphere_mut) {
-                three.tilt = tilt;
-            }
-        }
-        Ok(())
     }
 
     pub(super) fn check_model(

@@ -148,6 +148,7 @@ impl Plane {
                         field_ratio: s[0].hypot(s[1]) / c.params.r,
                         heading_deg: heading,
                         gyro_deg_s,
+                        dip_deg: None,
                     },
                     life.stale.as_deref(),
                 )
@@ -312,6 +313,7 @@ impl Plane {
             parent: None,
             history: Vec::new(),
             gyro: None,
+            dip: None,
         }
     }
 
