@@ -64,7 +64,7 @@ fn draw(rng: &mut ChaCha8Rng) -> (SimSensor, Option<Effect>) {
             Some(Effect::Covariate("current".into()))
         }
         5 => {
-            effects.cubic = pair(rng.random_range(0.002..0.06), rng);
+            effects.cubic = pair(rng.random_range(0.001..0.005), rng);
             Some(Effect::Cubic)
         }
         _ => {

@@ -22,8 +22,8 @@ pub mod rotation;
 pub mod run;
 pub mod sensor;
 pub mod sensor3;
-pub mod sphere_limits;
 pub mod source_kinds;
+pub mod sphere_limits;
 pub mod state;
 pub mod state_writer;
 

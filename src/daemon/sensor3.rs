@@ -67,7 +67,6 @@ fn unit_of(field: Field) -> &'static str {
     }
 }
 
-
 #[derive(Serialize)]
 struct TiltFields<'a> {
     /// The accelerometer sensor.
@@ -503,10 +502,7 @@ impl Sensor3 {
     /// The samples held, each corrected by `params` (in the magnetometer's
     /// own axes), with the tilt accelerometer's reading beside it
     /// (corrected by its calibration, when it has one: then `true`).
-    fn dip_pairs(
-        &self,
-        params: &Ellipsoid3Params,
-    ) -> Result<(DipPairs, bool), String> {
+    fn dip_pairs(&self, params: &Ellipsoid3Params) -> Result<(DipPairs, bool), String> {
         if self.config.tilt.is_none() {
             return Err(
                 "the sensor has no tilt accelerometer (tilt = the 3-axis accelerometer \

@@ -32,7 +32,8 @@ use super::FitError;
 use super::effects::{self, Effect, model_name};
 /// The physical limits stand with their effects in the catalogue.
 pub use super::effects::{
-    MAX_CROSS_AXIS_DEG, MAX_CROSS_AXIS_SHEAR, MAX_CUBIC, ParamLimit, limit_of,
+    MAX_CROSS_AXIS_DEG, MAX_CROSS_AXIS_SHEAR, MAX_CUBIC, MAX_CUBIC_UNCHECKED, ParamLimit,
+    limit_for, limit_of,
 };
 use super::gyro::{HeadingCheck, HeadingReference};
 use super::heading::coverage;
@@ -183,9 +184,10 @@ ladder::ladder_types!(ModelFit, Residuals);
 /// The criterion, as the report states it.
 pub fn criterion() -> String {
     format!(
-        "BIC: n·ln(RSS/n) + p·ln(n), with n all samples and p the unknowns; an effect is supported when it lowers BIC by more than {BIC_MARGIN}. outliers counts one unknown per flagged sample (the mean-shift outlier model) and must also find at least {MIN_TAILS} samples beyond 4 robust SD, a count Gaussian noise gives with probability below {TAIL_PROBABILITY:e}, or one beyond {EXTREME_SDS} robust SD. It must also matter: lower the rms by {:.0} % or more and explain an amplitude of at least {MIN_EXPLAINED_NOISE} of the noise floor; and be physical: a cubic within {:.0} % at full scale, a cross-axis within {MAX_CROSS_AXIS_DEG}°, a moving offset within {:.0} % of the field over the run, the gain ratio moved by less than ×{MAX_GAIN_CHANGE}, each effect's parameters resolved above their standard errors",
+        "BIC: n·ln(RSS/n) + p·ln(n), with n all samples and p the unknowns; an effect is supported when it lowers BIC by more than {BIC_MARGIN}. outliers counts one unknown per flagged sample (the mean-shift outlier model) and must also find at least {MIN_TAILS} samples beyond 4 robust SD, a count Gaussian noise gives with probability below {TAIL_PROBABILITY:e}, or one beyond {EXTREME_SDS} robust SD. It must also matter: lower the rms by {:.0} % or more and explain an amplitude of at least {MIN_EXPLAINED_NOISE} of the noise floor; and be physical: a cubic within {:.0} % at full scale with a gyro that checks the heading, {:.0} % without one (the datasheets' figure), a cross-axis within {MAX_CROSS_AXIS_DEG}°, a moving offset within {:.0} % of the field over the run, the gain ratio moved by less than ×{MAX_GAIN_CHANGE}, each effect's parameters resolved above their standard errors",
         MIN_RMS_DROP * 100.0,
         MAX_CUBIC * 100.0,
+        MAX_CUBIC_UNCHECKED * 100.0,
         MAX_OFFSET_SWING * 100.0
     )
 }
@@ -410,9 +412,17 @@ impl Gates for Trial<'_> {
 
     fn physical(&self, numbers: &str, _with_params: &str) -> Option<String> {
         for p in self.params {
-            if let Some(limit) = limit_of(&p.name).filter(|l| p.value.abs() > l.max_abs) {
+            // The candidate's heading checked against a gyro, or not.
+            let checked = self.heading[2].is_some();
+            if let Some(limit) = limit_for(&p.name, checked).filter(|l| beyond_limit(p, l.max_abs))
+            {
+                let beyond = if checked || limit.unchecked.is_none() {
+                    "what any sensor does"
+                } else {
+                    "what the sensor's datasheet allows"
+                };
                 return Some(format!(
-                    "not a physical {}: {} = {} ± {} {}, beyond what any sensor does ({}); {numbers}",
+                    "not a physical {}: {} = {} ± {} {}, beyond {beyond} ({}); {numbers}",
                     self.effect,
                     p.name,
                     sig(p.value),
@@ -514,6 +524,19 @@ fn covered_deg(fit: &ModelFit) -> f64 {
     coverage(used).covered_deg
 }
 
+/// Whether the data put a parameter beyond a physical limit: by more than
+/// [`LIMIT_SES`] standard errors (a parameter the data barely determine is
+/// not shown to be unphysical, only unresolved, which the judgement says
+/// in its own words).
+pub(crate) fn beyond_limit(p: &Param, max_abs: f64) -> bool {
+    let se = if p.se.is_finite() { p.se } else { 0.0 };
+    p.value.abs() - LIMIT_SES * se > max_abs
+}
+
+/// Standard errors by which a parameter must pass a physical limit to be
+/// refused as unphysical: two, the 95 % one-sided bound and more.
+pub const LIMIT_SES: f64 = 2.0;
+
 /// The circle of a turn: the 2-D geometry of the diagnosis ladder.
 struct Plane<'a> {
     data: &'a Dataset,
@@ -580,14 +603,19 @@ impl Geometry for Plane<'_> {
 /// not, and what held the effects instead.
 pub fn heading_note(reference: Option<&HeadingReference>, checked: bool) -> String {
     match reference {
-        None => "heading: not checked — no gyro given (--gyro); effects were held to physical limits instead".to_string(),
+        None => format!(
+            "heading: not checked — no gyro given (--gyro); effects were held to physical limits instead, a cubic to {:.0} % at full scale (the datasheets' figure; {:.0} % with a gyro)",
+            MAX_CUBIC_UNCHECKED * 100.0,
+            MAX_CUBIC * 100.0
+        ),
         Some(r) if checked => format!(
             "heading: checked against {}: an effect that makes the heading worse by more than {HEADING_WORSE_SES} standard errors (and {HEADING_MATTERS_DEG}°) is not supported; the physical limits hold too",
             r.column()
         ),
         Some(r) => format!(
-            "heading: not checked — the gyro {} does not cover enough of the recording; effects were held to physical limits instead",
-            r.column()
+            "heading: not checked — the gyro {} does not cover enough of the recording; effects were held to physical limits instead, a cubic to {:.0} % at full scale (the datasheets' figure)",
+            r.column(),
+            MAX_CUBIC_UNCHECKED * 100.0
         ),
     }
 }
@@ -863,6 +891,31 @@ mod judge_tests {
     /// Judges `effect` with `own` parameters (and `a` moved to `a1`) taking
     /// the rms from 2 % to `rms1` at ΔBIC -500, noise floor 1 %.
     fn judged(effect: Effect, own: &[(&str, f64, f64)], a1: f64, rms1: f64) -> Judgement {
+        judged_checked(effect, own, a1, rms1, None)
+    }
+
+    /// A gyro's heading check that says nothing against the candidate: the
+    /// same for the baseline, the model and the candidate.
+    fn gyro_check() -> HeadingCheck {
+        HeadingCheck {
+            gyro_column: "gyro_z".into(),
+            rms_deg: 1.0,
+            peak_to_peak_deg: 4.0,
+            n: 1000,
+            gyro_scale: 1.0,
+            gyro_bias_deg_s: 0.0,
+            errors_deg: Vec::new(),
+            reference_deg: Vec::new(),
+        }
+    }
+
+    fn judged_checked(
+        effect: Effect,
+        own: &[(&str, f64, f64)],
+        a1: f64,
+        rms1: f64,
+        heading: Option<&HeadingCheck>,
+    ) -> Judgement {
         let data = SimSensor {
             noise: 10.0,
             ..Default::default()
@@ -879,7 +932,7 @@ mod judge_tests {
         let params = own_params(&candidate, &current);
         judge(&Trial {
             data: &data,
-            heading: [None, None, None],
+            heading: [heading, heading, heading],
             effect: &effect,
             fit: &candidate,
             current: &current,
@@ -913,11 +966,13 @@ mod judge_tests {
         let mut res = analyse(&data, &fit_model(&data, &effects::PAPER).unwrap());
         res.common.noise_floor.rms = residuals::noise_floor(&data, &current).rms;
         let effect = Effect::CubicCentred;
+        // An 8 % cubic, with a gyro that checks the heading.
+        let check = gyro_check();
         let judge_of = |candidate: &ModelFit| {
             let params = own_params(candidate, &current);
             judge(&Trial {
                 data: &data,
-                heading: [None, None, None],
+                heading: [Some(&check); 3],
                 effect: &effect,
                 fit: candidate,
                 current: &current,
@@ -938,12 +993,9 @@ mod judge_tests {
 
     #[test]
     fn a_physical_effect_that_matters_is_supported_with_its_numbers() {
-        let j = judged(
-            Effect::Cubic,
-            &[("k_x", 0.03, 0.001), ("k_y", 0.0, 0.001)],
-            1.0,
-            0.012,
-        );
+        let check = gyro_check();
+        let cubic = [("k_x", 0.03, 0.001), ("k_y", 0.0, 0.001)];
+        let j = judged_checked(Effect::Cubic, &cubic, 1.0, 0.012, Some(&check));
         assert!(j.supported, "{}", j.evidence);
         assert!(
             j.evidence.contains("rms 2.00 % → 1.20 %")
@@ -951,6 +1003,53 @@ mod judge_tests {
             "{}",
             j.evidence
         );
+        // Within the datasheets' 1 %, no gyro is needed.
+        let j = judged(
+            Effect::Cubic,
+            &[("k_x", 0.008, 0.0002), ("k_y", 0.0, 0.0002)],
+            1.0,
+            0.012,
+        );
+        assert!(j.supported, "{}", j.evidence);
+    }
+
+    /// Without a gyro to check what it does to the heading, a cubic is held
+    /// to the datasheets' figure, and the evidence says which limit held.
+    #[test]
+    fn without_a_gyro_a_cubic_is_held_to_the_datasheet() {
+        let cubic = [("k_x", 0.03, 0.001), ("k_y", 0.0, 0.001)];
+        let j = judged(Effect::Cubic, &cubic, 1.0, 0.012);
+        assert!(!j.supported);
+        assert!(
+            j.evidence.starts_with(
+                "not a physical cubic: k_x = 0.0300 ± 0.00100 bends the reading by 3.0 % at full scale, beyond what the sensor's datasheet allows (limit 1 % at full scale with no gyro to check the heading"
+            ),
+            "{}",
+            j.evidence
+        );
+        assert!(
+            j.evidence.contains("with --gyro the limit is 10 %"),
+            "{}",
+            j.evidence
+        );
+        let j = judged(Effect::CubicCentred, &[("kc", -0.07, 0.002)], 1.0, 0.012);
+        assert!(!j.supported);
+        assert!(
+            j.evidence
+                .contains("by 7.0 % at full scale, beyond what the sensor's datasheet allows"),
+            "{}",
+            j.evidence
+        );
+        // The cross-axis limit is the same with or without a gyro.
+        assert_eq!(
+            limit_for("c", false).map(|l| l.max_abs),
+            limit_for("c", true).map(|l| l.max_abs)
+        );
+        assert_eq!(
+            limit_for("kc", false).map(|l| l.max_abs),
+            Some(MAX_CUBIC_UNCHECKED)
+        );
+        assert_eq!(limit_for("kc", true).map(|l| l.max_abs), Some(MAX_CUBIC));
     }
 
     #[test]
@@ -987,7 +1086,7 @@ mod judge_tests {
 
     #[test]
     fn doubling_the_gain_ratio_is_not_physical() {
-        let j = judged(Effect::Cubic, &[("k_x", 0.05, 0.001)], 2.03, 0.012);
+        let j = judged(Effect::Cubic, &[("k_x", 0.005, 0.0001)], 2.03, 0.012);
         assert!(!j.supported);
         assert!(
             j.evidence.contains("from 1.00 to 2.03 (×2.03)"),

@@ -59,6 +59,14 @@ pub const OPTIONAL: [Effect; 5] = [
 /// sensor. The fit's k is that fraction at the data's largest reading
 /// (nonlinear.rs), so |k| compares with it directly.
 pub const MAX_CUBIC: f64 = 0.10;
+/// The largest cubic the diagnosis believes when nothing checks what it
+/// does to the heading (no gyro, or a 3-D fit): 1 % at full scale, twice
+/// the worst datasheet figure above. A fit can bend a hand-turned
+/// recording into a few percent of cubic that lowers the rms and turns
+/// the heading (a hand-turned MPU-6050 gave kc = −7 %); only a gyro can
+/// say whether such a bend is the sensor's, so without one the sensor is
+/// held to what its datasheet says it does.
+pub const MAX_CUBIC_UNCHECKED: f64 = 0.01;
 /// The largest cross-axis coupling, in degrees: 20°. Datasheets give a
 /// cross-axis sensitivity of ±2 % (≈ 1.1°; HMC5883L ±0.2 %, MPU-6050 ±2 %,
 /// ADXL345 ±1 %); soft iron near the sensor and a tilted mounting add more,
@@ -80,6 +88,9 @@ pub struct ParamLimit {
     pub describe: fn(f64) -> String,
     /// Where the limit comes from.
     pub source: &'static str,
+    /// The limit and its source when no gyro checks the heading, if it is
+    /// tighter then.
+    pub unchecked: Option<(f64, &'static str)>,
 }
 
 fn bends(k: f64) -> String {
@@ -96,6 +107,9 @@ fn couples(c: f64) -> String {
 const CUBIC_SOURCE: &str =
     "limit 10 % at full scale; datasheets give 0.1–0.5 % (HMC5883L, MPU-6050, ADXL345)";
 
+/// Where [`MAX_CUBIC_UNCHECKED`] comes from, as the evidence says it.
+pub const CUBIC_UNCHECKED_SOURCE: &str = "limit 1 % at full scale with no gyro to check the heading: twice the worst datasheet figure, 0.1–0.5 % (HMC5883L, MPU-6050, ADXL345); with --gyro the limit is 10 %, what an amplifier near saturation can do";
+
 /// The limit of a cubic term ([`MAX_CUBIC`]) on the parameter `param`.
 const fn cubic_limit(param: &'static str) -> ParamLimit {
     ParamLimit {
@@ -103,6 +117,7 @@ const fn cubic_limit(param: &'static str) -> ParamLimit {
         max_abs: MAX_CUBIC,
         describe: bends,
         source: CUBIC_SOURCE,
+        unchecked: Some((MAX_CUBIC_UNCHECKED, CUBIC_UNCHECKED_SOURCE)),
     }
 }
 
@@ -112,6 +127,7 @@ const CROSS_AXIS_LIMIT: ParamLimit = ParamLimit {
     max_abs: MAX_CROSS_AXIS_SHEAR,
     describe: couples,
     source: "limit 20°; datasheets give ±2 % cross-axis sensitivity (≈ 1°), ArduPilot accepts off-diagonals below 1.0",
+    unchecked: None,
 };
 
 /// The facts of one effect of the catalogue.
@@ -225,6 +241,22 @@ pub fn limit_of(param: &str) -> Option<&'static ParamLimit> {
         .iter()
         .flat_map(|info| info.limits)
         .find(|l| l.param == param)
+}
+
+/// The physical limit on a parameter as the diagnosis applies it:
+/// `heading_checked` when a gyro checks what the candidate does to the
+/// heading; without one, the tighter limit of [`ParamLimit::unchecked`]
+/// where there is one.
+pub fn limit_for(param: &str, heading_checked: bool) -> Option<ParamLimit> {
+    let limit = *limit_of(param)?;
+    Some(match limit.unchecked {
+        Some((max_abs, source)) if !heading_checked => ParamLimit {
+            max_abs,
+            source,
+            ..limit
+        },
+        _ => limit,
+    })
 }
 
 /// The effects the daemon can fit and apply to live readings, in catalogue
