@@ -1227,7 +1227,7 @@ fn a_wrong_element_is_named_at_its_index_and_a_date_is_no_path() {
 }
 
 #[test]
-fn learn_and_on_stale_are_read_for_a_plane_and_refused_for_a_sphere() {
+fn learn_and_on_stale_are_read_for_a_plane_and_on_stale_for_a_sphere() {
     use fieldcal::daemon::config::{OnStale, WatchSettings};
     let plane = format!(
         "{SOURCES}\n[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\nlearn = true\non_stale = \"replace\"\n"
@@ -1262,6 +1262,26 @@ fn learn_and_on_stale_are_read_for_a_plane_and_refused_for_a_sphere() {
         &sphere,
         "sensor[0].learn",
         None,
-        &["3-axis", "not watched yet"],
+        &[
+            "3-axis",
+            "watched (`on_stale`) but not merged",
+            "remove the key",
+        ],
+    );
+    // A sphere's on_stale is read; warn by default.
+    let sphere = sphere.replace("learn = true\n", "on_stale = \"replace\"\n");
+    let config = parse(&sphere, &config_path()).unwrap();
+    assert_eq!(
+        config.sensors[0].sphere().map(|s| s.on_stale),
+        Some(OnStale::Replace)
+    );
+    let config = parse(
+        &sphere.replace("on_stale = \"replace\"\n", ""),
+        &config_path(),
+    )
+    .unwrap();
+    assert_eq!(
+        config.sensors[0].sphere().map(|s| s.on_stale),
+        Some(OnStale::Warn)
     );
 }

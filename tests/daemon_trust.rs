@@ -331,6 +331,18 @@ fn transpose(m: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
 /// magnitude kept. The magnetometer lies on the board as body x = −mag x,
 /// body y = −mag z, body z = mag y (`mag_axes = "-x,-z,y"`).
 fn board(magnet: impl Fn(f64) -> f64) -> String {
+    board_with(200.0, 150.0, magnet, |_| [0.0; 3])
+}
+
+/// [`board`] for `seconds`, tumbling until `tumble_s`, with a hard iron
+/// `iron(t)` added to the magnetometer's counts (a magnet fixed to the
+/// board).
+fn board_with(
+    seconds: f64,
+    tumble_s: f64,
+    magnet: impl Fn(f64) -> f64,
+    iron: impl Fn(f64) -> [f64; 3],
+) -> String {
     let mut text = String::from("t,mx,my,mz,ax,ay,az\n");
     let mut state: u64 = 0x9e37_79b9_7f4a_7c15;
     let mut noise = || {
@@ -340,12 +352,12 @@ fn board(magnet: impl Fn(f64) -> f64) -> String {
         (state % 20_001) as f64 / 10_000.0 - 1.0
     };
     let dip = 65f64.to_radians();
-    for k in 0..4000 {
+    for k in 0..(seconds * 20.0) as usize {
         let t = k as f64 / 20.0;
         // Body to world (north, east, down): yaw, pitch and roll at rates
-        // that do not divide one another, until 150 s; then level.
-        let tumble = t.min(150.0);
-        let level = t >= 150.0;
+        // that do not divide one another, until `tumble_s`; then level.
+        let tumble = t.min(tumble_s);
+        let level = t >= tumble_s;
         let r = if level {
             rotation([0.0, 0.0, 1.0], 0.6)
         } else {
@@ -363,10 +375,11 @@ fn board(magnet: impl Fn(f64) -> f64) -> String {
         // Magnetometer axes from body axes: mag x = −body x, mag y = body
         // z, mag z = −body y; with an offset and a scale per axis.
         let mag = [-m[0], m[2], -m[1]];
+        let h = iron(t);
         let (mx, my, mz) = (
-            30.0 + 1.04 * mag[0] + noise(),
-            -45.0 + 0.97 * mag[1] + noise(),
-            12.0 + mag[2] + noise(),
+            30.0 + h[0] + 1.04 * mag[0] + noise(),
+            -45.0 + h[1] + 0.97 * mag[1] + noise(),
+            12.0 + h[2] + mag[2] + noise(),
         );
         let (ax, ay, az) = (
             g[0] + 0.002 * noise(),
@@ -488,4 +501,90 @@ fn a_magnetometer_mounted_otherwise_than_configured_has_every_heading_distrusted
     assert!(all > 1000, "{all}");
     assert_eq!(bad, all);
     assert_eq!(first, why);
+}
+
+/// A 3-axis compass tumbled on after its calibration: each later covered
+/// sphere is compared with it. Unchanged, they agree (no STALE); a magnet
+/// fixed to the board at 330 s (40 counts on x, 8 % of the field) gives
+/// one STALE on the first sphere after it, naming the offset that moved,
+/// and from then on every reading is distrusted as stale.
+#[test]
+fn a_magnet_fixed_to_a_tumbling_board_makes_its_3d_calibration_stale_on_the_next_sphere() {
+    let dir = tempfile::tempdir().unwrap();
+    let step = 330.0;
+    let csv = board_with(
+        660.0,
+        660.0,
+        |_| 0.0,
+        |t| {
+            if t >= step {
+                [40.0, 0.0, 0.0]
+            } else {
+                [0.0; 3]
+            }
+        },
+    );
+    let lines = replay_board(&csv, "-x,-z,y", dir.path());
+    let compass = |class: &str| -> Vec<&Value> {
+        lines
+            .iter()
+            .filter(|v| v["class"] == class && v["sensor"] == "compass")
+            .collect()
+    };
+    let accepted: Vec<_> = compass("CALIBRATION")
+        .into_iter()
+        .filter(|v| v["accepted"] == true)
+        .collect();
+    assert_eq!(accepted.len(), 1, "{accepted:?}");
+    let calibrated_at = accepted[0]["time"].as_f64().unwrap();
+    assert!(calibrated_at < step / 2.0, "{calibrated_at}");
+    let stale = compass("STALE");
+    assert_eq!(stale.len(), 1, "{stale:?}");
+    let s = stale[0];
+    let at = s["time"].as_f64().unwrap();
+    assert!(at > step, "STALE at {at}, before the magnet at {step}");
+    assert_eq!(s["calibration"], accepted[0]["id"]);
+    assert_eq!(s["action"], "warn");
+    let moved: Vec<&str> = s["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|p| p["moved"] == true)
+        .map(|p| p["name"].as_str().unwrap())
+        .collect();
+    assert!(moved.contains(&"o_x"), "{s}");
+    let o_x = s["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["name"] == "o_x")
+        .unwrap();
+    let shift = o_x["refitted"].as_f64().unwrap() - o_x["stored"].as_f64().unwrap();
+    assert!((shift - 40.0).abs() < 2.0, "o_x moved by {shift}: {s}");
+    assert!(s["heading_error_deg"].as_f64().unwrap() > s["heading_limit_deg"].as_f64().unwrap());
+    // Readings: trusted up to the magnet; distrusted as stale after STALE.
+    let readings = compass("READING");
+    let calibrated = |from: f64, to: f64| -> Vec<&&Value> {
+        readings
+            .iter()
+            .filter(|v| v["calibrated"] == true)
+            .filter(|v| (from..to).contains(&v["time"].as_f64().unwrap()))
+            .collect()
+    };
+    let before = calibrated(0.0, step);
+    assert!(before.len() > 1000, "{}", before.len());
+    assert!(before.iter().all(|v| v["trusted"] == true));
+    let after = calibrated(at + 0.01, 1e9);
+    assert!(after.len() > 100, "{}", after.len());
+    for v in &after {
+        assert_eq!(v["trusted"], false, "{v}");
+        let why = v["distrust"][0].as_str().unwrap();
+        assert!(
+            why.starts_with(&format!(
+                "calibration #{} is stale: a later sphere moved",
+                s["calibration"]
+            )),
+            "{why}"
+        );
+    }
 }

@@ -2891,6 +2891,116 @@ mod watch_sweep {
     }
 }
 
+/// The sphere watch over random 3-axis sensors: a later sphere of the same
+/// sensor is never stale; one with a magnet fixed beside it (a hard iron of
+/// 5 % of the field in a random direction) always is.
+mod watch_sweep3 {
+    use fieldcal::model::calibration::{Calibration, Ellipsoid3Params};
+    use fieldcal::model::ellipsoid::{self, Ellipsoid3Model};
+    use fieldcal::model::paper::PaperCalibration;
+    use fieldcal::model::watch;
+    use fieldcal::sim3::{Motion3, SimSensor3};
+
+    use super::trust_sweep::Rng;
+
+    fn calibration(fit: &ellipsoid::Ellipsoid3Fit, refit: &watch::Refit) -> Calibration {
+        Calibration {
+            sensor: "compass".into(),
+            id: 1,
+            model: fit.model.name().into(),
+            params: PaperCalibration {
+                a: 1.0,
+                b: 0.0,
+                d: 0.0,
+                r: fit.r,
+            },
+            rms: fit.rms,
+            coverage_deg: 0.0,
+            n: fit.n,
+            time: 0.0,
+            terms: Default::default(),
+            ellipsoid: Some(Ellipsoid3Params {
+                offset: fit.offset,
+                matrix: fit.matrix,
+                r: fit.r,
+                coverage: fit.coverage.fraction,
+            }),
+            se: watch::se_map(&refit.params),
+            parent: None,
+            history: Vec::new(),
+            gyro: None,
+            dip: None,
+        }
+    }
+
+    /// Whether the second sphere shows the first's calibration stale.
+    fn stale(first: &[[f64; 3]], second: &[[f64; 3]]) -> bool {
+        let model = Ellipsoid3Model::Full;
+        let fitted = |points: &[[f64; 3]]| {
+            let fit = ellipsoid::fit(points, model).unwrap();
+            let residuals: Vec<f64> = points.iter().map(|p| fit.magnitude_error(*p)).collect();
+            let refit = watch::sphere_refit(&fit, &residuals);
+            (calibration(&fit, &refit), refit)
+        };
+        let (stored, _) = fitted(first);
+        let (now, refit) = fitted(second);
+        let error = watch::direction_error_deg(
+            stored.ellipsoid.as_ref().unwrap(),
+            now.ellipsoid.as_ref().unwrap(),
+            second,
+        );
+        watch::compare(&stored, &refit, error).stale()
+    }
+
+    #[test]
+    fn the_same_sphere_is_never_stale_and_a_magnet_always_is() {
+        let mut rng = Rng(0x5eed_cafe_f00d_0003);
+        let (mut false_alarms, mut missed) = (0, 0);
+        let cases = 100;
+        for case in 0..cases {
+            let r = rng.uniform(0.5, 2000.0);
+            let g = |rng: &mut Rng| rng.uniform(0.85, 1.15);
+            let c = |rng: &mut Rng| rng.uniform(-0.05, 0.05);
+            let (xy, xz, yz) = (c(&mut rng), c(&mut rng), c(&mut rng));
+            let matrix = [
+                [g(&mut rng), xy, xz],
+                [xy, g(&mut rng), yz],
+                [xz, yz, g(&mut rng)],
+            ];
+            let offset = [0, 1, 2].map(|_| rng.uniform(-1.0, 1.0) * r);
+            let sensor = |offset: [f64; 3], seed: u64, n: usize| SimSensor3 {
+                matrix,
+                offset,
+                r,
+                // 0.1 % to 1 % of the field per axis.
+                noise: r * [0.001, 0.003, 0.01][case % 3],
+                n,
+                motion: Motion3::Tumble {
+                    turns: 20.0,
+                    axis_path_rad: 10.0,
+                },
+                seed,
+            };
+            let n = rng.uniform(300.0, 3000.0) as usize;
+            let first = sensor(offset, 2 * case as u64 + 1, n).simulate().unwrap();
+            let second = sensor(offset, 2 * case as u64 + 2, n).simulate().unwrap();
+            false_alarms += usize::from(stale(&first, &second));
+            let (a, b) = (
+                rng.uniform(0.0, std::f64::consts::TAU),
+                rng.uniform(-1.0, 1.0),
+            );
+            let k = (1.0 - b * b).sqrt();
+            let magnet = [k * a.cos(), k * a.sin(), b].map(|u| 0.05 * r * u);
+            let moved = [0, 1, 2].map(|i| offset[i] + magnet[i]);
+            let third = sensor(moved, 2 * case as u64 + 2, n).simulate().unwrap();
+            missed += usize::from(!stale(&first, &third));
+        }
+        eprintln!("sphere watch sweep: {false_alarms} false alarms, {missed} missed of {cases}");
+        assert_eq!(false_alarms, 0, "the same sensor called stale");
+        assert!(missed <= 1, "{missed} of {cases} magnets missed");
+    }
+}
+
 /// Moved from `src/model/diagnose.rs`: the diagnosis on simulated recordings.
 mod diagnose_data {
     use fieldcal::model::diagnose::*;

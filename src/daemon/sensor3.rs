@@ -33,8 +33,11 @@ use crate::model::tilt::{
 use crate::model::trust::{
     Observation, TrustCounts, TrustLimits, TrustMonitor, Verdict, monitor_of,
 };
+use crate::model::watch;
 use crate::sample::Reading;
 use std::sync::Arc;
+
+mod watching;
 
 // The sphere buffer's settings and progress, at the paths they had before
 // the buffer moved to [`crate::model::sphere_buffer`].
@@ -243,7 +246,7 @@ fn field_of(reading: &Reading, field: Field) -> Option<[i16; 3]> {
 /// heading against a gyro is not checked yet.
 fn judge(
     trust: &mut Option<(u64, TrustMonitor)>,
-    mag_axes: AxisMap,
+    (mag_axes, stale): (AxisMap, Option<&str>),
     c: &Calibration,
     (time, mag, heading_deg): (f64, [f64; 3], Option<f64>),
     accel_raw: Option<[f64; 3]>,
@@ -258,6 +261,7 @@ fn judge(
     let mounting = dip
         .and_then(|d| d.mounting.as_deref())
         .filter(|_| heading_deg.is_some());
+    let standing: Vec<&str> = stale.into_iter().chain(mounting).collect();
     monitor_of(trust, c.id, || {
         let limits = TrustLimits::from_rms(c.rms, None, None);
         match dip {
@@ -273,7 +277,7 @@ fn judge(
             gyro_deg_s: None,
             dip_deg,
         },
-        mounting,
+        &standing,
     )
 }
 
@@ -383,37 +387,7 @@ impl Sensor3 {
             self.reject(life, (time, fit_ms), reason, Some(&fit), emit);
             return None;
         }
-        let calibration = Calibration {
-            sensor: self.name.clone(),
-            id: life.next_id,
-            model: fit.model.name().to_string(),
-            // The 2-D parameters of a 3-D calibration: the identity, r.
-            params: PaperCalibration {
-                a: 1.0,
-                b: 0.0,
-                d: 0.0,
-                r: fit.r,
-            },
-            rms: fit.rms,
-            coverage_deg: 0.0,
-            n: fit.n,
-            time,
-            terms: Default::default(),
-            ellipsoid: Some(params_of(&fit)),
-            se: Default::default(),
-            parent: None,
-            history: Vec::new(),
-            gyro: None,
-            dip: None,
-        };
-        let dip = (self.field == Field::Mag).then(|| self.measured_inclination(&params_of(&fit)));
-        let calibration = Calibration {
-            dip: dip
-                .as_ref()
-                .and_then(|d| d.as_ref().ok())
-                .map(|d| self.dip_fit(&params_of(&fit), d)),
-            ..calibration
-        };
+        let (calibration, dip) = self.calibration_of(life, &fit, time);
         let earth = dip.and_then(|d| self.earth_of(fit.r, || d));
         if let Some(e) = &earth {
             tracing::info!(sensor = %self.name, "against the World Magnetic Model: {}", e.verdict);
@@ -430,8 +404,56 @@ impl Sensor3 {
             fit.coverage.fraction * 100.0
         );
         life.accept(calibration);
-        self.buffer.accepted();
+        // Let the samples go; the next sphere, watched against this
+        // calibration, is collected afresh.
+        self.buffer.reset();
         life.current.clone()
+    }
+
+    /// The calibration a fit of the samples held makes, with its standard
+    /// errors (widened for the samples' correlation in time), and its dip
+    /// over them (beside the dip's measurement, for the Earth's model).
+    fn calibration_of(
+        &self,
+        life: &Lifecycle,
+        fit: &Ellipsoid3Fit,
+        time: f64,
+    ) -> (Calibration, Option<Result<MeasuredDip, String>>) {
+        let residuals: Vec<f64> = self
+            .buffer
+            .points()
+            .iter()
+            .map(|p| fit.magnitude_error(*p))
+            .collect();
+        let refit = watch::sphere_refit(fit, &residuals);
+        let dip = (self.field == Field::Mag).then(|| self.measured_inclination(&params_of(fit)));
+        let calibration = Calibration {
+            sensor: self.name.clone(),
+            id: life.next_id,
+            model: fit.model.name().to_string(),
+            // The 2-D parameters of a 3-D calibration: the identity, r.
+            params: PaperCalibration {
+                a: 1.0,
+                b: 0.0,
+                d: 0.0,
+                r: fit.r,
+            },
+            rms: fit.rms,
+            coverage_deg: 0.0,
+            n: fit.n,
+            time,
+            terms: Default::default(),
+            ellipsoid: Some(params_of(fit)),
+            se: watch::se_map(&refit.params),
+            parent: None,
+            history: Vec::new(),
+            gyro: None,
+            dip: dip
+                .as_ref()
+                .and_then(|d| d.as_ref().ok())
+                .map(|d| self.dip_fit(&params_of(fit), d)),
+        };
+        (calibration, dip)
     }
 
     fn message<'a>(
@@ -674,7 +696,7 @@ impl Geometry for Sensor3 {
         let verdict = life.current.as_ref().zip(corrected).map(|(c, (_, mag))| {
             judge(
                 &mut self.trust,
-                self.config.mag_axes,
+                (self.config.mag_axes, life.stale.as_deref()),
                 c,
                 (time, mag, heading_deg),
                 accel,
@@ -714,7 +736,10 @@ impl Geometry for Sensor3 {
         emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         let Sample { time, raw } = sample;
-        if !life.collecting() || raw.iter().any(|v| !v.is_finite()) {
+        // Calibrated: each later sphere is watched against the calibration,
+        // until it is found stale.
+        let watching = !life.collecting();
+        if (watching && life.stale.is_some()) || raw.iter().any(|v| !v.is_finite()) {
             return None;
         }
         // The accelerometer beside this sample, unless it is stale.
@@ -726,7 +751,11 @@ impl Geometry for Sensor3 {
         if !self.buffer.push(time, raw, accel) {
             return None;
         }
-        let fitted = self.fit(life, time, emit);
+        let fitted = if watching {
+            self.watch(life, time, emit)
+        } else {
+            self.fit(life, time, emit)
+        };
         self.buffer.after_fit();
         fitted
     }

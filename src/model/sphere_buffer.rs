@@ -325,12 +325,6 @@ impl SphereBuffer {
         self.wait = (n / 4).max(self.settings.min_samples / 4);
     }
 
-    /// The samples were fitted and the fit accepted: they are let go.
-    pub fn accepted(&mut self) {
-        self.points = Vec::new();
-        self.accel_at = Vec::new();
-    }
-
     /// The samples' fit was refused: collect anew.
     pub fn rejected(&mut self) {
         self.points.clear();

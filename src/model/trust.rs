@@ -231,14 +231,15 @@ impl TrustMonitor {
     /// Checks one reading. Readings out of time order, or not finite, are
     /// distrusted and leave the history as it was.
     pub fn check(&mut self, obs: Observation) -> Verdict {
-        self.check_under(obs, None)
+        self.check_under(obs, &[])
     }
 
-    /// [`TrustMonitor::check`] under a calibration known to be stale
-    /// (`stale`: why), which distrusts every reading with that reason
-    /// first, the other checks going on beside it.
-    pub fn check_under(&mut self, obs: Observation, stale: Option<&str>) -> Verdict {
-        let mut reasons: Vec<String> = stale.map(str::to_string).into_iter().collect();
+    /// [`TrustMonitor::check`] under standing reasons to distrust every
+    /// reading (a calibration known to be stale, a mounting known to be
+    /// wrong: `standing`, why), which come first, the other checks going on
+    /// beside them.
+    pub fn check_under(&mut self, obs: Observation, standing: &[&str]) -> Verdict {
+        let mut reasons: Vec<String> = standing.iter().map(|s| s.to_string()).collect();
         let ordered = self.previous.is_none_or(|(t, _)| obs.time >= t);
         if !(obs.time.is_finite()
             && obs.field_ratio.is_finite()

@@ -22,6 +22,12 @@
 //!   heading noise of a reading whose magnitude scatters by a fraction σ
 //!   (the smaller rms of the two fits) is σ radians: isotropic noise of that size moves the
 //!   point as much across the radius as along it.
+//! - **3-D.** A 3-axis sensor's later covered sphere is compared the same
+//!   way, parameter by parameter (o, the six entries of the symmetric W,
+//!   r: [`sphere_refit`]); the physical gate is the largest angle between
+//!   the two corrections of one of the sphere's samples
+//!   ([`direction_error_deg`]), which bounds the heading error the move
+//!   causes, against the same 3 σ of one reading's noise.
 //! - **Refining.** Two fits that agree are combined per parameter by
 //!   inverse variance: value = Σ wᵢvᵢ / Σ wᵢ with wᵢ = 1/seᵢ², se =
 //!   1/sqrt(Σ wᵢ). Ten agreeing rotations shrink each SE by about √11.
@@ -30,8 +36,9 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use super::calibration::{Calibration, paper_parameters};
+use super::calibration::{Calibration, Ellipsoid3Params, paper_parameters};
 use super::check::{FAMILY_FALSE_ALARM, ParamShift, moved_threshold};
+use super::ellipsoid::Ellipsoid3Fit;
 use super::fit::FitReport;
 use super::nonlinear::Param;
 use super::paper::closed_form_se;
@@ -41,6 +48,11 @@ pub use super::check::{lag1_autocorrelation, se_inflation};
 /// A move is stale when its heading error leaves the ±3σ band of one
 /// reading's heading noise.
 pub const NOISE_SIGMAS: f64 = 3.0;
+
+/// A refit whose rms is at most this many times the stale calibration's
+/// is clean (the same sensor's noise, within what two turns' or spheres'
+/// rms differ by); beyond, it straddled the change and calibrates nothing.
+pub const CLEAN_RMS_FACTOR: f64 = 2.0;
 
 /// Calibrations kept behind the current one (for `rollback`), oldest
 /// dropped first.
@@ -136,8 +148,64 @@ pub fn paper_refit(x: &[f64], y: &[f64], report: &FitReport) -> Refit {
     widened(paper_parameters(&c, se.as_ref()), &residuals, report.rms)
 }
 
+/// A 3-axis calibration's parameters by name: the offset o, the entries
+/// of the symmetric W on and above its diagonal, r.
+pub const NAMES3: [&str; 10] = [
+    "o_x", "o_y", "o_z", "w_xx", "w_xy", "w_xz", "w_yy", "w_yz", "w_zz", "r",
+];
+
+/// The values of [`NAMES3`] of `o`, `w`, `r`.
+fn values3(o: &[f64; 3], w: &[[f64; 3]; 3], r: f64) -> [f64; 10] {
+    [
+        o[0], o[1], o[2], w[0][0], w[0][1], w[0][2], w[1][1], w[1][2], w[2][2], r,
+    ]
+}
+
+/// A later sphere's 3-D fit as a [`Refit`]: the parameters its model fits
+/// (those with a standard error; W = I of `offset` has none), their
+/// standard errors widened for its `residuals`' correlation (the sphere's
+/// samples in time order).
+pub fn sphere_refit(fit: &Ellipsoid3Fit, residuals: &[f64]) -> Refit {
+    let values = values3(&fit.offset, &fit.matrix, fit.r);
+    let ses = values3(&fit.se.offset, &fit.se.matrix, fit.se.r);
+    let params = NAMES3
+        .iter()
+        .zip(values.iter().zip(ses))
+        .filter(|(_, (_, se))| se.is_finite() && *se > 0.0)
+        .map(|(name, (&value, se))| Param {
+            name: (*name).to_string(),
+            value,
+            se,
+        })
+        .collect();
+    widened(params, residuals, fit.rms)
+}
+
+/// The largest angle between two 3-D corrections of the same samples,
+/// degrees: a bound on the heading error between them (a reading's
+/// direction turned by α turns its heading by about α / cos(dip) at most
+/// in the horizontal, and by α when level).
+pub fn direction_error_deg(a: &Ellipsoid3Params, b: &Ellipsoid3Params, points: &[[f64; 3]]) -> f64 {
+    points.iter().fold(0.0f64, |worst, p| {
+        let (u, v) = (a.correct(*p), b.correct(*p));
+        let dot = u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+        let norms = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt()
+            * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let angle = (dot / norms).clamp(-1.0, 1.0).acos().to_degrees();
+        if angle.is_finite() {
+            worst.max(angle)
+        } else {
+            worst
+        }
+    })
+}
+
 /// The value of a parameter of `c` by its name in a fit's parameter list.
 pub fn value_of(c: &Calibration, name: &str) -> Option<f64> {
+    if let Some(e) = &c.ellipsoid {
+        let i = NAMES3.iter().position(|n| *n == name)?;
+        return Some(values3(&e.offset, &e.matrix, e.r)[i]);
+    }
     let (p, t) = (&c.params, &c.terms);
     Some(match name {
         "a" => p.a,

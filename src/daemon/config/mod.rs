@@ -155,6 +155,7 @@
 //! tilt = "level"            # the 3-axis accelerometer sensor of the same source
 //! mag_axes = "-x,-z,y"      # with tilt: the magnetometer's axis along the
 //!                           # accelerometer's x, y, z; default "x,y,z"
+//! on_stale = "warn"         # a later sphere that moved it: "warn" or "replace"
 //! [sensor.location]         # the WMM's declination, and its field beside the fitted one
 //! latitude = 50.1109
 //! longitude = 8.6821

@@ -69,6 +69,8 @@ pub struct Sensor3Config {
     /// identity when not given. Used for the heading and the dip only: the
     /// calibration and `corrected` stay in the magnetometer's own axes.
     pub mag_axes: AxisMap,
+    /// What a later sphere that shows the calibration stale does.
+    pub on_stale: OnStale,
     pub sphere: crate::model::sphere_buffer::SphereSettings,
     /// A sensor of a csv source: the columns of its x, y, z (then `axes`
     /// is x, y, z and unused).
@@ -504,17 +506,12 @@ impl Checker<'_> {
                 format!("must be a positive number of counts (at most 1e9), got {u}"),
             ));
         }
-        for (name, given) in [
-            ("learn", s.learn.is_some()),
-            ("on_stale", s.on_stale.is_some()),
-        ] {
-            if given {
-                return Err(self.error(
-                    &format!("{key}.{name}"),
-                    "a 3-axis sensor's later spheres are not watched yet: `learn` and \
-                     `on_stale` apply to 2-axis sensors; remove the key",
-                ));
-            }
+        if s.learn.is_some() {
+            return Err(self.error(
+                &format!("{key}.learn"),
+                "a 3-axis sensor's later spheres are watched (`on_stale`) but not merged \
+                 into its calibration: `learn` applies to 2-axis sensors; remove the key",
+            ));
         }
         let sphere = s.sphere.unwrap_or_default();
         if let Err(problem) = sphere.validate() {
@@ -538,6 +535,7 @@ impl Checker<'_> {
             model,
             lsb_per_unit: unit,
             mag_axes,
+            on_stale: s.on_stale.unwrap_or_default(),
             // Resolved by link_tilts.
             tilt: None,
             sphere,

@@ -150,7 +150,7 @@ impl Plane {
                         gyro_deg_s,
                         dip_deg: None,
                     },
-                    life.stale.as_deref(),
+                    life.stale.as_deref().as_slice(),
                 )
             });
         let columns = row

@@ -4,11 +4,7 @@
 //! readings distrusted, or the calibration replaced).
 
 use super::*;
-
-/// A rotation whose fit scatters at most this many times the stale
-/// calibration's rms is clean (the same sensor's noise, within what two
-/// turns' rms differ by); beyond, it straddled the change.
-const CLEAN_RMS_FACTOR: f64 = 2.0;
+use crate::model::watch::CLEAN_RMS_FACTOR;
 
 impl Plane {
     /// A rotation completed after the calibration was accepted: fitted and
