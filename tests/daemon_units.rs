@@ -816,6 +816,28 @@ mod state_writer {
         }
     }
 
+    /// A calibration returned to by `rollback` is a kept one, as one loaded
+    /// at start: the progress board logs no rotation for it.
+    #[test]
+    fn a_rolled_back_calibration_is_a_stored_one_for_the_progress_board() {
+        use fieldcal::daemon::messages::CalibrationMessage;
+        let c = calibration("compass", 3);
+        let stored = |origin: &'static str| {
+            CalibrationMessage {
+                origin,
+                ..CalibrationMessage::loaded(&c)
+            }
+            .event()
+            .unwrap()
+            .stored
+        };
+        assert!(stored("state"));
+        assert!(stored("rollback"));
+        for fitted in ["rotation", "refined", "replaced"] {
+            assert!(!stored(fitted), "{fitted}");
+        }
+    }
+
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn a_held_write_does_not_hold_the_caller_and_order_is_kept() {
         let written = Arc::new(Mutex::new(Vec::new()));

@@ -313,10 +313,17 @@ fn fake_loop(
             if !answer {
                 continue;
             }
-            if let ClientCommand::Recalibrate { sensor: Some(name) } = &command
-                && name != "compass"
-            {
-                reply.send(error_line(&format!("no sensor named '{name}'")));
+            match &command {
+                ClientCommand::Recalibrate { sensor: Some(name) }
+                | ClientCommand::Rollback { sensor: Some(name) }
+                    if name != "compass" =>
+                {
+                    reply.send(error_line(&format!("no sensor named '{name}'")));
+                }
+                ClientCommand::Rollback { sensor: Some(_) } => reply.send(error_line(
+                    "sensor 'compass' cannot roll back: no earlier calibration is kept",
+                )),
+                _ => {}
             }
             reply.send(Arc::from(
                 r#"{"class":"STATUS","sensors":[{"sensor":"compass","state":"recalibrating"}]}"#,
@@ -404,6 +411,45 @@ async fn recalibrate_sends_the_clients_command_and_answers_errors_clearly() {
             .as_str()
             .unwrap()
             .contains("shutting down")
+    );
+}
+
+/// `POST /api/rollback`: the client's rollback command with the same
+/// body and answers; 409 when the sensor keeps no earlier calibration.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rollback_sends_the_clients_command_and_says_when_there_is_nothing_to_return_to() {
+    let hub = Hub::new(64);
+    let (addr, rx) = start(&hub).await;
+    let seen = fake_loop(rx, true);
+    let post = |body: Option<&'static str>| {
+        let addr = addr.clone();
+        blocking(move || request(&addr, "POST", "/api/rollback", body, T))
+    };
+    let r = post(None).await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    assert_eq!(r.json()["rolled_back"], Value::Null);
+    assert_eq!(r.json()["status"]["sensors"][0]["sensor"], "compass");
+    let r = post(Some(r#"{"sensor":"compass"}"#)).await;
+    assert_eq!(r.status, 409, "{}", r.text());
+    assert_eq!(
+        r.json()["error"],
+        "sensor 'compass' cannot roll back: no earlier calibration is kept"
+    );
+    let r = post(Some(r#"{"sensor":"nope"}"#)).await;
+    assert_eq!(r.status, 404, "{}", r.text());
+    let r = post(Some("compass")).await;
+    assert_eq!(r.status, 400, "{}", r.text());
+    assert_eq!(
+        *seen.lock().unwrap(),
+        [
+            ClientCommand::Rollback { sensor: None },
+            ClientCommand::Rollback {
+                sensor: Some("compass".into())
+            },
+            ClientCommand::Rollback {
+                sensor: Some("nope".into())
+            },
+        ]
     );
 }
 

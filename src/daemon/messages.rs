@@ -194,6 +194,13 @@ pub struct StaleMessage<'a> {
     pub message: &'a str,
 }
 
+/// Whether a CALIBRATION of `origin` is one kept before (loaded from the
+/// state file at start, or returned to by `rollback`), not a fit of
+/// samples just collected: the progress board then logs no rotation.
+pub fn is_stored(origin: &str) -> bool {
+    matches!(origin, "state" | "rollback")
+}
+
 impl<'a> CalibrationMessage<'a> {
     /// A rejected fit of `model` for `sensor` with nothing else known: the
     /// start of every message.
@@ -272,8 +279,8 @@ pub struct CalibrationEvent {
     pub coverage_deg: f64,
     /// Samples fitted.
     pub n: usize,
-    /// Loaded from the state directory (`origin` `state`) rather than
-    /// fitted now.
+    /// Kept before rather than fitted now: loaded from the state directory
+    /// (`origin` `state`) or returned to by `rollback` ([`is_stored`]).
     pub stored: bool,
     /// The effect the residual suggests adding, if any.
     pub suggested: Option<String>,
@@ -312,7 +319,7 @@ impl CalibrationMessage<'_> {
             rms: self.rms.and_then(as_published),
             coverage_deg: as_published(self.coverage_deg)?,
             n: self.n,
-            stored: self.origin == "state",
+            stored: is_stored(self.origin),
             suggested: self.suggested.clone(),
             heading_rms_deg,
             heading_check: self.heading_check.clone(),

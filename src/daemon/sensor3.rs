@@ -181,7 +181,7 @@ impl Calibration3Message<'_> {
             rms: self.rms.and_then(as_published),
             coverage_deg: 0.0,
             n: self.n,
-            stored: self.origin == "state",
+            stored: super::messages::is_stored(self.origin),
             suggested: None,
             heading_rms_deg: None,
             heading_check: None,

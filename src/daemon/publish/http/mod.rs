@@ -26,6 +26,9 @@
 //!   no commands, 504 when it did not answer in time. `/api/config` says
 //!   whether the button works (`"recalibrate": {"allowed", "token",
 //!   "reason"}`), and the page disables it with the reason otherwise.
+//! - `POST /api/rollback`: the same body, rights and answers for
+//!   `{"command":"rollback"}` (back to each sensor's previous
+//!   calibration), with 409 when a sensor keeps no earlier calibration.
 //!
 //! Connections are bounded ([`conn`]): at most [`conn::PAGE_REQUESTS`]
 //! that are not event streams, each closed after [`conn::IDLE`] with
@@ -184,6 +187,7 @@ pub fn router_with_config(
         .route("/api/config", get(api_config))
         .route("/api/events", get(events))
         .route("/api/recalibrate", post(recalibrate))
+        .route("/api/rollback", post(rollback))
         .fallback(not_found)
         .with_state(app);
     (router, PageConfig(tx))
@@ -242,7 +246,7 @@ async fn api_config(State(app): State<App>) -> Response {
 async fn not_found() -> Response {
     error(
         StatusCode::NOT_FOUND,
-        "no such page: the live page is at /, its API at /api/config, /api/events (GET) and /api/recalibrate (POST)",
+        "no such page: the live page is at /, its API at /api/config, /api/events (GET), /api/recalibrate and /api/rollback (POST)",
     )
 }
 
@@ -334,6 +338,17 @@ fn parse_recalibrate_body(body: &[u8]) -> Result<(Option<String>, Option<String>
 }
 
 async fn recalibrate(State(app): State<App>, body: Bytes) -> Response {
+    command(app, body, false).await
+}
+
+async fn rollback(State(app): State<App>, body: Bytes) -> Response {
+    command(app, body, true).await
+}
+
+/// A recalibrate (or, with `rollback`, a rollback) request: the client's
+/// command, with the same rights, sent to the daemon's loop; its answer
+/// (an ERROR, then a STATUS) becomes the response.
+async fn command(app: App, body: Bytes, rollback: bool) -> Response {
     let (sensor, token) = match parse_recalibrate_body(&body) {
         Ok(parsed) => parsed,
         Err(message) => return error(StatusCode::BAD_REQUEST, &message),
@@ -341,9 +356,20 @@ async fn recalibrate(State(app): State<App>, body: Bytes) -> Response {
     if let Err(message) = app.access.check_recalibrate(Origin::Http, token.as_deref()) {
         return error(StatusCode::FORBIDDEN, &message);
     }
-    let mut mailbox = app.hub.mailbox("http recalibrate".to_owned());
-    let command = ClientCommand::Recalibrate {
-        sensor: sensor.clone(),
+    let (what, done) = if rollback {
+        ("rollback", "rolled_back")
+    } else {
+        ("recalibrate", "recalibrating")
+    };
+    let mut mailbox = app.hub.mailbox(format!("http {what}"));
+    let command = if rollback {
+        ClientCommand::Rollback {
+            sensor: sensor.clone(),
+        }
+    } else {
+        ClientCommand::Recalibrate {
+            sensor: sensor.clone(),
+        }
     };
     match tokio::time::timeout(
         ANSWER_TIMEOUT,
@@ -389,12 +415,17 @@ async fn recalibrate(State(app): State<App>, body: Bytes) -> Response {
     match answer {
         Ok(Some((None, status))) => json_text(
             StatusCode::OK,
-            json!({ "recalibrating": sensor, "status": status }).to_string(),
+            json!({ done: sensor, "status": status }).to_string(),
         ),
+        // An unknown sensor; for a rollback also one with no earlier
+        // calibration kept, which the request cannot change: 409.
+        Ok(Some((Some(message), _))) if rollback && !message.starts_with("no sensor named") => {
+            error(StatusCode::CONFLICT, &message)
+        }
         Ok(Some((Some(message), _))) => error(StatusCode::NOT_FOUND, &message),
         Ok(None) | Err(_) => error(
             StatusCode::GATEWAY_TIMEOUT,
-            "the daemon did not answer the recalibration in time; see its log",
+            &format!("the daemon did not answer the {what} in time; see its log"),
         ),
     }
 }
