@@ -192,6 +192,7 @@ fn trust_monitor(c: &mut Criterion) {
                 heading_deg: (18.0 * t).rem_euclid(360.0),
                 gyro_deg_s: Some(18.0),
                 dip_deg: None,
+                across: None,
             }
         })
         .collect();
@@ -249,6 +250,7 @@ fn watch_rotation(c: &mut Criterion) {
         history: Vec::new(),
         gyro: None,
         dip: None,
+        across: None,
     };
     let (x, y) = turn(37.0);
     let mut group = c.benchmark_group("watch");

@@ -1285,3 +1285,36 @@ fn learn_and_on_stale_are_read_for_a_plane_and_on_stale_for_a_sphere() {
         Some(OnStale::Warn)
     );
 }
+
+/// `out_of_plane` names the axis across a 2-axis sensor's turn: a third
+/// axis of its field, never one that turns; a 3-axis sensor has none.
+#[test]
+fn out_of_plane_is_the_third_axis_of_a_plane() {
+    use fieldcal::daemon::config::{Axis, OutOfPlane};
+    let plane = |extra: &str| {
+        format!(
+            "{SOURCES}\n[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n{extra}"
+        )
+    };
+    let config = parse(&plane("out_of_plane = \"z\"\n"), &config_path()).unwrap();
+    assert_eq!(
+        config.sensors[0].plane().unwrap().out_of_plane,
+        Some(OutOfPlane::Axis(Axis::Z))
+    );
+    let config = parse(&plane(""), &config_path()).unwrap();
+    assert_eq!(config.sensors[0].plane().unwrap().out_of_plane, None);
+    for bad in ["x", "w"] {
+        assert_refused(
+            &plane(&format!("out_of_plane = \"{bad}\"\n")),
+            "sensor[0].out_of_plane",
+            None,
+            &[&format!(
+                "\"{bad}\" is not the axis across the turn: give \"z\""
+            )],
+        );
+    }
+    let sphere = format!(
+        "{SOURCES}\n[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\", \"z\"]\nout_of_plane = \"z\"\n"
+    );
+    assert_refused(&sphere, "sensor[0].out_of_plane", None, &["2-axis"]);
+}

@@ -550,6 +550,33 @@ fn mag_axes_maps_a_tilted_compass_onto_its_accelerometer_and_is_refused_where_it
         "sensor[0].mag_axes",
         &["give `tilt`"],
     );
+    // A csv plane's out_of_plane: a column of its axes' file, not an axis.
+    let plane = |extra: &str| {
+        with(
+            "",
+            &format!("{COMPASS}axes = [\"mag_x\", \"mag_y\"]\n{extra}"),
+        )
+    };
+    let config = parse(&plane("out_of_plane = \"mag_z\"\n"), &config_path()).unwrap();
+    assert_eq!(
+        config.sensors[0].plane().unwrap().out_of_plane,
+        Some(fieldcal::daemon::config::OutOfPlane::Column("mag_z".into()))
+    );
+    refused(
+        &plane("out_of_plane = \"mag_y\"\n"),
+        "sensor[0].out_of_plane",
+        &["'mag_y' is one of the axes that turn"],
+    );
+    refused(
+        &plane("out_of_plane = \"mag_w\"\n"),
+        "sensor[0].out_of_plane",
+        &["no column 'mag_w'"],
+    );
+    refused(
+        &plane("out_of_plane = \"acc_z\"\n"),
+        "sensor[0].out_of_plane",
+        &["imu.csv"],
+    );
     // A 2-axis sensor has no tilt accelerometer.
     refused(
         &with(

@@ -133,6 +133,88 @@ fn a_field_five_percent_low_is_distrusted_with_its_numbers_and_nothing_else_is()
     assert!((trust["longest_distrusted_s"].as_f64().unwrap() - 4.95).abs() < 1e-6);
 }
 
+/// A 2-axis compass whose configuration names the axis across its turn
+/// (`out_of_plane = "z"`): a magnet above it that moves only that axis
+/// (by 50 counts, 9.9 % of r; the level pair unchanged) is distrusted for as
+/// long as it is there, and nothing else is; the calibration keeps the
+/// axis's median and spread over its rotation.
+#[test]
+fn a_field_across_the_turn_that_moved_is_distrusted_when_its_axis_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let turning = recording(140.0, heading, rate, |_| (1.0, 0.0));
+    let mut state: u64 = 0x1234_5678_9abc_def1;
+    let mut csv = String::new();
+    for (k, line) in turning.lines().enumerate() {
+        if k == 0 {
+            csv.push_str(&format!("{line},z\n"));
+            continue;
+        }
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        let noise = (state % 20_001) as f64 / 10_000.0 - 1.0;
+        let t: f64 = line.split(',').next().unwrap().parse().unwrap();
+        let magnet = if (70.0..75.0).contains(&t) { 50.0 } else { 0.0 };
+        csv.push_str(&format!("{line},{:.3}\n", 300.0 + magnet + noise));
+    }
+    let file = dir.path().join("robot.csv");
+    std::fs::write(&file, &csv).unwrap();
+    let config = dir.path().join("robot.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[daemon]\nstate_dir = \"{}\"\n[outputs]\nstdout = true\n\
+             [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"robot.csv\"\n\
+             [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"x\", \"y\"]\n\
+             gyro = \"gyro_z\"\nout_of_plane = \"z\"\n",
+            dir.path().join("state").display()
+        ),
+    )
+    .unwrap();
+    let out = common::run_ok(&[
+        "replay",
+        file.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--speed",
+        "max",
+    ]);
+    let lines: Vec<Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let (all, bad) = judged(&lines, 70.0, 75.0);
+    assert_eq!((all, bad), (100, 100), "every reading under the magnet");
+    let first = lines
+        .iter()
+        .find(|v| v["class"] == "READING" && v["time"].as_f64() == Some(70.0))
+        .unwrap();
+    let reason = first["distrust"][0].as_str().unwrap();
+    assert!(
+        reason.starts_with(
+            "the field across the turn moved by +9.9 % of r from the calibration's (limit"
+        ),
+        "{reason}"
+    );
+    for (from, to) in [(20.0, 70.0), (75.05, 140.0)] {
+        let (all, bad) = judged(&lines, from, to);
+        assert!(all > 500, "{from}..{to}: {all}");
+        assert_eq!(bad, 0, "{from}..{to}");
+    }
+    // Published (and stored) with the calibration: the axis's median and
+    // spread over the rotation.
+    let cal = lines
+        .iter()
+        .find(|v| v["class"] == "CALIBRATION" && v["accepted"] == true)
+        .unwrap();
+    let across = &cal["across"];
+    assert!(
+        (across["median"].as_f64().unwrap() - 300.0).abs() < 0.2,
+        "{cal}"
+    );
+    assert!(across["spread"].as_f64().unwrap() < 1.0, "{cal}");
+}
+
 #[test]
 fn a_heading_swing_the_gyro_did_not_see_is_distrusted_until_it_ends() {
     let dir = tempfile::tempdir().unwrap();

@@ -813,6 +813,7 @@ mod state_writer {
             history: Vec::new(),
             gyro: None,
             dip: None,
+            across: None,
         }
     }
 

@@ -347,6 +347,7 @@ fn calibration(id: u64) -> Calibration {
         history: Vec::new(),
         gyro: None,
         dip: None,
+        across: None,
     }
 }
 

@@ -2442,6 +2442,7 @@ mod trust {
                     heading_deg: (deg_s * t + offset + wobble.to_degrees()).rem_euclid(360.0),
                     gyro_deg_s: Some(deg_s),
                     dip_deg: None,
+                    across: None,
                 };
                 (t, monitor.check(obs))
             })
@@ -2532,6 +2533,7 @@ mod trust {
                 heading_deg: 42.0,
                 gyro_deg_s: Some(3.0 * t / 600.0),
                 dip_deg: None,
+                across: None,
             });
             assert!(v.trusted, "{t}: {:?}", v.reasons);
         }
@@ -2550,6 +2552,7 @@ mod trust {
                 heading_deg: 10.0,
                 gyro_deg_s: None,
                 dip_deg: None,
+                across: None,
             });
         }
         let c = m.counts();
@@ -2570,6 +2573,7 @@ mod trust {
             heading_deg: 0.0,
             gyro_deg_s: None,
             dip_deg: Some(dip),
+            across: None,
         };
         assert!(m.check(at(0.0, 64.9)).trusted);
         assert!(m.check(at(0.1, 55.1)).trusted);
@@ -2592,6 +2596,7 @@ mod trust {
         assert!(
             m.check(Observation {
                 dip_deg: None,
+                across: None,
                 ..at(0.5, 0.0)
             })
             .trusted
@@ -2599,7 +2604,7 @@ mod trust {
         // The spread is held to what the field's noise gives (2 % rms:
         // 1.15°), and a limit that is not a dip is left out.
         let l = TrustLimits::from_rms(0.02, None, None).with_dip(60.0, 0.0);
-        assert!((l.dip.unwrap().sigma_deg - 0.02f64.to_degrees()).abs() < 1e-12);
+        assert!((l.dip.unwrap().sigma - 0.02f64.to_degrees()).abs() < 1e-12);
         for (median, spread) in [
             (f64::NAN, 1.0),
             (95.0, 1.0),
@@ -2624,6 +2629,7 @@ mod trust {
             heading_deg: 0.0,
             gyro_deg_s: None,
             dip_deg: None,
+            across: None,
         };
         assert!(m.check(ok).trusted);
         assert!(!m.check(Observation { time: 0.5, ..ok }).trusted);
@@ -2718,6 +2724,7 @@ mod trust_sweep {
                         s.rate_deg_s / s.scale + s.bias_error + walk + s.gyro_noise * rng.normal(),
                     ),
                     dip_deg: None,
+                    across: None,
                 };
                 (t, monitor.check(obs).trusted)
             })
@@ -2843,6 +2850,7 @@ mod watch_sweep {
             history: Vec::new(),
             gyro: None,
             dip: None,
+            across: None,
         };
         (calibration, refit)
     }
@@ -2930,6 +2938,7 @@ mod watch_sweep3 {
             history: Vec::new(),
             gyro: None,
             dip: None,
+            across: None,
         }
     }
 

@@ -40,6 +40,7 @@ fn calibration(sensor: &str, id: u64) -> Calibration {
         history: Vec::new(),
         gyro: None,
         dip: None,
+        across: None,
     }
 }
 

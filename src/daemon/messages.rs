@@ -165,6 +165,10 @@ pub struct CalibrationMessage<'a> {
     pub declination_source: Option<&'a str>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub declination_uncertainty_deg: Option<f64>,
+    /// The field across the turn over the rotation (`out_of_plane`): its
+    /// median and spread, raw units, which each reading is checked against.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub across: Option<crate::model::calibration::AcrossFit>,
 }
 
 /// A `STALE` line: a later rotation moved the calibration further than
@@ -230,6 +234,7 @@ impl<'a> CalibrationMessage<'a> {
             declination_deg: None,
             declination_source: None,
             declination_uncertainty_deg: None,
+            across: None,
         }
     }
 
@@ -246,6 +251,7 @@ impl<'a> CalibrationMessage<'a> {
             parent: calibration.parent,
             terms: (!calibration.terms.is_none()).then_some(calibration.terms),
             se: (!calibration.se.is_empty()).then_some(&calibration.se),
+            across: calibration.across,
             ..Self::rejected(&calibration.sensor, &calibration.model, None)
         }
     }

@@ -276,6 +276,7 @@ fn judge(
             heading_deg: heading_deg.unwrap_or(0.0),
             gyro_deg_s: None,
             dip_deg,
+            across: None,
         },
         &standing,
     )
@@ -448,6 +449,7 @@ impl Sensor3 {
             parent: None,
             history: Vec::new(),
             gyro: None,
+            across: None,
             dip: dip
                 .as_ref()
                 .and_then(|d| d.as_ref().ok())

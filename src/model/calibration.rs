@@ -68,6 +68,21 @@ pub struct Calibration {
     /// monitor checks each reading's dip against it, after a restart too.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dip: Option<DipFit>,
+    /// A 2-axis sensor's field across its turn over the calibration's
+    /// rotation, when its configuration names that axis: raw units, median
+    /// and robust spread, kept so the trust monitor checks each reading's
+    /// against it, after a restart too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub across: Option<AcrossFit>,
+}
+
+/// The reading of the axis across a turn over a calibration's rotation:
+/// median, robust spread (1.4826 × MAD), raw units, and samples.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AcrossFit {
+    pub median: f64,
+    pub spread: f64,
+    pub n: usize,
 }
 
 /// The dip measured over a calibration's samples: median and robust

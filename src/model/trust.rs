@@ -13,6 +13,12 @@
 //!   over the calibration's sphere, beyond [`ENTER_SIGMAS`] of that
 //!   sphere's spread (with the same hysteresis). A magnet can turn the
 //!   field without changing its magnitude; it cannot keep the dip.
+//! - **Across the turn.** A 2-axis sensor whose configuration names the
+//!   axis across its turn: that axis's reading, as a fraction of r,
+//!   against its median over the calibration's rotation, beyond
+//!   [`ENTER_SIGMAS`] of its spread there (with the same hysteresis). A
+//!   magnet moves it, and so does a tilt, which leaks the vertical field
+//!   into the level pair: either way the heading is wrong.
 //! - **The gyro.** The heading's change over [`WINDOW_S`] against the
 //!   integrated gyro (its scale and bias from the calibration's heading
 //!   check). Once they disagree, the gyro carries the heading reference
@@ -74,17 +80,20 @@ pub struct TrustLimits {
     pub heading_sigma_deg: f64,
     /// The gyro, when the sensor has one.
     pub gyro: Option<GyroModel>,
-    /// The dip, when the calibration measured it.
-    pub dip: Option<DipLimit>,
+    /// The dip, when the calibration measured it (degrees).
+    pub dip: Option<ReferenceLimit>,
+    /// The field across a 2-axis sensor's turn, when the calibration
+    /// measured it (a fraction of r).
+    pub across: Option<ReferenceLimit>,
 }
 
-/// The dip a calibration measured (its median over the sphere's samples,
-/// against the tilt accelerometer's vertical) and one reading's spread
-/// about it, degrees.
+/// A quantity the calibration measured (its median over its samples: the
+/// dip against the tilt accelerometer's vertical, degrees; the field
+/// across a turn, a fraction of r) and one reading's spread about it.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct DipLimit {
-    pub reference_deg: f64,
-    pub sigma_deg: f64,
+pub struct ReferenceLimit {
+    pub reference: f64,
+    pub sigma: f64,
 }
 
 impl TrustLimits {
@@ -107,6 +116,7 @@ impl TrustLimits {
             heading_sigma_deg,
             gyro,
             dip: None,
+            across: None,
         }
     }
 
@@ -121,11 +131,25 @@ impl TrustLimits {
             && median_deg.abs() <= 90.0
             && spread_deg.is_finite()
             && spread_deg >= 0.0;
-        self.dip = usable.then(|| DipLimit {
-            reference_deg: median_deg,
-            sigma_deg: spread_deg
+        self.dip = usable.then(|| ReferenceLimit {
+            reference: median_deg,
+            sigma: spread_deg
                 .max(self.field_sigma.to_degrees())
                 .max(MIN_HEADING_SIGMA_DEG),
+        });
+        self
+    }
+
+    /// These limits with the check across the turn: the reading of the
+    /// axis across a 2-axis sensor's turn over the calibration's rotation
+    /// (median, robust spread, as fractions of r). The spread is held at
+    /// least to the field's noise σ; numbers that are not finite (or a
+    /// negative spread) leave the check out.
+    pub fn with_across(mut self, median: f64, spread: f64) -> Self {
+        let usable = median.is_finite() && spread.is_finite() && spread >= 0.0;
+        self.across = usable.then(|| ReferenceLimit {
+            reference: median,
+            sigma: spread.max(self.field_sigma),
         });
         self
     }
@@ -145,6 +169,9 @@ pub struct Observation {
     /// The field's angle below the accelerometer's horizontal, degrees,
     /// when the sensor has a tilt accelerometer.
     pub dip_deg: Option<f64>,
+    /// The reading of the axis across a 2-axis sensor's turn, a fraction
+    /// of r, when the configuration names it.
+    pub across: Option<f64>,
 }
 
 /// The monitor's word on one reading.
@@ -180,6 +207,7 @@ pub struct TrustMonitor {
     limits: TrustLimits,
     field_distrusted: bool,
     dip_distrusted: bool,
+    across_distrusted: bool,
     window: VecDeque<Point>,
     /// The last trusted point while the gyro carries the reference.
     reference: Option<Point>,
@@ -203,6 +231,7 @@ impl TrustMonitor {
             limits,
             field_distrusted: false,
             dip_distrusted: false,
+            across_distrusted: false,
             window: VecDeque::new(),
             reference: None,
             last: None,
@@ -250,8 +279,22 @@ impl TrustMonitor {
             return self.record(obs.time, reasons);
         }
         self.check_field(obs.field_ratio, &mut reasons);
-        if let (Some(limit), Some(dip)) = (self.limits.dip, obs.dip_deg) {
-            self.check_dip(limit, dip, &mut reasons);
+        if let (Some(limit), Some(dip)) = (self.limits.dip, obs.dip_deg)
+            && let Some((off, bound, until)) = beyond(&mut self.dip_distrusted, limit, dip)
+        {
+            reasons.push(format!(
+                "the dip is {dip:.1}° where the calibration measured {:.1}° ({off:+.1}°, limit {bound:.1}°: {until})",
+                limit.reference,
+            ));
+        }
+        if let (Some(limit), Some(across)) = (self.limits.across, obs.across)
+            && let Some((off, bound, until)) = beyond(&mut self.across_distrusted, limit, across)
+        {
+            reasons.push(format!(
+                "the field across the turn moved by {:+.1} % of r from the calibration's (limit {:.1} %: {until})",
+                off * 100.0,
+                bound * 100.0,
+            ));
         }
         let point = self.advance(obs);
         if self.limits.gyro.is_some() && obs.gyro_deg_s.is_some() {
@@ -280,32 +323,6 @@ impl TrustMonitor {
                 e.abs() * 100.0,
                 if e < 0.0 { "below" } else { "above" },
                 bound * 100.0,
-            ));
-        }
-    }
-
-    fn check_dip(&mut self, limit: DipLimit, dip: f64, reasons: &mut Vec<String>) {
-        if !dip.is_finite() {
-            return;
-        }
-        let sigmas = if self.dip_distrusted {
-            LEAVE_SIGMAS
-        } else {
-            ENTER_SIGMAS
-        };
-        let off = dip - limit.reference_deg;
-        self.dip_distrusted = off.abs() > sigmas * limit.sigma_deg;
-        if self.dip_distrusted {
-            let until = if sigmas == LEAVE_SIGMAS {
-                ", trusted again within it"
-            } else {
-                ""
-            };
-            reasons.push(format!(
-                "the dip is {dip:.1}° where the calibration measured {:.1}° ({:+.1}°, limit {:.1}°: {sigmas} σ of its spread{until})",
-                limit.reference_deg,
-                off,
-                sigmas * limit.sigma_deg,
             ));
         }
     }
@@ -414,6 +431,33 @@ impl TrustMonitor {
     }
 }
 
+/// A reading `value` against a measured `limit`, with hysteresis on
+/// `distrusted`: beyond [`ENTER_SIGMAS`] σ it is distrusted, and stays so
+/// until within [`LEAVE_SIGMAS`] σ. When distrusted: how far it is off,
+/// the bound it broke, and the bound's words; a value that is not finite
+/// is not judged.
+fn beyond(distrusted: &mut bool, limit: ReferenceLimit, value: f64) -> Option<(f64, f64, String)> {
+    if !value.is_finite() {
+        return None;
+    }
+    let leaving = *distrusted;
+    let sigmas = if leaving { LEAVE_SIGMAS } else { ENTER_SIGMAS };
+    let off = value - limit.reference;
+    *distrusted = off.abs() > sigmas * limit.sigma;
+    let until = if leaving {
+        ", trusted again within it"
+    } else {
+        ""
+    };
+    distrusted.then(|| {
+        (
+            off,
+            sigmas * limit.sigma,
+            format!("{sigmas} σ of its spread{until}"),
+        )
+    })
+}
+
 /// The monitor of calibration `id` in `slot`, started afresh with
 /// `limits()` when the slot holds none or another calibration's.
 pub fn monitor_of(
@@ -500,6 +544,7 @@ pub fn monitor_recording(
             heading_deg: heading_deg[i],
             gyro_deg_s: rate(i),
             dip_deg: None,
+            across: None,
         });
         trusted.push(verdict.trusted);
         match (&mut open, verdict.trusted) {

@@ -105,6 +105,8 @@
 //! axes = ["mag_x", "mag_z"] # no `field`, no `chip`: columns of the file
 //! gyro = "gyro_y"           # a column, for the heading check; or "none"
 //! gyro_units = "deg/s"      # or "rad/s"; default deg/s
+//! out_of_plane = "mag_y"    # the column across the turn, for the trust
+//!                           # monitor (a device's sensor: its axis, "z")
 //!
 //! [[source]]
 //! name = "board"
@@ -518,7 +520,9 @@ use columns::Columns;
 pub(crate) use keys::{Keys, RawKeys};
 use raw::*;
 use sensors::PlaneSensor;
-pub use sensors::{OnStale, PlaneConfig, Sensor3Config, SensorGeometry, TiltSource, WatchSettings};
+pub use sensors::{
+    OnStale, OutOfPlane, PlaneConfig, Sensor3Config, SensorGeometry, TiltSource, WatchSettings,
+};
 pub use sources::StreamDesc;
 use sources::*;
 use spans::*;
@@ -849,6 +853,8 @@ impl Checker<'_> {
             };
             let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
             let gyro = self.check_gyro(key, &s, axes, stream, src_name, stream_list)?;
+            let out_of_plane =
+                self.check_axis_out_of_plane(key, s.out_of_plane.as_deref(), axes)?;
             let plane = PlaneSensor {
                 stream: stream.id,
                 field,
@@ -857,6 +863,7 @@ impl Checker<'_> {
                 gyro,
                 columns: None,
                 north,
+                out_of_plane,
             };
             Ok((self.plane_sensor(key, s, plane)?, None))
         }

@@ -62,6 +62,8 @@ pub(super) struct RawSensor {
     /// A 3-axis sensor: the accelerometer sensor of the same source whose
     /// readings tilt-compensate its heading.
     pub(super) tilt: Option<String>,
+    /// A 2-axis sensor: the axis (device) or column (csv) across its turn.
+    pub(super) out_of_plane: Option<String>,
     /// A 3-axis magnetometer with `tilt`: how its axes lie on the
     /// accelerometer's (as `fieldcal heading --mag-axes`).
     pub(super) mag_axes: Option<String>,

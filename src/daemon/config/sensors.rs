@@ -31,6 +31,16 @@ pub struct PlaneConfig {
     pub columns: Option<[String; 2]>,
     /// What is done with each later rotation after a calibration is accepted.
     pub watch: WatchSettings,
+    /// The field across the turn (`out_of_plane`), for the trust monitor.
+    pub out_of_plane: Option<OutOfPlane>,
+}
+
+/// Where a 2-axis sensor's field across its turn is read (`out_of_plane`):
+/// the third axis of its chip, or a column of its file.
+#[derive(Debug, Clone, PartialEq)]
+pub enum OutOfPlane {
+    Axis(Axis),
+    Column(String),
 }
 
 /// What a 2-axis sensor does with each later rotation once calibrated
@@ -224,6 +234,8 @@ impl Checker<'_> {
         };
         let names = [axes[0].1.clone(), axes[1].1.clone()];
         let gyro = self.check_csv_gyro(key, &s, &columns, &names)?;
+        let out_of_plane =
+            self.check_csv_out_of_plane(key, s.out_of_plane.as_deref(), &columns, &axes)?;
         let effects = self.check_model(&format!("{key}.model"), s.model.as_ref())?;
         let plane = PlaneSensor {
             stream: 0,
@@ -233,6 +245,7 @@ impl Checker<'_> {
             gyro,
             columns: Some(names),
             north: None,
+            out_of_plane,
         };
         Ok((self.plane_sensor(key, s, plane)?, None))
     }
@@ -267,6 +280,7 @@ impl Checker<'_> {
                     learn: s.learn.unwrap_or(false),
                     on_stale: s.on_stale.unwrap_or_default(),
                 },
+                out_of_plane: plane.out_of_plane,
             }),
             north: plane.north,
         })
@@ -450,6 +464,7 @@ impl Checker<'_> {
             ("gyro", s.gyro.is_some()),
             ("gyro_chip", s.gyro_chip.is_some()),
             ("gyro_lsb_per_deg_s", s.gyro_lsb_per_deg_s.is_some()),
+            ("out_of_plane", s.out_of_plane.is_some()),
             ("rotation", s.rotation != RotationSettings::default()),
             ("limits", s.limits != LimitSettings::default()),
         ] {
@@ -886,4 +901,5 @@ pub(super) struct PlaneSensor {
     pub(super) gyro: GyroChoice,
     pub(super) columns: Option<[String; 2]>,
     pub(super) north: Option<North>,
+    pub(super) out_of_plane: Option<OutOfPlane>,
 }

@@ -1,5 +1,6 @@
 //! A 3-axis compass's tilt accelerometer (`tilt`) and how the compass
-//! lies on it (`mag_axes`).
+//! lies on it (`mag_axes`); a 2-axis sensor's field across its turn
+//! (`out_of_plane`).
 
 use super::*;
 use crate::model::tilt::AxisMap;
@@ -113,5 +114,71 @@ impl Checker<'_> {
             }
         }
         Ok(())
+    }
+
+    /// A csv 2-axis sensor's `out_of_plane`: a column of the file of its
+    /// `axes`, not one of them.
+    pub(super) fn check_csv_out_of_plane(
+        &self,
+        key: &str,
+        given: Option<&str>,
+        columns: &Columns<'_>,
+        axes: &[(usize, String); 2],
+    ) -> Result<Option<OutOfPlane>, ConfigError> {
+        let Some(name) = given.map(str::trim) else {
+            return Ok(None);
+        };
+        let k = format!("{key}.out_of_plane");
+        if axes.iter().any(|(_, a)| a == name) {
+            return Err(self.error(
+                &k,
+                format!(
+                    "'{name}' is one of the axes that turn: give the column of the third \
+                     axis, across the turn"
+                ),
+            ));
+        }
+        let found = columns.find(k.clone(), name, "the axis across the turn")?;
+        columns.one_file(
+            &[axes[0].clone(), found.clone()],
+            &[format!("{key}.axes[0]"), k],
+        )?;
+        Ok(Some(OutOfPlane::Column(found.1)))
+    }
+
+    /// A device's 2-axis sensor's `out_of_plane`: "x", "y" or "z", not one
+    /// of its `axes`.
+    pub(super) fn check_axis_out_of_plane(
+        &self,
+        key: &str,
+        given: Option<&str>,
+        axes: [Axis; 2],
+    ) -> Result<Option<OutOfPlane>, ConfigError> {
+        let Some(text) = given.map(str::trim) else {
+            return Ok(None);
+        };
+        let axis = match text {
+            "x" => Some(Axis::X),
+            "y" => Some(Axis::Y),
+            "z" => Some(Axis::Z),
+            _ => None,
+        }
+        .filter(|a| !axes.contains(a));
+        let Some(axis) = axis else {
+            let third = [Axis::X, Axis::Y, Axis::Z]
+                .into_iter()
+                .find(|a| !axes.contains(a))
+                .unwrap_or(Axis::Z);
+            return Err(self.error(
+                &format!("{key}.out_of_plane"),
+                format!(
+                    "\"{}\" is not the axis across the turn: give \"{}\", the axis of the \
+                     sensor's field that is not in axes",
+                    crate::io::excerpt(text),
+                    third.name()
+                ),
+            ));
+        };
+        Ok(Some(OutOfPlane::Axis(axis)))
     }
 }

@@ -9,14 +9,17 @@
 //! these, or a sphere, beside the sensor's [`Lifecycle`]): readings in,
 //! lines to publish and calibrations to store out, no I/O, no clock.
 
+mod across;
 mod gyro_track;
 mod watching;
+
+use across::AcrossTrack;
 
 use std::sync::Arc;
 use std::time::Instant;
 
 use super::acceptance::{self, Limits};
-use super::config::{Axis, Field, GyroChoice, OnStale, PlaneConfig, SensorConfig};
+use super::config::{Axis, Field, GyroChoice, OnStale, OutOfPlane, PlaneConfig, SensorConfig};
 use super::lifecycle::Lifecycle;
 use super::messages::{
     CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, StaleMessage, to_line,
@@ -68,6 +71,9 @@ pub struct Plane {
     /// replace it (`on_stale = "replace"`, the rotation that showed the
     /// change having straddled it).
     replacing: Option<u64>,
+    /// The field across the turn kept beside the rotation, when the
+    /// configuration names its axis (`out_of_plane`).
+    across: Option<AcrossTrack>,
 }
 
 /// Where a csv sensor's values are in each row: indices into
@@ -80,6 +86,8 @@ struct CsvBinding {
     axes: [usize; 2],
     /// The gyro column: (file, index), in any file of the source.
     gyro: Option<(usize, usize)>,
+    /// The column across the turn (`out_of_plane`), in `file`.
+    across: Option<usize>,
     /// The other columns, published with each reading.
     others: Vec<usize>,
 }
@@ -90,6 +98,10 @@ impl Plane {
         let limits = plane.limits.clone();
         let buffer = RotationBuffer::new(plane.rotation.clone());
         let gyro = GyroTrack::new(&plane.gyro, buffer.config().max_samples);
+        let across = plane
+            .out_of_plane
+            .as_ref()
+            .map(|_| AcrossTrack::new(buffer.config().max_samples));
         // The configuration checked the names; an unparsable list (not
         // possible from a checked file) falls back to the paper's model.
         let effects = parse_list(&plane.effects.join(","))
@@ -106,6 +118,7 @@ impl Plane {
             trust: None,
             last_rotation: None,
             replacing: None,
+            across,
         }
     }
 
@@ -118,6 +131,9 @@ impl Plane {
     pub fn recalibrate(&mut self) {
         self.replacing = None;
         self.buffer.reset();
+        if let Some(track) = &mut self.across {
+            track.clear();
+        }
         if let Some(gyro) = &mut self.gyro {
             gyro.clear();
         }
@@ -129,7 +145,7 @@ impl Plane {
         &mut self,
         life: &Lifecycle,
         time: f64,
-        [x, y]: [f64; 2],
+        [x, y, across]: [f64; 3],
         row: Option<&CsvRow>,
     ) -> String {
         let corrected = life.current.as_ref().map(|c| {
@@ -149,6 +165,10 @@ impl Plane {
                         heading_deg: heading,
                         gyro_deg_s,
                         dip_deg: None,
+                        across: c
+                            .across
+                            .filter(|_| across.is_finite())
+                            .map(|_| across / c.params.r),
                     },
                     life.stale.as_deref().as_slice(),
                 )
@@ -190,7 +210,11 @@ impl Plane {
                 scale: g.scale,
                 bias_deg_s: g.bias_deg_s,
             });
-            TrustLimits::from_rms(c.rms, c.gyro.map(|g| g.heading_rms_deg), gyro)
+            let limits = TrustLimits::from_rms(c.rms, c.gyro.map(|g| g.heading_rms_deg), gyro);
+            match c.across {
+                Some(a) => limits.with_across(a.median / c.params.r, a.spread / c.params.r),
+                None => limits,
+            }
         })
     }
 
@@ -246,7 +270,7 @@ impl Plane {
             self.note_rejection(life, reason);
             return None;
         }
-        let mut calibration = self.calibration_of(life, &report, terms, &refit, time);
+        let mut calibration = self.calibration_of(life, (&report, terms, &refit, &rotation), time);
         calibration.gyro = heading_vs_gyro.as_ref().map(gyro_fit);
         // The clean rotation collected to replace a stale calibration.
         calibration.parent = self.replacing.take();
@@ -293,11 +317,19 @@ impl Plane {
     fn calibration_of(
         &self,
         life: &Lifecycle,
-        report: &FitReport,
-        terms: Terms,
-        refit: &Refit,
+        (report, terms, refit, rotation): (&FitReport, Terms, &Refit, &Dataset),
         time: f64,
     ) -> Calibration {
+        // The field across the turn over the rotation's own span.
+        let span = rotation
+            .t
+            .as_ref()
+            .and_then(|t| Some((*t.first()?, *t.last()?)));
+        let across = self
+            .across
+            .as_ref()
+            .zip(span)
+            .and_then(|(track, (from, to))| track.fit_over(from, to));
         Calibration {
             sensor: self.config.name.clone(),
             id: life.next_id,
@@ -314,6 +346,7 @@ impl Plane {
             history: Vec::new(),
             gyro: None,
             dip: None,
+            across,
         }
     }
 
@@ -508,9 +541,13 @@ impl Geometry for Plane {
         if !(x.is_finite() && y.is_finite()) {
             return None;
         }
+        let across = binding
+            .across
+            .and_then(|i| row.values.get(i).copied())
+            .unwrap_or(f64::NAN);
         Some(Sample {
             time: row.time,
-            raw: [x, y, 0.0],
+            raw: [x, y, across],
         })
     }
     fn reading_sample(&mut self, _life: &Lifecycle, reading: &Reading) -> Option<Sample> {
@@ -523,14 +560,19 @@ impl Geometry for Plane {
             return None;
         }
         let (x, y) = self.axes_of(reading)?;
+        let across = match &self.plane.out_of_plane {
+            Some(OutOfPlane::Axis(axis)) => {
+                axes_of(self.config.field, [*axis, *axis], reading).map_or(f64::NAN, |(v, _)| v)
+            }
+            _ => f64::NAN,
+        };
         Some(Sample {
             time: reading.time,
-            raw: [x, y, 0.0],
+            raw: [x, y, across],
         })
     }
     fn reading_line(&mut self, life: &Lifecycle, sample: Sample, row: Option<&CsvRow>) -> String {
-        let [x, y, _] = sample.raw;
-        self.line_xy(life, sample.time, [x, y], row)
+        self.line_xy(life, sample.time, sample.raw, row)
     }
     fn push(
         &mut self,
@@ -538,12 +580,15 @@ impl Geometry for Plane {
         sample: Sample,
         emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
-        let (time, [x, y, _]) = (sample.time, sample.raw);
+        let (time, [x, y, across]) = (sample.time, sample.raw);
         // Calibrated: each later rotation is watched against the
         // calibration, until it is found stale.
         let watching = !life.collecting();
         if watching && life.stale.is_some() {
             return None;
+        }
+        if let Some(track) = &mut self.across {
+            track.push(time, across);
         }
         // The gyro's integrated angle lets the buffer check the turn.
         let turned = self.gyro.as_ref().and_then(GyroTrack::angle);
@@ -587,15 +632,19 @@ impl Geometry for Plane {
         let Some(columns) = &self.plane.columns else {
             return Ok(Vec::new());
         };
-        let names = [
+        let mut names = vec![
             (columns[0].as_str(), "the sensor's x axis"),
             (columns[1].as_str(), "the sensor's y axis"),
         ];
+        if let Some(OutOfPlane::Column(name)) = &self.plane.out_of_plane {
+            names.push((name.as_str(), "the axis across the turn"));
+        }
         let (file, found) = crate::source::csv::locate_columns(files, &refs, &names)?;
         let Some(layout) = layouts.get(file) else {
             return Ok(Vec::new());
         };
         let axes = [found[0], found[1]];
+        let across = found.get(2).copied();
         // The gyro may be in another file of the source: its rows come on
         // the same clock, merged in time order.
         let gyro = match &self.plane.gyro {
@@ -616,6 +665,7 @@ impl Geometry for Plane {
             layout: layout.clone(),
             axes,
             gyro,
+            across,
             others,
         });
         Ok(required)

@@ -201,7 +201,7 @@ impl Plane {
             return None;
         }
         let heading = self.heading_check(&rotation, &report, &terms);
-        let mut calibration = self.calibration_of(life, &report, terms, &refit, time);
+        let mut calibration = self.calibration_of(life, (&report, terms, &refit, &rotation), time);
         calibration.parent = Some(id);
         let (heading_vs_gyro, heading_check) = match heading {
             Ok(check) => (Some(check), None),
