@@ -670,3 +670,64 @@ fn a_magnet_fixed_to_a_tumbling_board_makes_its_3d_calibration_stale_on_the_next
         );
     }
 }
+
+/// The mounting verdict and the dip belong to the `mag_axes` they were
+/// measured with: after the user sets the mapping the calibration named
+/// (and restarts on the stored calibration), no heading is distrusted for
+/// the old mapping, and the old dip is not compared with the new one.
+#[test]
+fn setting_the_mapping_the_calibration_named_ends_its_distrust_after_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("board.csv"), board(|_| 0.0)).unwrap();
+    let run = |mag_axes: &str| -> Vec<Value> {
+        let config = dir.path().join("board.toml");
+        std::fs::write(
+            &config,
+            format!(
+                "[daemon]\nstate_dir = \"{}\"\n[outputs]\nstdout = true\n\
+                 [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"board.csv\"\nspeed = \"max\"\n\
+                 [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"mx\", \"my\", \"mz\"]\n\
+                 field = \"mag\"\nlsb_per_gauss = 1000\ntilt = \"level\"\nmag_axes = \"{mag_axes}\"\n\
+                 [[sensor]]\nname = \"level\"\nsource = \"log\"\naxes = [\"ax\", \"ay\", \"az\"]\n\
+                 field = \"accel\"\nlsb_per_g = 1\n",
+                dir.path().join("state").display()
+            ),
+        )
+        .unwrap();
+        common::run_ok(&[
+            "run",
+            "--config",
+            config.to_str().unwrap(),
+            "--progress",
+            "never",
+        ])
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+    };
+    let first = run("x,y,z");
+    let mounting = |lines: &[Value]| {
+        lines
+            .iter()
+            .filter(|v| v["class"] == "READING" && v["sensor"] == "compass")
+            .filter(|v| {
+                v["distrust"]
+                    .as_array()
+                    .is_some_and(|d| d.iter().any(|r| r.as_str().unwrap().contains("mag_axes")))
+            })
+            .count()
+    };
+    assert!(mounting(&first) > 1000, "{}", mounting(&first));
+    let second = run("x,z,-y");
+    let readings: Vec<&Value> = second
+        .iter()
+        .filter(|v| v["class"] == "READING" && v["sensor"] == "compass")
+        .filter(|v| v.get("heading_deg").is_some())
+        .collect();
+    assert!(readings.len() > 1000, "{}", readings.len());
+    assert_eq!(mounting(&second), 0);
+    assert!(
+        readings.iter().all(|v| v["trusted"] == true),
+        "a reading distrusted after the fix"
+    );
+}

@@ -66,7 +66,8 @@ impl<'a> Emitter<'a> {
 }
 
 /// One sample of a sensor's own field: the time its source stamped, and
-/// its raw axes (x, y, z; a plane's third is 0: it turns in x, y).
+/// its raw axes (x, y, z; a plane's third is its reading across the turn
+/// when `out_of_plane` names it, else NaN: it turns in x, y).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sample {
     pub time: f64,

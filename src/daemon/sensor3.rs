@@ -253,7 +253,15 @@ fn judge(
 ) -> Verdict {
     let magnitude = (mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2]).sqrt();
     let ratio = magnitude / c.ellipsoid.as_ref().map_or(f64::NAN, |p| p.r);
-    let dip = c.dip.as_ref();
+    // A dip (and a mounting verdict) measured under another `mag_axes`
+    // (the configuration changed since) says nothing of this mapping.
+    let dip = c.dip.as_ref().filter(|d| {
+        d.mag_axes
+            .as_deref()
+            .unwrap_or("x,y,z")
+            .parse::<AxisMap>()
+            .is_ok_and(|m| m == mag_axes)
+    });
     let dip_deg = dip.zip(accel_raw).and_then(|(d, raw)| {
         let accel = d.accel.as_ref().map_or(raw, |p| apply3(p, raw));
         inclination_deg(mag_axes.apply(mag), accel)
@@ -581,6 +589,7 @@ impl Sensor3 {
                 .filter(|_| dip.accelerometer_calibrated)
                 .and_then(|c| c.ellipsoid),
             mounting,
+            mag_axes: Some(self.config.mag_axes.to_string()),
         }
     }
 

@@ -102,6 +102,10 @@ pub struct DipFit {
     /// every tilt-compensated heading is distrusted with this reason.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mounting: Option<String>,
+    /// The `mag_axes` the dip was measured with ("x,y,z" when absent): a
+    /// reading mapped otherwise is not compared with it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mag_axes: Option<String>,
 }
 
 /// A heading check's gyro: heading ≈ scale · ∫(rate − bias), and the

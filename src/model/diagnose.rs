@@ -527,7 +527,8 @@ fn covered_deg(fit: &ModelFit) -> f64 {
 /// Whether the data put a parameter beyond a physical limit: by more than
 /// [`LIMIT_SES`] standard errors (a parameter the data barely determine is
 /// not shown to be unphysical, only unresolved, which the judgement says
-/// in its own words).
+/// in its own words). A standard error that is not finite counts as none:
+/// the value alone decides.
 pub(crate) fn beyond_limit(p: &Param, max_abs: f64) -> bool {
     let se = if p.se.is_finite() { p.se } else { 0.0 };
     p.value.abs() - LIMIT_SES * se > max_abs
@@ -1028,7 +1029,8 @@ mod judge_tests {
             j.evidence
         );
         assert!(
-            j.evidence.contains("with --gyro the limit is 10 %"),
+            j.evidence
+                .contains("with a gyro that checks the heading (--gyro) the limit is 10 %"),
             "{}",
             j.evidence
         );

@@ -108,7 +108,7 @@ const CUBIC_SOURCE: &str =
     "limit 10 % at full scale; datasheets give 0.1–0.5 % (HMC5883L, MPU-6050, ADXL345)";
 
 /// Where [`MAX_CUBIC_UNCHECKED`] comes from, as the evidence says it.
-pub const CUBIC_UNCHECKED_SOURCE: &str = "limit 1 % at full scale with no gyro to check the heading: twice the worst datasheet figure, 0.1–0.5 % (HMC5883L, MPU-6050, ADXL345); with --gyro the limit is 10 %, what an amplifier near saturation can do";
+pub const CUBIC_UNCHECKED_SOURCE: &str = "limit 1 % at full scale with no gyro to check the heading: twice the worst datasheet figure, 0.1–0.5 % (HMC5883L, MPU-6050, ADXL345); with a gyro that checks the heading (--gyro) the limit is 10 %, what an amplifier near saturation can do";
 
 /// The limit of a cubic term ([`MAX_CUBIC`]) on the parameter `param`.
 const fn cubic_limit(param: &'static str) -> ParamLimit {

@@ -301,9 +301,9 @@ fn parse_recalibrate(body: &[u8]) -> Result<Option<String>, String> {
     parse_recalibrate_body(body).map(|(sensor, _)| sensor)
 }
 
-/// The sensor and the token of a recalibrate body.
+/// The sensor and the token of a recalibrate (or rollback) body.
 fn parse_recalibrate_body(body: &[u8]) -> Result<(Option<String>, Option<String>), String> {
-    const ALLOWED: &str = r#"send no body to recalibrate every sensor, or {"sensor":"NAME"} (with "token":"..." where one is configured)"#;
+    const ALLOWED: &str = r#"send no body for every sensor, or {"sensor":"NAME"} for one (with "token":"..." where one is configured)"#;
     if body.len() > MAX_COMMAND_LEN {
         return Err(format!(
             "the body is longer than {MAX_COMMAND_LEN} bytes; {ALLOWED}"
