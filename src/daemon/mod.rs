@@ -24,6 +24,7 @@ pub mod sensor;
 pub mod sensor3;
 pub mod source_kinds;
 pub mod sphere_limits;
+pub mod stale;
 pub mod state;
 pub mod state_writer;
 

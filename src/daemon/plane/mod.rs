@@ -22,9 +22,8 @@ use super::acceptance::{self, Limits};
 use super::config::{Axis, Field, GyroChoice, OnStale, OutOfPlane, PlaneConfig, SensorConfig};
 use super::lifecycle::Lifecycle;
 use super::messages::{
-    CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, StaleMessage, to_line,
+    CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, to_line,
 };
-use super::publish::Lane;
 use super::sensor::{Emitter, Geometry, Sample};
 use super::{Calibration, Terms};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};

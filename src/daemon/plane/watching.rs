@@ -4,7 +4,7 @@
 //! readings distrusted, or the calibration replaced).
 
 use super::*;
-use crate::model::watch::CLEAN_RMS_FACTOR;
+use crate::daemon::stale::Stale;
 
 impl Plane {
     /// A rotation completed after the calibration was accepted: fitted and
@@ -150,47 +150,17 @@ impl Plane {
         // then scatters well beyond the sensor's noise, and is no
         // calibration of the sensor as it is now. A clean rotation is
         // collected to replace it instead.
-        let stored_rms = life.current.as_ref().map_or(f64::INFINITY, |c| c.rms);
-        let clean = refit.rms <= CLEAN_RMS_FACTOR * stored_rms;
-        let moved = comparison.moved_text();
-        let what_now = match (replace, clean) {
-            (true, true) => format!("the new fit replaces it as calibration #{}", life.next_id),
-            (true, false) => format!(
-                "the rotation straddled the change (rms {:.2} % against the calibration's {:.2} %): readings are distrusted while a new rotation is collected to replace it",
-                refit.rms * 100.0,
-                stored_rms * 100.0
-            ),
-            (false, _) => "readings are distrusted until the sensor is recalibrated: find what changed near it (a magnet, a battery, a motor), then send {\"command\":\"recalibrate\"}, or {\"command\":\"rollback\"} if it was a mistake".to_string(),
-        };
-        let text = format!(
-            "calibration #{id} no longer holds: a later rotation moved {moved} (beyond {:.1} SE), turning the heading by up to {:.1}° (limit {:.2}°: 3 σ of a reading's heading noise); {what_now}",
-            comparison.z_threshold, comparison.heading_error_deg, comparison.heading_limit_deg,
-        );
-        let line = to_line(&StaleMessage {
-            class: "STALE",
+        let stale = Stale {
             sensor: &self.config.name,
+            later: crate::daemon::stale::ROTATION,
+            id,
+            comparison,
+            refit_rms: refit.rms,
+            stored_rms: life.current.as_ref().map_or(f64::INFINITY, |c| c.rms),
+            replace,
             time,
-            calibration: id,
-            parameters: &comparison.parameters,
-            z_threshold: comparison.z_threshold,
-            heading_error_deg: comparison.heading_error_deg,
-            heading_noise_deg: comparison.heading_noise_deg,
-            heading_limit_deg: comparison.heading_limit_deg,
-            action: if replace { "replace" } else { "warn" },
-            message: &text,
-        });
-        tracing::warn!(sensor = %self.config.name, "{text}");
-        emit.line(Lane::Control, line);
-        if !(replace && clean) {
-            life.stale = Some(format!(
-                "calibration #{id} is stale: a later rotation moved {moved}, turning the heading by up to {:.1}°; {}",
-                comparison.heading_error_deg,
-                if replace {
-                    "a new rotation is being collected to replace it"
-                } else {
-                    "recalibrate"
-                }
-            ));
+        };
+        if !stale.announce(life, emit) {
             if let Some(gyro) = &mut self.gyro {
                 gyro.clear();
             }

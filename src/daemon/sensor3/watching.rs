@@ -7,9 +7,8 @@
 
 use super::*;
 use crate::daemon::config::OnStale;
-use crate::daemon::messages::StaleMessage;
-use crate::daemon::publish::Lane;
-use crate::model::watch::{CLEAN_RMS_FACTOR, Comparison, Refit};
+use crate::daemon::stale::Stale;
+use crate::model::watch::{Comparison, Refit};
 
 impl Sensor3 {
     /// A sphere covered after the calibration was accepted: fitted and
@@ -85,46 +84,17 @@ impl Sensor3 {
     ) -> Option<Calibration> {
         let id = current.id;
         let replace = self.config.on_stale == OnStale::Replace;
-        let clean = refit.rms <= CLEAN_RMS_FACTOR * current.rms;
-        let what_now = match (replace, clean) {
-            (true, true) => format!("the new fit replaces it as calibration #{}", life.next_id),
-            (true, false) => format!(
-                "the sphere straddled the change (rms {:.2} % against the calibration's {:.2} %): readings are distrusted while a new sphere is collected to replace it",
-                refit.rms * 100.0,
-                current.rms * 100.0
-            ),
-            (false, _) => "readings are distrusted until the sensor is recalibrated: find what changed near it (a magnet, a battery, a motor), then send {\"command\":\"recalibrate\"}, or {\"command\":\"rollback\"} if it was a mistake".to_string(),
-        };
-        let moved = comparison.moved_text();
-        let text = format!(
-            "calibration #{id} no longer holds: a later sphere moved {moved} (beyond {:.1} SE), turning a reading's direction by up to {:.1}° (limit {:.2}°: 3 σ of a reading's noise); {what_now}",
-            comparison.z_threshold, comparison.heading_error_deg, comparison.heading_limit_deg,
-        );
-        let line = to_line(&StaleMessage {
-            class: "STALE",
+        let stale = Stale {
             sensor: &self.name,
+            later: crate::daemon::stale::SPHERE,
+            id,
+            comparison,
+            refit_rms: refit.rms,
+            stored_rms: current.rms,
+            replace,
             time,
-            calibration: id,
-            parameters: &comparison.parameters,
-            z_threshold: comparison.z_threshold,
-            heading_error_deg: comparison.heading_error_deg,
-            heading_noise_deg: comparison.heading_noise_deg,
-            heading_limit_deg: comparison.heading_limit_deg,
-            action: if replace { "replace" } else { "warn" },
-            message: &text,
-        });
-        tracing::warn!(sensor = %self.name, "{text}");
-        emit.line(Lane::Control, line);
-        if !(replace && clean) {
-            life.stale = Some(format!(
-                "calibration #{id} is stale: a later sphere moved {moved}, turning a reading by up to {:.1}°; {}",
-                comparison.heading_error_deg,
-                if replace {
-                    "a new sphere is being collected to replace it"
-                } else {
-                    "recalibrate"
-                }
-            ));
+        };
+        if !stale.announce(life, emit) {
             if replace {
                 life.restart();
             }
