@@ -38,32 +38,53 @@ fn recording(
     text
 }
 
-/// Replays `csv` through the daemon with a gyro; the lines out.
-fn replay(csv: &str, dir: &std::path::Path) -> Vec<Value> {
-    let file = dir.join("robot.csv");
-    std::fs::write(&file, csv).unwrap();
-    let config = dir.join("robot.toml");
+/// The 2-axis compass of a [`recording`]: columns x, y, its gyro gyro_z.
+const COMPASS: &str =
+    "[[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"x\", \"y\"]\ngyro = \"gyro_z\"\n";
+
+/// A configuration beside `name`.csv in `dir`: a csv source "log" of it,
+/// played as fast as it goes, and `sensors` (its `[[sensor]]` sections).
+fn write_config(dir: &std::path::Path, name: &str, sensors: &str) -> std::path::PathBuf {
+    let config = dir.join(format!("{name}.toml"));
     std::fs::write(
         &config,
         format!(
             "[daemon]\nstate_dir = \"{}\"\nstatus_interval_s = 1.0\n[outputs]\nstdout = true\n\
-             [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"robot.csv\"\n\
-             [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"x\", \"y\"]\ngyro = \"gyro_z\"\n",
+             [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"{name}.csv\"\nspeed = \"max\"\n{sensors}",
             dir.join("state").display()
         ),
     )
     .unwrap();
-    let out = common::run_ok(&[
+    config
+}
+
+/// `fieldcal args`' lines out, as JSON.
+fn lines_of(args: &[&str]) -> Vec<Value> {
+    common::run_ok(args)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+/// Replays `csv`, written as `name`.csv in `dir`, through the daemon with
+/// `sensors`; the lines out.
+fn replay_with(dir: &std::path::Path, name: &str, csv: &str, sensors: &str) -> Vec<Value> {
+    let file = dir.join(format!("{name}.csv"));
+    std::fs::write(&file, csv).unwrap();
+    let config = write_config(dir, name, sensors);
+    lines_of(&[
         "replay",
         file.to_str().unwrap(),
         "--config",
         config.to_str().unwrap(),
         "--speed",
         "max",
-    ]);
-    out.lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect()
+    ])
+}
+
+/// Replays `csv` through the daemon with a gyro; the lines out.
+fn replay(csv: &str, dir: &std::path::Path) -> Vec<Value> {
+    replay_with(dir, "robot", csv, COMPASS)
 }
 
 /// The calibrated readings with `from <= t < to`: (all, distrusted).
@@ -157,32 +178,8 @@ fn a_field_across_the_turn_that_moved_is_distrusted_when_its_axis_is_named() {
         let magnet = if (70.0..75.0).contains(&t) { 50.0 } else { 0.0 };
         csv.push_str(&format!("{line},{:.3}\n", 300.0 + magnet + noise));
     }
-    let file = dir.path().join("robot.csv");
-    std::fs::write(&file, &csv).unwrap();
-    let config = dir.path().join("robot.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "[daemon]\nstate_dir = \"{}\"\n[outputs]\nstdout = true\n\
-             [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"robot.csv\"\n\
-             [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"x\", \"y\"]\n\
-             gyro = \"gyro_z\"\nout_of_plane = \"z\"\n",
-            dir.path().join("state").display()
-        ),
-    )
-    .unwrap();
-    let out = common::run_ok(&[
-        "replay",
-        file.to_str().unwrap(),
-        "--config",
-        config.to_str().unwrap(),
-        "--speed",
-        "max",
-    ]);
-    let lines: Vec<Value> = out
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let sensors = format!("{COMPASS}out_of_plane = \"z\"\n");
+    let lines = replay_with(dir.path(), "robot", &csv, &sensors);
     let (all, bad) = judged(&lines, 70.0, 75.0);
     assert_eq!((all, bad), (100, 100), "every reading under the magnet");
     let first = lines
@@ -270,35 +267,21 @@ fn a_three_axis_compass_distrusts_a_field_six_percent_high_and_nothing_else() {
         );
         text.push_str(&format!("{t:.2},{x:.3},{y:.3},{z:.3}\n"));
     }
-    std::fs::write(dir.path().join("board.csv"), text).unwrap();
-    let config = dir.path().join("board.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "[daemon]\nstate_dir = \"{}\"\n[outputs]\nstdout = true\n\
-             [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"board.csv\"\n\
-             [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"x\", \"y\", \"z\"]\n\
-             field = \"mag\"\nlsb_per_gauss = 1090\n",
-            dir.path().join("state").display()
-        ),
-    )
-    .unwrap();
-    let out = common::run_ok(&[
-        "replay",
-        dir.path().join("board.csv").to_str().unwrap(),
-        "--config",
-        config.to_str().unwrap(),
-        "--speed",
-        "max",
-    ]);
-    let lines: Vec<Value> = out
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let lines = replay_with(
+        dir.path(),
+        "board",
+        &text,
+        "[[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"x\", \"y\", \"z\"]\n\
+         field = \"mag\"\nlsb_per_gauss = 1090\n",
+    );
     let calibrated = lines
         .iter()
         .find(|v| v["class"] == "CALIBRATION" && v["accepted"] == true);
-    assert!(calibrated.is_some(), "no calibration:\n{out}");
+    assert!(
+        calibrated.is_some(),
+        "no calibration in {} lines",
+        lines.len()
+    );
     let (all, bad) = judged(&lines, 110.0, 115.0);
     assert_eq!((all, bad), (100, 100));
     let (all, bad) = judged(&lines, 0.0, 110.0);
@@ -477,33 +460,18 @@ fn board_with(
 
 /// Replays a [`board`] with the compass's `mag_axes`; the lines out.
 fn replay_board(csv: &str, mag_axes: &str, dir: &std::path::Path) -> Vec<Value> {
-    let file = dir.join("board.csv");
-    std::fs::write(&file, csv).unwrap();
-    let config = dir.join("board.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "[daemon]\nstate_dir = \"{}\"\n[outputs]\nstdout = true\n\
-             [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"board.csv\"\n\
-             [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"mx\", \"my\", \"mz\"]\n\
-             field = \"mag\"\nlsb_per_gauss = 1000\ntilt = \"level\"\nmag_axes = \"{mag_axes}\"\n\
-             [[sensor]]\nname = \"level\"\nsource = \"log\"\naxes = [\"ax\", \"ay\", \"az\"]\n\
-             field = \"accel\"\nlsb_per_g = 1\n",
-            dir.join("state").display()
-        ),
+    replay_with(dir, "board", csv, &board_sensors(mag_axes))
+}
+
+/// The [`board`]'s compass, tilt-compensated by its accelerometer, and the
+/// accelerometer.
+fn board_sensors(mag_axes: &str) -> String {
+    format!(
+        "[[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"mx\", \"my\", \"mz\"]\n\
+         field = \"mag\"\nlsb_per_gauss = 1000\ntilt = \"level\"\nmag_axes = \"{mag_axes}\"\n\
+         [[sensor]]\nname = \"level\"\nsource = \"log\"\naxes = [\"ax\", \"ay\", \"az\"]\n\
+         field = \"accel\"\nlsb_per_g = 1\n"
     )
-    .unwrap();
-    let out = common::run_ok(&[
-        "replay",
-        file.to_str().unwrap(),
-        "--config",
-        config.to_str().unwrap(),
-        "--speed",
-        "max",
-    ]);
-    out.lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect()
 }
 
 /// The compass's calibrated readings with a heading, `from <= t < to`:
@@ -680,30 +648,14 @@ fn setting_the_mapping_the_calibration_named_ends_its_distrust_after_a_restart()
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("board.csv"), board(|_| 0.0)).unwrap();
     let run = |mag_axes: &str| -> Vec<Value> {
-        let config = dir.path().join("board.toml");
-        std::fs::write(
-            &config,
-            format!(
-                "[daemon]\nstate_dir = \"{}\"\n[outputs]\nstdout = true\n\
-                 [[source]]\nname = \"log\"\nkind = \"csv\"\nfile = \"board.csv\"\nspeed = \"max\"\n\
-                 [[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"mx\", \"my\", \"mz\"]\n\
-                 field = \"mag\"\nlsb_per_gauss = 1000\ntilt = \"level\"\nmag_axes = \"{mag_axes}\"\n\
-                 [[sensor]]\nname = \"level\"\nsource = \"log\"\naxes = [\"ax\", \"ay\", \"az\"]\n\
-                 field = \"accel\"\nlsb_per_g = 1\n",
-                dir.path().join("state").display()
-            ),
-        )
-        .unwrap();
-        common::run_ok(&[
+        let config = write_config(dir.path(), "board", &board_sensors(mag_axes));
+        lines_of(&[
             "run",
             "--config",
             config.to_str().unwrap(),
             "--progress",
             "never",
         ])
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect()
     };
     let first = run("x,y,z");
     let mounting = |lines: &[Value]| {
