@@ -193,6 +193,7 @@ fn trust_monitor(c: &mut Criterion) {
                 gyro_deg_s: Some(18.0),
                 dip_deg: None,
                 across: None,
+                tilt_deg: None,
             }
         })
         .collect();
@@ -251,6 +252,7 @@ fn watch_rotation(c: &mut Criterion) {
         gyro: None,
         dip: None,
         across: None,
+        level: None,
     };
     let (x, y) = turn(37.0);
     let mut group = c.benchmark_group("watch");

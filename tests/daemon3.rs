@@ -396,9 +396,17 @@ port = "/dev/null"
             "must be an accelerometer",
         ),
         (
-            "[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\ntilt = \"m2\"\n",
-            "sensor[0].tilt",
+            "[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\nmag_axes = \"x,z,-y\"\n",
+            "sensor[0].mag_axes",
             "for a 3-axis sensor",
+        ),
+        // A 2-axis compass's tilt is checked against its accelerometer: the
+        // same rules name it.
+        (
+            "[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\ntilt = \"m2\"\n\
+             [[sensor]]\nname = \"m2\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\", \"z\"]\n",
+            "sensor[0].tilt",
+            "must be an accelerometer",
         ),
         (
             "[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\", \"y\"]\n",
@@ -423,7 +431,7 @@ port = "/dev/null"
         (
             "[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\", \"z\"]\ngyro = \"z\"\n",
             "sensor[0].gyro",
-            "2-axis sensor's rotation",
+            "checked against a 3-axis gyro",
         ),
     ];
     for (sensors, key, words) in cases {
@@ -446,6 +454,17 @@ port = "/dev/null"
         fieldcal::model::ellipsoid::Ellipsoid3Model::OffsetScale
     );
     assert!(config.sensors[1].sphere().unwrap().tilt.is_none());
+    // A 2-axis compass of a device takes it the same way.
+    let text = format!(
+        "{base}[[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\ntilt = \"acc\"\n\
+         [[sensor]]\nname = \"acc\"\nsource = \"imu\"\nfield = \"accel\"\naxes = [\"x\", \"y\", \"z\"]\n"
+    );
+    let config = fieldcal::daemon::config::parse(&text, Path::new("t.toml")).unwrap();
+    let tilt = config.sensors[0].plane().unwrap().tilt.as_ref().unwrap();
+    assert_eq!(
+        (tilt.sensor.as_str(), tilt.columns.is_none()),
+        ("acc", true)
+    );
 }
 
 #[test]

@@ -11,7 +11,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::{repo_path, run};
-use fieldcal::daemon::config::{ConfigError, SourceKind, load, parse};
+use fieldcal::daemon::config::{ConfigError, Gyro3Choice, SourceKind, load, parse};
 use serde_json::Value;
 
 const SET: &str = "../shared/data/real/sunsided-set-1/tilt-sphere";
@@ -299,6 +299,101 @@ fn the_shipped_example_names_the_real_pair() {
     }
     let three = config.sensors[0].sphere().unwrap();
     assert_eq!(three.tilt.as_ref().unwrap().sensor, "level");
+    // Its heading is checked against the MPU-6050's gyro.
+    assert_eq!(
+        three.gyro,
+        Gyro3Choice::Columns {
+            names: ["gyro_x", "gyro_y", "gyro_z"].map(String::from),
+            units: fieldcal::model::gyro::GyroUnits::DegPerSecond,
+        }
+    );
+}
+
+#[test]
+fn a_3_axis_compass_names_its_gyros_three_columns_and_nothing_else_takes_them() {
+    let mag3 = "axes = [\"mag_x\", \"mag_y\", \"mag_z\"]\nfield = \"mag\"\n";
+    let level = "[[sensor]]\nname = \"level\"\nsource = \"board\"\n\
+                 axes = [\"acc_x\", \"acc_y\", \"acc_z\"]\nfield = \"accel\"\n";
+    let text = |extra: &str| with("", &format!("{COMPASS}{mag3}{extra}\n{level}"));
+    let gyro = "tilt = \"level\"\ngyro = [\"gyro_x\", \"gyro_y\", \"gyro_z\"]\n";
+    let config = parse(
+        &text(&format!("{gyro}gyro_units = \"rad/s\"\n")),
+        &config_path(),
+    )
+    .unwrap();
+    assert_eq!(
+        config.sensors[0].sphere().unwrap().gyro,
+        Gyro3Choice::Columns {
+            names: ["gyro_x", "gyro_y", "gyro_z"].map(String::from),
+            units: fieldcal::model::gyro::GyroUnits::RadPerSecond,
+        }
+    );
+    // None named: none.
+    let config = parse(&text("tilt = \"level\"\n"), &config_path()).unwrap();
+    assert_eq!(config.sensors[0].sphere().unwrap().gyro, Gyro3Choice::Off);
+    for (extra, key, words) in [
+        // One column is a 2-axis sensor's.
+        (
+            "tilt = \"level\"\ngyro = \"gyro_z\"\n",
+            "sensor[0].gyro",
+            &["three columns", "\"none\""][..],
+        ),
+        (
+            "tilt = \"level\"\ngyro = [\"gyro_x\", \"gyro_y\"]\n",
+            "sensor[0].gyro",
+            &["2 columns given"][..],
+        ),
+        (
+            "tilt = \"level\"\ngyro = [\"gyro_x\", \"gyro_y\", \"gyro_x\"]\n",
+            "sensor[0].gyro[2]",
+            &["already gyro[0]"][..],
+        ),
+        (
+            "tilt = \"level\"\ngyro = [\"gyro_x\", \"gyro_y\", \"nope\"]\n",
+            "sensor[0].gyro[2]",
+            &["nope"][..],
+        ),
+        // Without the tilt, no vertical to turn about.
+        (
+            "gyro = [\"gyro_x\", \"gyro_y\", \"gyro_z\"]\n",
+            "sensor[0].gyro",
+            &["give `tilt`"][..],
+        ),
+        (
+            "tilt = \"level\"\ngyro_units = \"rad/s\"\n",
+            "sensor[0].gyro_units",
+            &["without gyro columns"][..],
+        ),
+        (
+            &format!("{gyro}gyro_units = \"rpm\"\n"),
+            "sensor[0].gyro_units",
+            &["\"rpm\""][..],
+        ),
+    ] {
+        refused(&text(extra), key, words);
+    }
+    // An accelerometer has no heading to check.
+    refused(
+        &with(
+            "",
+            &format!(
+                "{COMPASS}axes = [\"acc_x\", \"acc_y\", \"acc_z\"]\nfield = \"accel\"\n{gyro}"
+            ),
+        ),
+        "sensor[0].gyro",
+        &["accel sensor has none"],
+    );
+    // Three columns on a 2-axis sensor.
+    refused(
+        &with(
+            "",
+            &format!(
+                "{COMPASS}axes = [\"mag_x\", \"mag_y\"]\ngyro = [\"gyro_x\", \"gyro_y\", \"gyro_z\"]\n"
+            ),
+        ),
+        "sensor[0].gyro",
+        &["2-axis sensor's gyro is one column"],
+    );
 }
 
 // ---- the configuration's refusals ----
@@ -310,7 +405,7 @@ fn two_files() -> (tempfile::TempDir, PathBuf, PathBuf) {
     std::fs::write(&mag, "t_s,mag_x,mag_y,mag_z,temp_c\n0,1,2,3,20\n").unwrap();
     std::fs::write(
         &accel,
-        "t_s,acc_x,acc_y,acc_z,gyro_z,temp_c\n0,1,2,3,4,20\n",
+        "t_s,acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z,temp_c\n0,1,2,3,4,5,6,20\n",
     )
     .unwrap();
     (dir, mag, accel)
@@ -474,6 +569,18 @@ fn a_3_axis_csv_sensor_and_a_source_of_several_files_are_checked_naming_the_key(
         ),
         "sensor[0].tilt",
         &["2-axis sensor"],
+    );
+    // And a 2-axis compass's too (its tilt is checked, not compensated).
+    refused(
+        &with(
+            "",
+            &format!(
+                "{COMPASS}axes = [\"mag_x\", \"mag_y\"]\ntilt = \"flat\"\n\n[[sensor]]\nname = \"flat\"\n\
+                 source = \"board\"\naxes = [\"acc_x\", \"acc_y\"]\n"
+            ),
+        ),
+        "sensor[0].tilt",
+        &["2-axis sensor", "3-axis accelerometer"],
     );
     // The source: file and files, period_s, the count, a file twice.
     let sensor = format!("{COMPASS}{mag3}field = \"mag\"\n");
@@ -725,5 +832,45 @@ fn an_accelerometer_on_its_six_faces_is_calibrated_from_its_still_poses() {
         of(&lines, "CALIBRATION", "compass")
             .iter()
             .any(|c| c["accepted"] == true)
+    );
+}
+
+/// The real tumble with the MPU-6050's gyro: the gyro's scale against the
+/// tilt-compensated heading is ±1 within the chip's tolerance, and every
+/// calibrated heading but the one a jolt of the hand threw 100° off (the
+/// accelerometer read a 40° tilt for one row) is trusted.
+#[test]
+fn the_real_tumble_fits_its_gyro_against_the_heading_and_distrusts_only_a_jolt() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = pair_config(dir.path(), &real("hmc5883l_mag.csv"), &real("mpu6050.csv"));
+    let text = std::fs::read_to_string(&config).unwrap().replacen(
+        "tilt = \"level\"\n",
+        "tilt = \"level\"\nmag_axes = \"-x,-z,y\"\ngyro = [\"gyro_x\", \"gyro_y\", \"gyro_z\"]\n",
+        1,
+    );
+    std::fs::write(&config, text).unwrap();
+    let (lines, _) = run_daemon(&config);
+    let fits = of(&lines, "CALIBRATION", "compass");
+    let cal = fits
+        .iter()
+        .find(|c| c["accepted"] == true)
+        .unwrap_or_else(|| panic!("{fits:?}"));
+    let gyro = &cal["gyro"];
+    let scale = f(&gyro["scale"]);
+    assert!((scale.abs() - 1.0).abs() < 0.05, "{gyro}");
+    // A hand's tumble: the heading errs by degrees (its accelerometer
+    // feels the hand's accelerations), and the limit widens with it.
+    let noise = f(&gyro["heading_rms_deg"]);
+    assert!((1.0..30.0).contains(&noise), "{gyro}");
+    let headings: Vec<&Value> = of(&lines, "READING", "compass")
+        .into_iter()
+        .filter(|v| v["calibrated"] == true && v.get("heading_deg").is_some())
+        .collect();
+    let distrusted = headings.iter().filter(|v| v["trusted"] == false).count();
+    assert!(headings.len() > 1000, "{}", headings.len());
+    assert!(
+        distrusted * 100 <= headings.len(),
+        "{distrusted} of {}",
+        headings.len()
     );
 }

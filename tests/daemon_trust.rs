@@ -683,3 +683,211 @@ fn setting_the_mapping_the_calibration_named_ends_its_distrust_after_a_restart()
         "a reading distrusted after the fix"
     );
 }
+
+/// A robot's level 2-axis compass (columns mx, my: body x and y, with an
+/// offset and a scale each) and its accelerometer (ax, ay, az) at 20 Hz,
+/// turning as [`heading`] (about the vertical: dip 65°, 500 counts), and
+/// rolled `roll(t)` degrees about its x axis, which points north while it
+/// is still. No gyro, no axis across the turn.
+fn rolled_compass(roll: impl Fn(f64) -> f64) -> String {
+    let mut text = String::from("t,mx,my,ax,ay,az\n");
+    let mut state: u64 = 0x2545_f491_4f6c_dd1d;
+    let mut noise = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % 20_001) as f64 / 10_000.0 - 1.0
+    };
+    let dip = 65f64.to_radians();
+    let field = [500.0 * dip.cos(), 0.0, 500.0 * dip.sin()];
+    for k in 0..(140.0 * 20.0) as usize {
+        let t = k as f64 / 20.0;
+        // Body to world (north, east, down): the heading, then the roll.
+        let r = product(
+            &rotation([0.0, 0.0, 1.0], heading(t).to_radians()),
+            &rotation([1.0, 0.0, 0.0], roll(t).to_radians()),
+        );
+        let to_body = transpose(&r);
+        let m = times(&to_body, field);
+        let g = times(&to_body, [0.0, 0.0, -1.0]);
+        let (mx, my) = (120.0 + 1.1 * m[0] + noise(), -80.0 + m[1] + noise());
+        let (ax, ay, az) = (
+            g[0] + 0.002 * noise(),
+            g[1] + 0.002 * noise(),
+            g[2] + 0.002 * noise(),
+        );
+        text.push_str(&format!("{t:.2},{mx:.3},{my:.3},{ax:.5},{ay:.5},{az:.5}\n"));
+    }
+    text
+}
+
+#[test]
+fn a_level_compass_rolled_two_degrees_is_distrusted_by_its_accelerometer_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    // Rolled 2° between 70 and 75 s, while still: the level pair takes
+    // sin 2° of the vertical field, and the heading errs 4.3°; the field's
+    // magnitude moves 0.28 %, within its own limit.
+    let csv = rolled_compass(|t| if (70.0..75.0).contains(&t) { 2.0 } else { 0.0 });
+    let sensors = "[[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"mx\", \"my\"]\n\
+                   tilt = \"level\"\n\
+                   [[sensor]]\nname = \"level\"\nsource = \"log\"\naxes = [\"ax\", \"ay\", \"az\"]\n\
+                   field = \"accel\"\nlsb_per_g = 1\n";
+    let lines = replay_with(dir.path(), "robot", &csv, sensors);
+    let cal = lines
+        .iter()
+        .find(|v| v["class"] == "CALIBRATION" && v["sensor"] == "compass" && v["accepted"] == true)
+        .unwrap_or_else(|| panic!("no calibration"));
+    // The attitude over the rotation: level, its vertical the board's z.
+    let level = &cal["level"];
+    let up: Vec<f64> = (0..3).map(|k| level["up"][k].as_f64().unwrap()).collect();
+    assert!(
+        up[2] < -0.9999 && up[0].abs() < 0.01 && up[1].abs() < 0.01,
+        "{level}"
+    );
+    assert!(level["tilt_sd_deg"].as_f64().unwrap() < 0.2, "{level}");
+    let (all, bad, why) = compass_judged(&lines, 70.0, 75.0);
+    assert_eq!((all, bad), (100, 100), "{why}");
+    assert!(
+        why.starts_with(
+            "the compass is tilted 2.0° from the attitude it was calibrated in (limit 0.5°"
+        ),
+        "{why}"
+    );
+    // Turning before it and still after it, every heading is trusted.
+    let (all, bad, why) = compass_judged(&lines, 0.0, 70.0);
+    assert!(all > 900, "{all}");
+    assert_eq!(bad, 0, "{why}");
+    let (all, bad, why) = compass_judged(&lines, 75.0, 1e9);
+    assert!(all > 1200, "{all}");
+    assert_eq!(bad, 0, "{why}");
+}
+
+/// A board with a 3-axis magnetometer (mx, my, mz, mounted as in
+/// [`board`]), an accelerometer (ax, ay, az) and a gyro (gx, gy, gz, deg/s,
+/// the accelerometer's axes, with a bias on each) at 20 Hz: tumbling as
+/// [`board`] for 150 s, then held still where the tumble left it. A magnet
+/// turns the Earth's field `swing(t)` degrees about the vertical: the
+/// field's size and dip stay, only the heading moves.
+fn gyro_board(swing: impl Fn(f64) -> f64) -> String {
+    let mut text = String::from("t,mx,my,mz,ax,ay,az,gx,gy,gz\n");
+    let mut state: u64 = 0x9e37_79b9_7f4a_7c15;
+    let mut noise = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % 20_001) as f64 / 10_000.0 - 1.0
+    };
+    let dip = 65f64.to_radians();
+    let rates = [0.53, 0.31, 0.17];
+    let bias = [1.5, -2.0, 0.8];
+    for k in 0..(200.0 * 20.0) as usize {
+        let t = k as f64 / 20.0;
+        let tumbling = t < 150.0;
+        let s = t.min(150.0);
+        let (a, b, c) = (
+            rotation([0.0, 0.0, 1.0], rates[0] * s),
+            rotation([0.0, 1.0, 0.0], rates[1] * s),
+            rotation([1.0, 0.0, 0.0], rates[2] * s),
+        );
+        let r = product(&product(&a, &b), &c);
+        // The body's rate: each Euler rate carried into the body's axes.
+        let (ct, bt) = (transpose(&c), transpose(&b));
+        let yaw = times(&ct, times(&bt, [0.0, 0.0, rates[0]]));
+        let pitch = times(&ct, [0.0, rates[1], 0.0]);
+        let omega: Vec<f64> = (0..3)
+            .map(|i| {
+                if tumbling {
+                    (yaw[i] + pitch[i] + [rates[2], 0.0, 0.0][i]).to_degrees()
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let turn = rotation([0.0, 0.0, 1.0], swing(t).to_radians());
+        let field = times(&turn, [500.0 * dip.cos(), 0.0, 500.0 * dip.sin()]);
+        let to_body = transpose(&r);
+        let m = times(&to_body, field);
+        let g = times(&to_body, [0.0, 0.0, -1.0]);
+        let mag = [-m[0], m[2], -m[1]];
+        let (mx, my, mz) = (
+            30.0 + 1.04 * mag[0] + noise(),
+            -45.0 + 0.97 * mag[1] + noise(),
+            12.0 + mag[2] + noise(),
+        );
+        let (ax, ay, az) = (
+            g[0] + 0.002 * noise(),
+            g[1] + 0.002 * noise(),
+            g[2] + 0.002 * noise(),
+        );
+        let (gx, gy, gz) = (
+            omega[0] + bias[0] + 0.05 * noise(),
+            omega[1] + bias[1] + 0.05 * noise(),
+            omega[2] + bias[2] + 0.05 * noise(),
+        );
+        text.push_str(&format!(
+            "{t:.2},{mx:.3},{my:.3},{mz:.3},{ax:.5},{ay:.5},{az:.5},{gx:.4},{gy:.4},{gz:.4}\n"
+        ));
+    }
+    text
+}
+
+#[test]
+fn a_magnet_that_turns_a_3d_compass_heading_alone_is_caught_by_its_gyro() {
+    let dir = tempfile::tempdir().unwrap();
+    // 20° about the vertical between 170 and 175 s, while the board is
+    // still: the field's size and dip are the same, the heading is not.
+    let csv = gyro_board(|t| {
+        if (170.0..175.0).contains(&t) {
+            20.0
+        } else {
+            0.0
+        }
+    });
+    let sensors = board_sensors("-x,-z,y").replacen(
+        "mag_axes = \"-x,-z,y\"\n",
+        "mag_axes = \"-x,-z,y\"\ngyro = [\"gx\", \"gy\", \"gz\"]\n",
+        1,
+    );
+    let lines = replay_with(dir.path(), "board", &csv, &sensors);
+    let cal = lines
+        .iter()
+        .find(|v| v["class"] == "CALIBRATION" && v["sensor"] == "compass" && v["accepted"] == true)
+        .unwrap_or_else(|| panic!("no calibration"));
+    // The gyro over the calibration's samples: ±1, and its bias found
+    // (but for the forward axis's, which turns no heading).
+    let gyro = &cal["gyro"];
+    assert!(
+        (gyro["scale"].as_f64().unwrap().abs() - 1.0).abs() < 0.02,
+        "{gyro}"
+    );
+    for (k, want) in [0.0, -2.0, 0.8].into_iter().enumerate() {
+        let got = gyro["bias_xyz_deg_s"][k].as_f64().unwrap();
+        assert!((got - want).abs() < 0.1, "{gyro}");
+    }
+    let at = cal["time"].as_f64().unwrap();
+    assert!(at < 150.0, "calibrated while tumbling: {at}");
+    let (all, bad, why) = compass_judged(&lines, 170.0, 175.0);
+    assert_eq!((all, bad), (100, 100), "{why}");
+    // The field turned 20° east about the vertical: the heading, 20° less.
+    let moved: f64 = why
+        .strip_prefix("the heading moved ")
+        .and_then(|r| r.split('°').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{why}"));
+    assert!((moved + 20.0).abs() < 1.0, "{why}");
+    let turned: f64 = why
+        .split("while the gyro turned ")
+        .nth(1)
+        .and_then(|r| r.split('°').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{why}"));
+    assert!(turned.abs() < 0.1, "{why}");
+    // Tumbling after the calibration, and still before and after the
+    // magnet, every heading is trusted.
+    let (all, bad, why) = compass_judged(&lines, at, 170.0);
+    assert!(all > 400, "{all}");
+    assert_eq!(bad, 0, "{why}");
+    let (all, bad, why) = compass_judged(&lines, 175.0, 1e9);
+    assert!(all > 400, "{all}");
+    assert_eq!(bad, 0, "{why}");
+}

@@ -814,6 +814,7 @@ mod state_writer {
             gyro: None,
             dip: None,
             across: None,
+            level: None,
         }
     }
 

@@ -348,6 +348,7 @@ fn calibration(id: u64) -> Calibration {
         gyro: None,
         dip: None,
         across: None,
+        level: None,
     }
 }
 

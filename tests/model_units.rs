@@ -2443,6 +2443,7 @@ mod trust {
                     gyro_deg_s: Some(deg_s),
                     dip_deg: None,
                     across: None,
+                    tilt_deg: None,
                 };
                 (t, monitor.check(obs))
             })
@@ -2534,6 +2535,7 @@ mod trust {
                 gyro_deg_s: Some(3.0 * t / 600.0),
                 dip_deg: None,
                 across: None,
+                tilt_deg: None,
             });
             assert!(v.trusted, "{t}: {:?}", v.reasons);
         }
@@ -2553,6 +2555,7 @@ mod trust {
                 gyro_deg_s: None,
                 dip_deg: None,
                 across: None,
+                tilt_deg: None,
             });
         }
         let c = m.counts();
@@ -2574,6 +2577,7 @@ mod trust {
             gyro_deg_s: None,
             dip_deg: Some(dip),
             across: None,
+            tilt_deg: None,
         };
         assert!(m.check(at(0.0, 64.9)).trusted);
         assert!(m.check(at(0.1, 55.1)).trusted);
@@ -2597,6 +2601,7 @@ mod trust {
             m.check(Observation {
                 dip_deg: None,
                 across: None,
+                tilt_deg: None,
                 ..at(0.5, 0.0)
             })
             .trusted
@@ -2620,6 +2625,103 @@ mod trust {
         }
     }
 
+    /// A 2-axis compass's tilt against its calibration's attitude: beyond
+    /// 5 σ of the rotation's spread (held to the accelerometer's noise)
+    /// distrusted, trusted again within 3 σ; with the WMM's dip, the limit
+    /// widens to the tilt at which the heading errs 5 σ, and only then.
+    #[test]
+    fn a_tilt_beyond_five_sigma_is_distrusted_and_the_dip_widens_the_limit_where_the_heading_allows()
+     {
+        use fieldcal::model::trust::{MIN_TILT_SIGMA_DEG, TiltLimit};
+        // A level turntable: the spread is the accelerometer's floor.
+        let floor = TrustLimits::from_rms(0.001, None, None).with_tilt(0.02, None);
+        assert_eq!(
+            floor.tilt,
+            Some(TiltLimit {
+                sigma_deg: MIN_TILT_SIGMA_DEG,
+                dip_deg: None
+            })
+        );
+        // A quiet compass (heading σ 0.115°): 5 σ of heading at a dip of
+        // 65° tolerate asin(tan 0.573° / tan 65°) = 0.267° of tilt, less
+        // than the rotation's own 5 × 0.3°: the spread stays the limit.
+        let quiet = TrustLimits::from_rms(0.002, None, None).with_tilt(0.3, Some(65.0));
+        assert_eq!(
+            quiet.tilt.map(|t| (t.sigma_deg, t.dip_deg)),
+            Some((0.3, None))
+        );
+        // A noisy one (heading σ 1.146°): asin(tan 5.73° / tan 65°) = 2.681°.
+        let noisy = TrustLimits::from_rms(0.02, None, None).with_tilt(0.3, Some(65.0));
+        let t = noisy.tilt.unwrap();
+        assert!((t.sigma_deg - 2.681 / 5.0).abs() < 1e-3, "{t:?}");
+        assert_eq!(t.dip_deg, Some(65.0));
+        // Not finite: no check.
+        assert_eq!(quiet.with_tilt(f64::NAN, None).tilt, None);
+
+        let mut m = TrustMonitor::new(floor);
+        let at = |t: f64, tilt: f64| Observation {
+            time: t,
+            field_ratio: 1.0,
+            heading_deg: 0.0,
+            gyro_deg_s: None,
+            dip_deg: None,
+            across: None,
+            tilt_deg: Some(tilt),
+        };
+        assert!(m.check(at(0.0, 0.49)).trusted);
+        let v = m.check(at(0.1, 2.0));
+        assert_eq!(
+            v.reasons,
+            [
+                "the compass is tilted 2.0° from the attitude it was calibrated in (limit 0.5°: 5 σ of its tilt over the calibration's rotation)"
+            ]
+        );
+        let v = m.check(at(0.2, 0.4));
+        assert!(!v.trusted, "within 5 σ but not 3 σ: still distrusted");
+        assert!(v.reasons[0].ends_with("trusted again within it)"), "{v:?}");
+        assert!(m.check(at(0.3, 0.29)).trusted);
+        let mut wide = TrustMonitor::new(noisy);
+        let v = wide.check(at(0.0, 3.0));
+        assert_eq!(
+            v.reasons,
+            [
+                "the compass is tilted 3.0° from the attitude it was calibrated in (limit 2.7°: the tilt at which its heading errs 5 σ of its noise at the WMM's dip of 65.0°)"
+            ]
+        );
+    }
+
+    /// The attitude of a rotation: the vertical of its accelerometer's
+    /// readings, and the tilt's spread about it along one axis (a
+    /// constant 1° tilt all round is a median tilt of 1°).
+    #[test]
+    fn the_level_of_a_rotation_is_its_median_vertical_and_its_tilt_spread() {
+        use fieldcal::model::level::{RAYLEIGH_MEDIAN, level_of};
+        let tilt = 1f64.to_radians();
+        let mut accels: Vec<[f64; 3]> = (0..36)
+            .map(|k| {
+                let a = f64::from(k) * 10f64.to_radians();
+                // 0.98 g: the size does not matter, only the direction.
+                [
+                    0.98 * tilt.sin() * a.cos(),
+                    0.98 * tilt.sin() * a.sin(),
+                    0.98 * tilt.cos(),
+                ]
+            })
+            .collect();
+        // A jerk of the hand throws one far off; a dropped row is zero.
+        accels.push([1.0, 0.0, 0.0]);
+        accels.push([0.0, 0.0, 0.0]);
+        let level = level_of(&accels).unwrap();
+        assert!((level.up[2] - 1.0).abs() < 1e-4, "{level:?}");
+        assert_eq!(level.n, 37);
+        assert!(
+            (level.tilt_sd_deg - 1.0 / RAYLEIGH_MEDIAN).abs() < 1e-3,
+            "{level:?}"
+        );
+        assert_eq!(level_of(&[]), None);
+        assert_eq!(level_of(&[[0.0; 3], [f64::NAN, 1.0, 0.0]]), None);
+    }
+
     #[test]
     fn a_reading_out_of_order_or_not_finite_is_distrusted() {
         let mut m = TrustMonitor::new(TrustLimits::from_rms(0.01, None, None));
@@ -2630,6 +2732,7 @@ mod trust {
             gyro_deg_s: None,
             dip_deg: None,
             across: None,
+            tilt_deg: None,
         };
         assert!(m.check(ok).trusted);
         assert!(!m.check(Observation { time: 0.5, ..ok }).trusted);
@@ -2725,6 +2828,7 @@ mod trust_sweep {
                     ),
                     dip_deg: None,
                     across: None,
+                    tilt_deg: None,
                 };
                 (t, monitor.check(obs).trusted)
             })
@@ -2851,6 +2955,7 @@ mod watch_sweep {
             gyro: None,
             dip: None,
             across: None,
+            level: None,
         };
         (calibration, refit)
     }
@@ -2939,6 +3044,7 @@ mod watch_sweep3 {
             gyro: None,
             dip: None,
             across: None,
+            level: None,
         }
     }
 
@@ -3792,5 +3898,82 @@ mod tilt_moved {
         assert!(s.heading_deg[1].is_nan() && s.level_deg[1].is_nan());
         assert!(heading_series(&[m], &[a], UP, UP, 0.0).is_err());
         assert!(heading_series(&[m], &[a], FORWARD, [1.0, 0.0, 1.0], 0.0).is_err());
+    }
+}
+
+mod gyro3 {
+    use fieldcal::model::gyro3::{GyroSample, fit_gyro3, heading_rate};
+    use fieldcal::model::tilt::tilt_heading;
+    use nalgebra::{Rotation3, Vector3};
+
+    /// A board tumbling for `seconds` at 50 Hz (yaw, pitch and roll at
+    /// rates that do not divide one another), its tilt-compensated heading
+    /// from a field of dip 65°, and its gyro in the accelerometer's axes
+    /// with `bias`, each axis of it read through `axes` (index, sign).
+    fn tumble(seconds: f64, bias: [f64; 3], axes: [(usize, f64); 3]) -> Vec<GyroSample> {
+        let dip = 65f64.to_radians();
+        let field = Vector3::new(dip.cos(), 0.0, dip.sin());
+        let rates = [0.53, 0.31, 0.17];
+        (0..(seconds * 50.0) as usize)
+            .filter_map(|k| {
+                let t = k as f64 / 50.0;
+                let a = Rotation3::from_axis_angle(&Vector3::z_axis(), rates[0] * t);
+                let b = Rotation3::from_axis_angle(&Vector3::y_axis(), rates[1] * t);
+                let c = Rotation3::from_axis_angle(&Vector3::x_axis(), rates[2] * t);
+                let to_body = (a * b * c).inverse();
+                let m = to_body * field;
+                let up = to_body * Vector3::new(0.0, 0.0, -1.0);
+                let omega = c.inverse() * (b.inverse() * Vector3::new(0.0, 0.0, rates[0]))
+                    + c.inverse() * Vector3::new(0.0, rates[1], 0.0)
+                    + Vector3::new(rates[2], 0.0, 0.0);
+                let omega = omega.map(f64::to_degrees);
+                let h = tilt_heading(m.into(), up.into(), [1.0, 0.0, 0.0], [0.0, 0.0, 1.0])?;
+                Some(GyroSample {
+                    time: t,
+                    heading_deg: h.heading_deg,
+                    up: up.into(),
+                    gyro_deg_s: axes.map(|(i, sign)| sign * omega[i] + bias[i]),
+                })
+            })
+            .collect()
+    }
+
+    const TRUE_AXES: [(usize, f64); 3] = [(0, 1.0), (1, 1.0), (2, 1.0)];
+
+    /// The fit finds the gyro's scale (±1: the frames' handedness) and its
+    /// bias on the axes that turn the heading; the heading's rate it then
+    /// gives is the heading's own.
+    #[test]
+    fn a_tumble_gives_the_gyros_scale_and_the_bias_that_turns_the_heading() {
+        let bias = [1.5, -2.0, 0.8];
+        let samples = tumble(60.0, bias, TRUE_AXES);
+        let fit = fit_gyro3(&samples).unwrap();
+        assert!((fit.scale.abs() - 1.0).abs() < 0.01, "{fit:?}");
+        // A roll about the forward axis turns no heading: its bias is 0.
+        assert_eq!(fit.bias_deg_s[0], 0.0);
+        assert!((fit.bias_deg_s[1] - bias[1]).abs() < 0.05, "{fit:?}");
+        assert!((fit.bias_deg_s[2] - bias[2]).abs() < 0.05, "{fit:?}");
+        assert!(fit.heading_sd_deg < 0.1, "{fit:?}");
+        // Between two readings pitched within the limit, the rate the gyro
+        // gives carries the heading from one to the other.
+        let (a, b) = (samples[100], samples[101]);
+        let rate = |s: GyroSample| heading_rate(s.gyro_deg_s, fit.bias_deg_s, s.up);
+        let (ra, rb) = (rate(a).unwrap(), rate(b).unwrap());
+        let turned = fit.scale * 0.5 * (ra + rb) * (b.time - a.time);
+        let moved = (b.heading_deg - a.heading_deg + 540.0).rem_euclid(360.0) - 180.0;
+        assert!((turned - moved).abs() < 0.01, "{turned} {moved}");
+    }
+
+    /// A gyro whose columns are not the accelerometer's axes is refused
+    /// with the reason, and so is a tumble too short to fit.
+    #[test]
+    fn a_gyro_in_other_axes_or_too_short_a_tumble_gives_no_fit_and_says_why() {
+        let swapped = tumble(60.0, [0.0; 3], [(0, 1.0), (2, 1.0), (1, 1.0)]);
+        let why = fit_gyro3(&swapped).unwrap_err();
+        assert!(why.contains("does not follow the heading"), "{why}");
+        let short = tumble(5.0, [0.0; 3], TRUE_AXES);
+        let why = fit_gyro3(&short).unwrap_err();
+        assert!(why.contains("of 20 needed"), "{why}");
+        assert!(fit_gyro3(&[]).is_err());
     }
 }

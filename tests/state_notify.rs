@@ -41,6 +41,7 @@ fn calibration(sensor: &str, id: u64) -> Calibration {
         gyro: None,
         dip: None,
         across: None,
+        level: None,
     }
 }
 

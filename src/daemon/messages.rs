@@ -169,6 +169,11 @@ pub struct CalibrationMessage<'a> {
     /// median and spread, raw units, which each reading is checked against.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub across: Option<crate::model::calibration::AcrossFit>,
+    /// The attitude over the rotation (`tilt`): the tilt accelerometer's
+    /// vertical and the tilt's spread about it, which each reading's tilt
+    /// is checked against.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub level: Option<crate::model::calibration::LevelFit>,
 }
 
 /// A `STALE` line: a later rotation moved the calibration further than
@@ -235,6 +240,7 @@ impl<'a> CalibrationMessage<'a> {
             declination_source: None,
             declination_uncertainty_deg: None,
             across: None,
+            level: None,
         }
     }
 
@@ -252,6 +258,7 @@ impl<'a> CalibrationMessage<'a> {
             terms: (!calibration.terms.is_none()).then_some(calibration.terms),
             se: (!calibration.se.is_empty()).then_some(&calibration.se),
             across: calibration.across,
+            level: calibration.level,
             ..Self::rejected(&calibration.sensor, &calibration.model, None)
         }
     }

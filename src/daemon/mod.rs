@@ -8,6 +8,7 @@
 //! readings' path).
 
 pub mod acceptance;
+mod beside;
 pub mod config;
 pub mod lifecycle;
 pub mod messages;

@@ -22,7 +22,7 @@ use super::north::{Earth, MeasuredDip, North, earth};
 use super::sensor::{Emitter, Geometry, Sample};
 use super::{Calibration, Ellipsoid3Params};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
-use crate::model::calibration::DipFit;
+use crate::model::calibration::{DipFit, GyroFit};
 use crate::model::ellipsoid::{self, Ellipsoid3Fit, Ellipsoid3Se};
 use crate::model::paper::PaperCalibration;
 use crate::model::sphere::SphereCoverage;
@@ -31,13 +31,16 @@ use crate::model::tilt::{
     AxisMap, inclination_deg, mounting_problem, robust_spread, tilt_heading_or_why,
 };
 use crate::model::trust::{
-    Observation, TrustCounts, TrustLimits, TrustMonitor, Verdict, monitor_of,
+    GyroModel, Observation, TrustCounts, TrustLimits, TrustMonitor, Verdict, monitor_of,
 };
 use crate::model::watch;
 use crate::sample::Reading;
 use std::sync::Arc;
 
+mod gyro;
 mod watching;
+
+use gyro::Gyro3Track;
 
 // The sphere buffer's settings and progress, at the paths they had before
 // the buffer moved to [`crate::model::sphere_buffer`].
@@ -167,6 +170,15 @@ struct Calibration3Message<'a> {
     /// samples, and whether `mag_axes` can be right.
     #[serde(skip_serializing_if = "Option::is_none")]
     dip: Option<&'a DipFit>,
+    /// A compass with a gyro: the gyro against the tilt-compensated
+    /// heading over the fit's samples (its scale, its bias on each axis,
+    /// the heading's noise), which each later heading's change is checked
+    /// against ([`crate::model::gyro3`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    gyro: Option<&'a GyroFit>,
+    /// Why a compass with a gyro has no such fit.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    heading_check: Option<&'a str>,
 }
 
 impl Calibration3Message<'_> {
@@ -214,6 +226,10 @@ pub struct Sensor3 {
     csv: Option<Csv3Binding>,
     /// Trust at every reading, under the calibration of the id it holds.
     trust: Option<(u64, TrustMonitor)>,
+    /// The gyro its tilt-compensated heading is checked against (`gyro`).
+    gyro: Option<Gyro3Track>,
+    /// Why the last accepted calibration has no gyro fit, when it has none.
+    gyro_check: Option<String>,
 }
 
 /// Where a 3-axis csv sensor's values are: (file, column indices of x, y,
@@ -222,6 +238,16 @@ pub struct Sensor3 {
 struct Csv3Binding {
     own: (usize, [usize; 3]),
     tilt: Option<(usize, [usize; 3])>,
+}
+
+/// The values at `at` of a row, when all three are there and finite.
+pub(super) fn finite3(values: &[f64], at: [usize; 3]) -> Option<[f64; 3]> {
+    let v = [
+        *values.get(at[0])?,
+        *values.get(at[1])?,
+        *values.get(at[2])?,
+    ];
+    v.iter().all(|x| x.is_finite()).then_some(v)
 }
 
 fn pick(triad: [i16; 3], axes: [Axis; 3]) -> [f64; 3] {
@@ -242,13 +268,13 @@ fn field_of(reading: &Reading, field: Field) -> Option<[i16; 3]> {
 /// through the accelerometer correction the calibration's own dip was
 /// measured with (so that a later accelerometer calibration does not
 /// read as a change of the field); a mounting the calibration's samples
-/// showed wrong distrusts every tilt-compensated heading. A 3-axis
-/// heading against a gyro is not checked yet.
+/// showed wrong distrusts every tilt-compensated heading; with a gyro
+/// fitted at calibration, `gyro_deg_s` is the heading's rate it gives.
 fn judge(
     trust: &mut Option<(u64, TrustMonitor)>,
     (mag_axes, stale): (AxisMap, Option<&str>),
     c: &Calibration,
-    (time, mag, heading_deg): (f64, [f64; 3], Option<f64>),
+    (time, mag, heading_deg, gyro_deg_s): (f64, [f64; 3], Option<f64>, Option<f64>),
     accel_raw: Option<[f64; 3]>,
 ) -> Verdict {
     let magnitude = (mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2]).sqrt();
@@ -271,7 +297,15 @@ fn judge(
         .filter(|_| heading_deg.is_some());
     let standing: Vec<&str> = stale.into_iter().chain(mounting).collect();
     monitor_of(trust, c.id, || {
-        let limits = TrustLimits::from_rms(c.rms, None, None);
+        let gyro = c.gyro.filter(|g| g.bias_xyz_deg_s.is_some());
+        let limits = TrustLimits::from_rms(
+            c.rms,
+            gyro.map(|g| g.heading_rms_deg),
+            gyro.map(|g| GyroModel {
+                scale: g.scale,
+                bias_deg_s: g.bias_deg_s,
+            }),
+        );
         match dip {
             Some(d) => limits.with_dip(d.median_deg, d.spread_deg),
             None => limits,
@@ -282,9 +316,10 @@ fn judge(
             time,
             field_ratio: ratio,
             heading_deg: heading_deg.unwrap_or(0.0),
-            gyro_deg_s: None,
+            gyro_deg_s: gyro_deg_s.filter(|_| heading_deg.is_some()),
             dip_deg,
             across: None,
+            tilt_deg: None,
         },
         &standing,
     )
@@ -323,6 +358,8 @@ impl Sensor3 {
             headings_stale: 0,
             csv: None,
             trust: None,
+            gyro: Gyro3Track::new(&three.gyro, three.sphere.max_samples),
+            gyro_check: None,
             config: three,
         }
     }
@@ -423,7 +460,7 @@ impl Sensor3 {
     /// errors (widened for the samples' correlation in time), and its dip
     /// over them (beside the dip's measurement, for the Earth's model).
     fn calibration_of(
-        &self,
+        &mut self,
         life: &Lifecycle,
         fit: &Ellipsoid3Fit,
         time: f64,
@@ -436,7 +473,7 @@ impl Sensor3 {
             .collect();
         let refit = watch::sphere_refit(fit, &residuals);
         let dip = (self.field == Field::Mag).then(|| self.measured_inclination(&params_of(fit)));
-        let calibration = Calibration {
+        let mut calibration = Calibration {
             sensor: self.name.clone(),
             id: life.next_id,
             model: fit.model.name().to_string(),
@@ -458,11 +495,28 @@ impl Sensor3 {
             history: Vec::new(),
             gyro: None,
             across: None,
+            level: None,
             dip: dip
                 .as_ref()
                 .and_then(|d| d.as_ref().ok())
                 .map(|d| self.dip_fit(&params_of(fit), d)),
         };
+        let accel = self
+            .tilt_calibration
+            .as_ref()
+            .and_then(|c| c.ellipsoid.as_ref());
+        let gyro = self
+            .gyro
+            .as_ref()
+            .map(|g| g.fit(&params_of(fit), self.config.mag_axes, accel));
+        self.gyro_check = match &gyro {
+            Some(Err(why)) => {
+                tracing::warn!(sensor = %self.name, "heading not checked against the gyro: {why}");
+                Some(format!("no heading check against the gyro: {why}"))
+            }
+            _ => None,
+        };
+        calibration.gyro = gyro.and_then(Result::ok);
         (calibration, dip)
     }
 
@@ -501,6 +555,11 @@ impl Sensor3 {
             earth,
             poses: self.buffer.still_poses().filter(|_| origin == "sphere"),
             dip: c.dip.as_ref(),
+            gyro: c.gyro.as_ref(),
+            heading_check: self
+                .gyro_check
+                .as_deref()
+                .filter(|_| c.gyro.is_none() && !super::messages::is_stored(origin)),
         }
     }
 
@@ -631,6 +690,8 @@ impl Sensor3 {
                 .and_then(|f| self.earth_of(f.r, || self.measured_inclination(&params_of(f)))),
             poses: self.buffer.still_poses(),
             dip: None,
+            gyro: None,
+            heading_check: None,
         };
         emit.calibration(|| Some(message.event()), to_line(&message));
         tracing::warn!(sensor = %self.name, "3-D calibration rejected: {reason}");
@@ -678,7 +739,7 @@ impl Geometry for Sensor3 {
                 let mag = self.config.mag_axes.apply(mag);
                 match tilt_heading_or_why(mag, accel, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]) {
                     Ok(h) => Some((
-                        h.heading_deg,
+                        (h.heading_deg, accel),
                         TiltFields {
                             sensor: &source.sensor,
                             calibration: cal.map(|c| c.id),
@@ -696,10 +757,17 @@ impl Geometry for Sensor3 {
             }
             _ => None,
         };
-        let (heading_deg, tilt) = match tilt {
-            Some((h, t)) => (Some(h), Some(t)),
-            None => (None, None),
+        let (heading_deg, up, tilt) = match tilt {
+            Some(((h, up), t)) => (Some(h), Some(up), Some(t)),
+            None => (None, None, None),
         };
+        // The heading's rate the gyro gives, under the calibration's fit.
+        let gyro_deg_s = self
+            .gyro
+            .as_ref()
+            .zip(life.current.as_ref().and_then(|c| c.gyro.as_ref()))
+            .zip(up)
+            .and_then(|((g, fit), up)| g.rate(time, fit, up));
         let true_heading_deg = heading_deg
             .zip(self.north.as_ref())
             .map(|(h, n)| n.true_heading(h));
@@ -709,7 +777,7 @@ impl Geometry for Sensor3 {
                 &mut self.trust,
                 (self.config.mag_axes, life.stale.as_deref()),
                 c,
-                (time, mag, heading_deg),
+                (time, mag, heading_deg, gyro_deg_s),
                 accel,
             )
         });
@@ -759,6 +827,9 @@ impl Geometry for Sensor3 {
                 .filter(|(t, _)| (time - t).abs() <= MAX_TILT_AGE_S)
                 .map(|(_, a)| a)
         });
+        if let (Some(gyro), Some(Some(a))) = (&mut self.gyro, accel) {
+            gyro.keep(time, raw, a, self.buffer.points().is_empty());
+        }
         if !self.buffer.push(time, raw, accel) {
             return None;
         }
@@ -777,6 +848,7 @@ impl Geometry for Sensor3 {
                 .tilt
                 .as_ref()
                 .is_some_and(|t| t.stream == stream)
+            || self.gyro.as_ref().and_then(Gyro3Track::stream) == Some(stream)
     }
     fn set_north(&mut self, north: Option<North>) {
         self.north = north;
@@ -795,24 +867,23 @@ impl Geometry for Sensor3 {
             None => None,
             Some(columns) => Some(locate3(files, &layouts, columns, TILT_ROLES)?),
         };
-        let required = [Some(own), tilt]
+        let mut required: Vec<(usize, usize)> = [Some(own), tilt]
             .into_iter()
             .flatten()
             .flat_map(|(file, at)| at.map(|i| (file, i)))
             .collect();
+        if let Some(gyro) = &mut self.gyro {
+            required.extend(gyro.bind_csv(files, &layouts)?);
+        }
         self.csv = Some(Csv3Binding { own, tilt });
         Ok(required)
     }
     fn row_sample(&mut self, _life: &Lifecycle, row: &CsvRow) -> Option<Sample> {
+        if let Some(gyro) = &mut self.gyro {
+            gyro.observe_row(row);
+        }
         let binding = self.csv.as_ref()?;
-        let values = |at: [usize; 3]| -> Option<[f64; 3]> {
-            let v = [
-                *row.values.get(at[0])?,
-                *row.values.get(at[1])?,
-                *row.values.get(at[2])?,
-            ];
-            v.iter().all(|x| x.is_finite()).then_some(v)
-        };
+        let values = |at: [usize; 3]| finite3(&row.values, at);
         if let Some((file, at)) = binding.tilt
             && row.file == file
             && let Some(accel) = values(at)
@@ -829,6 +900,9 @@ impl Geometry for Sensor3 {
         })
     }
     fn reading_sample(&mut self, _life: &Lifecycle, reading: &Reading) -> Option<Sample> {
+        if let Some(gyro) = &mut self.gyro {
+            gyro.observe_reading(reading);
+        }
         if let Some(tilt) = &self.config.tilt
             && reading.stream == tilt.stream
             && let Some(triad) = reading.accel
@@ -889,7 +963,7 @@ const OWN_ROLES: [&str; 3] = [
     "the sensor's y axis",
     "the sensor's z axis",
 ];
-const TILT_ROLES: [&str; 3] = [
+pub(super) const TILT_ROLES: [&str; 3] = [
     "the tilt source's x axis",
     "the tilt source's y axis",
     "the tilt source's z axis",
@@ -897,7 +971,7 @@ const TILT_ROLES: [&str; 3] = [
 
 /// Finds the three columns named in `columns` (x, y, z, with their `roles`
 /// for messages) among the files' headers: the file and the three indices.
-fn locate3(
+pub(super) fn locate3(
     files: &[std::path::PathBuf],
     layouts: &[&CsvLayout],
     columns: &[String],

@@ -74,6 +74,24 @@ pub struct Calibration {
     /// against it, after a restart too.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub across: Option<AcrossFit>,
+    /// A 2-axis compass's attitude over the calibration's rotation, when
+    /// its configuration names a tilt accelerometer: kept so the trust
+    /// monitor checks each reading's tilt against it, after a restart too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub level: Option<LevelFit>,
+}
+
+/// The attitude a 2-axis compass was calibrated in: its tilt
+/// accelerometer's mean vertical over the rotation ([`crate::model::level::level_of`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LevelFit {
+    /// The specific force's direction (up, a unit vector) in the
+    /// accelerometer's raw axes.
+    pub up: [f64; 3],
+    /// The tilt's spread about `up` along one axis, degrees: the median
+    /// tilt over the rotation / √(2 ln 2), a Rayleigh distribution's σ.
+    pub tilt_sd_deg: f64,
+    pub n: usize,
 }
 
 /// The reading of the axis across a turn over a calibration's rotation:
@@ -115,6 +133,11 @@ pub struct GyroFit {
     pub scale: f64,
     pub bias_deg_s: f64,
     pub heading_rms_deg: f64,
+    /// A 3-axis gyro's bias on each of its axes (the tilt accelerometer's),
+    /// deg/s: a 3-axis compass's ([`crate::model::gyro3`]), whose heading
+    /// rate is `scale` · (ω − this) · v / |v|², and `bias_deg_s` 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bias_xyz_deg_s: Option<[f64; 3]>,
 }
 
 /// The 3-D model of a 3-axis sensor: calibrated = W·(raw − o), with

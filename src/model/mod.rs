@@ -41,9 +41,11 @@ pub mod fit;
 #[cfg(test)]
 mod fixtures;
 pub mod gyro;
+pub mod gyro3;
 pub mod heading;
 pub mod heading_analysis;
 pub mod ladder;
+pub mod level;
 pub mod lm;
 pub mod nonlinear;
 pub mod paper;

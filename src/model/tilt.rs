@@ -347,7 +347,7 @@ pub struct RobustSpread {
     pub n: usize,
 }
 
-fn median_of(values: &mut [f64]) -> f64 {
+pub(crate) fn median_of(values: &mut [f64]) -> f64 {
     values.sort_by(|a, b| a.total_cmp(b));
     let n = values.len();
     if n % 2 == 1 {

@@ -19,11 +19,23 @@
 //!   [`ENTER_SIGMAS`] of its spread there (with the same hysteresis). A
 //!   magnet moves it, and so does a tilt, which leaks the vertical field
 //!   into the level pair: either way the heading is wrong.
+//! - **Tilt.** A 2-axis compass with a tilt accelerometer: the angle
+//!   between the accelerometer's vertical and the one it had over the
+//!   calibration's rotation, beyond [`ENTER_SIGMAS`] of that rotation's
+//!   own tilt spread (or, with the WMM's dip at a location, of the tilt at
+//!   which the heading errs as much), with the same hysteresis. A level
+//!   pair tilted by θ takes the vertical field's component sin θ · Z, and
+//!   its heading errs by up to atan(tan(dip) · sin θ): 2° for 1° at a dip
+//!   of 65°.
 //! - **The gyro.** The heading's change over [`WINDOW_S`] against the
 //!   integrated gyro (its scale and bias from the calibration's heading
 //!   check). Once they disagree, the gyro carries the heading reference
 //!   from the last trusted reading, and trust returns when the heading
-//!   agrees with that reference again.
+//!   agrees with that reference again. A 2-axis compass's gyro is the one
+//!   about its turn; a 3-axis compass's is a 3-axis gyro's rate about the
+//!   vertical ([`crate::model::gyro3`]). A reading the gyro cannot check
+//!   (none beside it, or a 3-axis compass pitched too far) starts the
+//!   check afresh.
 //!
 //! Pure: no I/O, no clock but the readings' times. Memory is bounded: the
 //! window holds at most [`MAX_WINDOW_READINGS`].
@@ -59,6 +71,11 @@ pub const BIAS_TAU_S: f64 = 60.0;
 pub const MIN_FIELD_SIGMA: f64 = 1e-3;
 /// The smallest heading noise the monitor assumes, degrees.
 pub const MIN_HEADING_SIGMA_DEG: f64 = 0.1;
+/// The smallest tilt spread the monitor assumes along one axis, degrees:
+/// an accelerometer's noise (the MPU-6050's 400 µg/√Hz over its 44 Hz
+/// filter is 2.7 mg, 0.15°; the ADXL345's about 1 mg at 25 Hz, 0.06°).
+/// A calibration turned on a level turntable measures no more.
+pub const MIN_TILT_SIGMA_DEG: f64 = 0.1;
 
 /// The gyro about the turn's axis, as the calibration's heading check
 /// found it.
@@ -85,6 +102,21 @@ pub struct TrustLimits {
     /// The field across a 2-axis sensor's turn, when the calibration
     /// measured it (a fraction of r).
     pub across: Option<ReferenceLimit>,
+    /// The tilt a 2-axis compass tolerates from the attitude it was
+    /// calibrated in, when it has a tilt accelerometer.
+    pub tilt: Option<TiltLimit>,
+}
+
+/// The tilt a 2-axis compass tolerates: [`ENTER_SIGMAS`] of `sigma_deg`
+/// from the attitude of its calibration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TiltLimit {
+    /// Degrees, along one axis.
+    pub sigma_deg: f64,
+    /// The WMM's dip, degrees, when the tilt at which the heading errs
+    /// [`ENTER_SIGMAS`] of its noise there is wider than the rotation's
+    /// own spread and so set the limit.
+    pub dip_deg: Option<f64>,
 }
 
 /// A quantity the calibration measured (its median over its samples: the
@@ -117,6 +149,7 @@ impl TrustLimits {
             gyro,
             dip: None,
             across: None,
+            tilt: None,
         }
     }
 
@@ -136,6 +169,43 @@ impl TrustLimits {
             sigma: spread_deg
                 .max(self.field_sigma.to_degrees())
                 .max(MIN_HEADING_SIGMA_DEG),
+        });
+        self
+    }
+
+    /// These limits with the tilt check of a 2-axis compass: the tilt's
+    /// spread along one axis over the calibration's rotation (degrees,
+    /// held at least to [`MIN_TILT_SIGMA_DEG`]) and the WMM's dip where
+    /// the compass is, when a location gives it. A tilt θ errs the heading
+    /// by up to atan(tan(dip) · sin θ), so the heading's [`ENTER_SIGMAS`]
+    /// tolerate asin(tan(5 σ_h) / |tan(dip)|): with a dip, the limit is the
+    /// wider of that and the rotation's own spread, over which the
+    /// calibration's noise was measured. A spread that is not a finite,
+    /// non-negative number leaves the check out.
+    pub fn with_tilt(mut self, spread_deg: f64, dip_deg: Option<f64>) -> Self {
+        if !(spread_deg.is_finite() && spread_deg >= 0.0) {
+            self.tilt = None;
+            return self;
+        }
+        let measured = spread_deg.max(MIN_TILT_SIGMA_DEG);
+        let tolerated = dip_deg
+            .filter(|d| d.is_finite() && d.abs() < 90.0)
+            .map(|d| {
+                let error = (ENTER_SIGMAS * self.heading_sigma_deg)
+                    .min(89.0)
+                    .to_radians();
+                let sin = (error.tan() / d.to_radians().tan().abs()).min(1.0);
+                (d, sin.asin().to_degrees() / ENTER_SIGMAS)
+            });
+        self.tilt = Some(match tolerated {
+            Some((dip, sigma)) if sigma > measured => TiltLimit {
+                sigma_deg: sigma,
+                dip_deg: Some(dip),
+            },
+            _ => TiltLimit {
+                sigma_deg: measured,
+                dip_deg: None,
+            },
         });
         self
     }
@@ -172,6 +242,9 @@ pub struct Observation {
     /// The reading of the axis across a 2-axis sensor's turn, a fraction
     /// of r, when the configuration names it.
     pub across: Option<f64>,
+    /// A 2-axis compass's tilt from the attitude of its calibration,
+    /// degrees, when it has a fresh tilt accelerometer reading.
+    pub tilt_deg: Option<f64>,
 }
 
 /// The monitor's word on one reading.
@@ -208,6 +281,7 @@ pub struct TrustMonitor {
     field_distrusted: bool,
     dip_distrusted: bool,
     across_distrusted: bool,
+    tilt_distrusted: bool,
     window: VecDeque<Point>,
     /// The last trusted point while the gyro carries the reference.
     reference: Option<Point>,
@@ -232,6 +306,7 @@ impl TrustMonitor {
             field_distrusted: false,
             dip_distrusted: false,
             across_distrusted: false,
+            tilt_distrusted: false,
             window: VecDeque::new(),
             reference: None,
             last: None,
@@ -280,25 +355,52 @@ impl TrustMonitor {
         }
         self.check_field(obs.field_ratio, &mut reasons);
         if let (Some(limit), Some(dip)) = (self.limits.dip, obs.dip_deg)
-            && let Some((off, bound, until)) = beyond(&mut self.dip_distrusted, limit, dip)
+            && let Some(b) = beyond(&mut self.dip_distrusted, limit, dip)
         {
             reasons.push(format!(
-                "the dip is {dip:.1}° where the calibration measured {:.1}° ({off:+.1}°, limit {bound:.1}°: {until})",
-                limit.reference,
+                "the dip is {dip:.1}° where the calibration measured {:.1}° ({:+.1}°, limit {:.1}°: {} σ of its spread{})",
+                limit.reference, b.off, b.bound, b.sigmas, b.until,
             ));
         }
         if let (Some(limit), Some(across)) = (self.limits.across, obs.across)
-            && let Some((off, bound, until)) = beyond(&mut self.across_distrusted, limit, across)
+            && let Some(b) = beyond(&mut self.across_distrusted, limit, across)
         {
             reasons.push(format!(
-                "the field across the turn moved by {:+.1} % of r from the calibration's (limit {:.1} %: {until})",
-                off * 100.0,
-                bound * 100.0,
+                "the field across the turn moved by {:+.1} % of r from the calibration's (limit {:.1} %: {} σ of its spread{})",
+                b.off * 100.0,
+                b.bound * 100.0,
+                b.sigmas,
+                b.until,
             ));
         }
+        if let (Some(limit), Some(tilt)) = (self.limits.tilt, obs.tilt_deg) {
+            let reference = ReferenceLimit {
+                reference: 0.0,
+                sigma: limit.sigma_deg,
+            };
+            if let Some(b) = beyond(&mut self.tilt_distrusted, reference, tilt) {
+                let basis = match limit.dip_deg {
+                    Some(dip) => format!(
+                        "the tilt at which its heading errs {} σ of its noise at the WMM's dip of {dip:.1}°",
+                        b.sigmas
+                    ),
+                    None => format!("{} σ of its tilt over the calibration's rotation", b.sigmas),
+                };
+                reasons.push(format!(
+                    "the compass is tilted {tilt:.1}° from the attitude it was calibrated in (limit {:.1}°: {basis}{})",
+                    b.bound, b.until,
+                ));
+            }
+        }
         let point = self.advance(obs);
-        if self.limits.gyro.is_some() && obs.gyro_deg_s.is_some() {
-            self.check_gyro(point, &mut reasons);
+        if self.limits.gyro.is_some() {
+            match obs.gyro_deg_s {
+                Some(_) => self.check_gyro(point, &mut reasons),
+                // A reading the gyro cannot check (a 3-axis compass pitched
+                // too far, a stale gyro): the heading's change is not known
+                // against it across the gap, so the check starts afresh.
+                None => self.restart_gyro(),
+            }
         }
         self.record(obs.time, reasons)
     }
@@ -359,6 +461,14 @@ impl TrustMonitor {
             self.window.pop_front();
         }
         point
+    }
+
+    /// The gyro check afresh from the next reading with a rate: no
+    /// window, no reference, no rate to integrate from.
+    fn restart_gyro(&mut self) {
+        self.reference = None;
+        self.last = None;
+        self.window.clear();
     }
 
     /// The heading's change against the gyro's: over the window while
@@ -431,12 +541,21 @@ impl TrustMonitor {
     }
 }
 
+/// How far a distrusted value is off its reference, and the bound it broke.
+struct Beyond {
+    off: f64,
+    bound: f64,
+    /// The bound in σ: [`ENTER_SIGMAS`], or [`LEAVE_SIGMAS`] while leaving.
+    sigmas: f64,
+    /// ", trusted again within it" while leaving, else "".
+    until: &'static str,
+}
+
 /// A reading `value` against a measured `limit`, with hysteresis on
 /// `distrusted`: beyond [`ENTER_SIGMAS`] σ it is distrusted, and stays so
 /// until within [`LEAVE_SIGMAS`] σ. When distrusted: how far it is off,
-/// the bound it broke, and the bound's words; a value that is not finite
-/// is not judged.
-fn beyond(distrusted: &mut bool, limit: ReferenceLimit, value: f64) -> Option<(f64, f64, String)> {
+/// and the bound it broke; a value that is not finite is not judged.
+fn beyond(distrusted: &mut bool, limit: ReferenceLimit, value: f64) -> Option<Beyond> {
     if !value.is_finite() {
         return None;
     }
@@ -444,17 +563,15 @@ fn beyond(distrusted: &mut bool, limit: ReferenceLimit, value: f64) -> Option<(f
     let sigmas = if leaving { LEAVE_SIGMAS } else { ENTER_SIGMAS };
     let off = value - limit.reference;
     *distrusted = off.abs() > sigmas * limit.sigma;
-    let until = if leaving {
-        ", trusted again within it"
-    } else {
-        ""
-    };
-    distrusted.then(|| {
-        (
-            off,
-            sigmas * limit.sigma,
-            format!("{sigmas} σ of its spread{until}"),
-        )
+    distrusted.then_some(Beyond {
+        off,
+        bound: sigmas * limit.sigma,
+        sigmas,
+        until: if leaving {
+            ", trusted again within it"
+        } else {
+            ""
+        },
     })
 }
 
@@ -545,6 +662,7 @@ pub fn monitor_recording(
             gyro_deg_s: rate(i),
             dip_deg: None,
             across: None,
+            tilt_deg: None,
         });
         trusted.push(verdict.trusted);
         match (&mut open, verdict.trusted) {

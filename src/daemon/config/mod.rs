@@ -107,6 +107,10 @@
 //! gyro_units = "deg/s"      # or "rad/s"; default deg/s
 //! out_of_plane = "mag_y"    # the column across the turn, for the trust
 //!                           # monitor (a device's sensor: its axis, "z")
+//! tilt = "board-level"      # a 3-axis accel sensor of the same source: the
+//!                           # trust monitor distrusts a heading tilted from
+//!                           # the attitude of its calibration (any sensor
+//!                           # of the source; a device's sensor too)
 //!
 //! [[source]]
 //! name = "board"
@@ -157,6 +161,10 @@
 //! tilt = "level"            # the 3-axis accelerometer sensor of the same source
 //! mag_axes = "-x,-z,y"      # with tilt: the magnetometer's axis along the
 //!                           # accelerometer's x, y, z; default "x,y,z"
+//! gyro = "none"             # with tilt: the heading is checked against the
+//!                           # tilt chip's gyro when it has one; "none": not
+//!                           # (a csv compass: gyro = ["gx", "gy", "gz"], its
+//!                           # three columns in the accelerometer's axes)
 //! on_stale = "warn"         # a later sphere that moved it: "warn" or "replace"
 //! [sensor.location]         # the WMM's declination, and its field beside the fitted one
 //! latitude = 50.1109
@@ -521,7 +529,8 @@ pub(crate) use keys::{Keys, RawKeys};
 use raw::*;
 use sensors::PlaneSensor;
 pub use sensors::{
-    OnStale, OutOfPlane, PlaneConfig, Sensor3Config, SensorGeometry, TiltSource, WatchSettings,
+    Gyro3Choice, OnStale, OutOfPlane, PlaneConfig, Sensor3Config, SensorGeometry, TiltSource,
+    WatchSettings,
 };
 pub use sources::StreamDesc;
 use sources::*;
@@ -728,6 +737,7 @@ impl Checker<'_> {
             sensors.push(sensor);
         }
         self.link_tilts(&mut sensors, &pending_tilts)?;
+        tilt::link_gyros3(&mut sensors, checked);
         Ok(sensors)
     }
 
@@ -808,11 +818,11 @@ impl Checker<'_> {
             if parsed.len() == 3 {
                 let (mut sensor, tilt) =
                     self.check_sensor3(key, s, field, stream.id, &parsed, src_name)?;
+                self.refuse_gyro_columns(key, &sensor, src_kind)?;
                 sensor.north = north;
                 return Ok((sensor, tilt));
             }
             for (name, given) in [
-                ("tilt", s.tilt.is_some()),
                 ("mag_axes", s.mag_axes.is_some()),
                 ("lsb_per_gauss", s.lsb_per_gauss.is_some()),
                 ("lsb_per_g", s.lsb_per_g.is_some()),
@@ -865,7 +875,8 @@ impl Checker<'_> {
                 north,
                 out_of_plane,
             };
-            Ok((self.plane_sensor(key, s, plane)?, None))
+            let tilt = s.tilt.clone();
+            Ok((self.plane_sensor(key, s, plane)?, tilt))
         }
     }
 }

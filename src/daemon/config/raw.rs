@@ -51,7 +51,9 @@ pub(super) struct RawSensor {
     /// Axes ("x", "y", "z") of a device's sensor, columns of a csv source's.
     pub(super) axes: Vec<String>,
     pub(super) model: Option<toml::Value>,
-    pub(super) gyro: Option<String>,
+    /// A 2-axis sensor's gyro axis or column; a 3-axis csv compass's three
+    /// gyro columns, or "none".
+    pub(super) gyro: Option<RawGyro>,
     pub(super) gyro_chip: Option<String>,
     pub(super) gyro_lsb_per_deg_s: Option<f64>,
     pub(super) gyro_units: Option<String>,
@@ -80,4 +82,23 @@ pub(super) struct RawSensor {
     pub(super) learn: Option<bool>,
     /// A 2-axis sensor: what a later rotation that moved the calibration does.
     pub(super) on_stale: Option<super::sensors::OnStale>,
+}
+
+/// `gyro`: one axis or column (a 2-axis sensor's, or "none"), or three
+/// columns (a 3-axis csv compass's, in its tilt accelerometer's x, y, z).
+#[derive(Deserialize, Clone)]
+#[serde(untagged)]
+pub(super) enum RawGyro {
+    One(String),
+    Three(Vec<String>),
+}
+
+impl RawSensor {
+    /// `gyro` when it is one name; three columns are none.
+    pub(super) fn gyro_one(&self) -> Option<&str> {
+        match &self.gyro {
+            Some(RawGyro::One(name)) => Some(name.as_str()),
+            _ => None,
+        }
+    }
 }

@@ -33,6 +33,10 @@ pub struct PlaneConfig {
     pub watch: WatchSettings,
     /// The field across the turn (`out_of_plane`), for the trust monitor.
     pub out_of_plane: Option<OutOfPlane>,
+    /// The 3-axis accelerometer whose vertical tells the trust monitor how
+    /// far the compass is tilted from the attitude it was calibrated in
+    /// (`tilt`; resolved once every sensor is read).
+    pub tilt: Option<TiltSource>,
 }
 
 /// Where a 2-axis sensor's field across its turn is read (`out_of_plane`):
@@ -74,6 +78,9 @@ pub struct Sensor3Config {
     /// accelerometer, `lsb_per_g`), when configured.
     pub lsb_per_unit: Option<f64>,
     pub tilt: Option<TiltSource>,
+    /// The gyro its tilt-compensated heading is checked against (a
+    /// magnetometer with `tilt`).
+    pub gyro: Gyro3Choice,
     /// How the magnetometer's axes lie on its tilt accelerometer's (the
     /// board's): `mag_axes`, as `fieldcal heading --mag-axes`; the
     /// identity when not given. Used for the heading and the dip only: the
@@ -85,6 +92,33 @@ pub struct Sensor3Config {
     /// A sensor of a csv source: the columns of its x, y, z (then `axes`
     /// is x, y, z and unused).
     pub columns: Option<[String; 3]>,
+}
+
+/// A 3-axis compass's gyro, for the trust monitor's check of its
+/// tilt-compensated heading ([`crate::model::gyro3`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum Gyro3Choice {
+    /// None: `gyro = "none"`, a sensor that is no compass with a tilt
+    /// accelerometer, a csv compass that names no gyro columns, or a
+    /// device whose tilt accelerometer's chip has no gyro.
+    #[default]
+    Off,
+    /// Not given on a device's compass: its tilt accelerometer's chip's
+    /// gyro, when it has one (resolved with the tilt, then `Chip` or `Off`).
+    Auto,
+    /// The gyro of the tilt accelerometer's chip: its stream, in the
+    /// accelerometer's axes, `lsb_per_deg_s` counts per deg/s.
+    Chip {
+        stream: u8,
+        axes: [Axis; 3],
+        lsb_per_deg_s: f64,
+    },
+    /// Three columns of a csv source (any of its files), in the order of
+    /// the tilt accelerometer's x, y, z.
+    Columns {
+        names: [String; 3],
+        units: GyroUnits,
+    },
 }
 
 /// The accelerometer a magnetometer's heading is tilt-compensated with:
@@ -112,6 +146,14 @@ impl SensorConfig {
         match &self.geometry {
             SensorGeometry::Sphere(three) => Some(three),
             SensorGeometry::Plane(_) => None,
+        }
+    }
+
+    /// [`SensorConfig::plane`], to change.
+    pub fn plane_mut(&mut self) -> Option<&mut PlaneConfig> {
+        match &mut self.geometry {
+            SensorGeometry::Plane(plane) => Some(plane),
+            SensorGeometry::Sphere(_) => None,
         }
     }
 
@@ -169,7 +211,6 @@ impl Checker<'_> {
         for (name, given) in [
             ("field", s.field.is_some()),
             ("chip", s.chip.is_some()),
-            ("tilt", s.tilt.is_some()),
             ("mag_axes", s.mag_axes.is_some()),
             ("lsb_per_gauss", s.lsb_per_gauss.is_some()),
             ("lsb_per_g", s.lsb_per_g.is_some()),
@@ -185,12 +226,7 @@ impl Checker<'_> {
                          of {file} in axes (and a gyro column in gyro, with gyro_units){}",
                         if matches!(
                             name,
-                            "field"
-                                | "tilt"
-                                | "mag_axes"
-                                | "lsb_per_gauss"
-                                | "lsb_per_g"
-                                | "sphere"
+                            "field" | "mag_axes" | "lsb_per_gauss" | "lsb_per_g" | "sphere"
                         ) {
                             "; a 3-axis sensor names three columns in axes, with field"
                         } else {
@@ -247,7 +283,8 @@ impl Checker<'_> {
             north: None,
             out_of_plane,
         };
-        Ok((self.plane_sensor(key, s, plane)?, None))
+        let tilt = s.tilt.clone();
+        Ok((self.plane_sensor(key, s, plane)?, tilt))
     }
 
     /// A 2-axis sensor: its `[sensor.rotation]` and `[sensor.limits]`
@@ -281,6 +318,8 @@ impl Checker<'_> {
                     on_stale: s.on_stale.unwrap_or_default(),
                 },
                 out_of_plane: plane.out_of_plane,
+                // Resolved by link_tilts.
+                tilt: None,
             }),
             north: plane.north,
         })
@@ -309,7 +348,10 @@ impl Checker<'_> {
                 ));
             }
         };
-        Ok(match s.gyro.as_deref().map(str::trim) {
+        if matches!(s.gyro, Some(RawGyro::Three(_))) {
+            return Err(self.gyro_three_on_plane(key, "column"));
+        }
+        Ok(match s.gyro_one().map(str::trim) {
             None | Some("none") if s.gyro_units.is_some() => {
                 return Err(self.error(
                     &units_key,
@@ -355,11 +397,9 @@ impl Checker<'_> {
         s: RawSensor,
         columns: &Columns<'_>,
     ) -> Result<(SensorConfig, Option<String>), ConfigError> {
+        let source_columns = columns;
         let file = &columns.file;
-        for (name, given) in [
-            ("chip", s.chip.is_some()),
-            ("gyro_units", s.gyro_units.is_some()),
-        ] {
+        for (name, given) in [("chip", s.chip.is_some())] {
             if given {
                 return Err(self.error(
                     &format!("{key}.{name}"),
@@ -402,10 +442,12 @@ impl Checker<'_> {
         }
         columns.one_file(&found, &keys)?;
         let columns = [found[0].1.clone(), found[1].1.clone(), found[2].1.clone()];
+        let units = s.gyro_units.clone();
         let (mut sensor, tilt) =
             self.check_sensor3(key, s, field, 0, &[Axis::X, Axis::Y, Axis::Z], "")?;
         if let Some(three) = sensor.sphere_mut() {
             three.columns = Some(columns);
+            self.check_csv_gyro3(key, &mut three.gyro, units.as_deref(), source_columns)?;
         }
         Ok((sensor, tilt))
     }
@@ -460,8 +502,8 @@ impl Checker<'_> {
                 "a gyro measures no constant field: a 3-axis sensor is \"mag\" or \"accel\"",
             ));
         }
+        let gyro = self.check_gyro3(key, &s, field)?;
         for (name, given) in [
-            ("gyro", s.gyro.is_some()),
             ("gyro_chip", s.gyro_chip.is_some()),
             ("gyro_lsb_per_deg_s", s.gyro_lsb_per_deg_s.is_some()),
             ("out_of_plane", s.out_of_plane.is_some()),
@@ -553,6 +595,7 @@ impl Checker<'_> {
             on_stale: s.on_stale.unwrap_or_default(),
             // Resolved by link_tilts.
             tilt: None,
+            gyro,
             sphere,
             columns: None,
         };
@@ -669,7 +712,10 @@ impl Checker<'_> {
         streams: &[StreamDesc],
     ) -> Result<GyroChoice, ConfigError> {
         let axis_key = format!("{key}.gyro");
-        let chosen = match s.gyro.as_deref().map(str::trim) {
+        if matches!(s.gyro, Some(RawGyro::Three(_))) {
+            return Err(self.gyro_three_on_plane(key, "axis"));
+        }
+        let chosen = match s.gyro_one().map(str::trim) {
             None => None,
             Some("none") => {
                 if s.gyro_chip.is_some() {

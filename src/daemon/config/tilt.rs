@@ -1,6 +1,7 @@
-//! A 3-axis compass's tilt accelerometer (`tilt`) and how the compass
-//! lies on it (`mag_axes`); a 2-axis sensor's field across its turn
-//! (`out_of_plane`).
+//! A compass's tilt accelerometer (`tilt`: a 3-axis compass's heading is
+//! compensated with it, a 2-axis one's is checked against it) and how a
+//! 3-axis compass lies on it (`mag_axes`); a 2-axis sensor's field across
+//! its turn (`out_of_plane`).
 
 use super::*;
 use crate::model::tilt::AxisMap;
@@ -40,7 +41,7 @@ impl Checker<'_> {
         })
     }
 
-    /// Resolves each 3-axis sensor's `tilt`: another 3-axis accelerometer
+    /// Resolves each sensor's `tilt`: another 3-axis accelerometer
     /// sensor of the same source.
     pub(super) fn link_tilts(
         &self,
@@ -94,7 +95,8 @@ impl Checker<'_> {
                 ))
             } else if me.field != Field::Mag {
                 Some(format!(
-                    "a tilt-compensated heading is a magnetometer's: this sensor measures {}",
+                    "a tilt-compensated or tilt-checked heading is a magnetometer's: this sensor \
+                     measures {}",
                     me.field.name()
                 ))
             } else {
@@ -109,11 +111,159 @@ impl Checker<'_> {
                 axes: t.axes,
                 columns: t.columns.clone(),
             });
-            if let Some(three) = sensors.get_mut(*i).and_then(SensorConfig::sphere_mut) {
-                three.tilt = tilt;
+            if let Some(me) = sensors.get_mut(*i) {
+                if let Some(plane) = me.plane_mut() {
+                    plane.tilt = tilt;
+                } else if let Some(three) = me.sphere_mut() {
+                    three.tilt = tilt;
+                }
             }
         }
         Ok(())
+    }
+
+    /// A 3-axis sensor's `gyro`: "none", nothing (a device's compass with
+    /// `tilt`: its tilt accelerometer's chip's gyro, when it has one), or
+    /// three columns (a csv compass's, resolved by
+    /// [`Checker::check_csv_gyro3`]). Only a magnetometer with `tilt` has a
+    /// heading to check.
+    pub(super) fn check_gyro3(
+        &self,
+        key: &str,
+        s: &RawSensor,
+        field: Field,
+    ) -> Result<Gyro3Choice, ConfigError> {
+        let k = format!("{key}.gyro");
+        let columns = match &s.gyro {
+            None => return Ok(Gyro3Choice::Auto),
+            Some(RawGyro::One(name)) if name.trim() == "none" => return Ok(Gyro3Choice::Off),
+            Some(RawGyro::One(name)) => {
+                return Err(self.error(
+                    &k,
+                    format!(
+                        "\"{}\": a 3-axis compass's heading is checked against a 3-axis gyro: a \
+                         csv source's three columns, in the order of its tilt accelerometer's x, \
+                         y, z (gyro = [\"gyro_x\", \"gyro_y\", \"gyro_z\"]), or a device's tilt \
+                         accelerometer's chip's (leave gyro out); or \"none\"",
+                        crate::io::excerpt(name.trim())
+                    ),
+                ));
+            }
+            Some(RawGyro::Three(columns)) => columns,
+        };
+        if field != Field::Mag {
+            return Err(self.error(
+                &k,
+                format!(
+                    "a gyro checks a compass's heading: a 3-axis {} sensor has none; leave gyro out",
+                    field.name()
+                ),
+            ));
+        }
+        if s.tilt.is_none() {
+            return Err(self.error(
+                &k,
+                "a 3-axis compass's heading, and its rate about the vertical, need its tilt \
+                 accelerometer: give `tilt` too, or leave gyro out",
+            ));
+        }
+        let names: Vec<String> = columns.iter().map(|c| c.trim().to_string()).collect();
+        match <[String; 3]>::try_from(names) {
+            Ok(names) => Ok(Gyro3Choice::Columns {
+                names,
+                units: GyroUnits::DegPerSecond,
+            }),
+            Err(names) => Err(self.error(
+                &k,
+                format!(
+                    "{} columns given: give the gyro's three, in the order of the tilt \
+                     accelerometer's x, y, z",
+                    names.len()
+                ),
+            )),
+        }
+    }
+
+    /// A csv 3-axis compass's gyro columns (`gyro`, checked by
+    /// [`Checker::check_gyro3`]): each a column of a file of the source,
+    /// three different ones, and their `gyro_units`.
+    pub(super) fn check_csv_gyro3(
+        &self,
+        key: &str,
+        gyro: &mut Gyro3Choice,
+        units: Option<&str>,
+        columns: &Columns<'_>,
+    ) -> Result<(), ConfigError> {
+        let units_key = format!("{key}.gyro_units");
+        let Gyro3Choice::Columns { names, units: u } = gyro else {
+            if units.is_some() {
+                return Err(self.error(
+                    &units_key,
+                    "given without gyro columns: name them with gyro = [\"X\", \"Y\", \"Z\"], or \
+                     leave gyro_units out",
+                ));
+            }
+            // A csv compass's gyro is its columns or none.
+            *gyro = Gyro3Choice::Off;
+            return Ok(());
+        };
+        *u = match units.map(str::trim) {
+            None | Some("deg/s") => GyroUnits::DegPerSecond,
+            Some("rad/s") => GyroUnits::RadPerSecond,
+            Some(other) => {
+                return Err(self.error(
+                    &units_key,
+                    format!(
+                        "\"{other}\" is not a unit of angular rate: give \"deg/s\" or \"rad/s\""
+                    ),
+                ));
+            }
+        };
+        for (i, name) in names.iter().enumerate() {
+            let k = format!("{key}.gyro[{i}]");
+            if let Some(j) = names[..i].iter().position(|n| n == name) {
+                return Err(self.error(
+                    &k,
+                    format!("'{name}' is already gyro[{j}]: give three different columns"),
+                ));
+            }
+            columns.find(k, name, "the gyro's rate about an axis")?;
+        }
+        Ok(())
+    }
+
+    /// Gyro columns on a device's 3-axis compass (of a `src_kind` source).
+    pub(super) fn refuse_gyro_columns(
+        &self,
+        key: &str,
+        sensor: &SensorConfig,
+        src_kind: &str,
+    ) -> Result<(), ConfigError> {
+        if sensor
+            .sphere()
+            .is_some_and(|t| matches!(t.gyro, Gyro3Choice::Columns { .. }))
+        {
+            return Err(self.error(
+                &format!("{key}.gyro"),
+                format!(
+                    "gyro columns are a csv source's: a {src_kind} source's 3-axis compass takes \
+                     the gyro of its tilt accelerometer's chip (leave gyro out), or \"none\""
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Three gyro columns or axes on a 2-axis sensor, whose gyro is one
+    /// `what` ("column" or "axis").
+    pub(super) fn gyro_three_on_plane(&self, key: &str, what: &str) -> ConfigError {
+        self.error(
+            &format!("{key}.gyro"),
+            format!(
+                "three gyro columns are a 3-axis compass's (with tilt): a 2-axis sensor's gyro \
+                 is one {what}, the one it turns about, or \"none\""
+            ),
+        )
     }
 
     /// A csv 2-axis sensor's `out_of_plane`: a column of the file of its
@@ -180,5 +330,40 @@ impl Checker<'_> {
             ));
         };
         Ok(Some(OutOfPlane::Axis(axis)))
+    }
+}
+
+/// Each 3-axis compass's gyro left to its tilt accelerometer's chip
+/// ([`Gyro3Choice::Auto`]): that chip's gyro, in the accelerometer's
+/// axes, when its stream carries one with a known scale; else none.
+pub(super) fn link_gyros3(sensors: &mut [SensorConfig], checked: &CheckedSources) {
+    for sensor in sensors.iter_mut() {
+        let source = sensor.source.clone();
+        let Some(three) = sensor.sphere_mut() else {
+            continue;
+        };
+        if three.gyro != Gyro3Choice::Auto {
+            continue;
+        }
+        let desc = three
+            .tilt
+            .as_ref()
+            .filter(|t| t.columns.is_none())
+            .and_then(|t| {
+                let streams = checked.streams.get(*checked.index.get(&source)?)?;
+                let desc = streams.iter().find(|d| d.id == t.stream)?;
+                let lsb = sensors::gyro_lsb_per_deg_s(*desc)?;
+                desc.fields()
+                    .contains(&Field::Gyro)
+                    .then_some((t.stream, t.axes, lsb))
+            });
+        three.gyro = match desc {
+            Some((stream, axes, lsb_per_deg_s)) => Gyro3Choice::Chip {
+                stream,
+                axes,
+                lsb_per_deg_s,
+            },
+            None => Gyro3Choice::Off,
+        };
     }
 }

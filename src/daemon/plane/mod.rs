@@ -9,11 +9,10 @@
 //! these, or a sphere, beside the sensor's [`Lifecycle`]): readings in,
 //! lines to publish and calibrations to store out, no I/O, no clock.
 
-mod across;
 mod gyro_track;
 mod watching;
 
-use across::AcrossTrack;
+use super::beside::Beside;
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -25,6 +24,7 @@ use super::messages::{
     CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, to_line,
 };
 use super::sensor::{Emitter, Geometry, Sample};
+use super::sensor3::{MAX_TILT_AGE_S, finite3};
 use super::{Calibration, Terms};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::model::calibration::GyroFit;
@@ -34,6 +34,7 @@ use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper, fit_paper_turn
 use crate::model::gyro::HeadingCheck;
 use crate::model::gyro::{GyroUnits, HeadingReference};
 use crate::model::heading::coverage;
+use crate::model::level::angle_between_deg;
 use crate::model::nonlinear::{cubic_scale, fit_model, turn_frame};
 use crate::model::rotation::{Progress, RotationBuffer, RotationEvent};
 use crate::model::trust::{
@@ -72,7 +73,12 @@ pub struct Plane {
     replacing: Option<u64>,
     /// The field across the turn kept beside the rotation, when the
     /// configuration names its axis (`out_of_plane`).
-    across: Option<AcrossTrack>,
+    across: Option<Beside<f64>>,
+    /// The tilt accelerometer's raw readings kept beside the rotation,
+    /// when the configuration names one (`tilt`).
+    level: Option<Beside<[f64; 3]>>,
+    /// The tilt accelerometer's last raw reading, with its time.
+    last_accel: Option<(f64, [f64; 3])>,
 }
 
 /// Where a csv sensor's values are in each row: indices into
@@ -87,6 +93,9 @@ struct CsvBinding {
     gyro: Option<(usize, usize)>,
     /// The column across the turn (`out_of_plane`), in `file`.
     across: Option<usize>,
+    /// The tilt accelerometer's x, y, z columns: (file, indices), in any
+    /// file of the source.
+    tilt: Option<(usize, [usize; 3])>,
     /// The other columns, published with each reading.
     others: Vec<usize>,
 }
@@ -100,7 +109,11 @@ impl Plane {
         let across = plane
             .out_of_plane
             .as_ref()
-            .map(|_| AcrossTrack::new(buffer.config().max_samples));
+            .map(|_| Beside::new(buffer.config().max_samples));
+        let level = plane
+            .tilt
+            .as_ref()
+            .map(|_| Beside::new(buffer.config().max_samples));
         // The configuration checked the names; an unparsable list (not
         // possible from a checked file) falls back to the paper's model.
         let effects = parse_list(&plane.effects.join(","))
@@ -118,6 +131,8 @@ impl Plane {
             last_rotation: None,
             replacing: None,
             across,
+            level,
+            last_accel: None,
         }
     }
 
@@ -131,6 +146,9 @@ impl Plane {
         self.replacing = None;
         self.buffer.reset();
         if let Some(track) = &mut self.across {
+            track.clear();
+        }
+        if let Some(track) = &mut self.level {
             track.clear();
         }
         if let Some(gyro) = &mut self.gyro {
@@ -152,6 +170,7 @@ impl Plane {
             (c.id, [sx, sy], sy.atan2(sx).to_degrees().rem_euclid(360.0))
         });
         let gyro_deg_s = self.gyro.as_ref().and_then(GyroTrack::latest_deg_s);
+        let accel = self.fresh_accel(time);
         let verdict = life
             .current
             .as_ref()
@@ -168,6 +187,10 @@ impl Plane {
                             .across
                             .filter(|_| across.is_finite())
                             .map(|_| across / c.params.r),
+                        tilt_deg: c
+                            .level
+                            .zip(accel)
+                            .and_then(|(l, a)| angle_between_deg(l.up, a)),
                     },
                     life.stale.as_deref().as_slice(),
                 )
@@ -200,18 +223,37 @@ impl Plane {
         })
     }
 
+    /// The tilt accelerometer's last raw reading, when it is at most
+    /// [`MAX_TILT_AGE_S`] older than `time`.
+    fn fresh_accel(&self, time: f64) -> Option<[f64; 3]> {
+        self.last_accel
+            .filter(|(t, _)| (time - t).abs() <= MAX_TILT_AGE_S)
+            .map(|(_, a)| a)
+    }
+
     /// The trust monitor of calibration `c`: its limits from the
     /// calibration's rms and, when it was accepted with a heading check,
-    /// the gyro that check found (kept with it, across restarts).
+    /// the gyro that check found (kept with it, across restarts); the
+    /// field across the turn and the attitude it measured, when it did.
     fn trust_of(&mut self, c: &Calibration) -> &mut TrustMonitor {
+        let dip = self
+            .config
+            .north
+            .as_ref()
+            .and_then(|n| n.model.as_ref())
+            .map(|m| m.inclination_deg);
         monitor_of(&mut self.trust, c.id, || {
             let gyro = c.gyro.map(|g| GyroModel {
                 scale: g.scale,
                 bias_deg_s: g.bias_deg_s,
             });
             let limits = TrustLimits::from_rms(c.rms, c.gyro.map(|g| g.heading_rms_deg), gyro);
-            match c.across {
+            let limits = match c.across {
                 Some(a) => limits.with_across(a.median / c.params.r, a.spread / c.params.r),
+                None => limits,
+            };
+            match c.level {
+                Some(l) => limits.with_tilt(l.tilt_sd_deg, dip),
                 None => limits,
             }
         })
@@ -328,7 +370,12 @@ impl Plane {
             .across
             .as_ref()
             .zip(span)
-            .and_then(|(track, (from, to))| track.fit_over(from, to));
+            .and_then(|(track, (from, to))| track.across_over(from, to));
+        let level = self
+            .level
+            .as_ref()
+            .zip(span)
+            .and_then(|(track, (from, to))| track.level_over(from, to));
         Calibration {
             sensor: self.config.name.clone(),
             id: life.next_id,
@@ -346,6 +393,7 @@ impl Plane {
             gyro: None,
             dip: None,
             across,
+            level,
         }
     }
 
@@ -511,6 +559,7 @@ fn gyro_fit(h: &HeadingCheck) -> GyroFit {
         scale: h.gyro_scale,
         bias_deg_s: h.gyro_bias_deg_s,
         heading_rms_deg: h.rms_deg,
+        bias_xyz_deg_s: None,
     }
 }
 
@@ -529,6 +578,12 @@ impl Geometry for Plane {
         {
             gyro.observe_value(rate);
             gyro.keep_value(row.time, rate);
+        }
+        if let Some((file, at)) = binding.tilt
+            && row.file == file
+            && let Some(accel) = finite3(&row.values, at)
+        {
+            self.last_accel = Some((row.time, accel));
         }
         if row.file != binding.file {
             return None;
@@ -554,8 +609,15 @@ impl Geometry for Plane {
             gyro.observe(reading);
             gyro.keep(reading);
         }
+        if let Some(tilt) = &self.plane.tilt
+            && reading.stream == tilt.stream
+            && let Some(triad) = reading.accel
+        {
+            self.last_accel = Some((reading.time, tilt.axes.map(|a| f64::from(triad[a.index()]))));
+        }
         if reading.stream != self.config.stream {
-            // Only the gyro of another chip: kept above, nothing to publish.
+            // Only the gyro or the accelerometer of another chip: kept
+            // above, nothing to publish.
             return None;
         }
         let (x, y) = self.axes_of(reading)?;
@@ -586,8 +648,14 @@ impl Geometry for Plane {
         if watching && life.stale.is_some() {
             return None;
         }
-        if let Some(track) = &mut self.across {
+        if let Some(track) = &mut self.across
+            && across.is_finite()
+        {
             track.push(time, across);
+        }
+        let accel = self.fresh_accel(time);
+        if let (Some(track), Some(accel)) = (&mut self.level, accel) {
+            track.push(time, accel);
         }
         // The gyro's integrated angle lets the buffer check the turn.
         let turned = self.gyro.as_ref().and_then(GyroTrack::angle);
@@ -654,17 +722,28 @@ impl Geometry for Plane {
             }
             _ => None,
         };
+        let tilt = match self.plane.tilt.as_ref().and_then(|t| t.columns.as_ref()) {
+            Some(columns) => Some(super::sensor3::locate3(
+                files,
+                &refs,
+                columns,
+                super::sensor3::TILT_ROLES,
+            )?),
+            None => None,
+        };
         let others = (0..layout.names.len())
             .filter(|i| !axes.contains(i) && Some(*i) != layout.time_index())
             .collect();
         let mut required: Vec<(usize, usize)> = axes.iter().map(|&i| (file, i)).collect();
         required.extend(gyro);
+        required.extend(tilt.iter().flat_map(|(file, at)| at.map(|i| (*file, i))));
         self.csv = Some(CsvBinding {
             file,
             layout: layout.clone(),
             axes,
             gyro,
             across,
+            tilt,
             others,
         });
         Ok(required)
@@ -673,7 +752,9 @@ impl Geometry for Plane {
         self.config.north = north;
     }
     fn wants(&self, stream: u8) -> bool {
-        self.config.stream == stream || self.gyro.as_ref().is_some_and(|g| g.stream == stream)
+        self.config.stream == stream
+            || self.gyro.as_ref().is_some_and(|g| g.stream == stream)
+            || self.plane.tilt.as_ref().is_some_and(|t| t.stream == stream)
     }
     fn restart(&mut self) {
         self.recalibrate();
