@@ -139,9 +139,17 @@ impl GyroTrack {
     }
 
     /// The heading check of a rotation: samples at times `t` whose model
-    /// headings are `headings_rad`. Uses the rates from the last one at or
-    /// before the rotation's first sample to the first at or after its last.
+    /// headings are `headings_rad` ([`GyroTrack::reference`]).
     pub(super) fn check(&self, t: &[f64], headings_rad: &[f64]) -> Result<HeadingCheck, String> {
+        self.reference(t)?
+            .check(headings_rad, &[])
+            .map_err(|e| e.to_string())
+    }
+
+    /// The gyro's angle at each of a rotation's sample times `t`, from the
+    /// rates from the last one at or before its first sample to the first
+    /// at or after its last.
+    pub(super) fn reference(&self, t: &[f64]) -> Result<HeadingReference, String> {
         let (Some(&first), Some(&last)) = (t.first(), t.last()) else {
             return Err("no samples to check".into());
         };
@@ -153,12 +161,7 @@ impl GyroTrack {
                 return Err(format!("no {} readings during the rotation", self.column));
             }
         };
-        let reference =
-            HeadingReference::from_rates(&self.column, t, gyro_t, rate, GyroUnits::DegPerSecond)
-                .map_err(|e| e.to_string())?;
-        let check = reference
-            .check(headings_rad, &[])
-            .map_err(|e| e.to_string())?;
-        Ok(check)
+        HeadingReference::from_rates(&self.column, t, gyro_t, rate, GyroUnits::DegPerSecond)
+            .map_err(|e| e.to_string())
     }
 }

@@ -278,8 +278,16 @@ impl Plane {
         };
         // What the rotation's residual says beyond the fit: its noise floor,
         // and an effect the model lacks, so the user beside the robot learns
-        // that the configuration should add it.
-        let insight = diagnose(&rotation, &self.effects, None).ok();
+        // that the configuration should add it; with the gyro beside the
+        // rotation, each candidate's heading is checked against it (and a
+        // cubic held to the limit a checked heading allows) as `fieldcal
+        // diagnose --gyro` does.
+        let reference = self
+            .gyro
+            .as_ref()
+            .zip(rotation.t.as_deref())
+            .and_then(|(g, t)| g.reference(t).ok());
+        let insight = diagnose(&rotation, &self.effects, reference.as_ref()).ok();
         let noise_floor = insight.as_ref().map(|d| d.noise_floor.rms);
         let (suggested, close_second) = match insight {
             Some(d) => (
