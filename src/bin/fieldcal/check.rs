@@ -67,7 +67,7 @@ pub fn check(args: CheckArgs) -> Result<()> {
     };
     let monitored = monitor(&data, &stored, reference.as_ref(), report.as_ref())
         .with_context(|| format!("{file}: cannot monitor {cal_name} over it"))?;
-    let mut text = match &report {
+    let text = match &report {
         Some(report) => render(
             report,
             &file,
@@ -77,15 +77,32 @@ pub fn check(args: CheckArgs) -> Result<()> {
         ),
         None => String::new(),
     };
+    let json = serde_json::to_value(&report)?;
+    publish_monitor(&args, &file, text, (json, unchecked), &monitored)
+}
+
+/// The monitor's result after the check's own `text`: why the parameters
+/// were not compared (`unchecked`), the stretches, the report when asked
+/// for; or all of it as JSON (`check`: the check's).
+fn publish_monitor(
+    args: &CheckArgs,
+    file: &str,
+    mut text: String,
+    (check, unchecked): (serde_json::Value, Option<String>),
+    monitored: &Monitored,
+) -> Result<()> {
     if let Some(why) = &unchecked {
         text.push_str(&format!("parameters  not compared: {why}\n"));
+    }
+    if let Some(what) = monitored.only {
+        text.push_str(&format!("checked     {what}\n"));
     }
     text.push_str(&render_monitor(&monitored.trust));
     if let Some(dir) = &args.report {
         let written = fieldcal::report::monitor::write_monitor_report(
             dir,
             &fieldcal::report::monitor::MonitorData {
-                title: format!("{file} under {cal_name}"),
+                title: format!("{file} under {}", args.calibration.display()),
                 summary: text.clone(),
                 t: &monitored.t,
                 field_ratio: &monitored.field_ratio,
@@ -99,7 +116,7 @@ pub fn check(args: CheckArgs) -> Result<()> {
     }
     if args.json {
         let json = serde_json::json!({
-            "check": report,
+            "check": check,
             "not_compared": unchecked,
             "monitor": monitored.trust,
         });
@@ -113,6 +130,18 @@ struct Monitored {
     t: Vec<f64>,
     field_ratio: Vec<f64>,
     trust: RecordingTrust,
+    /// What the monitor could not check, when it checked less than the
+    /// daemon would.
+    only: Option<&'static str>,
+}
+
+/// The times of a recording the monitor judges.
+fn times_of(t: Option<&Vec<f64>>) -> Result<Vec<f64>> {
+    t.cloned().ok_or_else(|| {
+        anyhow::anyhow!(
+            "--monitor judges readings over time, and the recording has no time column (t, t_s, time or time_s; choose one with --t)"
+        )
+    })
 }
 
 /// Runs the daemon's trust monitor over the recording under the stored
@@ -125,11 +154,7 @@ fn monitor(
     reference: Option<&HeadingReference>,
     report: Option<&CheckReport>,
 ) -> Result<Monitored> {
-    let Some(t) = data.t.clone() else {
-        anyhow::bail!(
-            "--monitor judges readings over time, and the recording has no time column (t, t_s, time or time_s; choose one with --t)"
-        );
-    };
+    let t = times_of(data.t.as_ref())?;
     let applied = apply_model(data, &stored.effects, &stored.params, stored.cubic_scale)?;
     let field_ratio: Vec<f64> = applied.iter().map(|&(_, _, e)| 1.0 + e).collect();
     let headings_rad: Vec<f64> = applied.iter().map(|&(sx, sy, _)| sy.atan2(sx)).collect();
@@ -168,6 +193,49 @@ fn monitor(
         t,
         field_ratio,
         trust,
+        only: None,
+    })
+}
+
+/// The trust monitor over a 3-axis recording under a 3-D calibration: the
+/// field's magnitude against the calibration's own noise (its rms; the
+/// rms here when the file gives none), as the daemon checks a 3-axis
+/// sensor's. The dip and the heading against a gyro need the
+/// accelerometer beside each reading, which `check` does not read.
+fn monitor_three(
+    data: &fieldcal::sample::Dataset3,
+    stored: &fieldcal::model::check3::Stored3,
+    report: Option<&Check3Report>,
+) -> Result<Monitored> {
+    let t = times_of(data.t.as_ref())?;
+    let r = stored.calibration.r;
+    let field_ratio: Vec<f64> = data
+        .points
+        .iter()
+        .map(|&p| {
+            let s = stored.apply(p);
+            (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt() / r
+        })
+        .collect();
+    let rms = stored.rms.or(report.map(|r| r.rms)).unwrap_or_else(|| {
+        let ss: f64 = field_ratio.iter().map(|f| (f - 1.0).powi(2)).sum();
+        (ss / field_ratio.len().max(1) as f64).sqrt()
+    });
+    let headings = vec![0.0; field_ratio.len()];
+    let trust = monitor_recording(
+        TrustLimits::from_rms(rms, None, None),
+        &t,
+        &field_ratio,
+        &headings,
+        None,
+    );
+    Ok(Monitored {
+        t,
+        field_ratio,
+        trust,
+        only: Some(
+            "the field only: a 3-axis compass's dip and its heading against a gyro need the accelerometer beside each reading (the daemon checks them live with `tilt` and `gyro`)",
+        ),
     })
 }
 
@@ -284,11 +352,6 @@ fn render(report: &CheckReport, file: &str, cal: &str, x: &str, y: &str) -> Stri
 fn check_three(args: &CheckArgs, root: &serde_json::Value) -> Result<()> {
     let cal_name = args.calibration.display().to_string();
     let stored = parse_stored3(root).with_context(|| cal_name.clone())?;
-    if args.monitor {
-        anyhow::bail!(
-            "{cal_name}: --monitor judges a 2-axis sensor's readings (as the daemon's trust monitor does); a 3-D calibration's readings are not monitored offline yet"
-        );
-    }
     if args.input.gyro.is_some() {
         anyhow::bail!(
             "--gyro checks a 2-axis heading; a 3-D calibration's heading needs the accelerometer: `fieldcal heading FILE --mag-cal {cal_name} --accel X,Y,Z --gyro COLUMN`"
@@ -320,17 +383,34 @@ fn check_three(args: &CheckArgs, root: &serde_json::Value) -> Result<()> {
         .unwrap_or_else(|| stored_column(2, "z"));
     let data = fieldcal::io::csv::read_dataset3(&args.input.file, &spec, &z)?;
     let file = args.input.file.display().to_string();
-    let report = check3(&data.points, &stored)
-        .with_context(|| format!("{file}: cannot check {cal_name} against it"))?;
+    let checked = check3(&data.points, &stored)
+        .with_context(|| format!("{file}: cannot check {cal_name} against it"));
+    let axes = [
+        data.x_name.as_str(),
+        data.y_name.as_str(),
+        data.z_name.as_str(),
+    ];
+    if args.monitor {
+        // As in 2-D: every reading is judged even where the recording
+        // cannot be refitted, and the refit's reason is said.
+        let (report, unchecked) = match checked {
+            Ok(report) => (Some(report), None),
+            Err(e) => (None, Some(format!("{e:#}"))),
+        };
+        let monitored = monitor_three(&data, &stored, report.as_ref())
+            .with_context(|| format!("{file}: cannot monitor {cal_name} over it"))?;
+        let text = report
+            .as_ref()
+            .map(|r| render3(r, &file, &cal_name, axes))
+            .unwrap_or_default();
+        let json = serde_json::to_value(&report)?;
+        return publish_monitor(args, &file, text, (json, unchecked), &monitored);
+    }
+    let report = checked?;
     let text = if args.json {
         serde_json::to_string(&report)? + "\n"
     } else {
-        render3(
-            &report,
-            &file,
-            &cal_name,
-            [&data.x_name, &data.y_name, &data.z_name],
-        )
+        render3(&report, &file, &cal_name, axes)
     };
     write_stdout(text.as_bytes())
 }
