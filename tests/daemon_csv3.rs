@@ -369,6 +369,12 @@ fn a_3_axis_compass_names_its_gyros_three_columns_and_nothing_else_takes_them() 
             "sensor[0].gyro_units",
             &["\"rpm\""][..],
         ),
+        // Neither a name nor names.
+        (
+            "tilt = \"level\"\ngyro = 5\n",
+            "sensor[0].gyro",
+            &["expected a gyro axis or column", "three gyro columns"][..],
+        ),
     ] {
         refused(&text(extra), key, words);
     }

@@ -86,11 +86,43 @@ pub(super) struct RawSensor {
 
 /// `gyro`: one axis or column (a 2-axis sensor's, or "none"), or three
 /// columns (a 3-axis csv compass's, in its tilt accelerometer's x, y, z).
-#[derive(Deserialize, Clone)]
-#[serde(untagged)]
+#[derive(Clone)]
 pub(super) enum RawGyro {
     One(String),
     Three(Vec<String>),
+}
+
+impl<'de> Deserialize<'de> for RawGyro {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = RawGyro;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str(
+                    "a gyro axis or column (\"z\", \"gyro_z\") or \"none\"; or a 3-axis \
+                     compass's three gyro columns ([\"gyro_x\", \"gyro_y\", \"gyro_z\"])",
+                )
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<RawGyro, E> {
+                Ok(RawGyro::One(v.to_string()))
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> Result<RawGyro, A::Error> {
+                let mut columns = Vec::new();
+                // Three are wanted; a few more are read to say how many.
+                while let Some(name) = seq.next_element::<String>()? {
+                    if columns.len() >= 16 {
+                        return Err(serde::de::Error::invalid_length(17, &self));
+                    }
+                    columns.push(name);
+                }
+                Ok(RawGyro::Three(columns))
+            }
+        }
+        deserializer.deserialize_any(Visitor)
+    }
 }
 
 impl RawSensor {
