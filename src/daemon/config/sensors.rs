@@ -336,18 +336,7 @@ impl Checker<'_> {
         axes: &[String; 2],
     ) -> Result<GyroChoice, ConfigError> {
         let units_key = format!("{key}.gyro_units");
-        let units = match s.gyro_units.as_deref().map(str::trim) {
-            None | Some("deg/s") => GyroUnits::DegPerSecond,
-            Some("rad/s") => GyroUnits::RadPerSecond,
-            Some(other) => {
-                return Err(self.error(
-                    &units_key,
-                    format!(
-                        "\"{other}\" is not a unit of angular rate: give \"deg/s\" or \"rad/s\""
-                    ),
-                ));
-            }
-        };
+        let units = self.check_gyro_units(&units_key, s.gyro_units.as_deref())?;
         if matches!(s.gyro, Some(RawGyro::Three(_))) {
             return Err(self.gyro_three_on_plane(key, "column"));
         }

@@ -207,18 +207,7 @@ impl Checker<'_> {
             *gyro = Gyro3Choice::Off;
             return Ok(());
         };
-        *u = match units.map(str::trim) {
-            None | Some("deg/s") => GyroUnits::DegPerSecond,
-            Some("rad/s") => GyroUnits::RadPerSecond,
-            Some(other) => {
-                return Err(self.error(
-                    &units_key,
-                    format!(
-                        "\"{other}\" is not a unit of angular rate: give \"deg/s\" or \"rad/s\""
-                    ),
-                ));
-            }
-        };
+        *u = self.check_gyro_units(&units_key, units)?;
         for (i, name) in names.iter().enumerate() {
             let k = format!("{key}.gyro[{i}]");
             if let Some(j) = names[..i].iter().position(|n| n == name) {
@@ -230,6 +219,22 @@ impl Checker<'_> {
             columns.find(k, name, "the gyro's rate about an axis")?;
         }
         Ok(())
+    }
+
+    /// A csv gyro's `gyro_units` (at `key`): deg/s (the default) or rad/s.
+    pub(super) fn check_gyro_units(
+        &self,
+        key: &str,
+        units: Option<&str>,
+    ) -> Result<GyroUnits, ConfigError> {
+        match units.map(str::trim) {
+            None | Some("deg/s") => Ok(GyroUnits::DegPerSecond),
+            Some("rad/s") => Ok(GyroUnits::RadPerSecond),
+            Some(other) => Err(self.error(
+                key,
+                format!("\"{other}\" is not a unit of angular rate: give \"deg/s\" or \"rad/s\""),
+            )),
+        }
     }
 
     /// Gyro columns on a device's 3-axis compass (of a `src_kind` source).
