@@ -891,3 +891,55 @@ fn a_magnet_that_turns_a_3d_compass_heading_alone_is_caught_by_its_gyro() {
     assert!(all > 400, "{all}");
     assert_eq!(bad, 0, "{why}");
 }
+
+/// A calibration's attitude is kept with the accelerometer it was measured
+/// with: after a restart under another tilt sensor (the configuration
+/// changed), the stored attitude is not compared with the other's vertical.
+#[test]
+fn a_stored_attitude_is_not_compared_with_another_accelerometer() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = rolled_compass(|t| if (70.0..75.0).contains(&t) { 2.0 } else { 0.0 });
+    std::fs::write(dir.path().join("robot.csv"), &csv).unwrap();
+    let sensors = |tilt: &str, axes: &str| {
+        format!(
+            "[[sensor]]\nname = \"compass\"\nsource = \"log\"\naxes = [\"mx\", \"my\"]\n\
+             tilt = \"{tilt}\"\n[[sensor]]\nname = \"{tilt}\"\nsource = \"log\"\naxes = {axes}\n\
+             field = \"accel\"\nlsb_per_g = 1\n"
+        )
+    };
+    let first = write_config(
+        dir.path(),
+        "robot",
+        &sensors("level", "[\"ax\", \"ay\", \"az\"]"),
+    );
+    // `run` stamps the readings on its own clock: the log's 70-75 s are
+    // 70-75 s after its first reading.
+    let start = |lines: &[Value]| {
+        lines
+            .iter()
+            .find(|v| v["class"] == "READING")
+            .and_then(|v| v["time"].as_f64())
+            .unwrap()
+    };
+    let lines = lines_of(&["run", "--config", first.to_str().unwrap()]);
+    let t0 = start(&lines);
+    let (all, bad, why) = compass_judged(&lines, t0 + 69.99, t0 + 74.99);
+    assert_eq!((all, bad), (100, 100), "{why}");
+    // The same log again, the stored calibration loaded, its attitude
+    // measured with 'level': under 'swapped' it is not compared.
+    let second = write_config(
+        dir.path(),
+        "robot",
+        &sensors("swapped", "[\"ay\", \"ax\", \"az\"]"),
+    );
+    let lines = lines_of(&["run", "--config", second.to_str().unwrap()]);
+    let loaded = lines
+        .iter()
+        .find(|v| v["class"] == "CALIBRATION" && v["sensor"] == "compass")
+        .unwrap();
+    assert_eq!(loaded["origin"], "state", "{loaded}");
+    assert_eq!(loaded["level"]["tilt"], "level: ax,ay,az", "{loaded}");
+    let t0 = start(&lines);
+    let (all, bad, why) = compass_judged(&lines, t0 + 69.99, t0 + 74.99);
+    assert_eq!((all, bad), (100, 0), "{why}");
+}

@@ -2500,6 +2500,58 @@ mod trust {
         assert_eq!(distrusted_in(&v, 0.0, 20.0).0, 0);
     }
 
+    /// A reading the gyro cannot check (no rate: a 3-axis compass pitched
+    /// too far, a stale gyro) in a swing the gyro caught does not end its
+    /// distrust: the gyro's reference is lost, and trust returns only once
+    /// the heading has agreed with the gyro for a whole window again. A
+    /// gap while trusted changes nothing.
+    #[test]
+    fn a_reading_without_a_rate_does_not_end_a_distrust_the_gyro_found() {
+        let limits = TrustLimits::from_rms(
+            0.005,
+            None,
+            Some(GyroModel {
+                scale: 1.0,
+                bias_deg_s: 0.0,
+            }),
+        );
+        let mut m = TrustMonitor::new(limits);
+        let mut verdicts = Vec::new();
+        for k in 0..(40.0 * RATE_HZ) as usize {
+            let t = k as f64 / RATE_HZ;
+            let swing = if (20.0..35.0).contains(&t) { 60.0 } else { 0.0 };
+            // No rate at 10 s and at 25 s.
+            let gap = k == 200 || k == 500;
+            let v = m.check(Observation {
+                time: t,
+                field_ratio: 1.0,
+                heading_deg: swing,
+                gyro_deg_s: (!gap).then_some(0.0),
+                dip_deg: None,
+                across: None,
+                tilt_deg: None,
+            });
+            verdicts.push((t, v));
+        }
+        assert_eq!(distrusted_in(&verdicts, 0.0, 20.0).0, 0);
+        // Through the gap and the 2 s of agreement after it.
+        assert_eq!(distrusted_in(&verdicts, 20.0, 27.0), (140, 140));
+        let (gap, after) = (&verdicts[500].1, &verdicts[521].1);
+        assert!(
+            gap.reasons[0]
+                .starts_with("the heading cannot be checked against the gyro at this reading"),
+            "{gap:?}"
+        );
+        assert!(
+            after.reasons[0].starts_with(
+                "the heading was off the gyro's when the gyro lost it, and has agreed with it again for 1.0 s of the 2 s"
+            ),
+            "{after:?}"
+        );
+        // Then the swing, steady, is beyond what the gyro can tell.
+        assert_eq!(distrusted_in(&verdicts, 27.1, 35.0).0, 0);
+    }
+
     #[test]
     fn a_twenty_degree_swing_while_turning_is_flagged_within_a_reading() {
         let v = run(40.0, 30.0, 0.005, |t| {

@@ -173,7 +173,7 @@ pub struct CalibrationMessage<'a> {
     /// vertical and the tilt's spread about it, which each reading's tilt
     /// is checked against.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub level: Option<crate::model::calibration::LevelFit>,
+    pub level: Option<&'a crate::model::calibration::LevelFit>,
 }
 
 /// A `STALE` line: a later rotation moved the calibration further than
@@ -258,7 +258,7 @@ impl<'a> CalibrationMessage<'a> {
             terms: (!calibration.terms.is_none()).then_some(calibration.terms),
             se: (!calibration.se.is_empty()).then_some(&calibration.se),
             across: calibration.across,
-            level: calibration.level,
+            level: calibration.level.as_ref(),
             ..Self::rejected(&calibration.sensor, &calibration.model, None)
         }
     }

@@ -297,7 +297,7 @@ fn judge(
         .filter(|_| heading_deg.is_some());
     let standing: Vec<&str> = stale.into_iter().chain(mounting).collect();
     monitor_of(trust, c.id, || {
-        let gyro = c.gyro.filter(|g| g.bias_xyz_deg_s.is_some());
+        let gyro = c.gyro.as_ref().filter(|g| g.bias_xyz_deg_s.is_some());
         let limits = TrustLimits::from_rms(
             c.rms,
             gyro.map(|g| g.heading_rms_deg),
@@ -358,7 +358,7 @@ impl Sensor3 {
             headings_stale: 0,
             csv: None,
             trust: None,
-            gyro: Gyro3Track::new(&three.gyro, three.sphere.max_samples),
+            gyro: Gyro3Track::new(&three.gyro, three.mag_axes, three.sphere.max_samples),
             gyro_check: None,
             config: three,
         }
@@ -390,7 +390,15 @@ impl Sensor3 {
 
     /// Starts a new buffer (the [`Lifecycle`] restarts beside it).
     pub fn recalibrate(&mut self) {
+        self.reset_sphere();
+    }
+
+    /// The sphere collected afresh: the buffer and the gyro kept beside it.
+    fn reset_sphere(&mut self) {
         self.buffer.reset();
+        if let Some(gyro) = &mut self.gyro {
+            gyro.clear();
+        }
     }
 
     /// Progress of the buffer being collected.
@@ -452,7 +460,7 @@ impl Sensor3 {
         life.accept(calibration);
         // Let the samples go; the next sphere, watched against this
         // calibration, is collected afresh.
-        self.buffer.reset();
+        self.reset_sphere();
         life.current.clone()
     }
 
@@ -698,6 +706,9 @@ impl Sensor3 {
         life.reject(reason);
         // Collect anew; the previous calibration (if any) keeps correcting.
         self.buffer.rejected();
+        if let Some(gyro) = &mut self.gyro {
+            gyro.clear();
+        }
     }
 }
 

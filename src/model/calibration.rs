@@ -83,7 +83,7 @@ pub struct Calibration {
 
 /// The attitude a 2-axis compass was calibrated in: its tilt
 /// accelerometer's mean vertical over the rotation ([`crate::model::level::level_of`]).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LevelFit {
     /// The specific force's direction (up, a unit vector) in the
     /// accelerometer's raw axes.
@@ -92,6 +92,10 @@ pub struct LevelFit {
     /// tilt over the rotation / √(2 ln 2), a Rayleigh distribution's σ.
     pub tilt_sd_deg: f64,
     pub n: usize,
+    /// The tilt accelerometer it was measured with (its sensor and axes or
+    /// columns): a reading tilted against another is not compared with it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tilt: Option<String>,
 }
 
 /// The reading of the axis across a turn over a calibration's rotation:
@@ -128,7 +132,7 @@ pub struct DipFit {
 
 /// A heading check's gyro: heading ≈ scale · ∫(rate − bias), and the
 /// heading's rms error against it.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GyroFit {
     pub scale: f64,
     pub bias_deg_s: f64,
@@ -138,6 +142,10 @@ pub struct GyroFit {
     /// rate is `scale` · (ω − this) · v / |v|², and `bias_deg_s` 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bias_xyz_deg_s: Option<[f64; 3]>,
+    /// A 3-axis compass's: the gyro, its units and the `mag_axes` it was
+    /// fitted with; a heading read otherwise is not checked against it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<String>,
 }
 
 /// The 3-D model of a 3-axis sensor: calibrated = W·(raw − o), with

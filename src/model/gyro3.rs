@@ -26,8 +26,8 @@ use nalgebra::{Matrix3, Vector3};
 use super::tilt::MAD_TO_SIGMA;
 
 /// Readings pitched beyond this are not checked against the gyro: at 60°
-/// the rate about the vertical is twice the gyro's own (1 / cos²θ = 4 on
-/// its component), and so is every error of the vertical's direction.
+/// the heading's rate weighs the gyro's components by up to 1 / cos²θ = 4,
+/// and every error of the vertical's direction by as much.
 pub const MAX_PITCH_DEG: f64 = 60.0;
 /// Two readings further apart than this, seconds, are no step of the fit:
 /// a gap in the recording, over which the rate is not known.
@@ -236,7 +236,8 @@ pub fn fit_gyro3(samples: &[GyroSample]) -> Result<Gyro3Fit, String> {
         return Err(format!(
             "the gyro's rate about the vertical does not follow the heading: scale {scale:.3} \
              ± {scale_se:.3}, where a gyro in the accelerometer's axes gives ±1 within {:.0} %: \
-             check that `gyro` names the accelerometer's x, y, z, in that order",
+             check that its axes are the accelerometer's x, y, z in that order (a csv source's \
+             `gyro` columns), and its scale (`gyro_units`, or the chip's full-scale range)",
             SCALE_TOLERANCE * 100.0
         ));
     }

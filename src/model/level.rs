@@ -64,5 +64,6 @@ pub fn level_of(accels: &[[f64; 3]]) -> Option<crate::model::calibration::LevelF
         up: up.into(),
         tilt_sd_deg,
         n: unit.len(),
+        tilt: None,
     })
 }

@@ -293,6 +293,11 @@ pub struct TrustMonitor {
     previous: Option<(f64, f64)>,
     /// The heading's rate less the gyro's, followed while trusted, deg/s.
     drift: f64,
+    /// Set when the gyro lost the heading (a reading without a rate) while
+    /// the heading was distrusted against it: the
+    /// seconds the heading has agreed with the gyro since. Trust returns
+    /// once they add up to a window ([`WINDOW_S`]).
+    lost_agreed_s: Option<f64>,
     counts: TrustCounts,
     stretch_start: Option<f64>,
     /// The latest reading's first reason, while it is distrusted.
@@ -313,6 +318,7 @@ impl TrustMonitor {
             gyro_angle: 0.0,
             previous: None,
             drift: 0.0,
+            lost_agreed_s: None,
             counts: TrustCounts::default(),
             stretch_start: None,
             now: None,
@@ -392,14 +398,29 @@ impl TrustMonitor {
                 ));
             }
         }
+        // A reading the gyro cannot check (a 3-axis compass pitched too
+        // far, where its heading turns faster than any gyro error can be
+        // bounded; a stale gyro): the turn since the last rate is not
+        // known, and the check starts afresh from the next rate.
+        if self.limits.gyro.is_some() && obs.gyro_deg_s.is_none() {
+            self.restart_gyro();
+        }
         let point = self.advance(obs);
         if self.limits.gyro.is_some() {
+            if obs.gyro_deg_s.is_none() {
+                // The window starts at the first reading with a rate.
+                self.window.clear();
+            }
             match obs.gyro_deg_s {
                 Some(_) => self.check_gyro(point, &mut reasons),
                 // A reading the gyro cannot check (a 3-axis compass pitched
-                // too far, a stale gyro): the heading's change is not known
-                // against it across the gap, so the check starts afresh.
-                None => self.restart_gyro(),
+                // too far, a stale gyro) is not trusted on its word while a
+                // distrust it found holds.
+                None if self.reference.is_some() || self.lost_agreed_s.is_some() => reasons.push(
+                    "the heading cannot be checked against the gyro at this reading, and was off the gyro's before it"
+                        .to_string(),
+                ),
+                None => {}
             }
         }
         self.record(obs.time, reasons)
@@ -464,8 +485,12 @@ impl TrustMonitor {
     }
 
     /// The gyro check afresh from the next reading with a rate: no
-    /// window, no reference, no rate to integrate from.
+    /// window, no reference, no rate to integrate from. A heading that was
+    /// distrusted against the gyro stays so, until a whole window agrees.
     fn restart_gyro(&mut self) {
+        if self.reference.is_some() {
+            self.lost_agreed_s = Some(0.0);
+        }
         self.reference = None;
         self.last = None;
         self.window.clear();
@@ -492,6 +517,9 @@ impl TrustMonitor {
         match self.reference {
             None if mismatch.abs() > ENTER_SIGMAS * sigma => {
                 self.reference = Some(anchor);
+                if self.lost_agreed_s.is_some() {
+                    self.lost_agreed_s = Some(0.0);
+                }
                 reasons.push(format!(
                     "the heading moved {:.1}° in {:.1} s while the gyro turned {:.1}° (limit {:.1}°: 5 σ)",
                     moved,
@@ -499,6 +527,20 @@ impl TrustMonitor {
                     turned,
                     ENTER_SIGMAS * sigma
                 ));
+            }
+            None if self.lost_agreed_s.is_some() => {
+                // After the gyro lost the heading: agreement adding up to a
+                // window (across the gaps a tumble makes) brings trust back.
+                let step = self.window.iter().rev().nth(1).map_or(0.0, |p| now.time - p.time);
+                let agreed = self.lost_agreed_s.unwrap_or(0.0) + step;
+                if agreed >= WINDOW_S {
+                    self.lost_agreed_s = None;
+                } else {
+                    self.lost_agreed_s = Some(agreed);
+                    reasons.push(format!(
+                        "the heading was off the gyro's when the gyro lost it, and has agreed with it again for {agreed:.1} s of the {WINDOW_S} s it must"
+                    ));
+                }
             }
             None => {
                 // Trusted: follow the gyro's slow drift against the heading.
@@ -654,12 +696,18 @@ pub fn monitor_recording(
     let mut trusted = Vec::with_capacity(n);
     let (mut stretches, mut left_out) = (Vec::new(), 0usize);
     let mut open: Option<Stretch> = None;
+    let mut last_rate = None;
     for i in 0..n {
+        // A reading at the time of the one before (a repeated time stamp)
+        // has no rate of its own: the one before's holds.
+        let repeated = i > 0 && t[i] == t[i - 1];
+        let gyro_deg_s = if repeated { last_rate } else { rate(i) };
+        last_rate = gyro_deg_s;
         let verdict = monitor.check(Observation {
             time: t[i],
             field_ratio: field_ratio[i],
             heading_deg: heading_deg[i],
-            gyro_deg_s: rate(i),
+            gyro_deg_s,
             dip_deg: None,
             across: None,
             tilt_deg: None,

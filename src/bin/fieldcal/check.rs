@@ -118,6 +118,7 @@ fn publish_monitor(
         let json = serde_json::json!({
             "check": check,
             "not_compared": unchecked,
+            "checked": monitored.only,
             "monitor": monitored.trust,
         });
         return write_stdout((json.to_string() + "\n").as_bytes());
@@ -130,8 +131,7 @@ struct Monitored {
     t: Vec<f64>,
     field_ratio: Vec<f64>,
     trust: RecordingTrust,
-    /// What the monitor could not check, when it checked less than the
-    /// daemon would.
+    /// What the monitor checked, when that is less than the daemon would.
     only: Option<&'static str>,
 }
 

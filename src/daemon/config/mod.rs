@@ -107,10 +107,10 @@
 //! gyro_units = "deg/s"      # or "rad/s"; default deg/s
 //! out_of_plane = "mag_y"    # the column across the turn, for the trust
 //!                           # monitor (a device's sensor: its axis, "z")
-//! tilt = "board-level"      # a 3-axis accel sensor of the same source: the
+//! tilt = "board-level"      # the 3-axis accel sensor of the same source: the
 //!                           # trust monitor distrusts a heading tilted from
-//!                           # the attitude of its calibration (any sensor
-//!                           # of the source; a device's sensor too)
+//!                           # the attitude of its calibration (a device's
+//!                           # 2-axis sensor takes `tilt` too)
 //!
 //! [[source]]
 //! name = "board"
@@ -816,9 +816,9 @@ impl Checker<'_> {
                 });
             }
             if parsed.len() == 3 {
+                self.refuse_gyro_columns(key, &s, src_kind)?;
                 let (mut sensor, tilt) =
                     self.check_sensor3(key, s, field, stream.id, &parsed, src_name)?;
-                self.refuse_gyro_columns(key, &sensor, src_kind)?;
                 sensor.north = north;
                 return Ok((sensor, tilt));
             }

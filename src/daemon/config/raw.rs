@@ -114,7 +114,9 @@ impl<'de> Deserialize<'de> for RawGyro {
                 // Three are wanted; a few more are read to say how many.
                 while let Some(name) = seq.next_element::<String>()? {
                     if columns.len() >= 16 {
-                        return Err(serde::de::Error::invalid_length(17, &self));
+                        return Err(serde::de::Error::custom(
+                            "more than 16 gyro columns: a 3-axis compass's gyro is three",
+                        ));
                     }
                     columns.push(name);
                 }

@@ -113,8 +113,8 @@ pub enum Gyro3Choice {
         axes: [Axis; 3],
         lsb_per_deg_s: f64,
     },
-    /// Three columns of a csv source (any of its files), in the order of
-    /// the tilt accelerometer's x, y, z.
+    /// Three columns of one file of a csv source, in the order of the tilt
+    /// accelerometer's x, y, z.
     Columns {
         names: [String; 3],
         units: GyroUnits,
@@ -130,6 +130,46 @@ pub struct TiltSource {
     pub axes: [Axis; 3],
     /// For a csv source: the accelerometer sensor's three columns.
     pub columns: Option<[String; 3]>,
+}
+
+impl TiltSource {
+    /// The accelerometer in words, as a calibration keeps it: its sensor
+    /// and its columns or axes ("level: acc_x,acc_y,acc_z").
+    pub fn describe(&self) -> String {
+        let axes = match &self.columns {
+            Some(columns) => columns.join(","),
+            None => self.axes.map(|a| a.name()).join(","),
+        };
+        format!("{}: {axes}", self.sensor)
+    }
+}
+
+impl Gyro3Choice {
+    /// The gyro in words, as a calibration keeps it, with the `mag_axes`
+    /// its heading was read under: "columns gx,gy,gz in deg/s; mag_axes
+    /// -x,-z,y".
+    pub fn describe(&self, mag_axes: &AxisMap) -> String {
+        let gyro = match self {
+            Gyro3Choice::Chip {
+                stream,
+                axes,
+                lsb_per_deg_s,
+            } => format!(
+                "stream {stream} axes {} at {lsb_per_deg_s} counts per deg/s",
+                axes.map(|a| a.name()).join(",")
+            ),
+            Gyro3Choice::Columns { names, units } => format!(
+                "columns {} in {}",
+                names.join(","),
+                match units {
+                    GyroUnits::DegPerSecond => "deg/s",
+                    GyroUnits::RadPerSecond => "rad/s",
+                }
+            ),
+            Gyro3Choice::Off | Gyro3Choice::Auto => "none".to_string(),
+        };
+        format!("{gyro}; mag_axes {mag_axes}")
+    }
 }
 
 impl SensorConfig {

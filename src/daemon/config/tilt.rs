@@ -208,16 +208,19 @@ impl Checker<'_> {
             return Ok(());
         };
         *u = self.check_gyro_units(&units_key, units)?;
-        for (i, name) in names.iter().enumerate() {
-            let k = format!("{key}.gyro[{i}]");
+        let keys: Vec<String> = (0..3).map(|i| format!("{key}.gyro[{i}]")).collect();
+        let mut found = Vec::with_capacity(3);
+        for (i, (name, k)) in names.iter().zip(&keys).enumerate() {
             if let Some(j) = names[..i].iter().position(|n| n == name) {
                 return Err(self.error(
-                    &k,
+                    k,
                     format!("'{name}' is already gyro[{j}]: give three different columns"),
                 ));
             }
-            columns.find(k, name, "the gyro's rate about an axis")?;
+            found.push(columns.find(k.clone(), name, "the gyro's rate about an axis")?);
         }
+        // One file: its rows carry the three rates of one instant.
+        columns.one_file(&found, &keys)?;
         Ok(())
     }
 
@@ -241,13 +244,10 @@ impl Checker<'_> {
     pub(super) fn refuse_gyro_columns(
         &self,
         key: &str,
-        sensor: &SensorConfig,
+        s: &RawSensor,
         src_kind: &str,
     ) -> Result<(), ConfigError> {
-        if sensor
-            .sphere()
-            .is_some_and(|t| matches!(t.gyro, Gyro3Choice::Columns { .. }))
-        {
+        if matches!(s.gyro, Some(RawGyro::Three(_))) {
             return Err(self.error(
                 &format!("{key}.gyro"),
                 format!(

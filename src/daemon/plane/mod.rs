@@ -18,7 +18,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use super::acceptance::{self, Limits};
-use super::config::{Axis, Field, GyroChoice, OnStale, OutOfPlane, PlaneConfig, SensorConfig};
+use super::config::{
+    Axis, Field, GyroChoice, OnStale, OutOfPlane, PlaneConfig, SensorConfig, TiltSource,
+};
 use super::lifecycle::Lifecycle;
 use super::messages::{
     CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, to_line,
@@ -189,6 +191,7 @@ impl Plane {
                             .map(|_| across / c.params.r),
                         tilt_deg: c
                             .level
+                            .as_ref()
                             .zip(accel)
                             .and_then(|(l, a)| angle_between_deg(l.up, a)),
                     },
@@ -243,16 +246,20 @@ impl Plane {
             .and_then(|n| n.model.as_ref())
             .map(|m| m.inclination_deg);
         monitor_of(&mut self.trust, c.id, || {
-            let gyro = c.gyro.map(|g| GyroModel {
+            let gyro = c.gyro.as_ref().map(|g| GyroModel {
                 scale: g.scale,
                 bias_deg_s: g.bias_deg_s,
             });
-            let limits = TrustLimits::from_rms(c.rms, c.gyro.map(|g| g.heading_rms_deg), gyro);
+            let limits =
+                TrustLimits::from_rms(c.rms, c.gyro.as_ref().map(|g| g.heading_rms_deg), gyro);
             let limits = match c.across {
                 Some(a) => limits.with_across(a.median / c.params.r, a.spread / c.params.r),
                 None => limits,
             };
-            match c.level {
+            // An attitude measured with another accelerometer (the
+            // configuration changed since) says nothing of this one's.
+            let tilt = self.plane.tilt.as_ref().map(TiltSource::describe);
+            match c.level.as_ref().filter(|l| l.tilt == tilt) {
                 Some(l) => limits.with_tilt(l.tilt_sd_deg, dip),
                 None => limits,
             }
@@ -383,7 +390,11 @@ impl Plane {
             .level
             .as_ref()
             .zip(span)
-            .and_then(|(track, (from, to))| track.level_over(from, to));
+            .and_then(|(track, (from, to))| track.level_over(from, to))
+            .map(|l| crate::model::calibration::LevelFit {
+                tilt: self.plane.tilt.as_ref().map(TiltSource::describe),
+                ..l
+            });
         Calibration {
             sensor: self.config.name.clone(),
             id: life.next_id,
@@ -568,6 +579,7 @@ fn gyro_fit(h: &HeadingCheck) -> GyroFit {
         bias_deg_s: h.gyro_bias_deg_s,
         heading_rms_deg: h.rms_deg,
         bias_xyz_deg_s: None,
+        source: None,
     }
 }
 
@@ -758,6 +770,8 @@ impl Geometry for Plane {
     }
     fn set_north(&mut self, north: Option<super::north::North>) {
         self.config.north = north;
+        // The tilt limit reads the WMM's dip there: built anew.
+        self.trust = None;
     }
     fn wants(&self, stream: u8) -> bool {
         self.config.stream == stream

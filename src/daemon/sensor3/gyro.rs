@@ -22,6 +22,9 @@ pub(super) struct Gyro3Track {
     /// Each sample of the sphere: the raw field, the raw accelerometer
     /// reading and the gyro beside it.
     kept: Beside<[[f64; 3]; 3]>,
+    /// The gyro and the `mag_axes` in words ([`Gyro3Choice::describe`]):
+    /// a fit made under others is not used.
+    source: String,
 }
 
 /// The roles of a csv compass's gyro columns, for messages.
@@ -33,8 +36,9 @@ const GYRO_ROLES: [&str; 3] = [
 
 impl Gyro3Track {
     /// The track of a configured gyro (none for [`Gyro3Choice::Off`] or
-    /// one left unresolved), holding at most `cap` samples.
-    pub(super) fn new(choice: &Gyro3Choice, cap: usize) -> Option<Self> {
+    /// one left unresolved) of a compass read under `mag_axes`, holding at
+    /// most `cap` samples.
+    pub(super) fn new(choice: &Gyro3Choice, mag_axes: AxisMap, cap: usize) -> Option<Self> {
         matches!(
             choice,
             Gyro3Choice::Chip { .. } | Gyro3Choice::Columns { .. }
@@ -44,6 +48,7 @@ impl Gyro3Track {
             csv: None,
             last: None,
             kept: Beside::new(cap),
+            source: choice.describe(&mag_axes),
         })
     }
 
@@ -104,6 +109,11 @@ impl Gyro3Track {
         }
     }
 
+    /// Lets the samples kept go (a sphere collected afresh).
+    pub(super) fn clear(&mut self) {
+        self.kept.clear();
+    }
+
     /// The latest rate when it is at most [`MAX_TILT_AGE_S`] from `time`.
     pub(super) fn fresh(&self, time: f64) -> Option<[f64; 3]> {
         self.last
@@ -153,13 +163,19 @@ impl Gyro3Track {
             bias_deg_s: 0.0,
             heading_rms_deg: fit.heading_sd_deg,
             bias_xyz_deg_s: Some(fit.bias_deg_s),
+            source: Some(self.source.clone()),
         })
     }
 
     /// The heading's rate the gyro gives at `time` under calibration
     /// `fit`, at the vertical `up` the heading was compensated with; none
-    /// without a fresh rate or beyond the pitch the check allows.
+    /// without a fresh rate, beyond the pitch the check allows, or under a
+    /// fit made with another gyro, other units or another `mag_axes` (the
+    /// configuration changed since).
     pub(super) fn rate(&self, time: f64, fit: &GyroFit, up: [f64; 3]) -> Option<f64> {
+        if fit.source.as_deref() != Some(self.source.as_str()) {
+            return None;
+        }
         heading_rate(self.fresh(time)?, fit.bias_xyz_deg_s?, up)
     }
 }

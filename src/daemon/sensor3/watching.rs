@@ -31,14 +31,14 @@ impl Sensor3 {
             }
             Err(e) => {
                 tracing::debug!(sensor = %self.name, "a later sphere tells nothing of calibration #{}: {e}", current.id);
-                self.buffer.reset();
+                self.reset_sphere();
                 return None;
             }
         };
         let max_rms = self.config.sphere.max_rms;
         if let Err(reason) = check_limits(&fit, self.field, self.config.lsb_per_unit, max_rms) {
             tracing::debug!(sensor = %self.name, "a later sphere tells nothing of calibration #{}: {reason}", current.id);
-            self.buffer.reset();
+            self.reset_sphere();
             return None;
         }
         let points = self.buffer.points();
@@ -48,10 +48,10 @@ impl Sensor3 {
         let comparison = watch::compare(&current, &refit, error);
         if comparison.stale() {
             let replaced = self.stale(life, &current, &comparison, (&fit, &refit), time, emit);
-            self.buffer.reset();
+            self.reset_sphere();
             return replaced;
         }
-        self.buffer.reset();
+        self.reset_sphere();
         if comparison.agrees() {
             tracing::debug!(sensor = %self.name, "a later sphere agrees with calibration #{}", current.id);
         } else {
