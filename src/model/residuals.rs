@@ -20,7 +20,7 @@ pub const TAIL_SDS: f64 = 4.0;
 /// P(|Z| > 4) for a standard normal: the tail fraction Gaussian noise gives.
 pub const GAUSSIAN_TAIL_4SD: f64 = 6.334e-5;
 /// MAD to SD for Gaussian data.
-const MAD_TO_SD: f64 = 1.482_602_218_505_602;
+const MAD_TO_SD: f64 = super::tilt::MAD_TO_SIGMA;
 /// The slow smooth of e vs time averages over this fraction of the run.
 pub const SMOOTH_FRACTION: f64 = 0.1;
 

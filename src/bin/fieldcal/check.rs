@@ -258,7 +258,7 @@ fn robust_heading_sigma(h: &fieldcal::model::gyro::HeadingCheck) -> f64 {
     };
     let m = median(&mut e);
     let mut dev: Vec<f64> = e.iter().map(|v| (v - m).abs()).collect();
-    1.482_602_218_505_602 * median(&mut dev)
+    fieldcal::model::tilt::MAD_TO_SIGMA * median(&mut dev)
 }
 
 /// Most stretches the text lists (`--json` lists up to
