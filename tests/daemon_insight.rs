@@ -31,17 +31,15 @@ fn calibration(capture: &str, model: &str, dir: &std::path::Path) -> Value {
         .expect("a CALIBRATION")
 }
 
-#[test]
-fn calibration_suggests_the_missing_effect_and_the_configuration_adds_it() {
-    let dir = tempfile::tempdir().unwrap();
-    let capture = dir.path().join("xa.fcap");
-    let capture = capture.to_str().unwrap();
+/// Two turns of a simulated Falcon-GX board (noise 2 counts, x offset
+/// 100) with the hidden `effect`, into `capture`.
+fn two_turns(capture: &str, effect: &str) {
     run_ok(&[
         "simulate",
         "--format",
         "falcon",
         "--effect",
-        "cross-axis=3deg",
+        effect,
         "--turns",
         "2",
         "--noise",
@@ -51,6 +49,14 @@ fn calibration_suggests_the_missing_effect_and_the_configuration_adds_it() {
         "-o",
         capture,
     ]);
+}
+
+#[test]
+fn calibration_suggests_the_missing_effect_and_the_configuration_adds_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("xa.fcap");
+    let capture = capture.to_str().unwrap();
+    two_turns(capture, "cross-axis=3deg");
     let paper = calibration(capture, "\"paper\"", dir.path());
     assert_eq!(paper["accepted"], true, "{paper}");
     assert_eq!(paper["suggested"], "cross-axis", "{paper}");
@@ -177,21 +183,7 @@ fn the_gyro_in_the_frames_checks_the_daemons_suggestion() {
     let dir = tempfile::tempdir().unwrap();
     let capture = dir.path().join("cubic.fcap");
     let capture = capture.to_str().unwrap();
-    run_ok(&[
-        "simulate",
-        "--format",
-        "falcon",
-        "--effect",
-        "cubic=0.03",
-        "--turns",
-        "2",
-        "--noise",
-        "2",
-        "--offset-x",
-        "100",
-        "-o",
-        capture,
-    ]);
+    two_turns(capture, "cubic=0.03");
     let paper = calibration(capture, "\"paper\"", dir.path());
     assert_eq!(paper["accepted"], true, "{paper}");
     assert!(paper.get("heading_vs_gyro").is_some(), "{paper}");

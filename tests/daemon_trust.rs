@@ -17,14 +17,7 @@ fn recording(
     magnet: impl Fn(f64) -> (f64, f64),
 ) -> String {
     let mut text = String::from("t,x,y,gyro_z\n");
-    let mut state: u64 = 0x2545_f491_4f6c_dd1d;
-    let mut noise = || {
-        // xorshift: deterministic, about uniform in (-1, 1) counts.
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state % 20_001) as f64 / 10_000.0 - 1.0
-    };
+    let mut noise = xorshift(0x2545_f491_4f6c_dd1d);
     let n = (seconds * 20.0) as usize;
     for k in 0..n {
         let t = k as f64 / 20.0;
@@ -36,6 +29,42 @@ fn recording(
         text.push_str(&format!("{t:.2},{x:.3},{y:.3},{:.4}\n", rate(t)));
     }
     text
+}
+
+/// Deterministic noise from `seed` (xorshift), about uniform in (-1, 1).
+fn xorshift(seed: u64) -> impl FnMut() -> f64 {
+    let mut state = seed;
+    move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % 20_001) as f64 / 10_000.0 - 1.0
+    }
+}
+
+/// The counts of the [`board`]'s magnetometer and accelerometer for the
+/// field `m` and the specific force `g` in body axes, with a hard iron
+/// `iron`: the magnetometer mounted as mag x = −body x, mag y = body z,
+/// mag z = −body y, with an offset and a scale per axis; each axis with
+/// `noise` (drawn in that order: mx, my, mz, ax, ay, az).
+fn board_counts(
+    m: [f64; 3],
+    g: [f64; 3],
+    iron: [f64; 3],
+    noise: &mut impl FnMut() -> f64,
+) -> ([f64; 3], [f64; 3]) {
+    let mag = [-m[0], m[2], -m[1]];
+    let counts = [
+        30.0 + iron[0] + 1.04 * mag[0] + noise(),
+        -45.0 + iron[1] + 0.97 * mag[1] + noise(),
+        12.0 + iron[2] + mag[2] + noise(),
+    ];
+    let accel = [
+        g[0] + 0.002 * noise(),
+        g[1] + 0.002 * noise(),
+        g[2] + 0.002 * noise(),
+    ];
+    (counts, accel)
 }
 
 /// The 2-axis compass of a [`recording`]: columns x, y, its gyro gyro_z.
@@ -409,13 +438,7 @@ fn board_with(
     iron: impl Fn(f64) -> [f64; 3],
 ) -> String {
     let mut text = String::from("t,mx,my,mz,ax,ay,az\n");
-    let mut state: u64 = 0x9e37_79b9_7f4a_7c15;
-    let mut noise = || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state % 20_001) as f64 / 10_000.0 - 1.0
-    };
+    let mut noise = xorshift(0x9e37_79b9_7f4a_7c15);
     let dip = 65f64.to_radians();
     for k in 0..(seconds * 20.0) as usize {
         let t = k as f64 / 20.0;
@@ -439,18 +462,7 @@ fn board_with(
         let g = times(&to_body, [0.0, 0.0, -1.0]);
         // Magnetometer axes from body axes: mag x = −body x, mag y = body
         // z, mag z = −body y; with an offset and a scale per axis.
-        let mag = [-m[0], m[2], -m[1]];
-        let h = iron(t);
-        let (mx, my, mz) = (
-            30.0 + h[0] + 1.04 * mag[0] + noise(),
-            -45.0 + h[1] + 0.97 * mag[1] + noise(),
-            12.0 + h[2] + mag[2] + noise(),
-        );
-        let (ax, ay, az) = (
-            g[0] + 0.002 * noise(),
-            g[1] + 0.002 * noise(),
-            g[2] + 0.002 * noise(),
-        );
+        let ([mx, my, mz], [ax, ay, az]) = board_counts(m, g, iron(t), &mut noise);
         text.push_str(&format!(
             "{t:.2},{mx:.3},{my:.3},{mz:.3},{ax:.5},{ay:.5},{az:.5}\n"
         ));
@@ -691,13 +703,7 @@ fn setting_the_mapping_the_calibration_named_ends_its_distrust_after_a_restart()
 /// is still. No gyro, no axis across the turn.
 fn rolled_compass(roll: impl Fn(f64) -> f64) -> String {
     let mut text = String::from("t,mx,my,ax,ay,az\n");
-    let mut state: u64 = 0x2545_f491_4f6c_dd1d;
-    let mut noise = || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state % 20_001) as f64 / 10_000.0 - 1.0
-    };
+    let mut noise = xorshift(0x2545_f491_4f6c_dd1d);
     let dip = 65f64.to_radians();
     let field = [500.0 * dip.cos(), 0.0, 500.0 * dip.sin()];
     for k in 0..(140.0 * 20.0) as usize {
@@ -770,13 +776,7 @@ fn a_level_compass_rolled_two_degrees_is_distrusted_by_its_accelerometer_alone()
 /// field's size and dip stay, only the heading moves.
 fn gyro_board(swing: impl Fn(f64) -> f64) -> String {
     let mut text = String::from("t,mx,my,mz,ax,ay,az,gx,gy,gz\n");
-    let mut state: u64 = 0x9e37_79b9_7f4a_7c15;
-    let mut noise = || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state % 20_001) as f64 / 10_000.0 - 1.0
-    };
+    let mut noise = xorshift(0x9e37_79b9_7f4a_7c15);
     let dip = 65f64.to_radians();
     let rates = [0.53, 0.31, 0.17];
     let bias = [1.5, -2.0, 0.8];
@@ -808,17 +808,7 @@ fn gyro_board(swing: impl Fn(f64) -> f64) -> String {
         let to_body = transpose(&r);
         let m = times(&to_body, field);
         let g = times(&to_body, [0.0, 0.0, -1.0]);
-        let mag = [-m[0], m[2], -m[1]];
-        let (mx, my, mz) = (
-            30.0 + 1.04 * mag[0] + noise(),
-            -45.0 + 0.97 * mag[1] + noise(),
-            12.0 + mag[2] + noise(),
-        );
-        let (ax, ay, az) = (
-            g[0] + 0.002 * noise(),
-            g[1] + 0.002 * noise(),
-            g[2] + 0.002 * noise(),
-        );
+        let ([mx, my, mz], [ax, ay, az]) = board_counts(m, g, [0.0; 3], &mut noise);
         let (gx, gy, gz) = (
             omega[0] + bias[0] + 0.05 * noise(),
             omega[1] + bias[1] + 0.05 * noise(),

@@ -2412,6 +2412,19 @@ mod trust {
 
     const RATE_HZ: f64 = 20.0;
 
+    /// The limits of a calibration of rms `noise` whose heading check found
+    /// a gyro of scale 1 and no bias.
+    fn gyro_limits(noise: f64) -> TrustLimits {
+        TrustLimits::from_rms(
+            noise,
+            None,
+            Some(GyroModel {
+                scale: 1.0,
+                bias_deg_s: 0.0,
+            }),
+        )
+    }
+
     /// A sensor turning at `deg_s` with a gyro that reads it, its heading
     /// and field disturbed by `disturb(t) -> (field factor, heading offset)`.
     fn run(
@@ -2420,14 +2433,7 @@ mod trust {
         noise: f64,
         disturb: impl Fn(f64) -> (f64, f64),
     ) -> Vec<(f64, Verdict)> {
-        let limits = TrustLimits::from_rms(
-            noise,
-            None,
-            Some(GyroModel {
-                scale: 1.0,
-                bias_deg_s: 0.0,
-            }),
-        );
+        let limits = gyro_limits(noise);
         let mut monitor = TrustMonitor::new(limits);
         let n = (seconds * RATE_HZ) as usize;
         (0..n)
@@ -2507,14 +2513,7 @@ mod trust {
     /// gap while trusted changes nothing.
     #[test]
     fn a_reading_without_a_rate_does_not_end_a_distrust_the_gyro_found() {
-        let limits = TrustLimits::from_rms(
-            0.005,
-            None,
-            Some(GyroModel {
-                scale: 1.0,
-                bias_deg_s: 0.0,
-            }),
-        );
+        let limits = gyro_limits(0.005);
         let mut m = TrustMonitor::new(limits);
         let mut verdicts = Vec::new();
         for k in 0..(40.0 * RATE_HZ) as usize {
@@ -2569,14 +2568,7 @@ mod trust {
     #[test]
     fn a_still_sensor_whose_gyro_warms_is_followed_not_flagged() {
         // The gyro's bias walks from 0 to 3 °/s over ten minutes.
-        let limits = TrustLimits::from_rms(
-            0.005,
-            None,
-            Some(GyroModel {
-                scale: 1.0,
-                bias_deg_s: 0.0,
-            }),
-        );
+        let limits = gyro_limits(0.005);
         let mut m = TrustMonitor::new(limits);
         for k in 0..(600 * 20) {
             let t = k as f64 / RATE_HZ;

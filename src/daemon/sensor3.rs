@@ -250,7 +250,8 @@ pub(super) fn finite3(values: &[f64], at: [usize; 3]) -> Option<[f64; 3]> {
     v.iter().all(|x| x.is_finite()).then_some(v)
 }
 
-fn pick(triad: [i16; 3], axes: [Axis; 3]) -> [f64; 3] {
+/// The `axes` of a chip's reading, in that order.
+pub(super) fn pick(triad: [i16; 3], axes: [Axis; 3]) -> [f64; 3] {
     axes.map(|a| f64::from(triad[a.index()]))
 }
 

@@ -23,7 +23,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::tilt::MAD_TO_SIGMA;
+use super::tilt::{MAD_TO_SIGMA, median_of as median};
 
 /// Readings pitched beyond this are not checked against the gyro: at 60°
 /// the heading's rate weighs the gyro's components by up to 1 / cos²θ = 4,
@@ -153,19 +153,6 @@ fn solve(
         .iter()
         .all(|v| v.is_finite())
         .then_some((theta, inverse, used))
-}
-
-fn median(values: &mut [f64]) -> f64 {
-    values.sort_by(f64::total_cmp);
-    let n = values.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        values[n / 2]
-    } else {
-        0.5 * (values[n / 2 - 1] + values[n / 2])
-    }
 }
 
 /// The steps between consecutive `samples` summed into segments of at

@@ -347,9 +347,13 @@ pub struct RobustSpread {
     pub n: usize,
 }
 
+/// The median of `values` (sorted in place); NaN when there are none.
 pub(crate) fn median_of(values: &mut [f64]) -> f64 {
     values.sort_by(|a, b| a.total_cmp(b));
     let n = values.len();
+    if n == 0 {
+        return f64::NAN;
+    }
     if n % 2 == 1 {
         values[n / 2]
     } else {

@@ -428,17 +428,15 @@ impl Checker<'_> {
     ) -> Result<(SensorConfig, Option<String>), ConfigError> {
         let source_columns = columns;
         let file = &columns.file;
-        for (name, given) in [("chip", s.chip.is_some())] {
-            if given {
-                return Err(self.error(
-                    &format!("{key}.{name}"),
-                    format!(
-                        "a 3-axis sensor of csv source '{}' has no `{name}`: it names three \
-                         columns of {file} in axes, with field = \"mag\" or \"accel\"",
-                        s.source
-                    ),
-                ));
-            }
+        if s.chip.is_some() {
+            return Err(self.error(
+                &format!("{key}.chip"),
+                format!(
+                    "a 3-axis sensor of csv source '{}' has no `chip`: it names three \
+                     columns of {file} in axes, with field = \"mag\" or \"accel\"",
+                    s.source
+                ),
+            ));
         }
         let Some(field) = s.field else {
             return Err(self.error(

@@ -26,7 +26,7 @@ use super::messages::{
     CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, to_line,
 };
 use super::sensor::{Emitter, Geometry, Sample};
-use super::sensor3::{MAX_TILT_AGE_S, finite3};
+use super::sensor3::{MAX_TILT_AGE_S, finite3, pick};
 use super::{Calibration, Terms};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::model::calibration::GyroFit;
@@ -633,7 +633,7 @@ impl Geometry for Plane {
             && reading.stream == tilt.stream
             && let Some(triad) = reading.accel
         {
-            self.last_accel = Some((reading.time, tilt.axes.map(|a| f64::from(triad[a.index()]))));
+            self.last_accel = Some((reading.time, pick(triad, tilt.axes)));
         }
         if reading.stream != self.config.stream {
             // Only the gyro or the accelerometer of another chip: kept
