@@ -63,11 +63,11 @@ pub struct SimEffects {
     /// Odd non-linearity per axis, [x, y]: the reading falls short of the
     /// linear one by this fraction at full scale (the largest static reading).
     pub cubic: [f64; 2],
-    /// Odd non-linearity about the turn's centre, the same on both axes
-    /// (as the model's single `kc`): each axis's reading falls short by
-    /// that fraction at the turn's amplitude on that axis, about the turn's
-    /// centre (a proof mass about its zero-g point).
-    pub cubic_centred: f64,
+    /// Odd non-linearity about the turn's centre per axis, [x, y]: each
+    /// axis's reading falls short by that fraction at the turn's amplitude
+    /// on that axis, about the turn's centre (a proof mass about its zero-g
+    /// point; one axis's amplifier near saturation).
+    pub cubic_centred: [f64; 2],
     /// Fraction of samples hit by a spike of 20 to 50 noise SDs.
     pub outliers: f64,
 }
@@ -81,7 +81,7 @@ impl Default for SimEffects {
             temp_rise: 10.0,
             current_per_a: None,
             cubic: [0.0; 2],
-            cubic_centred: 0.0,
+            cubic_centred: [0.0; 2],
             outliers: 0.0,
         }
     }
@@ -267,9 +267,9 @@ impl SimSensor {
             ),
             (
                 "effect cubic-centred",
-                e.cubic_centred,
+                e.cubic_centred[0].abs().max(e.cubic_centred[1].abs()),
                 "a fraction between -0.25 and 0.25",
-                e.cubic_centred.abs() <= 0.25,
+                e.cubic_centred.iter().all(|k| k.abs() <= 0.25),
             ),
             (
                 "effect outliers",
@@ -433,7 +433,7 @@ impl SimSensor {
                         scale: full_scale,
                     },
                     CubicTerm {
-                        k: e.cubic_centred,
+                        k: e.cubic_centred[0],
                         centre: centre_x,
                         scale: self.gain_x * self.field,
                     },
@@ -448,7 +448,7 @@ impl SimSensor {
                         scale: full_scale,
                     },
                     CubicTerm {
-                        k: e.cubic_centred,
+                        k: e.cubic_centred[1],
                         centre: centre_y,
                         scale: self.gain_y * self.field,
                     },
@@ -546,8 +546,10 @@ impl SimSensor {
             ("k_y", e.cubic[1] * scale_ratio),
             (
                 "kc",
-                e.cubic_centred * 0.5 * (radius_ratio[0] + radius_ratio[1]),
+                0.5 * (e.cubic_centred[0] * radius_ratio[0] + e.cubic_centred[1] * radius_ratio[1]),
             ),
+            ("kc_x", e.cubic_centred[0] * radius_ratio[0]),
+            ("kc_y", e.cubic_centred[1] * radius_ratio[1]),
         ]
         .into_iter()
         .map(|(name, value)| (name.to_string(), value + 0.0))

@@ -189,3 +189,21 @@ fn the_gyro_in_the_frames_checks_the_daemons_suggestion() {
     assert!(paper.get("heading_vs_gyro").is_some(), "{paper}");
     assert_eq!(paper["suggested"], "cubic", "{paper}");
 }
+
+/// One axis that saturates softly (x by 6 %, y not at all) on a board whose
+/// frames carry the gyro: the daemon configured with `cubic-centred`
+/// splits the term per axis, as the gyro pins the difference
+/// (model/centred_split.rs), and corrects live readings with both.
+#[test]
+fn the_gyro_splits_a_centred_cubic_of_one_axis() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("one-axis.fcap");
+    let capture = capture.to_str().unwrap();
+    two_turns(capture, "cubic-centred=0.06,0");
+    let cal = calibration(capture, "[\"paper\", \"cubic-centred\"]", dir.path());
+    assert_eq!(cal["accepted"], true, "{cal}");
+    let kc = &cal["terms"]["kc"];
+    let (kx, ky) = (kc[0].as_f64().unwrap(), kc[1].as_f64().unwrap());
+    assert!(kx > 0.05 && kx < 0.1, "{cal}");
+    assert!(ky.abs() < 0.01, "{cal}");
+}

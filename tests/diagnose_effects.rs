@@ -67,7 +67,7 @@ fn hidden(effect: &Effect, size: f64, noise: f64, run_s: f64) -> SimEffects {
         // A 2 A motor moves it by 10 or 20 SDs.
         Effect::Covariate(_) => e.current_per_a = Some([5.0 * size * noise, 2.5 * size * noise]),
         Effect::Cubic => e.cubic = [0.015 * size, 0.01 * size],
-        Effect::CubicCentred => e.cubic_centred = 0.015 * size,
+        Effect::CubicCentred => e.cubic_centred = [0.015 * size; 2],
         // 2 % or 4 % of the samples spiked.
         Effect::Outliers => e.outliers = 0.02 * size,
         Effect::Offset | Effect::Scale => {}
@@ -190,7 +190,7 @@ fn the_two_cubics_are_told_apart_off_centre() {
         ];
         let mut effects = SimEffects::default();
         if centred {
-            effects.cubic_centred = pair[0];
+            effects.cubic_centred = [pair[0]; 2];
         } else {
             effects.cubic = pair;
         }
@@ -255,7 +255,7 @@ fn the_two_cubics_are_named_together_when_the_turn_is_centred_on_zero() {
             let mut effects = SimEffects::default();
             // As datasheets give them, on a quiet sensor, with no gyro.
             if centred {
-                effects.cubic_centred = 0.005;
+                effects.cubic_centred = [0.005; 2];
             } else {
                 effects.cubic = [0.005, 0.0035];
             }

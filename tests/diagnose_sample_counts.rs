@@ -136,7 +136,7 @@ fn sensor(job: &Job) -> SimSensor {
         Some(Effect::Cubic) => effects.cubic = pair(rng.random_range(0.001..0.005), &mut rng),
         Some(Effect::CubicCentred) => {
             let size = rng.random_range(0.001..0.005);
-            effects.cubic_centred = if rng.random_bool(0.5) { size } else { -size };
+            effects.cubic_centred = [if rng.random_bool(0.5) { size } else { -size }; 2];
         }
         Some(Effect::Outliers) => effects.outliers = rng.random_range(0.01..0.05),
         Some(other) => panic!("{other} is not hidden by this sweep"),

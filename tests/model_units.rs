@@ -106,6 +106,7 @@ mod check {
                 se.as_ref(),
             ),
             cubic_scale: None,
+            turn_frame: None,
             rms: Some(report.rms),
         }
     }

@@ -42,7 +42,7 @@ fn case(name: &'static str, large: bool) -> Case {
             effects.current_per_a = Some([pick(5.0, 15.0), pick(3.0, -10.0)]);
         }
         "cubic" => effects.cubic = [pick(0.02, 0.05), pick(-0.01, 0.04)],
-        "cubic-centred" => effects.cubic_centred = pick(0.03, -0.04),
+        "cubic-centred" => effects.cubic_centred = [pick(0.03, -0.04); 2],
         "outliers" => effects.outliers = pick(0.01, 0.03),
         other => panic!("no case {other}"),
     }
@@ -215,7 +215,7 @@ fn off_centre(seed: u64, cubic: [f64; 2], centred: f64) -> SimSensor {
         seed,
         effects: SimEffects {
             cubic,
-            cubic_centred: centred,
+            cubic_centred: [centred; 2],
             ..Default::default()
         },
         ..Default::default()
@@ -280,7 +280,7 @@ fn both_cubics_about_the_same_centre_are_refused() {
         noise: 2.0,
         turns: 2.0,
         effects: SimEffects {
-            cubic_centred: 0.04,
+            cubic_centred: [0.04; 2],
             ..Default::default()
         },
         ..Default::default()

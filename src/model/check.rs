@@ -17,11 +17,12 @@ use serde::Serialize;
 use serde_json::Value;
 
 use super::FitError;
+use super::centred_split::fit_with_gyro;
 use super::effects::{Effect, model_name, parse_list};
 use super::fit::{FitOptions, fit_paper};
 use super::gyro::{GyroError, HeadingCheck, HeadingReference};
 use super::heading::coverage;
-use super::nonlinear::{Param, apply_model, fit_model};
+use super::nonlinear::{KC_AXES, Param, TurnFrame, apply_model};
 use super::paper::{PaperCalibration, closed_form_se};
 use crate::sample::Dataset;
 
@@ -50,6 +51,9 @@ pub struct StoredCalibration {
     pub params: Vec<Param>,
     /// The full scale the cubic `k` refers to, when the file says.
     pub cubic_scale: Option<f64>,
+    /// The turn's frame the centred cubic `kc` refers to, when the file
+    /// says (otherwise it is taken from the stored a, b, d, r).
+    pub turn_frame: Option<TurnFrame>,
     /// The rms the file reports on its own recording.
     pub rms: Option<f64>,
 }
@@ -126,6 +130,65 @@ pub(super) fn state_calibration(root: &Value) -> Result<Option<&Value>, CheckErr
     Ok(Some(cal))
 }
 
+/// A daemon state file's calibration as a stored calibration.
+fn from_state(cal: &Value) -> Result<StoredCalibration, CheckError> {
+    let calibration: super::calibration::Calibration = serde_json::from_value(cal.clone())
+        .map_err(|e| unknown(format!("a state file whose calibration does not read: {e}")))?;
+    let effects = parse_list(&calibration.model).map_err(unknown)?;
+    let p = calibration.params;
+    let mut params: Vec<Param> = [("a", p.a), ("b", p.b), ("d", p.d), ("r", p.r)]
+        .into_iter()
+        .map(|(name, value)| Param {
+            name: name.into(),
+            value,
+            se: f64::NAN,
+        })
+        .collect();
+    let t = calibration.terms;
+    let mut push = |name: &str, value: f64| {
+        params.push(Param {
+            name: name.into(),
+            value,
+            se: f64::NAN,
+        })
+    };
+    for effect in &effects {
+        match effect {
+            Effect::Offset | Effect::Scale | Effect::Outliers => {}
+            Effect::CrossAxis => push("c", t.c),
+            Effect::Cubic => {
+                push("k_x", t.k[0]);
+                push("k_y", t.k[1]);
+            }
+            Effect::CubicCentred if t.kc[0] == t.kc[1] => push("kc", t.kc[0]),
+            Effect::CubicCentred => {
+                push(KC_AXES[0], t.kc[0]);
+                push(KC_AXES[1], t.kc[1]);
+            }
+            other => {
+                return Err(CheckError::Invalid {
+                    problem: format!(
+                        "the state file's model '{}' has the effect '{other}', whose terms a state file does not store",
+                        calibration.model
+                    ),
+                });
+            }
+        }
+    }
+    let centred = effects.contains(&Effect::CubicCentred);
+    Ok(StoredCalibration {
+        source: StoredSource::DaemonState,
+        effects,
+        params,
+        cubic_scale: (t.cubic_scale > 0.0).then_some(t.cubic_scale),
+        turn_frame: centred.then_some(TurnFrame {
+            centre: t.centre,
+            radius: t.turn_radius,
+        }),
+        rms: Some(calibration.rms),
+    })
+}
+
 /// Reads a stored calibration: `fit --json` of the paper's model or of
 /// `--effects`, or a daemon state file.
 pub fn parse_stored(bytes: &[u8]) -> Result<StoredCalibration, CheckError> {
@@ -135,51 +198,7 @@ pub fn parse_stored(bytes: &[u8]) -> Result<StoredCalibration, CheckError> {
         return Err(unknown("the JSON is not an object"));
     }
     let stored = if let Some(cal) = state_calibration(&root)? {
-        let calibration: super::calibration::Calibration = serde_json::from_value(cal.clone())
-            .map_err(|e| unknown(format!("a state file whose calibration does not read: {e}")))?;
-        let effects = parse_list(&calibration.model).map_err(unknown)?;
-        let p = calibration.params;
-        let mut params: Vec<Param> = [("a", p.a), ("b", p.b), ("d", p.d), ("r", p.r)]
-            .into_iter()
-            .map(|(name, value)| Param {
-                name: name.into(),
-                value,
-                se: f64::NAN,
-            })
-            .collect();
-        let t = calibration.terms;
-        let mut push = |name: &str, value: f64| {
-            params.push(Param {
-                name: name.into(),
-                value,
-                se: f64::NAN,
-            })
-        };
-        for effect in &effects {
-            match effect {
-                Effect::Offset | Effect::Scale | Effect::Outliers => {}
-                Effect::CrossAxis => push("c", t.c),
-                Effect::Cubic => {
-                    push("k_x", t.k[0]);
-                    push("k_y", t.k[1]);
-                }
-                other => {
-                    return Err(CheckError::Invalid {
-                        problem: format!(
-                            "the state file's model '{}' has the effect '{other}', whose terms a state file does not store",
-                            calibration.model
-                        ),
-                    });
-                }
-            }
-        }
-        StoredCalibration {
-            source: StoredSource::DaemonState,
-            effects,
-            params,
-            cubic_scale: (t.cubic_scale > 0.0).then_some(t.cubic_scale),
-            rms: Some(calibration.rms),
-        }
+        from_state(cal)?
     } else {
         let solver = root
             .get("solver")
@@ -205,6 +224,7 @@ pub fn parse_stored(bytes: &[u8]) -> Result<StoredCalibration, CheckError> {
                     effects: crate::model::effects::PAPER.to_vec(),
                     params,
                     cubic_scale: None,
+                    turn_frame: None,
                     rms: root.get("rms").and_then(Value::as_f64),
                 }
             }
@@ -238,6 +258,11 @@ pub fn parse_stored(bytes: &[u8]) -> Result<StoredCalibration, CheckError> {
                     effects,
                     params,
                     cubic_scale: root.get("cubic_scale").and_then(Value::as_f64),
+                    turn_frame: root
+                        .get("turn_frame")
+                        .map(|v| serde_json::from_value(v.clone()))
+                        .transpose()
+                        .map_err(|e| unknown(format!("turn_frame does not read: {e}")))?,
                     rms: root.get("rms").and_then(Value::as_f64),
                 }
             }
@@ -525,7 +550,7 @@ fn meaning(name: &str) -> String {
         "b" | "d" => "the offset (hard iron, zero-g bias) changed between runs".into(),
         "r" => "the field magnitude changed (another place, or both gains changed)".into(),
         "c" => "the cross-axis coupling (soft iron, mounting) changed".into(),
-        "k_x" | "k_y" | "kc" => "the non-linearity changed".into(),
+        "k_x" | "k_y" | "kc" | "kc_x" | "kc_y" => "the non-linearity changed".into(),
         "drift_x" | "drift_y" => "the drift during the run differs".into(),
         other => format!("the term '{other}' changed"),
     }
@@ -550,10 +575,12 @@ struct Refit {
 }
 
 /// Refits the stored model on `data`: the paper's closed form for a paper
-/// calibration, the model's own fit otherwise.
+/// calibration, the model's own fit otherwise (its centred cubic split per
+/// axis where the gyro pins that down, as `fit` and `diagnose` do).
 fn refit(
     data: &Dataset,
     stored: &StoredCalibration,
+    reference: Option<&HeadingReference>,
     min_coverage_deg: f64,
 ) -> Result<Refit, CheckError> {
     let paper =
@@ -587,7 +614,7 @@ fn refit(
             .collect();
         (params, report.rms, headings, Vec::new(), residuals)
     } else {
-        let fit = fit_model(data, &stored.effects).map_err(CheckError::Refit)?;
+        let fit = fit_with_gyro(data, &stored.effects, reference).map_err(CheckError::Refit)?;
         coverage(fit.headings.iter().copied())
             .require(min_coverage_deg)
             .map_err(CheckError::Refit)?;
@@ -620,12 +647,18 @@ pub fn check(
         headings: refitted_headings,
         flagged,
         residuals: refit_residuals,
-    } = refit(data, stored, min_coverage_deg)?;
+    } = refit(data, stored, reference, min_coverage_deg)?;
     let residual_autocorrelation = lag1_autocorrelation(&refit_residuals);
     let inflation = se_inflation(residual_autocorrelation);
     // The stored calibration on the new recording.
-    let applied = apply_model(data, &stored.effects, &stored.params, stored.cubic_scale)
-        .map_err(CheckError::Apply)?;
+    let applied = apply_model(
+        data,
+        &stored.effects,
+        &stored.params,
+        stored.cubic_scale,
+        stored.turn_frame.as_ref(),
+    )
+    .map_err(CheckError::Apply)?;
     let mut skip = flagged.iter().copied().peekable();
     let (mut ss, mut n) = (0.0, 0usize);
     for (i, (_, _, e)) in applied.iter().enumerate() {

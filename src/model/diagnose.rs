@@ -29,6 +29,7 @@
 use serde::Serialize;
 
 use super::FitError;
+use super::centred_split::fit_with_gyro;
 use super::effects::{self, Effect, model_name};
 /// The physical limits stand with their effects in the catalogue.
 pub use super::effects::{
@@ -42,7 +43,9 @@ use super::ladder::{
 };
 #[cfg(test)]
 use super::ladder::{own_params, tails_heavy};
-use super::nonlinear::{ModelFit, Param, fit_model};
+#[cfg(test)]
+use super::nonlinear::fit_model;
+use super::nonlinear::{ModelFit, Param};
 use super::residuals::{self, NoiseFloor, Residuals, SetAside, analyse, is_time_like, set_aside};
 use crate::sample::Dataset;
 
@@ -553,7 +556,7 @@ impl Geometry for Plane<'_> {
     type Error = FitError;
 
     fn fit(&self, effects: &[Effect]) -> Result<ModelFit, FitError> {
-        fit_model(self.data, effects)
+        fit_with_gyro(self.data, effects, self.reference)
     }
 
     fn analyse(&self, fit: &ModelFit) -> Residuals {
@@ -633,7 +636,7 @@ pub fn diagnose(
     super::turn::check_turn_of(data, super::fit::DEFAULT_MIN_COVERAGE_DEG)?;
     let model = ladder::starting_list(baseline);
     let aside = set_aside(data);
-    let base_fit = fit_model(data, &model)?;
+    let base_fit = fit_with_gyro(data, &model, reference)?;
     let baseline_residuals = analyse(data, &base_fit);
     let plane = Plane {
         data,

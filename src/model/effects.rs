@@ -215,8 +215,10 @@ pub static CATALOGUE: [EffectInfo; 8] = [
     EffectInfo {
         effect: Effect::CubicCentred,
         name: "cubic-centred",
+        // kc, or kc_x and kc_y where a gyro pins their difference
+        // (model/centred_split.rs): one unknown more, counted by the fit.
         params: &["kc"],
-        limits: &[cubic_limit("kc")],
+        limits: &[cubic_limit("kc"), cubic_limit("kc_x"), cubic_limit("kc_y")],
         paper: false,
         live: true,
         in_3d: false,

@@ -55,6 +55,16 @@ pub const MAX_GYRO_SCALE: f64 = 1.0 / MIN_GYRO_SCALE;
 /// that varies with heading (a second harmonic has a period of half a turn).
 pub const MIN_GYRO_SPAN_DEG: f64 = 180.0;
 
+/// The gyro's bias is fitted beside its scale only when its angle departs
+/// from a constant-rate turn (a line in time) by this much, rms: 5°. Below
+/// it, fitting the bias instead of leaving it in the scale changes the
+/// check by at most bias/rate × 5°, under 0.1° for a bias of 1 % of the
+/// rate (an MPU-6050's ±20 °/s zero-rate offset is calibrated out first;
+/// what remains is a fraction of a degree per second), while the gyro's
+/// own noise (its angle random walk, a fraction of a degree over a turn)
+/// is far below it and cannot pass for a change of rate.
+pub const MIN_RATE_CHANGE_DEG: f64 = 5.0;
+
 /// Contiguous time batches for the standard error of a comparison: heading
 /// errors are strongly autocorrelated (they follow heading, which follows
 /// time), so samples are not independent; ~20 batch means are (nearly)
@@ -346,7 +356,13 @@ impl HeadingReference {
         // When the turn ran at a constant rate, the gyro's angle is a line in
         // time and its bias cannot be told from its scale; the heading error
         // is the same either way, so the bias is left out (reported as 0).
-        let (scale, bias) = if stt > 0.0 && det > 1e-9 * sgg * stt {
+        // The gyro's own noise bends that line by a fraction of a degree,
+        // which is no turn of varying rate: fitted on it, the bias would
+        // chase the heading's noise and throw the scale anywhere. So the
+        // bias is fitted only when the angle departs from a line in time by
+        // [`MIN_RATE_CHANGE_DEG`] rms (det/stt/n is that departure squared).
+        let departs = stt > 0.0 && det / stt >= MIN_RATE_CHANGE_DEG.powi(2) * n as f64;
+        let (scale, bias) = if departs {
             ((sgh * stt - sth * sgt) / det, (sth * sgg - sgh * sgt) / det)
         } else {
             (sgh / sgg, 0.0)

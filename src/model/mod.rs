@@ -30,6 +30,7 @@
 
 pub mod calibration;
 pub mod calibration3;
+pub mod centred_split;
 pub mod check;
 pub mod check3;
 pub mod diagnose;

@@ -115,6 +115,15 @@ impl ModelFit {
         self.param(name).map_or(0.0, |p| p.value)
     }
 
+    /// The centred cubic per axis, [kc_x, kc_y]: the same `kc` on both
+    /// unless a gyro split it ([`super::centred_split`]); 0 without it.
+    pub fn kc(&self) -> [f64; 2] {
+        match (self.param(KC_AXES[0]), self.param(KC_AXES[1])) {
+            (Some(x), Some(y)) => [x.value, y.value],
+            _ => [self.value("kc"); 2],
+        }
+    }
+
     /// The paper's constants a, b, d, r of this fit.
     pub fn paper(&self) -> PaperCalibration {
         PaperCalibration {
@@ -194,8 +203,11 @@ struct Layout<'a> {
     cubic: Option<usize>,
     /// 1/S^2 of the cubic term.
     inv_scale_sq: f64,
-    /// Index of kc (one for both axes).
+    /// Index of kc (one for both axes, or their mean with a split).
     centred: Option<usize>,
+    /// kc_x − kc_y, held fixed: x's cubic is kc + split/2, y's kc − split/2
+    /// (0 unless a gyro pins it, [`super::centred_split`]).
+    split: f64,
     /// The turn's centre, and 1/S_x^2, 1/S_y^2, of the centred cubic (set
     /// from the starting point by [`Layout::set_frame`]).
     centre: [f64; 2],
@@ -266,6 +278,7 @@ impl<'a> Layout<'a> {
                 0.0
             },
             centred,
+            split: 0.0,
             centre: [0.0; 2],
             inv_radius_sq: [0.0; 2],
             names,
@@ -311,10 +324,11 @@ impl<'a> Layout<'a> {
         if let Some(k) = self.centred {
             vx = x1 - self.centre[0];
             vy = y1 - self.centre[1];
-            x2 += p[k] * vx * vx * vx * self.inv_radius_sq[0];
-            y2 += p[k] * vy * vy * vy * self.inv_radius_sq[1];
-            dx2 += 3.0 * p[k] * vx * vx * self.inv_radius_sq[0];
-            dy2 += 3.0 * p[k] * vy * vy * self.inv_radius_sq[1];
+            let (kx, ky) = (p[k] + 0.5 * self.split, p[k] - 0.5 * self.split);
+            x2 += kx * vx * vx * vx * self.inv_radius_sq[0];
+            y2 += ky * vy * vy * vy * self.inv_radius_sq[1];
+            dx2 += 3.0 * kx * vx * vx * self.inv_radius_sq[0];
+            dy2 += 3.0 * ky * vy * vy * self.inv_radius_sq[1];
         }
         let c = self.cross.map_or(0.0, |k| p[k]);
         let sy = y2 + d;
@@ -366,26 +380,53 @@ impl<'a> Layout<'a> {
 /// about the recording's own mean time and mean covariate value (as the fit
 /// takes them), so the stored `b` and `d` are the offsets at those means.
 /// `cubic_scale`: the full scale S the stored `k` refers to (the fitted
-/// recording's); `None` takes this recording's.
+/// recording's); `None` takes this recording's. `frame`: the turn's frame
+/// the stored `kc` refers to; `None` takes this recording's, as the fit
+/// does ([`turn_frame`]).
 pub fn apply_model(
     data: &Dataset,
     effects: &[Effect],
     params: &[Param],
     cubic_scale: Option<f64>,
+    frame: Option<&TurnFrame>,
 ) -> Result<Vec<(f64, f64, f64)>, FitError> {
     let mut layout = Layout::new(data, effects)?;
     if let Some(scale) = cubic_scale.filter(|s| *s > 0.0 && s.is_finite()) {
         layout.inv_scale_sq = 1.0 / (scale * scale);
     }
+    let value = |name: &str| {
+        params
+            .iter()
+            .find(|q| q.name == name)
+            .map(|q| q.value)
+            .filter(|v| v.is_finite())
+    };
+    // A centred cubic pinned per axis by a gyro is stored as kc_x and kc_y.
+    let per_axis = value(KC_AXES[0]).zip(value(KC_AXES[1]));
+    if layout.centred.is_some() {
+        if let Some((kx, ky)) = per_axis {
+            layout.split = kx - ky;
+        }
+        // Without the stored frame, this recording's own: the closed form of
+        // the same sensor's turn finds the same frame within its noise,
+        // where the fitted a and r have taken in the cubic's linear part
+        // (3 kc / 4 of the radius).
+        let own = || {
+            turn_frame(data).unwrap_or_else(|_| {
+                let [a, b, d, r] = ["a", "b", "d", "r"].map(|name| value(name).unwrap_or(f64::NAN));
+                TurnFrame::of(&PaperCalibration { a, b, d, r })
+            })
+        };
+        layout.set_frame(&frame.copied().unwrap_or_else(own));
+    }
     let p: Vec<f64> = layout
         .names
         .iter()
         .map(|name| {
-            params
-                .iter()
-                .find(|q| &q.name == name)
-                .map(|q| q.value)
-                .filter(|v| v.is_finite())
+            let per_axis = per_axis.filter(|_| name == "kc");
+            per_axis
+                .map(|(kx, ky)| 0.5 * (kx + ky))
+                .or_else(|| value(name))
                 .ok_or_else(|| FitError::MissingParameter {
                     parameter: name.clone(),
                 })
@@ -424,10 +465,25 @@ fn lm_options(tolerance: f64) -> lm::Options {
     }
 }
 
+/// The names of a centred cubic pinned per axis ([`super::centred_split`]).
+pub const KC_AXES: [&str; 2] = ["kc_x", "kc_y"];
+
 /// Fits the model made of `effects` (the paper's plus any others) to the
 /// recording, by Levenberg-Marquardt started from the paper's closed form.
 pub fn fit_model(data: &Dataset, effects: &[Effect]) -> Result<ModelFit, FitError> {
+    fit_model_split(data, effects, 0.0)
+}
+
+/// [`fit_model`] with the centred cubic's per-axis difference kc_x − kc_y
+/// held at `split` (ignored without `cubic-centred`); the fit's `kc` is
+/// then the mean of the two.
+pub(crate) fn fit_model_split(
+    data: &Dataset,
+    effects: &[Effect],
+    split: f64,
+) -> Result<ModelFit, FitError> {
     let mut layout = Layout::new(data, effects)?;
+    layout.split = split;
     let unknowns = layout.unknowns();
     let n = data.len();
     if n < unknowns + 1 {
@@ -793,7 +849,7 @@ mod tests {
         let data = sensor.simulate().unwrap();
         let effects = crate::model::effects::parse_list("cross-axis,cubic,drift").unwrap();
         let fit = fit_model(&data, &effects).unwrap();
-        let applied = apply_model(&data, &effects, &fit.params, None).unwrap();
+        let applied = apply_model(&data, &effects, &fit.params, None, None).unwrap();
         for (i, (sx, sy, e)) in applied.iter().enumerate() {
             let (fx, fy) = fit.calibrated[i];
             assert!((sx - fx).abs() < 1e-9 && (sy - fy).abs() < 1e-9);
@@ -806,7 +862,7 @@ mod tests {
             .cloned()
             .collect();
         assert_eq!(
-            apply_model(&data, &effects, &missing, None),
+            apply_model(&data, &effects, &missing, None, None),
             Err(FitError::MissingParameter {
                 parameter: "c".into()
             })

@@ -215,7 +215,11 @@ pub fn value_of(c: &Calibration, name: &str) -> Option<f64> {
         "c" => t.c,
         "k_x" => t.k[0],
         "k_y" => t.k[1],
-        "kc" => t.kc[0],
+        // One kc, or the mean of the two a gyro split
+        // (model/centred_split.rs).
+        "kc" => 0.5 * (t.kc[0] + t.kc[1]),
+        "kc_x" => t.kc[0],
+        "kc_y" => t.kc[1],
         _ => return None,
     })
 }
@@ -231,7 +235,13 @@ fn set_value(c: &mut Calibration, name: &str, value: f64) -> bool {
         "c" => t.c = value,
         "k_x" => t.k[0] = value,
         "k_y" => t.k[1] = value,
-        "kc" => t.kc = [value; 2],
+        "kc" => {
+            // The mean moves; a split kept from the gyro stays.
+            let half = 0.5 * (t.kc[0] - t.kc[1]);
+            t.kc = [value + half, value - half];
+        }
+        "kc_x" => t.kc[0] = value,
+        "kc_y" => t.kc[1] = value,
         _ => return false,
     }
     true

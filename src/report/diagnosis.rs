@@ -6,9 +6,11 @@ use std::f64::consts::TAU;
 use super::html::preformatted;
 use super::plots::ReportData;
 use crate::model::FitError;
+use crate::model::centred_split::fit_with_gyro;
 use crate::model::diagnose::Diagnosis;
 use crate::model::effects::model_name;
-use crate::model::nonlinear::{ModelFit, fit_model};
+use crate::model::gyro::HeadingReference;
+use crate::model::nonlinear::ModelFit;
 use crate::sample::Dataset;
 
 /// Points of the baseline model's ellipse in raw coordinates, at the mean
@@ -51,18 +53,21 @@ pub(super) fn ladder_bars<S>(
 /// Builds the report's data: the baseline fit and the last model of the
 /// ladder are refitted (the diagnosis keeps only their numbers).
 /// `summary` is the diagnosis as text; it is shown escaped, as written.
+/// `reference`: the gyro the diagnosis was given, which splits a centred
+/// cubic per axis as it did.
 pub fn report_data(
     data: &Dataset,
     diagnosis: &Diagnosis,
+    reference: Option<&HeadingReference>,
     title: &str,
     summary: &str,
 ) -> Result<ReportData, FitError> {
-    let before = fit_model(data, &diagnosis.baseline.effects)?;
+    let before = fit_with_gyro(data, &diagnosis.baseline.effects, reference)?;
     let last = diagnosis
         .ladder
         .last()
         .map_or(&diagnosis.baseline.effects, |s| &s.effects);
-    let after = fit_model(data, last)?;
+    let after = fit_with_gyro(data, last, reference)?;
     Ok(ReportData {
         title: title.to_string(),
         raw: (data.x.clone(), data.y.clone()),

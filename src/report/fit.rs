@@ -10,7 +10,7 @@ use crate::model::effects::{Effect, model_name};
 use crate::model::fit::{FitReport, PAPER_EFFECTS, Solver};
 use crate::model::gyro::HeadingCheck;
 use crate::model::heading::Coverage;
-use crate::model::nonlinear::{ModelFit, Param};
+use crate::model::nonlinear::{ModelFit, Param, TurnFrame};
 use crate::model::paper::PaperCalibration;
 
 // The paper's parameters by name are the calibration's; also here, at
@@ -229,6 +229,11 @@ pub struct ModelFitJson<'a> {
     /// another recording unchanged.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub cubic_scale: Option<f64>,
+    /// With the cubic-centred effect: the turn's centre and radius per axis
+    /// its `kc` refers to, so `check` applies it to another recording
+    /// unchanged.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub turn_frame: Option<TurnFrame>,
 }
 
 impl<'a> ModelFitJson<'a> {
@@ -266,6 +271,7 @@ impl<'a> ModelFitJson<'a> {
             fit_seconds: elapsed.as_secs_f64(),
             heading_vs_gyro: heading,
             cubic_scale: None,
+            turn_frame: None,
         }
     }
 }
@@ -281,6 +287,10 @@ fn describe(name: &str) -> String {
         "drift_x" | "drift_y" => "offset drift, counts per second".into(),
         "k_x" | "k_y" => "cubic non-linearity, fraction at full scale".into(),
         "kc" => "cubic non-linearity about the turn's centre, fraction at the turn's radius".into(),
+        "kc_x" | "kc_y" => format!(
+            "cubic non-linearity of {} about the turn's centre, fraction at the turn's radius (per axis: the gyro pins the difference)",
+            if name == "kc_x" { "x" } else { "y" }
+        ),
         other => match other.rsplit_once('_') {
             Some((column, _)) => format!("offset per unit of '{column}'"),
             None => String::new(),

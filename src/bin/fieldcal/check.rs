@@ -155,7 +155,13 @@ fn monitor(
     report: Option<&CheckReport>,
 ) -> Result<Monitored> {
     let t = times_of(data.t.as_ref())?;
-    let applied = apply_model(data, &stored.effects, &stored.params, stored.cubic_scale)?;
+    let applied = apply_model(
+        data,
+        &stored.effects,
+        &stored.params,
+        stored.cubic_scale,
+        stored.turn_frame.as_ref(),
+    )?;
     let field_ratio: Vec<f64> = applied.iter().map(|&(_, _, e)| 1.0 + e).collect();
     let headings_rad: Vec<f64> = applied.iter().map(|&(sx, sy, _)| sy.atan2(sx)).collect();
     let heading = match (report.and_then(|r| r.heading_vs_gyro.clone()), reference) {

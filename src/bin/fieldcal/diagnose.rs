@@ -41,8 +41,14 @@ pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
     let summary = render_text(&diagnosis, &file);
     if let Some(dir) = &args.report {
         let title = format!("{file}: x = {}, y = {}", data.x_name, data.y_name);
-        let report = fieldcal::report::diagnosis::report_data(&data, &diagnosis, &title, &summary)
-            .with_context(|| format!("{file}: cannot refit the models for the report"))?;
+        let report = fieldcal::report::diagnosis::report_data(
+            &data,
+            &diagnosis,
+            reference.as_ref(),
+            &title,
+            &summary,
+        )
+        .with_context(|| format!("{file}: cannot refit the models for the report"))?;
         let written = fieldcal::report::plots::write_report(dir, &report)?;
         announce_report(dir, &written);
     }

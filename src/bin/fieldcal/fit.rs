@@ -9,6 +9,7 @@ use anyhow::{Context, Result};
 
 use fieldcal::io::csv::{write_calibrated, write_calibrated3};
 use fieldcal::model::FitError;
+use fieldcal::model::centred_split::fit_with_gyro;
 use fieldcal::model::effects::Effect;
 use fieldcal::model::ellipsoid::{self, Ellipsoid3Error, Ellipsoid3Fit, Ellipsoid3Model};
 use fieldcal::model::ellipsoid_effects::{self, Effects3Error, Ellipsoid3EffectsFit};
@@ -17,7 +18,6 @@ use fieldcal::model::fit::{FitOptions, fit_paper};
 use fieldcal::model::gyro::GyroUnits;
 use fieldcal::model::gyro::{HeadingCheck, HeadingReference};
 use fieldcal::model::heading::coverage;
-use fieldcal::model::nonlinear::fit_model;
 use fieldcal::model::paper::{GradientDescentOptions, GradientDescentProgress, closed_form_se};
 use fieldcal::model::still::find_still;
 use fieldcal::model::turn::check_turn_of;
@@ -126,7 +126,8 @@ fn fit_effects(
     file: &str,
 ) -> Result<()> {
     let started = Instant::now();
-    let fit = fit_model(data, effects).with_context(|| format!("{file}: no calibration"))?;
+    let fit = fit_with_gyro(data, effects, reference)
+        .with_context(|| format!("{file}: no calibration"))?;
     let elapsed = started.elapsed();
     let coverage = coverage(fit.headings.iter().copied());
     coverage
@@ -151,6 +152,10 @@ fn fit_effects(
         json.cubic_scale = effects
             .contains(&Effect::Cubic)
             .then(|| fieldcal::model::nonlinear::cubic_scale(data));
+        json.turn_frame = effects
+            .contains(&Effect::CubicCentred)
+            .then(|| fieldcal::model::nonlinear::turn_frame(data).ok())
+            .flatten();
         serde_json::to_string(&json)? + "\n"
     } else {
         render_model_text(&fit, &coverage, elapsed, heading.as_ref(), source)

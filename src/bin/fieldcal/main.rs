@@ -503,7 +503,7 @@ struct SimulateArgs {
     /// covariate:temp=X[,Y]: counts per °C of a `temp` column (20 °C, rising by --temp-rise, cooling back after half-way);
     /// covariate:current=X[,Y]: counts per A of a `current` column (a motor switching 0 A / 2 A);
     /// cubic=X[,Y]: the reading falls short by that fraction at full scale;
-    /// cubic-centred=X: each axis's reading falls short by that fraction at the turn's amplitude, about the turn's centre;
+    /// cubic-centred=X[,Y]: each axis's reading falls short by that fraction at the turn's amplitude, about the turn's centre (one value: both axes);
     /// outliers=F: that fraction of samples hit by spikes of 20 to 50 noise SDs.
     #[arg(long = "effect", value_name = "EFFECT=VALUE", value_parser = simulate::parse_effect, verbatim_doc_comment)]
     effect: Vec<simulate::SimEffectArg>,

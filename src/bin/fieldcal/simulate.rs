@@ -104,7 +104,7 @@ pub enum SimEffectArg {
     Temp([f64; 2]),
     Current([f64; 2]),
     Cubic([f64; 2]),
-    CubicCentred(f64),
+    CubicCentred([f64; 2]),
     Outliers(f64),
 }
 
@@ -136,7 +136,7 @@ pub fn parse_effect(text: &str) -> Result<SimEffectArg, String> {
         "covariate:temp" => SimEffectArg::Temp(pair(value)?),
         "covariate:current" => SimEffectArg::Current(pair(value)?),
         "cubic" => SimEffectArg::Cubic(pair(value)?),
-        "cubic-centred" => SimEffectArg::CubicCentred(number(value)?),
+        "cubic-centred" => SimEffectArg::CubicCentred(pair(value)?),
         "outliers" => SimEffectArg::Outliers(number(value)?),
         other => {
             return Err(format!(

@@ -30,6 +30,7 @@ use super::sensor3::{MAX_TILT_AGE_S, finite3, pick};
 use super::{Calibration, Terms};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::model::calibration::GyroFit;
+use crate::model::centred_split::fit_with_gyro;
 use crate::model::diagnose::diagnose;
 use crate::model::effects::{Effect, parse_list};
 use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper, fit_paper_turned};
@@ -37,7 +38,7 @@ use crate::model::gyro::HeadingCheck;
 use crate::model::gyro::{GyroUnits, HeadingReference};
 use crate::model::heading::coverage;
 use crate::model::level::angle_between_deg;
-use crate::model::nonlinear::{cubic_scale, fit_model, turn_frame};
+use crate::model::nonlinear::{cubic_scale, turn_frame};
 use crate::model::rotation::{Progress, RotationBuffer, RotationEvent};
 use crate::model::trust::{
     GyroModel, Observation, TrustCounts, TrustLimits, TrustMonitor, monitor_of,
@@ -483,7 +484,16 @@ impl Plane {
                 .map_err(|e| (e.to_string(), n))?;
         }
         let started = Instant::now();
-        let fit = fit_model(&rotation, &self.effects).map_err(|e| (e.to_string(), n))?;
+        // With a gyro beside the rotation, a centred cubic is split per
+        // axis where the gyro pins the difference (model/centred_split.rs).
+        let reference = self
+            .gyro
+            .as_ref()
+            .filter(|_| self.effects.contains(&Effect::CubicCentred))
+            .zip(rotation.t.as_deref())
+            .and_then(|(g, t)| g.reference(t).ok());
+        let fit = fit_with_gyro(&rotation, &self.effects, reference.as_ref())
+            .map_err(|e| (e.to_string(), n))?;
         let covered = coverage(fit.headings.iter().copied());
         covered
             .require(options.min_coverage_deg)
@@ -504,7 +514,7 @@ impl Plane {
             // same starting point does.
             let frame = turn_frame(&rotation).map_err(|e| (e.to_string(), n))?;
             Terms {
-                kc: [fit.value("kc"); 2],
+                kc: fit.kc(),
                 centre: frame.centre,
                 turn_radius: frame.radius,
                 ..terms
