@@ -20,11 +20,22 @@
 //! The split is offered only where the data pin it down: `δ` beyond
 //! [`SPLIT_SES`] of its standard error, and the heading better than with
 //! one `kc` by more than the diagnosis asks of any effect
-//! ([`HEADING_WORSE_SES`] standard errors and [`HEADING_MATTERS_DEG`]).
-//! The per-axis values then face the cubic's physical limit, as `kc` does.
+//! ([`HEADING_WORSE_SES`] standard errors and [`HEADING_MATTERS_DEG`]),
+//! and each axis's cubic within the physical limit with a gyro
+//! ([`MAX_CUBIC`], by more than 2 standard errors, as the diagnosis holds
+//! `kc`); otherwise the model keeps one `kc`.
+//!
+//! The split adds no unknown to the magnitude fit's count (its BIC): it is
+//! measured on the heading against the gyro, not on the magnitude residual
+//! the BIC scores, which it leaves as it was.
+//!
+//! Its standard error has two parts: the heading errors' own (white, or
+//! from batch means where neighbours move together), and the gain ratio
+//! `a`'s: the magnitude fit's error in `a` turns the heading by a 2nd
+//! harmonic that `δ` takes in, so `(∂δ/∂a)² SE(a)²` is added.
 
 use super::FitError;
-use super::diagnose::{HEADING_MATTERS_DEG, HEADING_WORSE_SES};
+use super::diagnose::{HEADING_MATTERS_DEG, HEADING_WORSE_SES, beyond_limit};
 use super::effects::{Effect, MAX_CUBIC};
 use super::gyro::{COMPARISON_BATCHES, HeadingCheck, HeadingReference};
 use super::nonlinear::{KC_AXES, ModelFit, Param, fit_model, fit_model_split};
@@ -37,10 +48,11 @@ pub const SPLIT_SES: f64 = 2.0;
 /// that moves the heading by a few hundredths of a degree, well above the
 /// refit's own precision and small enough for the heading to be linear.
 const STEP: f64 = 0.01;
-/// Gauss-Newton steps at most.
-const MAX_ITERATIONS: usize = 8;
+/// Gauss-Newton steps at most: the heading is nearly linear in `δ`, so the
+/// first step lands within a few percent and the second confirms it.
+const MAX_ITERATIONS: usize = 5;
 /// Halvings of a step that does not lower the heading error.
-const MAX_HALVINGS: usize = 4;
+const MAX_HALVINGS: usize = 2;
 /// A step below this changes no heading measurably: the search stops.
 const SMALLEST_STEP: f64 = 1e-5;
 /// The search stays within twice the difference two cubics at the
@@ -138,6 +150,60 @@ fn standard_error(jacobian: &[f64], errors: &[f64], jj: f64) -> f64 {
     white.max(batched).sqrt() / jj
 }
 
+/// What the magnitude fit's error in the gain ratio `a` puts into `δ`:
+/// `|∂δ/∂a| SE(a)`, with `∂δ/∂a = −Σ j k / Σ j²` and `k` the heading's
+/// change per unit of `a` at each sample, `−s_y x₂ / |s|²` (radians, in
+/// degrees here), `x₂ = (s_x − b − c s_y)/a`.
+fn gain_part(fit: &ModelFit, jacobian: &[f64], jj: f64) -> f64 {
+    let (a, b, c) = (fit.value("a"), fit.value("b"), fit.value("c"));
+    let se_a = fit.param("a").map_or(f64::NAN, |p| p.se);
+    if !(a > 0.0 && jj > 0.0 && se_a.is_finite()) {
+        return 0.0;
+    }
+    let k: Vec<f64> = fit
+        .calibrated
+        .iter()
+        .map(|&(sx, sy)| {
+            let m2 = sx * sx + sy * sy;
+            let x2 = (sx - b - c * sy) / a;
+            if m2 > 0.0 {
+                (-sy * x2 / m2).to_degrees()
+            } else {
+                f64::NAN
+            }
+        })
+        .collect();
+    (dot(jacobian, &k) / jj * se_a).abs()
+}
+
+/// Parameters with a split centred cubic (`kc_x`, `kc_y`) seen as one `kc`,
+/// their mean, to compare with a fit that kept one: the standard error is
+/// an axis's, which holds the mean's and half the split's.
+pub fn as_one_kc(params: &[Param]) -> Vec<Param> {
+    let (Some(x), Some(y)) = (
+        params.iter().find(|p| p.name == KC_AXES[0]),
+        params.iter().find(|p| p.name == KC_AXES[1]),
+    ) else {
+        return params.to_vec();
+    };
+    let one = Param {
+        name: "kc".into(),
+        value: 0.5 * (x.value + y.value),
+        se: x.se.max(y.se),
+    };
+    params
+        .iter()
+        .filter(|p| p.name != KC_AXES[1])
+        .map(|p| {
+            if p.name == KC_AXES[0] {
+                one.clone()
+            } else {
+                p.clone()
+            }
+        })
+        .collect()
+}
+
 /// The centred cubic of `fit` (a fit of `effects` with one `kc`) split per
 /// axis against the gyro, when the gyro pins the split down and the
 /// heading is better for it; None otherwise (or when a check fails).
@@ -182,7 +248,8 @@ pub fn pin(
             break;
         }
     }
-    let se = standard_error(&jacobian, &best.1.errors_deg, jj);
+    let se =
+        standard_error(&jacobian, &best.1.errors_deg, jj).hypot(gain_part(&best.0, &jacobian, jj));
     if !(split.abs() > SPLIT_SES * se) {
         return None;
     }
@@ -205,7 +272,13 @@ pub fn pin(
             se: axis_se,
         }),
     );
-    fit.unknowns += 1;
+    if fit
+        .params
+        .iter()
+        .any(|p| beyond_limit(p, MAX_CUBIC) && p.name.starts_with("kc"))
+    {
+        return None;
+    }
     Some(SplitFit {
         fit,
         split,

@@ -17,7 +17,7 @@ use serde::Serialize;
 use serde_json::Value;
 
 use super::FitError;
-use super::centred_split::fit_with_gyro;
+use super::centred_split::{as_one_kc, fit_with_gyro};
 use super::effects::{Effect, model_name, parse_list};
 use super::fit::{FitOptions, fit_paper};
 use super::gyro::{GyroError, HeadingCheck, HeadingReference};
@@ -176,6 +176,14 @@ fn from_state(cal: &Value) -> Result<StoredCalibration, CheckError> {
         }
     }
     let centred = effects.contains(&Effect::CubicCentred);
+    if centred && !t.turn_radius.iter().all(|r| r.is_finite() && *r > 0.0) {
+        return Err(CheckError::Invalid {
+            problem: format!(
+                "the state file's cubic-centred term has turn_radius = {:?}: each must be a positive number (the turn's radius its kc refers to)",
+                t.turn_radius
+            ),
+        });
+    }
     Ok(StoredCalibration {
         source: StoredSource::DaemonState,
         effects,
@@ -685,9 +693,17 @@ pub fn check(
     };
 
     let stored_has_se = stored.has_se();
-    let z_threshold = moved_threshold(stored.params.len());
-    let parameters: Vec<ParamShift> = stored
-        .params
+    // A centred cubic split per axis on one side only (the gyro pinned the
+    // split on one run and not the other, or one was checked without a
+    // gyro) is compared as the one kc both have.
+    let split = |params: &[Param]| params.iter().any(|p| p.name == KC_AXES[0]);
+    let (stored_params, refitted) = if split(&stored.params) == split(&refitted) {
+        (stored.params.clone(), refitted)
+    } else {
+        (as_one_kc(&stored.params), as_one_kc(&refitted))
+    };
+    let z_threshold = moved_threshold(stored_params.len());
+    let parameters: Vec<ParamShift> = stored_params
         .iter()
         .filter_map(|s| {
             let new = refitted.iter().find(|p| p.name == s.name)?;

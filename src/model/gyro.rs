@@ -55,15 +55,14 @@ pub const MAX_GYRO_SCALE: f64 = 1.0 / MIN_GYRO_SCALE;
 /// that varies with heading (a second harmonic has a period of half a turn).
 pub const MIN_GYRO_SPAN_DEG: f64 = 180.0;
 
-/// The gyro's bias is fitted beside its scale only when its angle departs
-/// from a constant-rate turn (a line in time) by this much, rms: 5°. Below
-/// it, fitting the bias instead of leaving it in the scale changes the
-/// check by at most bias/rate × 5°, under 0.1° for a bias of 1 % of the
-/// rate (an MPU-6050's ±20 °/s zero-rate offset is calibrated out first;
-/// what remains is a fraction of a degree per second), while the gyro's
-/// own noise (its angle random walk, a fraction of a degree over a turn)
-/// is far below it and cannot pass for a change of rate.
-pub const MIN_RATE_CHANGE_DEG: f64 = 5.0;
+/// The gyro's bias is fitted beside its scale only where the recording pins
+/// the scale to this standard error in that fit: 1 %. The gyro's own
+/// tolerance is ±3 % (MPU-6050 datasheet, "Sensitivity Scale Factor
+/// Tolerance"); a fit that cannot pin the scale within a third of that
+/// cannot tell a bias from a scale (a turn at a constant rate: the gyro's
+/// angle is then a line in time, bent only by its noise), and the bias is
+/// left in the scale instead.
+pub const MAX_SCALE_SE: f64 = 0.01;
 
 /// Contiguous time batches for the standard error of a comparison: heading
 /// errors are strongly autocorrelated (they follow heading, which follows
@@ -350,22 +349,27 @@ impl HeadingReference {
             ab: sgt,
             ac: sgh,
             bc: sth,
-            ..
+            cc: shh,
         } = centred_sums(&g, &t, &h);
         let det = sgg * stt - sgt * sgt;
-        // When the turn ran at a constant rate, the gyro's angle is a line in
-        // time and its bias cannot be told from its scale; the heading error
-        // is the same either way, so the bias is left out (reported as 0).
-        // The gyro's own noise bends that line by a fraction of a degree,
-        // which is no turn of varying rate: fitted on it, the bias would
-        // chase the heading's noise and throw the scale anywhere. So the
-        // bias is fitted only when the angle departs from a line in time by
-        // [`MIN_RATE_CHANGE_DEG`] rms (det/stt/n is that departure squared).
-        let departs = stt > 0.0 && det / stt >= MIN_RATE_CHANGE_DEG.powi(2) * n as f64;
-        let (scale, bias) = if departs {
-            ((sgh * stt - sth * sgt) / det, (sth * sgg - sgh * sgt) / det)
-        } else {
-            (sgh / sgg, 0.0)
+        // The scale and the bias together, where the turn's rate varied
+        // enough to tell them apart: the scale's standard error from that
+        // fit at most [`MAX_SCALE_SE`]. When the turn ran at a constant
+        // rate, the gyro's angle is a line in time (bent only by its own
+        // noise) and its bias cannot be told from its scale: fitted on that
+        // bend, the bias would chase the heading's noise and throw the
+        // scale anywhere. The heading error is the same either way, so the
+        // bias is then left in the scale (reported as 0).
+        let both = (stt > 0.0 && det > 0.0).then(|| {
+            let scale = (sgh * stt - sth * sgt) / det;
+            let bias = (sth * sgg - sgh * sgt) / det;
+            let rss = (shh - scale * sgh - bias * sth).max(0.0);
+            let sigma_sq = rss / n.saturating_sub(3).max(1) as f64;
+            (scale, bias, (sigma_sq * stt / det).sqrt())
+        });
+        let (scale, bias) = match both {
+            Some((scale, bias, se)) if se <= MAX_SCALE_SE => (scale, bias),
+            _ => (sgh / sgg, 0.0),
         };
         if !(scale.abs() >= MIN_GYRO_SCALE && scale.abs() <= MAX_GYRO_SCALE) {
             return Err(GyroError::WrongAxis {

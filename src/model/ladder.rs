@@ -266,10 +266,24 @@ pub(crate) fn starting_list(baseline: &[Effect]) -> Vec<Effect> {
 }
 
 /// The parameters `fit` has that `current` lacks: the added effect's own.
+/// The centred cubic's `kc` and its split `kc_x`, `kc_y` are one term
+/// (model/centred_split.rs: the gyro may split it in one model and not in
+/// the next).
 pub(crate) fn own_params<F: LadderFit>(fit: &F, current: &F) -> Vec<Param> {
+    fn term(name: &str) -> &str {
+        match name {
+            "kc_x" | "kc_y" => "kc",
+            other => other,
+        }
+    }
     fit.params()
         .iter()
-        .filter(|p| !current.params().iter().any(|q| q.name == p.name))
+        .filter(|p| {
+            !current
+                .params()
+                .iter()
+                .any(|q| term(&q.name) == term(&p.name))
+        })
         .cloned()
         .collect()
 }
