@@ -360,7 +360,9 @@ impl HeadingReference {
         // bend, the bias would chase the heading's noise and throw the
         // scale anywhere. The heading error is the same either way, so the
         // bias is then left in the scale (reported as 0).
-        let both = (stt > 0.0 && det > 0.0).then(|| {
+        // A system that is singular to rounding (an exact constant rate)
+        // has no standard error to trust either: it keeps the scale alone.
+        let both = (stt > 0.0 && det > 1e-9 * sgg * stt).then(|| {
             let scale = (sgh * stt - sth * sgt) / det;
             let bias = (sth * sgg - sgh * sgt) / det;
             let rss = (shh - scale * sgh - bias * sth).max(0.0);
