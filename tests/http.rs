@@ -82,10 +82,16 @@ fn closed_after(stream: &mut std::net::TcpStream, within: Duration) -> Option<f6
 async fn idle_connections_are_bounded_and_closed_so_they_cannot_use_up_descriptors() {
     let hub = Hub::new(8);
     let idle = Duration::from_millis(400);
-    let addr = start_with(&hub, ConnectionLimits { requests: 2, idle }).await;
+    let limits = ConnectionLimits {
+        requests: 2,
+        idle,
+        head: idle,
+    };
+    let addr = start_with(&hub, limits).await;
     let (times, answer) = blocking(move || {
-        // Four clients connect and send nothing: two are served, two wait in
-        // the kernel's backlog (no descriptor of the daemon's).
+        // Four clients connect and send nothing: two are served, one waits
+        // for room and one in the kernel's backlog (no descriptor of the
+        // daemon's); each is closed when its head does not come.
         let mut idle_clients: Vec<_> = (0..4)
             .map(|_| std::net::TcpStream::connect(&addr).unwrap())
             .collect();
@@ -113,6 +119,7 @@ async fn an_event_stream_gives_its_connection_permit_back_to_the_page_requests()
         ConnectionLimits {
             requests: 1,
             idle: Duration::from_secs(60),
+            ..ConnectionLimits::default()
         },
     )
     .await;

@@ -7,19 +7,36 @@ use crate::daemon::config::{ConfigError, Keys};
 use crate::daemon::publish::http::{REPLAY_READINGS, router_with_config, serve};
 use crate::daemon::run::DaemonError;
 
-/// The live page's listener address.
+/// The live page's listener address, and the names it answers to beside
+/// IP addresses, `localhost` and this machine's name (`http_hosts`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Http {
     pub address: SocketAddr,
+    pub hosts: Vec<String>,
 }
 
 impl Kind for Http {
     const NAME: &'static str = "http";
-    const KEYS: &'static [&'static str] = &["http", "http_public"];
+    const KEYS: &'static [&'static str] = &["http", "http_public", "http_hosts"];
 
     fn check(keys: &Keys<'_, '_>) -> Result<Option<Self>, ConfigError> {
         let address = keys.checker().listen_address(keys, "http", 8080)?;
-        Ok(address.map(|address| Http { address }))
+        let hosts = keys.get::<Vec<String>>("http_hosts")?.unwrap_or_default();
+        for name in &hosts {
+            let plain = !name.is_empty()
+                && name
+                    .bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'.');
+            if !plain {
+                return Err(keys.error(
+                    "http_hosts",
+                    format!(
+                        "{name:?} is not a host name: give names as a browser's address bar has them, without a port or scheme (\"robot.lan\")"
+                    ),
+                ));
+            }
+        }
+        Ok(address.map(|address| Http { address, hosts }))
     }
 
     fn describe(&self) -> String {

@@ -1,25 +1,31 @@
 //! The live page's connections, bounded: a listener for `axum::serve` that
 //! holds at most [`ConnectionLimits::requests`] connections that are not
-//! event streams, and closes a connection on which nothing was read or
-//! written for [`ConnectionLimits::idle`].
+//! event streams, gives each request's head [`ConnectionLimits::head`] to
+//! arrive whole however its bytes trickle in, and closes a connection on
+//! which nothing was written for [`ConnectionLimits::idle`].
 //!
 //! Each accepted connection holds a permit. An event stream gives its permit
 //! back once the hub has accepted it as a subscriber (from then on the hub's
 //! `[outputs] max_subscribers` counts it), so the page's descriptors are the
 //! subscribers' plus at most `requests`: the share of
 //! [`crate::daemon::publish::RESERVED_DESCRIPTORS`] kept for the page's short
-//! requests. While every permit is held, further clients wait in the
-//! kernel's accept backlog (no descriptor is used) until a connection ends
-//! or goes idle.
+//! requests, and one for a connection just accepted. When every permit is
+//! held and another client connects, the connection that has been silent
+//! longest (at least [`EVICT_AFTER`]: an idle keep-alive, a client that
+//! trickles its head) is closed to make room, so a crowd of idle or slow
+//! clients cannot lock the page out; when all of them are busy, the new
+//! client is closed after [`ROOM_WAIT`].
 
 use std::future::Future;
 use std::io;
 use std::net::SocketAddr;
 use std::pin::Pin;
-use std::sync::{Arc, Mutex};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, Weak};
 use std::task::{Context, Poll};
 use std::time::Duration;
 
+use futures_util::task::AtomicWaker;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
@@ -30,17 +36,32 @@ use tokio::time::{Instant, Sleep};
 /// browser opens the page with two or three (the page, `/api/config`, the
 /// event stream, which gives its permit back).
 pub const PAGE_REQUESTS: usize = 6;
-/// A connection on which nothing was read or written for this long is
-/// closed: hyper's own default for reading a request's headers (30 s),
-/// which axum's server does not set. An open event stream writes a
-/// keep-alive comment every 15 s, so it is never idle this long.
+/// A connection on which nothing was written for this long is closed:
+/// hyper's own default for reading a request's headers (30 s), which axum's
+/// server does not set. An open event stream writes a keep-alive comment
+/// every 15 s, so it is never idle this long.
 pub const IDLE: Duration = Duration::from_secs(30);
+/// A request's head (request line and headers) must arrive whole within
+/// this of its first byte, or of the connection's start: 10 s. Bytes that
+/// trickle in do not extend it (Slowloris). A head is a few hundred bytes,
+/// one segment on any network a robot's page is opened over; Apache's
+/// mod_reqtimeout gives the first byte 20 s and nginx 60 s between reads,
+/// for the open Internet.
+pub const HEAD_TIMEOUT: Duration = Duration::from_secs(10);
+/// A connection silent this long may be closed to make room for a new one
+/// when every permit is held: 1 s, far longer than a request on the
+/// page's network takes between its bytes.
+pub const EVICT_AFTER: Duration = Duration::from_secs(1);
+/// How long a new connection waits for room when every held one is busy
+/// before it is closed.
+pub const ROOM_WAIT: Duration = Duration::from_secs(2);
 
-/// How many connections, and how long one may be idle.
+/// How many connections, and how long a head may take and one may be idle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ConnectionLimits {
     pub requests: usize,
     pub idle: Duration,
+    pub head: Duration,
 }
 
 impl Default for ConnectionLimits {
@@ -48,7 +69,27 @@ impl Default for ConnectionLimits {
         ConnectionLimits {
             requests: PAGE_REQUESTS,
             idle: IDLE,
+            head: HEAD_TIMEOUT,
         }
+    }
+}
+
+/// What the listener knows of one connection: when it last read or wrote a
+/// byte, whether it is an event stream (the hub's to count, not the page's
+/// to close), and the flag that closes it.
+#[derive(Debug)]
+struct Slot {
+    /// Milliseconds since the listener's start.
+    active_ms: AtomicU64,
+    streaming: AtomicBool,
+    evicted: AtomicBool,
+    waker: AtomicWaker,
+}
+
+impl Slot {
+    fn touch(&self, epoch: std::time::Instant) {
+        let ms = u64::try_from(epoch.elapsed().as_millis()).unwrap_or(u64::MAX);
+        self.active_ms.store(ms, Ordering::Relaxed);
     }
 }
 
@@ -58,12 +99,17 @@ impl Default for ConnectionLimits {
 pub struct Peer {
     pub addr: SocketAddr,
     permit: Arc<Mutex<Option<OwnedSemaphorePermit>>>,
+    slot: Option<Arc<Slot>>,
 }
 
 impl Peer {
     /// Gives the connection's permit back: it is now an event stream,
-    /// counted by the hub among the subscribers.
+    /// counted by the hub among the subscribers, and never closed to make
+    /// room for the page's requests.
     pub fn release(&self) {
+        if let Some(slot) = &self.slot {
+            slot.streaming.store(true, Ordering::Relaxed);
+        }
         if let Ok(mut permit) = self.permit.lock() {
             permit.take();
         }
@@ -74,7 +120,9 @@ impl Peer {
 pub struct BoundedListener {
     inner: TcpListener,
     permits: Arc<Semaphore>,
-    idle: Duration,
+    limits: ConnectionLimits,
+    epoch: std::time::Instant,
+    slots: Vec<Weak<Slot>>,
 }
 
 impl axum::extract::connect_info::Connected<axum::serve::IncomingStream<'_, BoundedListener>>
@@ -90,7 +138,52 @@ impl BoundedListener {
         BoundedListener {
             inner,
             permits: Arc::new(Semaphore::new(limits.requests.max(1))),
-            idle: limits.idle,
+            limits,
+            epoch: std::time::Instant::now(),
+            slots: Vec::new(),
+        }
+    }
+
+    /// Closes the connection silent longest, if one has been silent
+    /// [`EVICT_AFTER`] and is not an event stream; forgets ended ones.
+    fn evict_oldest(&mut self) {
+        self.slots.retain(|w| w.strong_count() > 0);
+        let now_ms = u64::try_from(self.epoch.elapsed().as_millis()).unwrap_or(u64::MAX);
+        let after_ms = u64::try_from(EVICT_AFTER.as_millis()).unwrap_or(u64::MAX);
+        let oldest = self
+            .slots
+            .iter()
+            .filter_map(Weak::upgrade)
+            .filter(|s| !s.streaming.load(Ordering::Relaxed) && !s.evicted.load(Ordering::Relaxed))
+            .filter(|s| now_ms.saturating_sub(s.active_ms.load(Ordering::Relaxed)) >= after_ms)
+            .min_by_key(|s| s.active_ms.load(Ordering::Relaxed));
+        if let Some(slot) = oldest {
+            slot.evicted.store(true, Ordering::Relaxed);
+            slot.waker.wake();
+            tracing::debug!("the live page closed its longest-silent connection to make room");
+        }
+    }
+
+    /// A permit for a connection just accepted: at once when one is free,
+    /// else once the longest-silent connection is closed for it, within
+    /// [`ROOM_WAIT`]; None when every connection stayed busy that long.
+    async fn room(&mut self) -> Option<OwnedSemaphorePermit> {
+        let until = Instant::now() + ROOM_WAIT;
+        loop {
+            if let Ok(p) = self.permits.clone().try_acquire_owned() {
+                return Some(p);
+            }
+            self.evict_oldest();
+            let left = until.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return None;
+            }
+            let wait = left.min(EVICT_AFTER / 4);
+            if let Ok(Ok(p)) =
+                tokio::time::timeout(wait, self.permits.clone().acquire_owned()).await
+            {
+                return Some(p);
+            }
         }
     }
 }
@@ -100,51 +193,123 @@ impl axum::serve::Listener for BoundedListener {
     type Addr = Peer;
 
     async fn accept(&mut self) -> (Self::Io, Self::Addr) {
-        // The semaphore is never closed, so acquiring only waits.
-        let permit = loop {
-            if let Ok(p) = self.permits.clone().acquire_owned().await {
-                break p;
-            }
-        };
-        let (stream, addr) = axum::serve::Listener::accept(&mut self.inner).await;
-        let permit = Arc::new(Mutex::new(Some(permit)));
-        let io = BoundedStream {
-            stream,
-            idle: self.idle,
-            deadline: Box::pin(tokio::time::sleep(self.idle)),
-            _permit: permit.clone(),
-        };
-        (io, Peer { addr, permit })
+        loop {
+            // Accepted first, so a client waiting for room is known to
+            // exist before an idle one is closed for it.
+            let (stream, addr) = axum::serve::Listener::accept(&mut self.inner).await;
+            let Some(permit) = self.room().await else {
+                tracing::debug!(%addr, "the live page is busy: a new connection was closed");
+                drop(stream);
+                continue;
+            };
+            let slot = Arc::new(Slot {
+                active_ms: AtomicU64::new(0),
+                streaming: AtomicBool::new(false),
+                evicted: AtomicBool::new(false),
+                waker: AtomicWaker::new(),
+            });
+            slot.touch(self.epoch);
+            self.slots.push(Arc::downgrade(&slot));
+            let permit = Arc::new(Mutex::new(Some(permit)));
+            let io = BoundedStream {
+                stream,
+                limits: self.limits,
+                in_head: true,
+                deadline: Box::pin(tokio::time::sleep(self.limits.head)),
+                epoch: self.epoch,
+                slot: slot.clone(),
+                _permit: permit.clone(),
+            };
+            return (
+                io,
+                Peer {
+                    addr,
+                    permit,
+                    slot: Some(slot),
+                },
+            );
+        }
     }
 
     fn local_addr(&self) -> io::Result<Self::Addr> {
         Ok(Peer {
             addr: self.inner.local_addr()?,
             permit: Arc::new(Mutex::new(None)),
+            slot: None,
         })
     }
 }
 
-/// An accepted connection: its stream, its idle deadline, and its permit
+/// An accepted connection: its stream, its deadline (the head's while a
+/// request arrives, the idle one after a write), its slot, and its permit
 /// (given back when the connection is dropped, unless released earlier).
 pub struct BoundedStream {
     stream: TcpStream,
-    idle: Duration,
+    limits: ConnectionLimits,
+    /// A request's head is arriving: reads do not move the deadline.
+    in_head: bool,
     deadline: Pin<Box<Sleep>>,
+    epoch: std::time::Instant,
+    slot: Arc<Slot>,
     _permit: Arc<Mutex<Option<OwnedSemaphorePermit>>>,
 }
 
 impl BoundedStream {
-    fn active(&mut self) {
-        self.deadline.as_mut().reset(Instant::now() + self.idle);
+    /// Bytes read: the first of a request starts its head's deadline;
+    /// later ones move nothing.
+    fn read_some(&mut self) {
+        self.slot.touch(self.epoch);
+        if !self.in_head {
+            self.in_head = true;
+            self.deadline
+                .as_mut()
+                .reset(Instant::now() + self.limits.head);
+        }
     }
 
-    fn timed_out(&mut self, cx: &mut Context<'_>) -> bool {
-        self.deadline.as_mut().poll(cx).is_ready()
+    /// Bytes written: the request was answered; the idle deadline runs.
+    fn wrote_some(&mut self) {
+        self.slot.touch(self.epoch);
+        self.in_head = false;
+        self.deadline
+            .as_mut()
+            .reset(Instant::now() + self.limits.idle);
     }
 
-    /// A write's outcome: bytes written are activity; a peer that stopped
-    /// reading meets the same idle deadline.
+    /// Why the connection must close now, if it must: its deadline passed,
+    /// or the listener closed it to make room.
+    fn closing(&mut self, cx: &mut Context<'_>) -> Option<io::Error> {
+        self.slot.waker.register(cx.waker());
+        if self.slot.evicted.load(Ordering::Relaxed) {
+            return Some(io::Error::new(
+                io::ErrorKind::ConnectionAborted,
+                "closed to make room for a new client: every connection the live page keeps was taken",
+            ));
+        }
+        if self.deadline.as_mut().poll(cx).is_ready() {
+            return Some(if self.in_head {
+                io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    format!(
+                        "the request's head did not arrive within {:?}: the connection was closed",
+                        self.limits.head
+                    ),
+                )
+            } else {
+                io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    format!(
+                        "nothing written for {:?}: the connection was closed",
+                        self.limits.idle
+                    ),
+                )
+            });
+        }
+        None
+    }
+
+    /// A write's outcome: bytes written are progress; a peer that stopped
+    /// reading meets the same deadline.
     fn after_write(
         &mut self,
         cx: &mut Context<'_>,
@@ -153,22 +318,17 @@ impl BoundedStream {
         match written {
             Poll::Ready(Ok(n)) => {
                 if n > 0 {
-                    self.active();
+                    self.wrote_some();
                 }
                 Poll::Ready(Ok(n))
             }
             Poll::Ready(e) => Poll::Ready(e),
-            Poll::Pending if self.timed_out(cx) => Poll::Ready(Err(idle_error(self.idle))),
-            Poll::Pending => Poll::Pending,
+            Poll::Pending => match self.closing(cx) {
+                Some(e) => Poll::Ready(Err(e)),
+                None => Poll::Pending,
+            },
         }
     }
-}
-
-fn idle_error(idle: Duration) -> io::Error {
-    io::Error::new(
-        io::ErrorKind::TimedOut,
-        format!("nothing read or written for {idle:?}: the connection was closed"),
-    )
 }
 
 impl AsyncRead for BoundedStream {
@@ -178,16 +338,23 @@ impl AsyncRead for BoundedStream {
         buf: &mut ReadBuf<'_>,
     ) -> Poll<io::Result<()>> {
         let this = self.get_mut();
+        if this.slot.evicted.load(Ordering::Relaxed)
+            && let Some(e) = this.closing(cx)
+        {
+            return Poll::Ready(Err(e));
+        }
         let before = buf.filled().len();
         match Pin::new(&mut this.stream).poll_read(cx, buf) {
             Poll::Ready(result) => {
                 if buf.filled().len() > before {
-                    this.active();
+                    this.read_some();
                 }
                 Poll::Ready(result)
             }
-            Poll::Pending if this.timed_out(cx) => Poll::Ready(Err(idle_error(this.idle))),
-            Poll::Pending => Poll::Pending,
+            Poll::Pending => match this.closing(cx) {
+                Some(e) => Poll::Ready(Err(e)),
+                None => Poll::Pending,
+            },
         }
     }
 }

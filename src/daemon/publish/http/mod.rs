@@ -41,7 +41,7 @@ use std::time::Duration;
 use axum::Router;
 use axum::body::Bytes;
 use axum::extract::{ConnectInfo, State};
-use axum::http::{StatusCode, header};
+use axum::http::{Method, StatusCode, header};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
@@ -55,6 +55,7 @@ pub use conn::ConnectionLimits;
 use conn::{BoundedListener, Peer};
 
 pub mod conn;
+pub mod guard;
 
 /// The page: HTML, CSS and script in one file, drawn by hand on a canvas.
 pub const PAGE: &str = include_str!("live.html");
@@ -189,8 +190,26 @@ pub fn router_with_config(
         .route("/api/recalibrate", post(recalibrate))
         .route("/api/rollback", post(rollback))
         .fallback(not_found)
-        .with_state(app);
+        .with_state(app)
+        .layer(axum::middleware::from_fn_with_state(
+            guard::Hosts::new(&http_hosts(config)),
+            guard::guard,
+        ));
     (router, PageConfig(tx))
+}
+
+/// The names the page answers to beside IP addresses and this machine's
+/// own (`[outputs] http_hosts`).
+fn http_hosts(config: &Config) -> Vec<String> {
+    config
+        .outputs
+        .outputs
+        .iter()
+        .find_map(|o| match o {
+            crate::daemon::output_kinds::Output::Http(h) => Some(h.hosts.clone()),
+            _ => None,
+        })
+        .unwrap_or_default()
 }
 
 /// Serves `router` on `listener` until `shutdown` turns true, with the
@@ -250,7 +269,24 @@ async fn not_found() -> Response {
     )
 }
 
-async fn events(State(app): State<App>, ConnectInfo(conn): ConnectInfo<Peer>) -> Response {
+async fn events(
+    State(app): State<App>,
+    method: Method,
+    ConnectInfo(conn): ConnectInfo<Peer>,
+) -> Response {
+    // HEAD: the stream's headers and nothing more. No subscriber is made
+    // and the connection keeps its permit, so held HEAD requests count
+    // among the page's connections like any other short request.
+    if method == Method::HEAD {
+        return (
+            [
+                (header::CONTENT_TYPE, "text/event-stream"),
+                (header::CACHE_CONTROL, "no-store"),
+            ],
+            (),
+        )
+            .into_response();
+    }
     let peer = conn.addr;
     let sub = match app
         .hub
