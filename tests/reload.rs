@@ -560,3 +560,60 @@ fn a_csv_sensor_takes_new_columns_of_the_running_recording() {
     );
     assert_eq!(daemon.terminate().code(), Some(0), "{}", daemon.stderr());
 }
+
+/// Issue 23, finding 5: a reload that takes a sensor from 2 axes to 3 and
+/// back says that its calibration cannot correct the new axes (it did say
+/// "keeps correcting"), and keeps its counts and ids: the next calibration
+/// after coming back is #2, never #1 again.
+#[test]
+fn a_reload_to_the_other_number_of_axes_says_so_and_keeps_ids_and_counts() {
+    let s = setup("0.2", "");
+    let mut daemon = Daemon::start(&s.config, &[]);
+    both_calibrated(&mut daemon);
+    let (before, _) = next_statuses(&mut daemon, 1);
+    let readings_before = sensor_status(&before[0], "heading")["readings"]
+        .as_u64()
+        .unwrap();
+    let axes = |n: &str| {
+        // The second sensor's axes (heading's).
+        let text = config_text(s.dir.path(), &s.capture, SPEED, "0.2", "", "");
+        let at = text.rfind("axes = [\"x\", \"y\"]").unwrap();
+        format!(
+            "{}{n}{}",
+            &text[..at],
+            &text[at + "axes = [\"x\", \"y\"]".len()..]
+        )
+    };
+    write_config(s.dir.path(), &axes("axes = [\"x\", \"y\", \"z\"]"));
+    signal(&daemon, libc::SIGHUP);
+    let changed = daemon.wait_for_value(Duration::from_secs(10), "the RELOAD of heading", |v| {
+        is_class(v, "RELOAD") && v["sensor"] == "heading"
+    });
+    let message = changed["message"].as_str().unwrap();
+    assert!(!message.contains("keeps correcting"), "{message}");
+    assert!(
+        message.contains(
+            "its axes went from 2 to 3, so calibration #1 (offset+scale) cannot correct it"
+        ),
+        "{message}"
+    );
+    let reading = daemon.wait_for_value(Duration::from_secs(5), "a READING of heading", |v| {
+        is_class(v, "READING") && v["sensor"] == "heading"
+    });
+    assert_eq!(reading["calibrated"], false, "{reading}");
+    let (after, _) = next_statuses(&mut daemon, 2);
+    let status = sensor_status(after.last().unwrap(), "heading");
+    assert!(
+        status["readings"].as_u64().unwrap() > readings_before,
+        "the count restarted: {status}"
+    );
+    assert_eq!(status["fits_accepted"], 1, "{status}");
+    // Back to two axes: a new turn gives calibration #2.
+    write_config(s.dir.path(), &axes("axes = [\"x\", \"y\"]"));
+    signal(&daemon, libc::SIGHUP);
+    let new = daemon.wait_for_value(Duration::from_secs(30), "heading's next CALIBRATION", |v| {
+        calibration_of(v, "heading")
+    });
+    assert_eq!(new["id"], 2, "{new}");
+    assert_eq!(daemon.terminate().code(), Some(0), "{}", daemon.stderr());
+}

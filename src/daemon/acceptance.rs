@@ -50,8 +50,8 @@ impl Default for Limits {
             max_rms: 0.05,
             min_radius: None,
             max_radius: None,
-            max_offset_ratio: 5.0,
-            max_scale_ratio: 2.0,
+            max_offset_ratio: crate::model::validity::DEFAULT_MAX_OFFSET_RATIO,
+            max_scale_ratio: crate::model::validity::DEFAULT_MAX_SCALE_RATIO,
             min_coverage_deg: crate::model::fit::DEFAULT_MIN_COVERAGE_DEG,
         }
     }

@@ -39,7 +39,7 @@ impl Lifecycle {
             } else {
                 SensorState::Collecting
             },
-            next_id: stored.as_ref().map_or(1, |c| c.id + 1),
+            next_id: stored.as_ref().map_or(1, |c| c.id.saturating_add(1)),
             current: stored,
             readings: 0,
             fits_accepted: 0,
@@ -111,15 +111,23 @@ impl Lifecycle {
     /// reload) had earned: its calibration (when it had one), the next id
     /// and its counts; then collects anew.
     pub fn carry_over(&mut self, old: Lifecycle) {
+        self.carry_counts(&old);
         if old.current.is_some() {
             self.current = old.current;
         }
+        self.last_rejection = old.last_rejection;
+        self.stale = old.stale;
+        self.restart();
+    }
+
+    /// Takes over `old`'s next id and counts alone (its axes went from two
+    /// to three, or back, so its calibration cannot correct this one): ids
+    /// go on from where they were, never back, and the counts keep
+    /// counting.
+    pub fn carry_counts(&mut self, old: &Lifecycle) {
         self.next_id = self.next_id.max(old.next_id);
         self.readings = old.readings;
         self.fits_accepted = old.fits_accepted;
         self.fits_rejected = old.fits_rejected;
-        self.last_rejection = old.last_rejection;
-        self.stale = old.stale;
-        self.restart();
     }
 }

@@ -39,6 +39,7 @@ use std::time::Duration;
 
 use tokio::sync::mpsc;
 
+use super::Calibration;
 use super::config::{self, Config, ConfigError, SensorConfig, SensorGeometry, SourceConfig};
 use super::messages::CalibrationEvent;
 use super::notify::Notifier;
@@ -468,13 +469,7 @@ fn apply_plan(
                     continue;
                 };
                 let what = what_changed(keys, &was, config);
-                let keeps = match before.1.calibration() {
-                    Some(c) => format!(
-                        "calibration #{} ({}) keeps correcting until one under them is accepted",
-                        c.id, c.model
-                    ),
-                    None => "it has no calibration yet".to_string(),
-                };
+                let keeps = carried(before.1.calibration(), config);
                 sensor.carry_over(before.1);
                 info(
                     &mut lines,
@@ -587,11 +582,14 @@ fn build_sensors<'a>(
             continue;
         };
         let stored = if added {
-            store.and_then(|store| match store.load(name) {
-                Ok(found) => found,
-                Err(e) => {
-                    tracing::warn!("{e}; the sensor starts uncalibrated");
-                    None
+            store.and_then(|store| {
+                match store.load_checked(name, |c| crate::daemon::sensor::stored_problem(config, c))
+                {
+                    Ok(found) => found,
+                    Err(e) => {
+                        tracing::warn!("{e}; the sensor starts uncalibrated");
+                        None
+                    }
                 }
             })
         } else {
@@ -605,6 +603,30 @@ fn build_sensors<'a>(
         built.insert(name.as_str(), (index, sensor));
     }
     Ok(built)
+}
+
+/// What becomes of a changed sensor's calibration `c` under its new
+/// section `config`, said for the reload's line.
+fn carried(c: Option<&Calibration>, config: &SensorConfig) -> String {
+    let Some(c) = c else {
+        return "it has no calibration yet".to_string();
+    };
+    let three = matches!(config.geometry, SensorGeometry::Sphere(_));
+    if c.ellipsoid.is_some() == three {
+        return format!(
+            "calibration #{} ({}) keeps correcting until one under them is accepted",
+            c.id, c.model
+        );
+    }
+    let (had, has, how) = if three {
+        (2, 3, "tumble it through every direction")
+    } else {
+        (3, 2, "turn it one full turn")
+    };
+    format!(
+        "its axes went from {had} to {has}, so calibration #{} ({}) cannot correct it: its readings go out uncalibrated until a new one is accepted ({how}); ids go on where they were, and its counts are kept",
+        c.id, c.model
+    )
 }
 
 /// The `[daemon]` changes a reload applies (the STATUS interval), and the

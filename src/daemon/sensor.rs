@@ -65,6 +65,31 @@ impl<'a> Emitter<'a> {
     }
 }
 
+/// Why a stored calibration cannot correct this sensor's readings: the
+/// other geometry (its axes changed since), or numbers beyond its
+/// acceptance limits ([`crate::model::validity::plane_problem`]; a 3-D
+/// one's are checked wherever it is read,
+/// [`crate::model::calibration3::Calibration3D::validate`]).
+pub(crate) fn stored_problem(config: &SensorConfig, c: &Calibration) -> Option<String> {
+    match (&config.geometry, &c.ellipsoid) {
+        (SensorGeometry::Plane(_), Some(_)) => Some(format!(
+            "it is a 3-axis calibration and sensor '{}' now has 2 axes: calibrate it again by turning it",
+            config.name
+        )),
+        (SensorGeometry::Sphere(_), None) => Some(format!(
+            "it is a 2-axis calibration and sensor '{}' now has 3 axes: calibrate it again by tumbling it",
+            config.name
+        )),
+        (SensorGeometry::Plane(plane), None) => crate::model::validity::plane_problem(
+            &c.params,
+            &c.terms,
+            plane.limits.max_scale_ratio,
+            plane.limits.max_offset_ratio,
+        ),
+        (SensorGeometry::Sphere(_), Some(_)) => None,
+    }
+}
+
 /// One sample of a sensor's own field: the time its source stamped, and
 /// its raw axes (x, y, z; a plane's third is its reading across the turn
 /// when `out_of_plane` names it, else NaN: it turns in x, y).
@@ -291,13 +316,15 @@ impl Sensor {
     /// accepted, the next id, and its counts. The rotation starts afresh
     /// under the new settings, so a sensor built by [`Sensor::new`] with
     /// the new section (and bound to its csv file) collects at once. A
-    /// sensor whose axes went from two to three, or back, takes nothing
-    /// over: a calibration of one geometry never corrects the other.
+    /// sensor whose axes went from two to three, or back, takes over its
+    /// next id and counts alone: a calibration of one geometry never
+    /// corrects the other.
     pub fn carry_over(&mut self, old: Sensor) {
         match (self.geometry.as_sphere_mut(), old.geometry.as_sphere()) {
             (Some(three), Some(old_three)) => three.carry_over(old_three),
             (None, None) => {}
             _ => {
+                self.life.carry_counts(&old.life);
                 self.recalibrate();
                 return;
             }

@@ -184,7 +184,56 @@ struct Stored {
     calibration: Calibration,
 }
 
+impl StateError {
+    /// Whether the process had no descriptor free (EMFILE, ENFILE): a
+    /// moment later, when a client has gone, the same write succeeds.
+    pub fn out_of_descriptors(&self) -> bool {
+        let mut cause: Option<&(dyn std::error::Error + 'static)> = Some(self);
+        while let Some(e) = cause {
+            if let Some(io) = e.downcast_ref::<io::Error>()
+                && matches!(io.raw_os_error(), Some(libc::EMFILE | libc::ENFILE))
+            {
+                return true;
+            }
+            cause = e.source();
+        }
+        false
+    }
+}
+
+/// The largest calibration id: 2^53 − 1, the largest integer a JSON client
+/// (a browser's page) reads exactly. A sensor reaches it after 285 million
+/// years of a calibration a second; a stored id beyond it was edited by
+/// hand, and a next id past it would wrap or repeat.
+pub const MAX_ID: u64 = (1 << 53) - 1;
+
+/// Waits before each retry of a save that found no descriptor free: the
+/// budget keeps descriptors for the state writer, so this is the last guard
+/// against a leak elsewhere, and a little over 3 s in all.
+pub const SAVE_RETRIES_MS: [u64; 4] = [50, 200, 800, 2400];
+
 impl StateStore {
+    /// [`StateStore::save`], tried again after each of [`SAVE_RETRIES_MS`]
+    /// while no descriptor is free.
+    pub fn save_retrying(&self, calibration: &Calibration) -> Result<(), StateError> {
+        let mut waits = SAVE_RETRIES_MS.iter();
+        loop {
+            match self.save(calibration) {
+                Err(e) if e.out_of_descriptors() => match waits.next() {
+                    Some(ms) => {
+                        tracing::warn!(
+                            sensor = calibration.sensor,
+                            "no file descriptor free to store the calibration; trying again in {ms} ms"
+                        );
+                        std::thread::sleep(std::time::Duration::from_millis(*ms));
+                    }
+                    None => return Err(e),
+                },
+                other => return other,
+            }
+        }
+    }
+
     /// Opens (creating if needed) the state directory. The directory must
     /// exist or be creatable, and be listable. One that can be read but not
     /// written (a read-only file system, missing permission) still opens:
@@ -293,6 +342,25 @@ impl StateStore {
             Err(e) => format!("unreadable: {e}"),
         };
         Err(self.move_aside(path, problem))
+    }
+
+    /// [`StateStore::load`], then `check` (the sensor's geometry and its
+    /// acceptance limits) on what it found: a calibration it refuses is
+    /// moved aside as a corrupt one, and an earlier one of its history it
+    /// refuses is dropped (never rolled back to).
+    pub fn load_checked(
+        &self,
+        sensor: &str,
+        check: impl Fn(&Calibration) -> Option<String>,
+    ) -> Result<Option<Calibration>, StateError> {
+        let Some(mut calibration) = self.load(sensor)? else {
+            return Ok(None);
+        };
+        if let Some(problem) = check(&calibration) {
+            return Err(self.move_aside(self.path_for(sensor), problem));
+        }
+        calibration.history.retain(|h| check(h).is_none());
+        Ok(Some(calibration))
     }
 
     /// Atomically replaces the sensor's file. On any error the old file is
@@ -501,6 +569,12 @@ fn decode(bytes: &[u8], sensor: &str) -> Result<Calibration, String> {
 /// magnitude that is not positive (it divides by them), or an rms or
 /// coverage outside its range.
 fn calibration_problem(c: &Calibration) -> Option<String> {
+    if !(1..=MAX_ID).contains(&c.id) {
+        return Some(format!(
+            "id is {}: ids run from 1 to {MAX_ID} (the largest integer a JSON client reads exactly), and never go back",
+            c.id
+        ));
+    }
     let p = &c.params;
     let numbers = [
         ("params.a", p.a),
@@ -537,20 +611,10 @@ fn calibration_problem(c: &Calibration) -> Option<String> {
         }
     }
     if let Some(e) = &c.ellipsoid {
-        use crate::model::calibration3::Calibration3Invalid;
-        match e.calibration().validate() {
-            Err(
-                Calibration3Invalid::NotFinite { .. }
-                | Calibration3Invalid::RadiusNotPositive { .. },
-            ) => {
-                return Some(
-                    "ellipsoid holds a non-finite number or a radius not above zero".into(),
-                );
-            }
-            // A W that is not symmetric positive definite still loads, as
-            // it always has.
-            Err(Calibration3Invalid::NotSymmetric | Calibration3Invalid::NotPositiveDefinite)
-            | Ok(()) => {}
+        // A mirror, a collapse, a matrix no sensor has or an offset of
+        // 1e308 would correct every reading wrongly while saying so.
+        if let Err(e) = e.calibration().validate() {
+            return Some(format!("ellipsoid: {e}"));
         }
         if !(0.0..=1.0).contains(&e.coverage) {
             return Some(format!(

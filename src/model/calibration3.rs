@@ -58,7 +58,29 @@ pub enum Calibration3Invalid {
     /// W has an eigenvalue that is not above zero: a mirror or a collapse.
     #[error("its matrix W is not positive definite")]
     NotPositiveDefinite,
+    /// W stretches one direction more than [`MAX_STRETCH`] times another.
+    #[error(
+        "its matrix W stretches one direction {ratio:.3e} times another, beyond {MAX_STRETCH} (ArduPilot's soft-iron diagonal bounds, 0.2 to 5)"
+    )]
+    Stretched { ratio: f64 },
+    /// An offset of more than [`MAX_OFFSET_RADII`] field radii.
+    #[error(
+        "its offset on {axis} is {radii:.3e} field radii, beyond {MAX_OFFSET_RADII} (ArduPilot's COMPASS_OFFS_MAX beside the Earth's field)"
+    )]
+    OffsetTooLarge { axis: &'static str, radii: f64 },
 }
+
+/// The most W may stretch one direction against another: 25, the ratio of
+/// ArduPilot's soft-iron diagonal bounds (0.2 to 5,
+/// CompassCalibrator::fit_acceptable). Beyond it a reading is squeezed onto
+/// a line, or a hand-edited number (1e308) took the matrix over.
+pub const MAX_STRETCH: f64 = 25.0;
+/// The largest offset per axis, in field radii: 12. ArduPilot accepts
+/// offsets up to COMPASS_OFFS_MAX (1800 mG) beside fields down to
+/// FIELD_RADIUS_MIN (150 mG), which is 12 radii; the daemon's limits
+/// relative to the radius are tighter (5), so every calibration it accepts
+/// passes, while an offset of 1e308 does not.
+pub const MAX_OFFSET_RADII: f64 = 12.0;
 
 /// Reads a list of three numbers.
 pub fn triple(v: Option<&Value>, field: &'static str) -> Result<[f64; 3], Calibration3JsonError> {
@@ -134,8 +156,19 @@ impl Calibration3D {
         if (m - m.transpose()).abs().max() > 1e-6 * scale {
             return Err(Calibration3Invalid::NotSymmetric);
         }
-        if m.symmetric_eigenvalues().iter().any(|&l| !(l > 0.0)) {
+        let eigen = m.symmetric_eigenvalues();
+        if eigen.iter().any(|&l| !(l > 0.0)) {
             return Err(Calibration3Invalid::NotPositiveDefinite);
+        }
+        let ratio = eigen.max() / eigen.min();
+        if !(ratio <= MAX_STRETCH) {
+            return Err(Calibration3Invalid::Stretched { ratio });
+        }
+        for (axis, o) in ["x", "y", "z"].into_iter().zip(self.offset) {
+            let radii = o.abs() / self.r;
+            if !(radii <= MAX_OFFSET_RADII) {
+                return Err(Calibration3Invalid::OffsetTooLarge { axis, radii });
+            }
         }
         Ok(())
     }

@@ -17,6 +17,7 @@ use serde::Serialize;
 use serde_json::Value;
 
 use super::FitError;
+use super::calibration::Terms;
 use super::centred_split::{as_one_kc, fit_with_gyro};
 use super::effects::{Effect, model_name, parse_list};
 use super::fit::{FitOptions, fit_paper};
@@ -296,7 +297,55 @@ pub fn parse_stored(bytes: &[u8]) -> Result<StoredCalibration, CheckError> {
             });
         }
     }
+    // The same rules as a daemon's stored calibration, at the default
+    // acceptance limits: a gain ratio of 1e308 or an offset of 1.7e308
+    // would only print null and inf.
+    let (paper, terms) = paper_and_terms(&stored);
+    if let Some(problem) = crate::model::validity::plane_problem(
+        &paper,
+        &terms,
+        crate::model::validity::DEFAULT_MAX_SCALE_RATIO,
+        crate::model::validity::DEFAULT_MAX_OFFSET_RATIO,
+    ) {
+        return Err(CheckError::Invalid { problem });
+    }
     Ok(stored)
+}
+
+/// A stored calibration's paper constants and live terms, as a daemon
+/// would hold them (0 where the model lacks a term).
+fn paper_and_terms(stored: &StoredCalibration) -> (PaperCalibration, Terms) {
+    let value = |name: &str| {
+        stored
+            .params
+            .iter()
+            .find(|p| p.name == name)
+            .map_or(0.0, |p| p.value)
+    };
+    let kc = if stored.params.iter().any(|p| p.name == KC_AXES[0]) {
+        [value(KC_AXES[0]), value(KC_AXES[1])]
+    } else {
+        [value("kc"); 2]
+    };
+    let frame = stored.turn_frame.unwrap_or(TurnFrame {
+        centre: [0.0; 2],
+        radius: [1.0; 2],
+    });
+    let terms = Terms {
+        c: value("c"),
+        k: [value("k_x"), value("k_y")],
+        cubic_scale: stored.cubic_scale.unwrap_or(1.0),
+        kc,
+        centre: frame.centre,
+        turn_radius: frame.radius,
+    };
+    let paper = PaperCalibration {
+        a: value("a"),
+        b: value("b"),
+        d: value("d"),
+        r: value("r"),
+    };
+    (paper, terms)
 }
 
 /// The inverse of the standard normal distribution function, by Acklam's

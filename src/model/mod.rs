@@ -59,6 +59,7 @@ pub mod still_stream;
 pub mod tilt;
 pub mod trust;
 pub mod turn;
+pub mod validity;
 pub mod vertical;
 pub mod watch;
 

@@ -782,6 +782,10 @@ pub enum Calibration3Error {
         what: &'static str,
     },
     #[error(
+        "the numbers cannot be a calibration: {problem}; fit the recording again (`fieldcal fit FILE --x X --y Y --z Z --json`)"
+    )]
+    Impossible { problem: String },
+    #[error(
         "the calibration's model has effects the heading cannot apply ({model}: {parameters}; the heading applies the offset and W alone): give the calibration of the model without them (`fieldcal fit FILE --x X --y Y --z Z --effects {base} --json`)"
     )]
     WithEffects {
@@ -860,10 +864,19 @@ impl Calibration3 {
                     what: "list of three finite numbers",
                 });
             }
-            // A W that is not symmetric positive definite is applied as it
-            // is, as the heading always has.
-            Err(Calibration3Invalid::NotSymmetric | Calibration3Invalid::NotPositiveDefinite)
-            | Ok(()) => {}
+            // A mirror, a collapse, a matrix or offset no sensor has:
+            // applied, it would give headings off by up to 180°.
+            Err(
+                e @ (Calibration3Invalid::NotSymmetric
+                | Calibration3Invalid::NotPositiveDefinite
+                | Calibration3Invalid::Stretched { .. }
+                | Calibration3Invalid::OffsetTooLarge { .. }),
+            ) => {
+                return Err(Calibration3Error::Impossible {
+                    problem: e.to_string(),
+                });
+            }
+            Ok(()) => {}
         }
         // `fit --effects full+drift` (covariate, cubic) adds the extras'
         // parameters: applying o and W alone would drop them silently.

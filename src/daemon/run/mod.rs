@@ -146,10 +146,10 @@ pub async fn run_with(
     if let Some(message) = &unwritable_state {
         tracing::error!("{message}");
     }
-    let mut sensors = Sensors::build(&config, Some(&store));
+    let (mut sensors, refused) = Sensors::build(&config, Some(&store));
     let (failures_tx, save_failures) = mpsc::unbounded_channel::<SaveFailure>();
     let writer = StateWriter::spawn(
-        move |c: &super::Calibration| store.save(c).map_err(|e| e.to_string()),
+        move |c: &super::Calibration| store.save_retrying(c).map_err(|e| e.to_string()),
         failures_tx,
     )
     .map_err(DaemonError::StateWriter)?;
@@ -162,7 +162,8 @@ pub async fn run_with(
     // Sources stop first; outputs only once the last line is published.
     let outputs = Outputs::start(&config, &hub, commands_tx, progress.as_ref()).await?;
 
-    if let Some(message) = unwritable_state {
+    // What went wrong at start, for subscribers as well as the log.
+    for message in unwritable_state.into_iter().chain(refused) {
         let line = serde_json::json!({ "class": "ERROR", "message": message });
         hub.publish(Lane::Control, Arc::from(line.to_string()));
     }

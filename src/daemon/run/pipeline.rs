@@ -50,7 +50,7 @@ impl Pipeline {
             None => 0,
         };
         Ok(Pipeline {
-            sensors: Sensors::build(config, None),
+            sensors: Sensors::build(config, None).0,
             index,
             source_name: config
                 .sources

@@ -17,17 +17,27 @@ pub(crate) struct Sensors {
 }
 
 impl Sensors {
-    pub(super) fn build(config: &Config, store: Option<&StateStore>) -> Self {
+    /// The sensors of `config`, each with its stored calibration where one
+    /// can correct it; the stored ones refused, each said in a sentence for
+    /// an ERROR line (the file was moved aside).
+    pub(super) fn build(config: &Config, store: Option<&StateStore>) -> (Self, Vec<String>) {
+        let mut refused = Vec::new();
         let sensors = config
             .sensors
             .iter()
             .filter_map(|s| {
                 let source = config.sources.iter().position(|src| src.name == s.source)?;
-                let stored = store.and_then(|store| match store.load(&s.name) {
-                    Ok(found) => found,
-                    Err(e) => {
-                        tracing::warn!("{e}; the sensor starts uncalibrated");
-                        None
+                let stored = store.and_then(|store| {
+                    match store
+                        .load_checked(&s.name, |c| crate::daemon::sensor::stored_problem(s, c))
+                    {
+                        Ok(found) => found,
+                        Err(e) => {
+                            let message = format!("{e}; sensor '{}' starts uncalibrated", s.name);
+                            tracing::error!("{message}");
+                            refused.push(message);
+                            None
+                        }
                     }
                 });
                 if let Some(north) = &s.north {
@@ -38,7 +48,7 @@ impl Sensors {
             .collect();
         let mut built = Sensors { sensors };
         built.link_tilts();
-        built
+        (built, refused)
     }
 
     /// Feeds a reading to the sensors of its source and stream.
