@@ -14,7 +14,7 @@ use tokio::sync::mpsc;
 
 use serde::Serialize;
 
-use super::replay::{Pacer, Speed};
+use super::replay::{MAX_GAP_S, Pacer, Speed};
 use super::serial::unix_now;
 use super::{SourceCounters, SourceEvent};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow, CsvScan, open_rows, scan_rows};
@@ -48,6 +48,9 @@ pub struct CsvPlayback {
     pub span_s: f64,
     /// The play was stopped before the end.
     pub stopped: bool,
+    /// Jumps in time beyond [`MAX_GAP_S`], each said with its line and
+    /// played on at once.
+    pub gaps: u64,
 }
 
 /// Plays `path` (whose header must still be `layout`'s) calling `emit` for
@@ -134,8 +137,9 @@ pub fn play_csv_files(
             done: false,
         });
     }
-    let pacer = Pacer::new(speed);
+    let mut pacer = Pacer::new(speed);
     let mut summary = CsvPlayback::default();
+    let mut last: Option<f64> = None;
     for (k, lane) in lanes.iter_mut().enumerate() {
         advance(lane, &files[k], counters)?;
     }
@@ -159,6 +163,21 @@ pub fn play_csv_files(
             break;
         };
         let t0 = *first.get_or_insert(row.time);
+        if let Some(before) = last
+            && !(row.time - before <= MAX_GAP_S)
+        {
+            let gap = row.time - before;
+            summary.gaps += 1;
+            tracing::warn!(
+                "{}: line {}: the time jumps {gap:.3e} s ahead of the row before ({} s → {} s), more than {MAX_GAP_S} s: treated as a gap, the rows after it play on at once",
+                files[k].display(),
+                row.line,
+                fmt_s(before),
+                fmt_s(row.time)
+            );
+            pacer.skip(gap);
+        }
+        last = Some(row.time);
         pacer.wait_for(row.time - t0, stop);
         summary.rows += 1;
         summary.span_s = row.time - t0;
@@ -274,7 +293,12 @@ pub fn clock_overlap(spans: &[(&Path, f64, f64)]) -> Result<Option<String>, CsvE
 }
 
 fn fmt_s(t: f64) -> String {
-    format!("{t:.3}")
+    // A time past what a clock counts (1e140) in 4 digits, not 141.
+    if t.abs() < 1e12 {
+        format!("{t:.3}")
+    } else {
+        format!("{t:.3e}")
+    }
 }
 
 /// Which of a source's files holds every column in `names` (the sensor's

@@ -105,13 +105,34 @@ pub struct ReplaySummary {
 pub(crate) struct Pacer {
     started: Instant,
     speed: Speed,
+    /// Recording time not waited for: the gaps skipped ([`Pacer::skip`]).
+    skipped: f64,
 }
+
+/// A jump forward in a recording's time beyond this is a gap, not a pause
+/// to wait through: 1 h. A log's rows come every few milliseconds to a
+/// second; an hour between two rows is two sessions in one file, or a
+/// clock that jumped (a time of 1e140, a shift by the Unix epoch). The
+/// source says so with the row's line and plays on at once, so it never
+/// sleeps past this bound in silence.
+pub const MAX_GAP_S: f64 = 3600.0;
 
 impl Pacer {
     pub(crate) fn new(speed: Speed) -> Self {
         Pacer {
             started: Instant::now(),
             speed,
+            skipped: 0.0,
+        }
+    }
+
+    /// Plays on past `gap` seconds of recording time without waiting.
+    pub(crate) fn skip(&mut self, gap: f64) {
+        if gap.is_finite() && gap > 0.0 {
+            self.skipped += gap;
+        } else {
+            // Beyond what a number holds: nothing after it can be paced.
+            self.speed = Speed::Max;
         }
     }
 
@@ -119,6 +140,7 @@ impl Pacer {
         let Speed::Times(factor) = self.speed else {
             return;
         };
+        let time = time - self.skipped;
         // A capture's times are user data: a due time beyond what a
         // Duration or the clock holds is treated as "a day from now", and the
         // stop flag still ends the wait.
@@ -199,13 +221,23 @@ pub fn replay_counted(
                 truncated: truncated.as_ref().map(|t| t.to_string()),
                 ..Default::default()
             };
-            let pacer = Pacer::new(speed);
+            let mut pacer = Pacer::new(speed);
             let mut frames = Vec::new();
+            let mut last = 0.0;
             for chunk in chunks {
                 if stop.load(Ordering::Relaxed) {
                     summary.stopped = true;
                     break;
                 }
+                let gap = chunk.time - last;
+                if gap > MAX_GAP_S {
+                    tracing::warn!(
+                        "{name}: the capture's time jumps {gap:.3e} s at {:.3} s, more than {MAX_GAP_S} s: treated as a gap, played on at once",
+                        last
+                    );
+                    pacer.skip(gap);
+                }
+                last = chunk.time;
                 pacer.wait_for(chunk.time, stop);
                 summary.chunks += 1;
                 summary.span_s = chunk.time;

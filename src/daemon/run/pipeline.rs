@@ -85,7 +85,13 @@ impl Pipeline {
         if time - *k * interval >= f64::from(MAX_STATUS_CATCH_UP) * interval {
             *k = (time / interval).floor();
         }
-        while time >= *k * interval {
+        // At most the catch-up and one more: a time so far out that one
+        // interval no longer moves the count (1e140 s) steps to the next
+        // number instead, so the loop always ends.
+        for _ in 0..=MAX_STATUS_CATCH_UP {
+            if !(time >= *k * interval) {
+                break;
+            }
             let statuses = [SourceStatus {
                 source: &self.source_name,
                 connected: true,
@@ -93,7 +99,8 @@ impl Pipeline {
             }];
             self.lines
                 .push(self.sensors.status_line(*k * interval, &statuses, None));
-            *k += 1.0;
+            let next = *k + 1.0;
+            *k = if next > *k { next } else { k.next_up() };
         }
         let lines = &mut self.lines;
         let mut emit = |_: Lane, line: String| lines.push(line);
