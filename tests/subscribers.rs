@@ -414,7 +414,7 @@ fn errors(answer: &[Value]) -> Vec<String> {
 fn recalibrate_over_tcp_needs_the_configuration_or_the_token_and_the_port_bound_is_logged() {
     let dir = tempfile::tempdir().unwrap();
     let token = dir.path().join("token");
-    std::fs::write(&token, "s3cret-token\n").unwrap();
+    std::fs::write(&token, "s3cret-token-0123\n").unwrap();
     std::fs::set_permissions(&token, std::fs::Permissions::from_mode(0o600)).unwrap();
     let config = idle_config(
         dir.path(),
@@ -443,7 +443,7 @@ fn recalibrate_over_tcp_needs_the_configuration_or_the_token_and_the_port_bound_
     assert!(wrong[0].contains("does not match"), "{wrong:?}");
     let answer = ask(
         &mut client,
-        r#"{"command":"recalibrate","token":"s3cret-token"}"#,
+        r#"{"command":"recalibrate","token":"s3cret-token-0123"}"#,
     );
     assert!(errors(&answer).is_empty(), "{answer:?}");
     // Duplicate keys: refused, naming the key, not run.
@@ -514,6 +514,17 @@ fn the_socket_mode_and_group_come_from_the_configuration() {
     assert_ne!(r.code, Some(0));
     assert!(
         r.stderr.contains("outputs.unix_group") && r.stderr.contains("no group named"),
+        "{}",
+        r.stderr
+    );
+    // A token of one byte is refused: it would be guessed.
+    let short = dir.path().join("short");
+    std::fs::write(&short, "t\n").unwrap();
+    std::fs::set_permissions(&short, std::fs::Permissions::from_mode(0o600)).unwrap();
+    let config = idle_config(dir.path(), &format!("token_file = \"{}\"", short.display()));
+    let r = common::run(&["run", "--config", config.to_str().unwrap()]);
+    assert!(
+        r.code != Some(0) && r.stderr.contains("at least 16"),
         "{}",
         r.stderr
     );

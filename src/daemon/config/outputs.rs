@@ -181,14 +181,25 @@ impl Checker<'_> {
                 ),
             ));
         }
-        Token::new(&text).ok_or_else(|| {
+        let token = Token::new(&text).ok_or_else(|| {
             self.error(
                 key,
                 format!(
                     "{shown} is empty: put the token in it (for example: openssl rand -hex 32)"
                 ),
             )
-        })
+        })?;
+        if token.len() < crate::daemon::publish::MIN_TOKEN_BYTES {
+            return Err(self.error(
+                key,
+                format!(
+                    "{shown} holds a token of {} bytes: at least {} are needed, or it is guessed (for example: openssl rand -hex 32)",
+                    token.len(),
+                    crate::daemon::publish::MIN_TOKEN_BYTES
+                ),
+            ));
+        }
+        Ok(token)
     }
 
     /// `outputs.KEY` as a socket address, refused when it is not loopback

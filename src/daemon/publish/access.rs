@@ -117,11 +117,27 @@ impl Origin {
 #[derive(Clone)]
 pub struct Token(Box<[u8]>);
 
+/// The shortest token `token_file` may hold: 16 bytes. A token is sent
+/// over the TCP and HTTP listeners, where a client may try as many as it
+/// likes; 16 characters of `openssl rand -hex` are 64 bits, beyond any
+/// number of tries at the listeners' rate limit.
+pub const MIN_TOKEN_BYTES: usize = 16;
+
 impl Token {
     /// None for an empty token.
     pub fn new(text: &str) -> Option<Token> {
         let text = text.trim();
         (!text.is_empty()).then(|| Token(text.as_bytes().into()))
+    }
+
+    /// Its length in bytes.
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    /// Whether it is empty (never, as made by [`Token::new`]).
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
     }
 
     /// Whether `given` is the token; the time taken depends only on the

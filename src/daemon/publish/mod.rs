@@ -93,7 +93,7 @@ pub mod unix;
 mod writer;
 
 pub use access::{
-    ACCEPT_RATE, Access, COMMAND_RATE, DEFAULT_MAX_SUBSCRIBERS, Origin, Policy,
+    ACCEPT_RATE, Access, COMMAND_RATE, DEFAULT_MAX_SUBSCRIBERS, MIN_TOKEN_BYTES, Origin, Policy,
     RESERVED_DESCRIPTORS, Rate, Token, check_max_subscribers, default_max_subscribers,
     descriptor_limit,
 };
