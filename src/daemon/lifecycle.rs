@@ -39,7 +39,9 @@ impl Lifecycle {
             } else {
                 SensorState::Collecting
             },
-            next_id: stored.as_ref().map_or(1, |c| c.id.saturating_add(1)),
+            next_id: stored
+                .as_ref()
+                .map_or(1, |c| c.id.saturating_add(1).min(super::state::MAX_ID)),
             current: stored,
             readings: 0,
             fits_accepted: 0,
@@ -70,7 +72,7 @@ impl Lifecycle {
     /// The one it replaces goes to the new one's history (at most
     /// [`HISTORY`] kept), for `rollback`.
     pub fn accept(&mut self, mut calibration: Calibration) {
-        self.next_id = self.next_id.saturating_add(1);
+        self.next_id = self.next_id.saturating_add(1).min(super::state::MAX_ID);
         self.fits_accepted += 1;
         self.state = SensorState::Calibrated;
         self.stale = None;

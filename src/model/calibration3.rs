@@ -70,11 +70,13 @@ pub enum Calibration3Invalid {
     OffsetTooLarge { axis: &'static str, radii: f64 },
 }
 
-/// The most W may stretch one direction against another: 25, the ratio of
-/// ArduPilot's soft-iron diagonal bounds (0.2 to 5,
-/// CompassCalibrator::fit_acceptable). Beyond it a reading is squeezed onto
-/// a line, or a hand-edited number (1e308) took the matrix over.
-pub const MAX_STRETCH: f64 = 25.0;
+/// The most W may stretch one direction against another: 343. A matrix
+/// within ArduPilot's soft-iron bounds (diagonal 0.2 to 5, off-diagonal
+/// below 1, CompassCalibrator::fit_acceptable), normalised to det W = 1,
+/// has eigenvalues of at most 5 + 2 = 7, so its smallest is at least
+/// 1/7² and the ratio at most 7³ = 343: every fit the daemon accepts is
+/// within it, while a hand-edited 1e308 is not.
+pub const MAX_STRETCH: f64 = 343.0;
 /// The largest offset per axis, in field radii: 12. ArduPilot accepts
 /// offsets up to COMPASS_OFFS_MAX (1800 mG) beside fields down to
 /// FIELD_RADIUS_MIN (150 mG), which is 12 radii; the daemon's limits

@@ -297,15 +297,16 @@ pub fn parse_stored(bytes: &[u8]) -> Result<StoredCalibration, CheckError> {
             });
         }
     }
-    // The same rules as a daemon's stored calibration, at the default
-    // acceptance limits: a gain ratio of 1e308 or an offset of 1.7e308
-    // would only print null and inf.
+    // The same rules as a daemon's stored calibration, at the bounds of a
+    // possible one (`fit` holds no acceptance limits, and a daemon's may be
+    // wider than the defaults): a gain ratio of 1e308 or an offset of
+    // 1.7e308 would only print null and inf.
     let (paper, terms) = paper_and_terms(&stored);
     if let Some(problem) = crate::model::validity::plane_problem(
         &paper,
         &terms,
-        crate::model::validity::DEFAULT_MAX_SCALE_RATIO,
-        crate::model::validity::DEFAULT_MAX_OFFSET_RATIO,
+        crate::model::validity::POSSIBLE_SCALE_RATIO,
+        crate::model::validity::POSSIBLE_OFFSET_RATIO,
     ) {
         return Err(CheckError::Invalid { problem });
     }

@@ -15,6 +15,13 @@ use super::paper::PaperCalibration;
 pub const DEFAULT_MAX_SCALE_RATIO: f64 = 2.0;
 pub const DEFAULT_MAX_OFFSET_RATIO: f64 = 5.0;
 
+/// The bounds of a possible 2-D calibration where no sensor's limits apply
+/// (`check` of a `fit --json`, which holds none): two axes of one chip
+/// whose gains differ 100-fold, or an offset of 100 field radii, are a
+/// wrong column or an edited number, never a sensor.
+pub const POSSIBLE_SCALE_RATIO: f64 = 100.0;
+pub const POSSIBLE_OFFSET_RATIO: f64 = 100.0;
+
 /// The largest |k| or |kc| a calibration may hold: 1/3. Beyond −1/3 the
 /// cubic correction `x + k x³/S²` turns back within its full scale (its
 /// slope `1 + 3k` reaches zero) and folds two readings onto one; a cubic of
@@ -62,14 +69,14 @@ pub fn plane_problem(
     let ratio = p.a.max(1.0 / p.a);
     if !(ratio <= max_scale_ratio) {
         return Some(format!(
-            "params.a = {} makes the axes' gains differ ×{ratio:.3e}, beyond the acceptance limit ×{max_scale_ratio} (max_scale_ratio)",
+            "params.a = {} makes the axes' gains differ ×{ratio:.3e}, beyond the limit ×{max_scale_ratio} (max_scale_ratio)",
             p.a
         ));
     }
     let offset = p.b.hypot(p.d) / p.r;
     if !(offset <= max_offset_ratio) {
         return Some(format!(
-            "params.b = {}, params.d = {}: the offset is {offset:.3e} field radii (r = {}), beyond the acceptance limit {max_offset_ratio} (max_offset_ratio)",
+            "params.b = {}, params.d = {}: the offset is {offset:.3e} field radii (r = {}), beyond the limit {max_offset_ratio} (max_offset_ratio)",
             p.b, p.d, p.r
         ));
     }

@@ -309,7 +309,19 @@ impl Plane {
             Ok(check) => (Some(check), None),
             Err(why) => (None, Some(why)),
         };
-        if let Err(reason) = acceptance::check(&report, &self.limits) {
+        // The acceptance limits, then what every calibration that enters
+        // must be (model/validity.rs: its terms too), so none is accepted
+        // and stored that the next start would refuse.
+        let valid = || match crate::model::validity::plane_problem(
+            &report.calibration,
+            &terms,
+            self.limits.max_scale_ratio,
+            self.limits.max_offset_ratio,
+        ) {
+            Some(problem) => Err(format!("not a calibration: {problem}")),
+            None => Ok(()),
+        };
+        if let Err(reason) = acceptance::check(&report, &self.limits).and_then(|()| valid()) {
             // A fit outside the limits is published with its numbers, so the
             // user sees how far off it was.
             let message = CalibrationMessage {

@@ -104,7 +104,16 @@ impl Plane {
             watch::rms_on(parent, &ux, &uy),
         );
         let holds = watch::compare(&refined, refit, 0.0).agrees();
-        if !(holds && rms <= parent_rms) {
+        // A refinement is a weighted mean of two fits that passed: still
+        // held to what a stored calibration must be.
+        let valid = crate::model::validity::plane_problem(
+            &refined.params,
+            &refined.terms,
+            self.limits.max_scale_ratio,
+            self.limits.max_offset_ratio,
+        )
+        .is_none();
+        if !(holds && valid && rms <= parent_rms) {
             tracing::debug!(
                 sensor = %self.config.name,
                 "refinement of calibration #{} not kept: rms {rms:.5} against its parent's {parent_rms:.5} over the last two rotations",

@@ -81,15 +81,37 @@ impl Default for ConnectionLimits {
 struct Slot {
     /// Milliseconds since the listener's start.
     active_ms: AtomicU64,
+    /// When the request's head started arriving (ms), [`NOT_IN_HEAD`] when
+    /// none is: a head still coming after [`EVICT_AFTER`] may be closed
+    /// however often its bytes trickle in.
+    head_ms: AtomicU64,
+    /// A request is being answered (its handler runs): never closed to make
+    /// room, though it may be silent for seconds (a recalibrate waits for
+    /// the daemon's answer).
+    busy: AtomicBool,
     streaming: AtomicBool,
     evicted: AtomicBool,
     waker: AtomicWaker,
 }
 
+const NOT_IN_HEAD: u64 = u64::MAX;
+
+fn millis(epoch: std::time::Instant) -> u64 {
+    u64::try_from(epoch.elapsed().as_millis()).unwrap_or(u64::MAX - 1)
+}
+
 impl Slot {
     fn touch(&self, epoch: std::time::Instant) {
-        let ms = u64::try_from(epoch.elapsed().as_millis()).unwrap_or(u64::MAX);
-        self.active_ms.store(ms, Ordering::Relaxed);
+        self.active_ms.store(millis(epoch), Ordering::Relaxed);
+    }
+
+    /// Since when the connection has made no progress that counts: its
+    /// last byte, or the start of a head still arriving, whichever is
+    /// older.
+    fn idle_since(&self) -> u64 {
+        self.active_ms
+            .load(Ordering::Relaxed)
+            .min(self.head_ms.load(Ordering::Relaxed))
     }
 }
 
@@ -103,6 +125,14 @@ pub struct Peer {
 }
 
 impl Peer {
+    /// Marks the connection as answering a request (or done with it): a
+    /// busy one is never closed to make room.
+    pub fn set_busy(&self, busy: bool) {
+        if let Some(slot) = &self.slot {
+            slot.busy.store(busy, Ordering::Relaxed);
+        }
+    }
+
     /// Gives the connection's permit back: it is now an event stream,
     /// counted by the hub among the subscribers, and never closed to make
     /// room for the page's requests.
@@ -148,15 +178,18 @@ impl BoundedListener {
     /// [`EVICT_AFTER`] and is not an event stream; forgets ended ones.
     fn evict_oldest(&mut self) {
         self.slots.retain(|w| w.strong_count() > 0);
-        let now_ms = u64::try_from(self.epoch.elapsed().as_millis()).unwrap_or(u64::MAX);
+        let live: Vec<Arc<Slot>> = self.slots.iter().filter_map(Weak::upgrade).collect();
+        // One closing at a time: one already told to close makes the room.
+        if live.iter().any(|s| s.evicted.load(Ordering::Relaxed)) {
+            return;
+        }
+        let now_ms = millis(self.epoch);
         let after_ms = u64::try_from(EVICT_AFTER.as_millis()).unwrap_or(u64::MAX);
-        let oldest = self
-            .slots
+        let oldest = live
             .iter()
-            .filter_map(Weak::upgrade)
-            .filter(|s| !s.streaming.load(Ordering::Relaxed) && !s.evicted.load(Ordering::Relaxed))
-            .filter(|s| now_ms.saturating_sub(s.active_ms.load(Ordering::Relaxed)) >= after_ms)
-            .min_by_key(|s| s.active_ms.load(Ordering::Relaxed));
+            .filter(|s| !s.streaming.load(Ordering::Relaxed) && !s.busy.load(Ordering::Relaxed))
+            .filter(|s| now_ms.saturating_sub(s.idle_since()) >= after_ms)
+            .min_by_key(|s| s.idle_since());
         if let Some(slot) = oldest {
             slot.evicted.store(true, Ordering::Relaxed);
             slot.waker.wake();
@@ -204,11 +237,16 @@ impl axum::serve::Listener for BoundedListener {
             };
             let slot = Arc::new(Slot {
                 active_ms: AtomicU64::new(0),
+                head_ms: AtomicU64::new(millis(self.epoch)),
+                busy: AtomicBool::new(false),
                 streaming: AtomicBool::new(false),
                 evicted: AtomicBool::new(false),
                 waker: AtomicWaker::new(),
             });
             slot.touch(self.epoch);
+            // Ended connections are forgotten at every accept, so the list
+            // holds at most the connections open now.
+            self.slots.retain(|w| w.strong_count() > 0);
             self.slots.push(Arc::downgrade(&slot));
             let permit = Arc::new(Mutex::new(Some(permit)));
             let io = BoundedStream {
@@ -261,6 +299,9 @@ impl BoundedStream {
         self.slot.touch(self.epoch);
         if !self.in_head {
             self.in_head = true;
+            self.slot
+                .head_ms
+                .store(millis(self.epoch), Ordering::Relaxed);
             self.deadline
                 .as_mut()
                 .reset(Instant::now() + self.limits.head);
@@ -270,6 +311,7 @@ impl BoundedStream {
     /// Bytes written: the request was answered; the idle deadline runs.
     fn wrote_some(&mut self) {
         self.slot.touch(self.epoch);
+        self.slot.head_ms.store(NOT_IN_HEAD, Ordering::Relaxed);
         self.in_head = false;
         self.deadline
             .as_mut()

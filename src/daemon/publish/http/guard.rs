@@ -76,11 +76,17 @@ impl Hosts {
     }
 }
 
-/// Lower case, without a final dot.
+/// Lower case, without a final dot (before a port too: `robot.lan.:8080`).
 fn normal(host: &str) -> String {
     let host = host.trim().to_ascii_lowercase();
-    match host.strip_suffix('.') {
-        Some(h) => h.to_string(),
+    let (name, port) = match host.rsplit_once(':') {
+        Some((name, port)) if !name.contains(':') && !name.starts_with('[') => {
+            (name.to_string(), format!(":{port}"))
+        }
+        _ => (host.clone(), String::new()),
+    };
+    match name.strip_suffix('.') {
+        Some(h) => format!("{h}{port}"),
         None => host,
     }
 }
@@ -162,10 +168,23 @@ pub fn check(
 
 /// The middleware: [`check`] before every route.
 pub async fn guard(State(hosts): State<Hosts>, request: Request, next: Next) -> Response {
-    match check(&hosts, request.method(), request.headers()) {
-        Ok(()) => next.run(request).await,
-        Err((status, message)) => super::error(status, &message),
+    if let Err((status, message)) = check(&hosts, request.method(), request.headers()) {
+        return super::error(status, &message);
     }
+    // While the handler runs, the connection is busy: never closed to make
+    // room for another client.
+    let peer = request
+        .extensions()
+        .get::<axum::extract::ConnectInfo<super::Peer>>()
+        .map(|c| c.0.clone());
+    if let Some(peer) = &peer {
+        peer.set_busy(true);
+    }
+    let response = next.run(request).await;
+    if let Some(peer) = &peer {
+        peer.set_busy(false);
+    }
+    response
 }
 
 #[cfg(test)]
@@ -191,6 +210,8 @@ mod tests {
             "app.localhost:80",
             "robot.lan:8080",
             "Robot.LAN.",
+            "robot.lan.:8080",
+            "localhost.:80",
         ] {
             assert!(h.allows(ok), "{ok}");
         }
