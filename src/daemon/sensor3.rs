@@ -438,19 +438,7 @@ impl Sensor3 {
             }
         };
         let max_rms = self.config.sphere.max_rms;
-        let limits = check_limits(&fit, self.field, self.config.lsb_per_unit, max_rms);
-        // And what every 3-D calibration that enters must be, so none is
-        // accepted and stored that the next start would refuse.
-        let valid = || {
-            crate::model::calibration3::Calibration3D {
-                offset: fit.offset,
-                matrix: fit.matrix,
-                r: fit.r,
-            }
-            .validate()
-            .map_err(|e| format!("not a calibration: {e}"))
-        };
-        if let Err(reason) = limits.and_then(|()| valid()) {
+        if let Err(reason) = check_limits(&fit, self.field, self.config.lsb_per_unit, max_rms) {
             self.reject(life, (time, fit_ms), reason, Some(&fit), emit);
             return None;
         }

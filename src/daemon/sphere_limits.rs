@@ -147,6 +147,17 @@ pub fn check_limits(
             ));
         }
     }
+    // And what every 3-D calibration that enters must be
+    // (Calibration3D::validate), so none is accepted and stored that the
+    // next start would refuse.
+    let calibration = crate::model::calibration3::Calibration3D {
+        offset: fit.offset,
+        matrix: fit.matrix,
+        r: fit.r,
+    };
+    if let Err(e) = calibration.validate() {
+        failures.push(format!("not a calibration: {e}"));
+    }
     if failures.is_empty() {
         Ok(())
     } else {
