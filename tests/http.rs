@@ -10,7 +10,6 @@ use std::time::{Duration, Instant};
 
 use common::daemon::{Daemon, replay_config};
 use common::http::{Events, live_address, request};
-use fieldcal::daemon::config::{Config, parse};
 use fieldcal::daemon::http::{ConnectionLimits, PAGE, router, serve, serve_with};
 use fieldcal::daemon::publish::{ClientCommand, Hub, Lane, ReplyTo, error_line};
 use serde_json::{Value, json};
@@ -18,23 +17,13 @@ use tokio::sync::{mpsc, watch};
 
 const T: Duration = Duration::from_secs(30);
 
-fn config() -> Config {
-    let capture = common::repo_path("tests/data/falcon_turn.fcap");
-    let text = format!(
-        "[outputs]\nhttp = \"127.0.0.1:0\"\nrecalibrate_from = [\"unix\", \"http\"]\n[[source]]\nname = \"imu\"\nkind = \"replay\"\nfile = \"{}\"\n\
-         [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n",
-        capture.display()
-    );
-    parse(&text, &common::repo_path("tests/data/x.toml")).unwrap()
-}
-
 /// Serves the page's routes for `hub` on a free loopback port.
 async fn start(hub: &Hub) -> (String, mpsc::Receiver<(ClientCommand, ReplyTo)>) {
     let (tx, rx) = mpsc::channel(64);
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap().to_string();
     let (stop_tx, stop) = watch::channel(false);
-    let app = router(hub.clone(), tx, &config());
+    let app = router(hub.clone(), tx, &common::http::page_config());
     tokio::spawn(async move {
         let _keep = stop_tx;
         serve(listener, app, stop).await
@@ -48,7 +37,7 @@ async fn start_with(hub: &Hub, limits: ConnectionLimits) -> String {
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap().to_string();
     let (stop_tx, stop) = watch::channel(false);
-    let app = router(hub.clone(), tx, &config());
+    let app = router(hub.clone(), tx, &common::http::page_config());
     tokio::spawn(async move {
         let _keep = (stop_tx, rx);
         serve_with(listener, app, stop, limits).await

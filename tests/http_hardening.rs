@@ -10,20 +10,9 @@ use std::net::TcpStream;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use fieldcal::daemon::config::{Config, parse};
 use fieldcal::daemon::http::{ConnectionLimits, router, serve_with};
 use fieldcal::daemon::publish::{ClientCommand, Hub, ReplyTo};
 use tokio::sync::{mpsc, watch};
-
-fn config() -> Config {
-    let capture = common::repo_path("tests/data/falcon_turn.fcap");
-    let text = format!(
-        "[outputs]\nhttp = \"127.0.0.1:0\"\nrecalibrate_from = [\"unix\", \"http\"]\n[[source]]\nname = \"imu\"\nkind = \"replay\"\nfile = \"{}\"\n\
-         [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n",
-        capture.display()
-    );
-    parse(&text, &common::repo_path("tests/data/x.toml")).unwrap()
-}
 
 /// Serves the page for `hub` with `limits`; the commands it sends are
 /// recorded and answered with a STATUS.
@@ -32,7 +21,7 @@ async fn start(hub: &Hub, limits: ConnectionLimits) -> (String, Arc<Mutex<Vec<Cl
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap().to_string();
     let (stop_tx, stop) = watch::channel(false);
-    let app = router(hub.clone(), tx, &config());
+    let app = router(hub.clone(), tx, &common::http::page_config());
     tokio::spawn(async move {
         let _keep = stop_tx;
         serve_with(listener, app, stop, limits).await

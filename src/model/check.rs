@@ -60,6 +60,18 @@ pub struct StoredCalibration {
 }
 
 impl StoredCalibration {
+    /// The stored calibration applied to `data` ([`apply_model`]): `(s_x,
+    /// s_y, e)` for every sample, in the frame and scale it was fitted in.
+    pub fn apply(&self, data: &Dataset) -> Result<Vec<(f64, f64, f64)>, FitError> {
+        apply_model(
+            data,
+            &self.effects,
+            &self.params,
+            self.cubic_scale,
+            self.turn_frame.as_ref(),
+        )
+    }
+
     /// Whether the file gave standard errors for all its parameters.
     pub fn has_se(&self) -> bool {
         self.params.iter().all(|p| p.se.is_finite())
@@ -709,14 +721,7 @@ pub fn check(
     let residual_autocorrelation = lag1_autocorrelation(&refit_residuals);
     let inflation = se_inflation(residual_autocorrelation);
     // The stored calibration on the new recording.
-    let applied = apply_model(
-        data,
-        &stored.effects,
-        &stored.params,
-        stored.cubic_scale,
-        stored.turn_frame.as_ref(),
-    )
-    .map_err(CheckError::Apply)?;
+    let applied = stored.apply(data).map_err(CheckError::Apply)?;
     let mut skip = flagged.iter().copied().peekable();
     let (mut ss, mut n) = (0.0, 0usize);
     for (i, (_, _, e)) in applied.iter().enumerate() {

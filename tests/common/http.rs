@@ -225,3 +225,16 @@ pub fn live_address(log: &str) -> String {
     let end = rest.find('/').unwrap_or(rest.len());
     rest[..end].to_owned()
 }
+
+/// The configuration the page's in-process tests serve: the live page on a
+/// free loopback port, recalibrate allowed from it, one 2-axis compass on
+/// a replayed capture.
+pub fn page_config() -> fieldcal::daemon::config::Config {
+    let capture = super::repo_path("tests/data/falcon_turn.fcap");
+    let text = format!(
+        "[outputs]\nhttp = \"127.0.0.1:0\"\nrecalibrate_from = [\"unix\", \"http\"]\n[[source]]\nname = \"imu\"\nkind = \"replay\"\nfile = \"{}\"\n\
+         [[sensor]]\nname = \"compass\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n",
+        capture.display()
+    );
+    fieldcal::daemon::config::parse(&text, &super::repo_path("tests/data/x.toml")).unwrap()
+}

@@ -7,7 +7,6 @@ use fieldcal::model::check::{
 };
 use fieldcal::model::check3::{Check3Report, check3, is_three_axes, parse_stored3};
 use fieldcal::model::gyro::HeadingReference;
-use fieldcal::model::nonlinear::apply_model;
 use fieldcal::model::trust::{GyroModel, RecordingTrust, TrustLimits, monitor_recording};
 use fieldcal::report::significant;
 
@@ -155,13 +154,7 @@ fn monitor(
     report: Option<&CheckReport>,
 ) -> Result<Monitored> {
     let t = times_of(data.t.as_ref())?;
-    let applied = apply_model(
-        data,
-        &stored.effects,
-        &stored.params,
-        stored.cubic_scale,
-        stored.turn_frame.as_ref(),
-    )?;
+    let applied = stored.apply(data)?;
     let field_ratio: Vec<f64> = applied.iter().map(|&(_, _, e)| 1.0 + e).collect();
     let headings_rad: Vec<f64> = applied.iter().map(|&(sx, sy, _)| sy.atan2(sx)).collect();
     let heading = match (report.and_then(|r| r.heading_vs_gyro.clone()), reference) {
