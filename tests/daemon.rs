@@ -322,11 +322,7 @@ fn a_corrupt_state_file_is_set_aside_and_reported() {
         .filter(|n| n.starts_with("compass.json.corrupt-"))
         .collect();
     assert_eq!(moved.len(), 1, "{moved:?}");
-    assert!(
-        daemon.stderr().contains("compass.json"),
-        "{}",
-        daemon.stderr()
-    );
+    daemon.wait_for_log(Duration::from_secs(10), "compass.json");
 }
 
 #[test]

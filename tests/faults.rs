@@ -202,7 +202,7 @@ fn a_full_disk_keeps_the_old_file_and_readings_go_on() {
     assert_eq!(rc, 0, "prlimit: {}", std::io::Error::last_os_error());
 
     assert_failed_save_reported_and_readings_go_on(&mut daemon, &socket);
-    let log = daemon.stderr();
+    let log = daemon.wait_for_log(Duration::from_secs(10), "too large");
     assert!(
         log.contains("File too large") || log.contains("too large"),
         "the write failed for another reason than the size limit:\n{log}"
@@ -256,7 +256,7 @@ fn a_read_only_state_directory_loads_reports_and_readings_go_on() {
         assert_eq!(reading["calibrated"], true, "{reading}");
         assert_eq!(reading["calibration"], 7, "{reading}");
     }
-    let log = daemon.stderr();
+    let log = daemon.wait_for_log(LONG, "cannot be written");
     assert!(
         log.lines()
             .any(|l| l.contains("ERROR") && l.contains("cannot be written")),
@@ -305,7 +305,7 @@ fn a_really_full_filesystem_keeps_the_old_file_and_readings_go_on() {
     }
 
     assert_failed_save_reported_and_readings_go_on(&mut daemon, &socket);
-    let log = daemon.stderr();
+    let log = daemon.wait_for_log(Duration::from_secs(10), "No space left on device");
     assert!(
         log.contains("No space left on device"),
         "the write failed for another reason than a full disk:\n{log}"

@@ -16,6 +16,8 @@ pub struct Daemon {
     child: Child,
     lines: Receiver<(Instant, Value)>,
     stderr: Arc<Mutex<String>>,
+    /// The thread that copies stderr: finished once the child's stderr closes.
+    stderr_reader: Option<std::thread::JoinHandle<()>>,
     /// Every line seen so far, in order.
     pub seen: Vec<Value>,
 }
@@ -141,7 +143,7 @@ impl Daemon {
             }
         });
         let stderr = Arc::new(Mutex::new(String::new()));
-        {
+        let stderr_reader = {
             let stderr = stderr.clone();
             std::thread::spawn(move || {
                 for line in BufReader::new(stderr_pipe).lines() {
@@ -150,12 +152,13 @@ impl Daemon {
                     s.push_str(&line);
                     s.push('\n');
                 }
-            });
-        }
+            })
+        };
         Daemon {
             child,
             lines,
             stderr,
+            stderr_reader: Some(stderr_reader),
             seen: Vec::new(),
         }
     }
@@ -251,9 +254,21 @@ impl Daemon {
         self.wait(Duration::from_secs(10))
     }
 
+    /// Waits for the child to exit, then (for up to 5 s) for the last of
+    /// its stderr to be copied, so that `stderr()` afterwards holds all of it.
     pub fn wait(&mut self, timeout: Duration) -> ExitStatus {
         let stderr = self.stderr.clone();
-        wait_child(&mut self.child, timeout, || stderr.lock().unwrap().clone())
+        let status = wait_child(&mut self.child, timeout, || stderr.lock().unwrap().clone());
+        if let Some(reader) = self.stderr_reader.take() {
+            let deadline = Instant::now() + Duration::from_secs(5);
+            while !reader.is_finished() && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            if reader.is_finished() {
+                let _ = reader.join();
+            }
+        }
+        status
     }
 }
 
