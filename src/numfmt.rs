@@ -16,3 +16,25 @@ pub fn significant(value: f64, digits: usize) -> String {
     let decimals = (digits as i32 - 1 - magnitude).max(0) as usize;
     format!("{value:.decimals$}")
 }
+
+/// A fraction as a percentage with two decimals ("0.52 %"); one beyond a
+/// million percent (a reading off by orders of magnitude) in exponent
+/// form ("1.00e151 %"), not as 150 digits.
+pub fn percent(fraction: f64) -> String {
+    let p = fraction * 100.0;
+    if p.abs() < 1e6 || !p.is_finite() {
+        format!("{p:.2} %")
+    } else {
+        format!("{p:.2e} %")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_percentage_never_runs_to_hundreds_of_digits() {
+        assert_eq!(super::percent(0.0052), "0.52 %");
+        assert_eq!(super::percent(1e149), "1.00e151 %");
+        assert_eq!(super::percent(-2e10), "-2.00e12 %");
+    }
+}

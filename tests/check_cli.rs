@@ -908,3 +908,70 @@ fn a_3d_calibration_is_monitored_offline_on_its_field() {
     assert!(text.contains("checked     the field only"), "{text}");
     assert!(text.contains("distrusted  50.00"), "{text}");
 }
+
+/// Issue 23, finding 8: one row of 1e149 in the recording checked. The
+/// refit fails for that row (its spread is beyond what the fit computes
+/// in), and the verdict says so, not that the sphere was covered too little
+/// (it was covered whole); the rms it gives is a short number, not 150
+/// digits. A tumble of radius 1e140 or 1e-150 is named for its scale, not
+/// called degenerate.
+#[test]
+fn one_wild_row_is_named_for_what_it_is_and_numbers_stay_short() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = simulate3(dir.path(), "run.csv", 1, 100.0);
+    let (cal, _) = fit_json(dir.path(), &run, &[]);
+    let text = fs::read_to_string(&run).unwrap();
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    let header: Vec<&str> = lines[0].split(',').collect();
+    let x = header.iter().position(|c| *c == "x").unwrap();
+    let mut row: Vec<String> = lines[100].split(',').map(str::to_string).collect();
+    row[x] = "1e149".into();
+    lines[100] = row.join(",");
+    let wild = dir.path().join("wild.csv");
+    fs::write(&wild, lines.join("\n") + "\n").unwrap();
+    let report = check_json(&wild, &cal, &[]);
+    let verdict = report["verdict"].as_str().unwrap();
+    assert!(!verdict.contains("too little to refit"), "{verdict}");
+    assert!(verdict.contains("could not be refitted"), "{verdict}");
+    // The row is named: the 99th reading (0-based) of the file.
+    assert!(
+        verdict.contains("the farthest, reading 99, lies 1.0e149 from their mean"),
+        "{verdict}"
+    );
+    // The rms is given in exponent form.
+    let rms = verdict
+        .split("rms ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .unwrap_or_default();
+    assert!(rms.contains('e') && rms.len() < 10, "{verdict}");
+    let longest_digits = verdict
+        .split(|c: char| !c.is_ascii_digit())
+        .map(str::len)
+        .max()
+        .unwrap_or(0);
+    assert!(longest_digits < 12, "{verdict}");
+
+    for radius in [1e140, 1e-150] {
+        let mut csv = String::from("x,y,z\n");
+        for i in 0..400 {
+            let th = (1.0 - 2.0 * (f64::from(i) + 0.5) / 400.0).acos();
+            let ph = f64::from(i) * 2.399_963;
+            csv.push_str(&format!(
+                "{:e},{:e},{:e}\n",
+                radius * (0.3 + th.sin() * ph.cos()),
+                radius * 1.1 * th.sin() * ph.sin(),
+                radius * th.cos()
+            ));
+        }
+        let path = dir.path().join("scaled.csv");
+        fs::write(&path, csv).unwrap();
+        let err = run_err(&["fit", s(&path)]);
+        assert!(!err.contains("degenerate"), "{err}");
+        assert!(
+            err.contains("the readings spread over")
+                && err.contains("outside the 1e-50 to 1e50 the 3-D fit computes in"),
+            "{err}"
+        );
+    }
+}

@@ -1318,3 +1318,21 @@ fn out_of_plane_is_the_third_axis_of_a_plane() {
     );
     assert_refused(&sphere, "sensor[0].out_of_plane", None, &["2-axis"]);
 }
+
+/// Issue 23, finding 8: a path is shown as written, not as `././state`
+/// (a relative file beside a configuration given as `./fieldcal.toml`).
+#[test]
+fn relative_paths_are_resolved_without_dot_components() {
+    let text = format!(
+        "[daemon]\nstate_dir = \"./state\"\n{SOURCES}\n[[sensor]]\nname = \"c\"\nsource = \"imu\"\nfield = \"mag\"\naxes = [\"x\", \"y\"]\n"
+    );
+    for config in ["./fieldcal.toml", "fieldcal.toml", "./etc/./fieldcal.toml"] {
+        let parsed = parse(&text, Path::new(config)).unwrap();
+        let want = if config.contains("etc") {
+            PathBuf::from("etc/state")
+        } else {
+            PathBuf::from("state")
+        };
+        assert_eq!(parsed.daemon.state_dir, want, "{config}");
+    }
+}

@@ -89,13 +89,7 @@ axes = ["mag_x_lsb", "mag_z_lsb"]
 /// Runs the daemon on the log to its end; its CALIBRATION messages (times
 /// made relative to the first reading) and stderr.
 fn calibrations(dir: &Path, csv: &Path) -> (Vec<(f64, Value)>, String) {
-    let mut daemon = Daemon::start(&config(dir, csv), &[]);
-    let lines = daemon.drain(Duration::from_secs(60));
-    assert!(
-        daemon.wait(Duration::from_secs(10)).success(),
-        "{}",
-        daemon.stderr()
-    );
+    let (lines, stderr) = run_log(dir, csv);
     let first = lines
         .iter()
         .find(|v| v["class"] == "READING")
@@ -106,7 +100,20 @@ fn calibrations(dir: &Path, csv: &Path) -> (Vec<(f64, Value)>, String) {
         .filter(|v| v["class"] == "CALIBRATION")
         .map(|v| (v["time"].as_f64().unwrap() - first, v.clone()))
         .collect();
-    (cals, daemon.stderr())
+    (cals, stderr)
+}
+
+/// Runs the daemon on the log to its end: every line it published, and
+/// its stderr.
+fn run_log(dir: &Path, csv: &Path) -> (Vec<Value>, String) {
+    let mut daemon = Daemon::start(&config(dir, csv), &[]);
+    let lines = daemon.drain(Duration::from_secs(60));
+    assert!(
+        daemon.wait(Duration::from_secs(10)).success(),
+        "{}",
+        daemon.stderr()
+    );
+    (lines, daemon.stderr())
 }
 
 fn accepted(cals: &[(f64, Value)]) -> Vec<&(f64, Value)> {
@@ -205,4 +212,63 @@ fn a_robot_that_turns_back_and_forth_is_never_calibrated() {
     assert_never_calibrated("swing", 90.0, |t, rng| {
         compass_row(150.0 * (std::f64::consts::TAU * t / 8.0).sin(), rng)
     });
+}
+
+#[test]
+fn one_bad_row_is_refused_as_a_spike_and_the_first_turn_is_still_calibrated() {
+    // Six steady turns of 10 s; one row mid-way through the first carries
+    // garbage on one axis (a bad frame, EMI, a loose connector).
+    for (column, bad) in [(0, 65535.0), (0, 1e6), (1, 1e9), (0, -4096.0), (1, 5000.0)] {
+        let dir = tempfile::tempdir().unwrap();
+        let csv = dir.path().join("spike.csv");
+        write_log(&csv, 60.0, |t, rng| {
+            let (x, y) = compass_row(36.0 * t, rng);
+            let spoilt = (t - 4.3).abs() < 0.05;
+            match (spoilt, column) {
+                (true, 0) => (bad, y),
+                (true, _) => (x, bad),
+                _ => (x, y),
+            }
+        });
+        let (lines, stderr) = run_log(dir.path(), &csv);
+        let cals: Vec<&Value> = lines
+            .iter()
+            .filter(|v| v["class"] == "CALIBRATION")
+            .collect();
+        let why = format!("{bad} in column {column}: {cals:?}\n{stderr}");
+        // The first turn gives the calibration, and no refusal comes
+        // before it.
+        let first_fit = cals.first().unwrap_or_else(|| panic!("no fit: {why}"));
+        assert!(first_fit["accepted"] == true, "{why}");
+        let readings_before = lines
+            .iter()
+            .take_while(|v| v["class"] != "CALIBRATION")
+            .filter(|v| v["class"] == "READING")
+            .count();
+        assert!(readings_before <= 110, "{readings_before} readings: {why}");
+        let a = first_fit["params"]["a"].as_f64().unwrap();
+        assert!((a - 0.94 / 1.07).abs() < 0.02, "gain ratio {a}: {why}");
+        // Every row was published, the spike among them, and counted.
+        let readings = lines.iter().filter(|v| v["class"] == "READING").count();
+        assert_eq!(readings, 600, "{why}");
+        let status = lines
+            .iter()
+            .rfind(|v| v["class"] == "STATUS")
+            .expect("a STATUS");
+        let robot = &status["sensors"][0];
+        assert_eq!(robot["spikes"], 1, "{status}");
+        let axis = ["x", "y"][column];
+        let said = robot["last_spike"].as_str().unwrap_or_default();
+        // At the spoilt row's time, on the readings' clock.
+        let first = lines
+            .iter()
+            .find(|v| v["class"] == "READING")
+            .and_then(|v| v["time"].as_f64())
+            .unwrap();
+        assert!(
+            said.starts_with(&format!("a spike at t = {:.3} s: {axis} = ", first + 4.3)),
+            "{said}"
+        );
+        assert!(stderr.contains(said), "{stderr}");
+    }
 }

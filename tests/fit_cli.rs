@@ -336,8 +336,20 @@ fn fewer_samples_than_unknowns() {
     // The turn gate needs more samples than the model's unknowns.
     assert!(msg.contains("too few to show a turn"), "{msg}");
     assert!(msg.contains("at least 12"), "{msg}");
+    // A header and nothing after it: said so, in 2-D and in 3-D (not a
+    // missing z column).
     let f = write(&dir, "none.csv", "x,y\n");
-    assert!(run_err(&["fit", &f]).contains("0 samples are too few"));
+    let msg = run_err(&["fit", &f]);
+    assert!(
+        msg.contains("none.csv: the header (x, y) has no sample after it"),
+        "{msg}"
+    );
+    let f = write(&dir, "none3.csv", "x,y,z\n");
+    let msg = run_err(&["fit", &f]);
+    assert!(
+        msg.contains("none3.csv: the header (x, y, z) has no sample after it"),
+        "{msg}"
+    );
     let f = write(&dir, "empty.csv", "");
     assert!(run_err(&["fit", &f]).contains("empty.csv: the file is empty"));
 }

@@ -190,7 +190,9 @@ async fn a_crowd_of_idle_connections_gives_way_to_a_real_request() {
     };
     let (addr, _) = start(&hub, limits).await;
     let (status, took, crowd) = blocking(move || {
-        let crowd: Vec<TcpStream> = (0..20)
+        // 300 connections that send nothing, queued in the backlog in
+        // front of the request (the listener's backlog holds them all).
+        let crowd: Vec<TcpStream> = (0..300)
             .map(|_| TcpStream::connect(&addr).unwrap())
             .collect();
         std::thread::sleep(Duration::from_millis(1500));
@@ -205,7 +207,9 @@ async fn a_crowd_of_idle_connections_gives_way_to_a_real_request() {
     .await;
     drop(crowd);
     assert_eq!(status, 200);
-    assert!(took < Duration::from_secs(15), "answered after {took:?}");
+    // Not one eviction a second (300 s): the silent ones are closed as
+    // fast as they are accepted.
+    assert!(took < Duration::from_secs(3), "answered after {took:?}");
 }
 
 /// Finding 3: with "http" in recalibrate_from, another site's page could

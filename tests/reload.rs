@@ -6,7 +6,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use common::daemon::{Daemon, is_class, write_config};
+use common::daemon::{Daemon, ask, errors, is_class, write_config};
 use common::faults::{free_port, long_capture};
 use common::http::{live_address, request};
 use serde_json::Value;
@@ -615,5 +615,80 @@ fn a_reload_to_the_other_number_of_axes_says_so_and_keeps_ids_and_counts() {
         calibration_of(v, "heading")
     });
     assert_eq!(new["id"], 2, "{new}");
+    assert_eq!(daemon.terminate().code(), Some(0), "{}", daemon.stderr());
+}
+
+/// Writes a token file of mode 600.
+fn token_file(dir: &Path, token: &str) -> PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let path = dir.join("token");
+    std::fs::write(&path, format!("{token}\n")).unwrap();
+    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).unwrap();
+    path
+}
+
+#[test]
+fn a_new_token_applies_at_the_reload_and_the_old_one_is_refused_from_then_on() {
+    let (old, new) = ("old-token-0123456789", "new-token-9876543210");
+    let port = free_port();
+    let dir = tempfile::tempdir().unwrap();
+    let file = token_file(dir.path(), old);
+    let s = setup(
+        "0.2",
+        &format!(
+            "tcp = \"127.0.0.1:{port}\"\ntoken_file = \"{}\"",
+            file.display()
+        ),
+    );
+    let mut daemon = Daemon::start(&s.config, &[]);
+    both_calibrated(&mut daemon);
+    let mut client = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+    let recalibrate = |token: &str| format!(r#"{{"command":"recalibrate","token":"{token}"}}"#);
+    assert!(errors(&ask(&mut client, &recalibrate(old))).is_empty());
+
+    // The file now holds another token (the old one leaked).
+    token_file(dir.path(), new);
+    signal(&daemon, libc::SIGHUP);
+    let summary = reload_summary(&mut daemon);
+    assert!(
+        summary["message"]
+            .as_str()
+            .unwrap()
+            .ends_with("0 changes need a restart"),
+        "{summary}"
+    );
+    assert!(
+        daemon.seen.iter().any(|v| is_class(v, "RELOAD")
+            && v["message"]
+                == "[outputs] token_file holds a new token: applied; the old one is refused from now on"),
+        "{:?}",
+        daemon.seen
+    );
+    let refused = errors(&ask(&mut client, &recalibrate(old)));
+    assert!(
+        refused.len() == 1 && refused[0].contains("does not match"),
+        "{refused:?}"
+    );
+    assert!(errors(&ask(&mut client, &recalibrate(new))).is_empty());
+
+    // token_file removed from the file: no token is accepted any more.
+    write_config(
+        s.dir.path(),
+        &config_text(
+            s.dir.path(),
+            &s.capture,
+            SPEED,
+            "0.2",
+            &format!("tcp = \"127.0.0.1:{port}\""),
+            "",
+        ),
+    );
+    signal(&daemon, libc::SIGHUP);
+    reload_summary(&mut daemon);
+    assert!(daemon.seen.iter().any(|v| is_class(v, "RELOAD")
+        && v["message"]
+            == "[outputs] token_file removed: applied; no token is accepted from now on"));
+    let refused = errors(&ask(&mut client, &recalibrate(new)));
+    assert!(refused.len() == 1, "{refused:?}");
     assert_eq!(daemon.terminate().code(), Some(0), "{}", daemon.stderr());
 }

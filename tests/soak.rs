@@ -4,8 +4,11 @@
 //! harness, on a seeded random schedule, unplugs and replugs the device,
 //! stalls, kills and adds TCP and Unix-socket subscribers, fills and frees
 //! the state directory's disk, sends SIGHUP (with the configuration
-//! unchanged or its `status_interval_s` changed), floods status commands
-//! and asks for recalibrations. Then it proves the accounting:
+//! unchanged or its `status_interval_s` changed), floods status commands,
+//! crowds the live page with idle and slow-header connections (the page
+//! must answer through them) and asks for recalibrations; the device's
+//! frames carry spikes (good checksums, bad values). Then it proves the
+//! accounting:
 //!
 //! - every subscriber that leaves in order (not the ones killed) received
 //!   exactly the READING lines its queue was given less those dropped for
@@ -18,6 +21,8 @@
 //!   one, accepted after the disk was freed, is what the file holds;
 //! - memory and descriptors are back at their baseline once the faults
 //!   stopped and the extra clients left;
+//! - the spike gate refused spikes (STATUS `spikes`), never more than the
+//!   device sent;
 //! - the daemon never exits on its own, and SIGTERM ends it with status 0.
 //!
 //! By hand, for half an hour:
@@ -103,6 +108,11 @@ struct Shared {
     final_status: Mutex<Option<Value>>,
     flood_commands: AtomicU64,
     flood_replies: AtomicU64,
+    /// The live page's port.
+    http_port: u16,
+    /// Page requests answered during crowds, and their slowest answer.
+    crowd_pages: AtomicU64,
+    crowd_slowest_ms: AtomicU64,
 }
 
 impl Shared {
@@ -716,8 +726,10 @@ fn recalibrate(shared: &Shared) {
 }
 
 /// The simulated device's chunks: `TURNS` whole turns at 100 Hz with
-/// noise, offsets and unequal gains.
-fn device_chunks() -> Vec<Vec<u8>> {
+/// noise, offsets and unequal gains, and spikes on the wire (frames with a
+/// good checksum and a value 20 to 50 noise deviations off) in 3 of 1000
+/// frames; and how many spikes one play of the chunks holds.
+fn device_chunks() -> (Vec<Vec<u8>>, usize) {
     let sensor = SimSensor {
         field: 1000.0,
         gain_x: 1.1,
@@ -728,6 +740,10 @@ fn device_chunks() -> Vec<Vec<u8>> {
         turns: TURNS,
         turn_seconds: TURN_S,
         seed: 12,
+        effects: fieldcal::sim::SimEffects {
+            outliers: 0.003,
+            ..Default::default()
+        },
         ..Default::default()
     };
     let wire = FalconWire {
@@ -735,10 +751,20 @@ fn device_chunks() -> Vec<Vec<u8>> {
         ..Default::default()
     };
     let (_, chunks) = sensor.falcon_capture(&wire).expect("a simulated capture");
-    chunks.into_iter().map(|c| c.bytes).collect()
+    let (_, truth) = sensor.simulate_with_truth().expect("the same samples");
+    (
+        chunks.into_iter().map(|c| c.bytes).collect(),
+        truth.outliers.len(),
+    )
 }
 
-fn config_text(dir: &Path, pty: &Path, port: u16, socket: &Path, interval: f64) -> String {
+fn config_text(
+    dir: &Path,
+    pty: &Path,
+    (port, http_port): (u16, u16),
+    socket: &Path,
+    interval: f64,
+) -> String {
     format!(
         r#"
 [daemon]
@@ -749,6 +775,7 @@ status_interval_s = {interval:?}
 stdout = false
 tcp = "127.0.0.1:{port}"
 unix = "{socket}"
+http = "127.0.0.1:{http_port}"
 queue = {QUEUE}
 
 [[source]]
@@ -767,6 +794,74 @@ axes = ["x", "y"]
         socket = socket.display(),
         pty = pty.display(),
     )
+}
+
+/// Idle connections a crowd holds on the live page.
+const CROWD_IDLE: usize = 40;
+/// Clients of a crowd that send their request head one line a second.
+const CROWD_SLOW: usize = 6;
+
+/// Crowds the live page for `hold`: idle connections and clients that
+/// trickle their request head, while a page request every half second must
+/// be answered (200, within 5 s) through them. Everything is closed at the
+/// end; the descriptors' return to their baseline is checked at the soak's
+/// end.
+fn run_crowd(shared: Arc<Shared>, hold: Duration) -> JoinHandle<()> {
+    std::thread::spawn(move || {
+        let addr = format!("127.0.0.1:{}", shared.http_port);
+        let mut held: Vec<TcpStream> = (0..CROWD_IDLE)
+            .filter_map(|_| TcpStream::connect(&addr).ok())
+            .collect();
+        let mut slow: Vec<TcpStream> = (0..CROWD_SLOW)
+            .filter_map(|_| TcpStream::connect(&addr).ok())
+            .collect();
+        for s in &mut slow {
+            let _ = write!(s, "GET / HTTP/1.1\r\nHost: {addr}\r\n");
+        }
+        let end = Instant::now() + hold;
+        let mut line = 0;
+        while Instant::now() < end {
+            std::thread::sleep(Duration::from_millis(500));
+            line += 1;
+            if line % 2 == 0 {
+                for s in &mut slow {
+                    let _ = write!(s, "X-Slow-{line}: a\r\n");
+                }
+            }
+            let asked = Instant::now();
+            match get_page(&addr) {
+                Ok(()) => {
+                    let ms = asked.elapsed().as_millis() as u64;
+                    shared.crowd_pages.fetch_add(1, Ordering::Relaxed);
+                    shared.crowd_slowest_ms.fetch_max(ms, Ordering::Relaxed);
+                }
+                Err(e) => shared.fail_once(&format!("the live page under a crowd: {e}")),
+            }
+        }
+        held.clear();
+        slow.clear();
+    })
+}
+
+/// `GET /` on the live page: Ok when 200 comes within 5 s.
+fn get_page(addr: &str) -> Result<(), String> {
+    let mut stream = TcpStream::connect(addr).map_err(|e| format!("connect: {e}"))?;
+    let limit = Some(Duration::from_secs(5));
+    stream.set_read_timeout(limit).map_err(|e| e.to_string())?;
+    stream.set_write_timeout(limit).map_err(|e| e.to_string())?;
+    write!(
+        stream,
+        "GET / HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .map_err(|e| format!("send: {e}"))?;
+    let mut head = [0u8; 12];
+    stream
+        .read_exact(&mut head)
+        .map_err(|e| format!("no answer within 5 s: {e}"))?;
+    if &head != b"HTTP/1.1 200" {
+        return Err(format!("answered {:?}", String::from_utf8_lossy(&head)));
+    }
+    Ok(())
 }
 
 /// The calibration id in the state file, its parameters, or why not.
@@ -851,6 +946,7 @@ enum Fault {
     SighupChanged,
     Flood,
     Recalibrate,
+    HttpCrowd,
 }
 
 impl Fault {
@@ -865,6 +961,7 @@ impl Fault {
             Fault::SighupChanged => "SIGHUP, status_interval_s changed",
             Fault::Flood => "status command flood",
             Fault::Recalibrate => "recalibrate (Unix socket)",
+            Fault::HttpCrowd => "live page crowded (idle and slow-header connections)",
         }
     }
 }
@@ -928,14 +1025,16 @@ fn soak_under_faults_keeps_its_accounts() {
     let state_file = state.join("compass.json");
     let socket = dir.path().join("fieldcal.sock");
     let port = free_port();
-    let mut pty = FalconPty::plug_in_looped(device_chunks(), PERIOD);
+    let http_port = free_port();
+    let (chunks, spikes_per_cycle) = device_chunks();
+    let mut pty = FalconPty::plug_in_looped(chunks, PERIOD);
     let mut interval = 0;
     let config_path = write_config(
         dir.path(),
         &config_text(
             dir.path(),
             pty.path(),
-            port,
+            (port, http_port),
             &socket,
             STATUS_INTERVALS[interval],
         ),
@@ -954,6 +1053,9 @@ fn soak_under_faults_keeps_its_accounts() {
         final_status: Mutex::new(None),
         flood_commands: AtomicU64::new(0),
         flood_replies: AtomicU64::new(0),
+        http_port,
+        crowd_pages: AtomicU64::new(0),
+        crowd_slowest_ms: AtomicU64::new(0),
     });
     // Wait for the listeners, then the anchors.
     drop(connect_tcp(port));
@@ -996,6 +1098,7 @@ fn soak_under_faults_keeps_its_accounts() {
         Fault::Join,
         Fault::Flood,
         Fault::Recalibrate,
+        Fault::HttpCrowd,
     ];
     if mount.is_ok() {
         kinds.push(Fault::FillDisk);
@@ -1007,6 +1110,7 @@ fn soak_under_faults_keeps_its_accounts() {
     let mut counts: BTreeMap<Fault, u64> = BTreeMap::new();
     let mut clients: Vec<JoinHandle<()>> = Vec::new();
     let mut flood: Option<JoinHandle<()>> = None;
+    let mut crowd: Option<JoinHandle<()>> = None;
     let mut replug_at: Option<Instant> = None;
     let mut free_at: Option<Instant> = None;
     // (filled, freed) in seconds since t0.
@@ -1035,6 +1139,9 @@ fn soak_under_faults_keeps_its_accounts() {
         }
         if flood.as_ref().is_some_and(|f| f.is_finished()) {
             flood.take().unwrap().join().unwrap();
+        }
+        if crowd.as_ref().is_some_and(|c| c.is_finished()) {
+            crowd.take().unwrap().join().unwrap();
         }
         clients.retain(|c| !c.is_finished());
         if Instant::now() < next_fault {
@@ -1087,7 +1194,7 @@ fn soak_under_faults_keeps_its_accounts() {
                         &config_text(
                             dir.path(),
                             pty.path(),
-                            port,
+                            (port, http_port),
                             &socket,
                             STATUS_INTERVALS[interval],
                         ),
@@ -1109,6 +1216,10 @@ fn soak_under_faults_keeps_its_accounts() {
             Fault::Recalibrate => {
                 recalibrate(&shared);
                 last_recalibrate = Instant::now();
+                true
+            }
+            Fault::HttpCrowd if crowd.is_none() => {
+                crowd = Some(run_crowd(shared.clone(), between(&mut rng, 2000, 8000)));
                 true
             }
             _ => false,
@@ -1133,6 +1244,9 @@ fn soak_under_faults_keeps_its_accounts() {
     }
     if let Some(f) = flood.take() {
         f.join().unwrap();
+    }
+    if let Some(c) = crowd.take() {
+        c.join().unwrap();
     }
     for c in clients.drain(..) {
         c.join().unwrap();
@@ -1345,6 +1459,7 @@ fn soak_under_faults_keeps_its_accounts() {
         Fault::SighupChanged,
         Fault::Flood,
         Fault::Recalibrate,
+        Fault::HttpCrowd,
     ] {
         let n = counts.get(&kind).copied().unwrap_or(0);
         let note = match kind {
@@ -1354,6 +1469,12 @@ fn soak_under_faults_keeps_its_accounts() {
                 "{n} ({} commands sent, {} lines back)",
                 shared.flood_commands.load(Ordering::Relaxed),
                 shared.flood_replies.load(Ordering::Relaxed)
+            ),
+            Fault::HttpCrowd => format!(
+                "{n} ({CROWD_IDLE} idle and {CROWD_SLOW} slow-header connections each; {} pages \
+                 answered through them, the slowest in {} ms)",
+                shared.crowd_pages.load(Ordering::Relaxed),
+                shared.crowd_slowest_ms.load(Ordering::Relaxed)
             ),
             _ => n.to_string(),
         };
@@ -1391,13 +1512,24 @@ fn soak_under_faults_keeps_its_accounts() {
         .clone()
         .unwrap_or_default();
     let source = &last_status["sources"][0];
+    // The spikes on the wire: refused (some are lost with unplugged
+    // frames), never more than the device sent.
+    let spikes = last_status["sensors"][0]["spikes"].as_u64().unwrap_or(0);
+    let plays = pty.sent() as f64 / (TURNS * TURN_S / PERIOD.as_secs_f64());
+    let spikes_sent = (plays.ceil() as u64 + 1) * spikes_per_cycle as u64;
+    if exited.is_none() && (spikes == 0 || spikes > spikes_sent) {
+        shared.fail(format!(
+            "the spike gate refused {spikes} samples; the device sent at most {spikes_sent} spikes"
+        ));
+    }
     let _ = writeln!(
         t,
         "\n| readings | |\n|---|---|\n| frames the device sent | {} |\n| frames decoded (good, \
          bad, lost), reconnects | {}, {}, {}, {} |\n| readings the daemon counted | {} |\n| \
          readings the anchors received (TCP, Unix) | {} |\n| readings dropped for slow \
          subscribers (STATUS `dropped`, all) | {} |\n| subscribers disconnected for an overflowing \
-         control queue (log) | {} |",
+         control queue (log) | {} |\n| spikes refused (STATUS `spikes`), of at most sent | {spikes} \
+         of {spikes_sent} |",
         pty.sent(),
         source["frames_good"],
         source["frames_bad"],

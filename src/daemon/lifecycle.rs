@@ -6,7 +6,13 @@
 
 use super::Calibration;
 use super::messages::SensorState;
+use super::sensor::Sample;
+use crate::model::spike::{Spike, SpikeGate};
 use crate::model::watch::HISTORY;
+
+/// Spikes are logged at most once per this many seconds of a sensor's
+/// time (each is counted; the log says how many so far).
+const SPIKE_LOG_INTERVAL_S: f64 = 10.0;
 
 /// A sensor's state, current calibration, ids and counts.
 #[derive(Debug, Clone)]
@@ -27,6 +33,16 @@ pub struct Lifecycle {
     /// it, `on_stale = "warn"`): every reading is distrusted with it until
     /// a new calibration is accepted or an older one rolled back to.
     pub stale: Option<String>,
+    /// The gate every published sample passes before it is collected
+    /// ([`crate::model::spike`]).
+    pub gate: SpikeGate<Sample>,
+    /// Samples refused by the gate as spikes, and the last one's sentence.
+    pub spikes: u64,
+    pub last_spike: Option<String>,
+    /// When a spike was last logged (the sensor's time), and a sentence
+    /// to log now, taken by the sensor.
+    spike_logged_at: Option<f64>,
+    spike_log: Option<String>,
 }
 
 impl Lifecycle {
@@ -48,7 +64,37 @@ impl Lifecycle {
             fits_rejected: 0,
             last_rejection: None,
             stale: None,
+            gate: SpikeGate::default(),
+            spikes: 0,
+            last_spike: None,
+            spike_logged_at: None,
+            spike_log: None,
         }
+    }
+
+    /// A sample refused by the gate as `spike` (`what` says which axis and
+    /// by how much): counted, and logged unless one was within
+    /// [`SPIKE_LOG_INTERVAL_S`].
+    pub fn refuse_spike(&mut self, sample: &Sample, spike: &Spike, axis_name: &str) {
+        self.spikes = self.spikes.saturating_add(1);
+        let sentence = format!(
+            "a spike at t = {:.3} s: {}; left out of the rotation and the fit",
+            sample.time,
+            spike.describe(axis_name)
+        );
+        let due = self
+            .spike_logged_at
+            .is_none_or(|t| !(sample.time - t < SPIKE_LOG_INTERVAL_S));
+        if due {
+            self.spike_logged_at = Some(sample.time);
+            self.spike_log = Some(format!("{sentence} ({} so far)", self.spikes));
+        }
+        self.last_spike = Some(sentence);
+    }
+
+    /// The spike to log now, if one is due.
+    pub fn take_spike_log(&mut self) -> Option<String> {
+        self.spike_log.take()
     }
 
     /// Whether the sensor collects (it has no calibration, or was asked
@@ -60,6 +106,8 @@ impl Lifecycle {
     /// Collects anew; the current calibration keeps correcting until a
     /// new one is accepted.
     pub fn restart(&mut self) {
+        // Samples held by the gate belong to the rotation before.
+        self.gate.drop_held();
         self.state = if self.current.is_some() {
             SensorState::Recalibrating
         } else {
@@ -131,5 +179,7 @@ impl Lifecycle {
         self.readings = old.readings;
         self.fits_accepted = old.fits_accepted;
         self.fits_rejected = old.fits_rejected;
+        self.spikes = old.spikes;
+        self.last_spike.clone_from(&old.last_spike);
     }
 }

@@ -382,10 +382,20 @@ pub struct SensorStatus<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stale: Option<&'a str>,
     pub readings: u64,
+    /// Samples refused as spikes ([`crate::model::spike`]): published,
+    /// never collected nor fitted; and the last one's sentence.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub spikes: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last_spike: Option<&'a str>,
     pub fits_accepted: u64,
     pub fits_rejected: u64,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub last_rejection: Option<&'a str>,
+}
+
+fn is_zero(n: &u64) -> bool {
+    *n == 0
 }
 
 /// A source in a `STATUS` message: its decoder and connection counters.

@@ -101,6 +101,19 @@ pub struct ReloadPlan {
     pub status_interval: Option<Duration>,
     /// Changes that only a restart applies, one message each.
     pub restart: Vec<String>,
+    /// A new or removed token of `[outputs] token_file` (applied live: a
+    /// token that leaked must stop working at once).
+    pub token: Option<TokenChange>,
+}
+
+/// What a reload does to the token of `[outputs] token_file`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TokenChange {
+    /// The file holds another token: it replaces the old one at every
+    /// listener, and the old one is refused.
+    Replaced,
+    /// `token_file` was removed: no token is accepted any more.
+    Revoked,
 }
 
 /// What happens to one sensor.
@@ -137,6 +150,7 @@ impl ReloadPlan {
     /// Whether the file changes nothing at all.
     pub fn is_empty(&self) -> bool {
         self.status_interval.is_none()
+            && self.token.is_none()
             && self.restart.is_empty()
             && self
                 .sensors
@@ -184,10 +198,16 @@ pub fn plan(old: &Config, new: &Config) -> ReloadPlan {
     }
     let status_interval = (old.daemon.status_interval != new.daemon.status_interval)
         .then_some(new.daemon.status_interval);
+    let token = match (&old.outputs.access.token, &new.outputs.access.token) {
+        (Some(was), Some(now)) if was != now => Some(TokenChange::Replaced),
+        (Some(was), None) if !was.is_empty() => Some(TokenChange::Revoked),
+        _ => None,
+    };
     ReloadPlan {
         sensors,
         status_interval,
         restart: restart_changes(old, new),
+        token,
     }
 }
 
@@ -291,9 +311,21 @@ fn restart_changes(old: &Config, new: &Config) -> Vec<String> {
             oo.queue.to_string(),
         );
     }
-    if out.len() == before && oo != no {
+    // The token is applied live (ReloadPlan::token), except where the
+    // daemon started without one.
+    let without_token = |o: &config::OutputsConfig| {
+        let mut o = o.clone();
+        o.access.token = None;
+        o
+    };
+    if out.len() == before && without_token(oo) != without_token(no) {
         out.push(format!(
             "[outputs] changed: {RESTART}; kept the outputs it started with"
+        ));
+    }
+    if oo.access.token.is_none() && no.access.token.is_some() {
+        out.push(format!(
+            "[outputs] token_file set: {RESTART}; until then no token is accepted"
         ));
     }
     for s in &new.sources {
@@ -550,7 +582,7 @@ fn apply_plan(
             }
         }
     }
-    apply_daemon_changes(plan, running, &file, &mut lines);
+    apply_daemon_changes(plan, running, new, &file, &mut lines);
     info(&mut lines, summary(plan, &file, counts), None);
     Ok(Outcome {
         lines,
@@ -634,9 +666,29 @@ fn carried(c: Option<&Calibration>, config: &SensorConfig) -> String {
 fn apply_daemon_changes(
     plan: &ReloadPlan,
     running: &mut Config,
+    new: &Config,
     file: &str,
     lines: &mut Vec<String>,
 ) {
+    // The running token is the one every listener shares.
+    let token = running.outputs.access.token.as_ref();
+    let applied = match (plan.token, token, &new.outputs.access.token) {
+        (Some(TokenChange::Replaced), Some(running), Some(new)) => {
+            running.replace_with(new);
+            Some(
+                "[outputs] token_file holds a new token: applied; the old one is refused from now on",
+            )
+        }
+        (Some(TokenChange::Revoked), Some(running), _) => {
+            running.revoke();
+            Some("[outputs] token_file removed: applied; no token is accepted from now on")
+        }
+        _ => None,
+    };
+    if let Some(message) = applied {
+        tracing::warn!("{message}");
+        lines.push(reload_line(file, message, None, false));
+    }
     if let Some(interval) = plan.status_interval {
         let message = format!(
             "[daemon] status_interval_s changed from {} s to {} s: applied",

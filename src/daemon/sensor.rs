@@ -20,6 +20,7 @@ use super::publish::Lane;
 use super::sensor3::Sensor3;
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 use crate::model::rotation::Progress;
+use crate::model::spike::Gated;
 use crate::sample::Reading;
 
 /// A line to publish, on its lane.
@@ -93,10 +94,34 @@ pub(crate) fn stored_problem(config: &SensorConfig, c: &Calibration) -> Option<S
 /// One sample of a sensor's own field: the time its source stamped, and
 /// its raw axes (x, y, z; a plane's third is its reading across the turn
 /// when `out_of_plane` names it, else NaN: it turns in x, y).
+///
+/// It carries what was beside it when it came, so that a sample the
+/// spike gate holds for a few samples is collected with its own context,
+/// not a later one's.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sample {
     pub time: f64,
     pub raw: [f64; 3],
+    /// The tilt accelerometer's latest reading, when it was fresh.
+    pub accel: Option<[f64; 3]>,
+    /// The gyro's integrated angle, degrees (a plane checked by a gyro).
+    pub turned: Option<f64>,
+}
+
+impl Sample {
+    /// A sample at `time` with the accelerometer's `last` reading beside
+    /// it, when that is at most
+    /// [`MAX_TILT_AGE_S`](super::sensor3::MAX_TILT_AGE_S) from it.
+    pub fn beside(time: f64, raw: [f64; 3], last: Option<(f64, [f64; 3])>) -> Self {
+        Sample {
+            time,
+            raw,
+            accel: last
+                .filter(|(t, _)| (time - t).abs() <= super::sensor3::MAX_TILT_AGE_S)
+                .map(|(_, a)| a),
+            turned: None,
+        }
+    }
 }
 
 /// What a sensor does that depends on its geometry: which readings are
@@ -126,6 +151,12 @@ pub trait Geometry: Send {
     /// Publishes a sample of the sensor's own field and collects it: the
     /// one path every reading and row takes (written once; each geometry's
     /// copy calls its own methods directly).
+    ///
+    /// A sample passes the spike gate ([`crate::model::spike`]) before it
+    /// is collected: a spike is published (a calibrated one is judged by
+    /// the trust monitor as any reading is) but never collected nor
+    /// fitted. The gate may hold a sample until the few after it show
+    /// whether it was one, so a call may collect none, or several.
     fn publish(
         &mut self,
         life: &mut Lifecycle,
@@ -136,7 +167,25 @@ pub trait Geometry: Send {
         life.readings += 1;
         let line = self.reading_line(life, sample, row);
         emit.line(Lane::Reading, line);
-        self.push(life, sample, emit)
+        life.gate.feed(sample, sample.raw);
+        let mut accepted = None;
+        while let Some(gated) = life.gate.decided() {
+            match gated {
+                Gated::Kept(kept) => {
+                    if let Some(c) = self.push(life, kept, emit) {
+                        accepted = Some(c);
+                    }
+                }
+                Gated::Refused(refused, spike) => {
+                    life.refuse_spike(&refused, &spike, self.axis_name(spike.axis));
+                }
+            }
+        }
+        accepted
+    }
+    /// The name of the sensor's axis `axis` (0, 1, 2) in messages.
+    fn axis_name(&self, axis: usize) -> &'static str {
+        ["x", "y", "z"].get(axis).copied().unwrap_or("?")
     }
     /// Handles one reading: publishes the sensor's own sample, if it
     /// carries one, and collects it. Returns a newly accepted calibration.
@@ -307,7 +356,16 @@ impl Sensor {
 
     /// [`Sensor::on_row`], its output to an [`Emitter`].
     pub fn on_row_to(&mut self, row: &CsvRow, out: &mut Emitter<'_>) -> Option<Calibration> {
-        self.geometry.on_row(&mut self.life, row, out)
+        let accepted = self.geometry.on_row(&mut self.life, row, out);
+        self.log_spike();
+        accepted
+    }
+
+    /// Logs the spike the gate just refused, when one is due.
+    fn log_spike(&mut self) {
+        if let Some(sentence) = self.life.take_spike_log() {
+            tracing::warn!(sensor = %self.config.name, "{}: {sentence}", self.config.name);
+        }
     }
 
     /// Takes over what `old` (the same sensor under the settings before a
@@ -380,7 +438,9 @@ impl Sensor {
         reading: &Reading,
         out: &mut Emitter<'_>,
     ) -> Option<Calibration> {
-        self.geometry.on_reading(&mut self.life, reading, out)
+        let accepted = self.geometry.on_reading(&mut self.life, reading, out);
+        self.log_spike();
+        accepted
     }
 
     /// Why the latest calibrated reading was distrusted, if it was.
@@ -402,6 +462,8 @@ impl Sensor {
             trust: self.geometry.trust(),
             stale: self.life.stale.as_deref(),
             readings: self.life.readings,
+            spikes: self.life.spikes,
+            last_spike: self.life.last_spike.as_deref(),
             fits_accepted: self.life.fits_accepted,
             fits_rejected: self.life.fits_rejected,
             last_rejection: self.life.last_rejection.as_deref(),

@@ -715,7 +715,7 @@ impl Sensor3 {
 
 impl Geometry for Sensor3 {
     fn reading_line(&mut self, life: &Lifecycle, sample: Sample, _row: Option<&CsvRow>) -> String {
-        let Sample { time, raw } = sample;
+        let Sample { time, raw, .. } = sample;
         let corrected = life
             .current
             .as_ref()
@@ -826,19 +826,15 @@ impl Geometry for Sensor3 {
         sample: Sample,
         emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
-        let Sample { time, raw } = sample;
+        let Sample { time, raw, .. } = sample;
         // Calibrated: each later sphere is watched against the calibration,
         // until it is found stale.
         let watching = !life.collecting();
         if (watching && life.stale.is_some()) || raw.iter().any(|v| !v.is_finite()) {
             return None;
         }
-        // The accelerometer beside this sample, unless it is stale.
-        let accel = self.config.tilt.is_some().then(|| {
-            self.last_accel
-                .filter(|(t, _)| (time - t).abs() <= MAX_TILT_AGE_S)
-                .map(|(_, a)| a)
-        });
+        // The accelerometer beside this sample, unless it was stale.
+        let accel = self.config.tilt.is_some().then_some(sample.accel);
         if let (Some(gyro), Some(Some(a))) = (&mut self.gyro, accel) {
             gyro.keep(time, raw, a, self.buffer.points().is_empty());
         }
@@ -906,10 +902,8 @@ impl Geometry for Sensor3 {
         if row.file != file {
             return None;
         }
-        Some(Sample {
-            time: row.time,
-            raw: values(at)?,
-        })
+        let raw = values(at)?;
+        Some(Sample::beside(row.time, raw, self.last_accel))
     }
     fn reading_sample(&mut self, _life: &Lifecycle, reading: &Reading) -> Option<Sample> {
         if let Some(gyro) = &mut self.gyro {
@@ -924,10 +918,8 @@ impl Geometry for Sensor3 {
         if reading.stream != self.stream {
             return None;
         }
-        Some(Sample {
-            time: reading.time,
-            raw: pick(field_of(reading, self.field)?, self.config.axes),
-        })
+        let raw = pick(field_of(reading, self.field)?, self.config.axes);
+        Some(Sample::beside(reading.time, raw, self.last_accel))
     }
     fn loaded_line(
         &self,

@@ -793,17 +793,17 @@ pub fn check(
     );
     let verdict = if holds {
         format!(
-            "{}: rms {:.2} % (fitted here {:.2} %){heading_text}; no parameter moved beyond {z_threshold:.1} SE{se_note}",
+            "{}: rms {} (fitted here {}){heading_text}; no parameter moved beyond {z_threshold:.1} SE{se_note}",
             holds_word(inflation),
-            rms * 100.0,
-            refitted_rms * 100.0
+            crate::numfmt::percent(rms),
+            crate::numfmt::percent(refitted_rms)
         )
     } else {
         format!(
-            "{}; recalibrate (rms {:.2} % with the stored calibration, {:.2} % fitted here{heading_text}){se_note}",
+            "{}; recalibrate (rms {} with the stored calibration, {} fitted here{heading_text}){se_note}",
             moved_text(&parameters, meaning),
-            rms * 100.0,
-            refitted_rms * 100.0
+            crate::numfmt::percent(rms),
+            crate::numfmt::percent(refitted_rms)
         )
     };
     Ok(CheckReport {

@@ -323,11 +323,11 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
     let supported_model = ellipsoid::best_supported(&calibrated).map(|m| m.name().to_string());
     let stored_has_se = stored.se.is_some();
     let rms_text = format!(
-        "rms {:.2} % with the stored calibration{}",
-        rms * 100.0,
+        "rms {} with the stored calibration{}",
+        crate::numfmt::percent(rms),
         stored
             .rms
-            .map(|r| format!(" ({:.2} % on its own recording)", r * 100.0))
+            .map(|r| format!(" ({} on its own recording)", crate::numfmt::percent(r)))
             .unwrap_or_default()
     );
     let (refit, refit_refused) = match ellipsoid::fit(points, stored.model) {
@@ -365,8 +365,7 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
                 None,
             )
         }
-        Err(e @ Ellipsoid3Error::NotCovered { .. }) => (None, Some(e.to_string())),
-        Err(e) => (None, Some(e.to_string())),
+        Err(e) => (None, Some(e)),
     };
     let se_note = se_note(stored_has_se);
     let (holds, verdict) = match &refit {
@@ -384,9 +383,9 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
                 (
                     Some(true),
                     format!(
-                        "{}: {rms_text}, {:.2} % fitted here; no parameter moved beyond {:.1} SE{se_note}",
+                        "{}: {rms_text}, {} fitted here; no parameter moved beyond {:.1} SE{se_note}",
                         super::check::holds_word(refit.se_inflation),
-                        refit.rms * 100.0,
+                        crate::numfmt::percent(refit.rms),
                         refit.z_threshold
                     ),
                 )
@@ -394,21 +393,30 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
                 (
                     Some(false),
                     format!(
-                        "{}; recalibrate ({rms_text}, {:.2} % fitted here){se_note}",
+                        "{}; recalibrate ({rms_text}, {} fitted here){se_note}",
                         moved_text(&refit.parameters, |name| meaning(name).to_string()),
-                        refit.rms * 100.0
+                        crate::numfmt::percent(refit.rms)
                     ),
                 )
             }
         }
-        None => (
-            None,
-            format!(
-                "not decided: {rms_text}, but the new recording covers {:.0} % of the sphere, too little to refit the {} model and compare its parameters (a magnitude rms alone cannot show an offset moved along a direction the recording never pointed); tumble the sensor through the missing directions to check it",
-                coverage.fraction * 100.0,
-                stored.model
+        None => match &refit_refused {
+            Some(e) if !matches!(e, Ellipsoid3Error::NotCovered { .. }) => (
+                None,
+                format!(
+                    "not decided: {rms_text}, but the {} model could not be refitted to the new recording to compare its parameters: {e}",
+                    stored.model
+                ),
             ),
-        ),
+            _ => (
+                None,
+                format!(
+                    "not decided: {rms_text}, but the new recording covers {:.0} % of the sphere, too little to refit the {} model and compare its parameters (a magnitude rms alone cannot show an offset moved along a direction the recording never pointed); tumble the sensor through the missing directions to check it",
+                    coverage.fraction * 100.0,
+                    stored.model
+                ),
+            ),
+        },
     };
     Ok(Check3Report {
         axes: 3,
@@ -421,7 +429,7 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
         magnitude_ratio,
         coverage,
         refit,
-        refit_refused,
+        refit_refused: refit_refused.map(|e| e.to_string()),
         supported_model,
         family_false_alarm: FAMILY_FALSE_ALARM,
         stored_has_se,

@@ -213,6 +213,16 @@ pub enum Ellipsoid3Error {
     )]
     Degenerate,
     #[error(
+        "the readings spread over {spread:.1e} (their rms distance from their mean), outside the {min:.0e} to {max:.0e} the 3-D fit computes in; the farthest, reading {farthest}, lies {distance:.1e} from their mean: if it alone is off, it is a spike to remove, else give the readings in the sensor's counts or in physical units",
+        min = MIN_SPREAD,
+        max = MAX_SPREAD
+    )]
+    OutOfRange {
+        spread: f64,
+        farthest: usize,
+        distance: f64,
+    },
+    #[error(
         "the readings cover {percent:.0} % of the sphere of directions, too little to determine the {model} model; {missing}; {}{}",
         match supported {
             Some(m) => format!("the data still support the {m} model (choose it, or tumble the sensor through the missing directions)"),
@@ -245,6 +255,15 @@ pub(super) struct Ellipsoid {
     pub(super) o: Vector3<f64>,
     pub(super) a: Matrix3<f64>,
 }
+
+/// The spread of readings the 3-D fit computes in. It works in the scaled
+/// frame, but its report goes back to raw units through powers of the
+/// scale, which leave f64 beyond about 1e±100 (a tumble of radius 1e120 or
+/// 1e-120 fails there; 1e±100 is fitted). These bounds keep a factor of
+/// 1e50 from that, and every sensor's counts or physical units (a
+/// nanotesla is 1e-9, a count of a 32-bit ADC at most 2e9) lie far inside.
+pub const MIN_SPREAD: f64 = 1e-50;
+pub const MAX_SPREAD: f64 = 1e50;
 
 /// Points centred and scaled, with the mean m and the scale s.
 type Normalised = (Vec<Vector3<f64>>, Vector3<f64>, f64);
@@ -283,6 +302,19 @@ fn normalise(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Normalised, 
         return Err(Ellipsoid3Error::Degenerate);
     }
     let (mean, spread) = mean_and_spread(points)?;
+    if !(MIN_SPREAD..=MAX_SPREAD).contains(&spread) {
+        let (farthest, distance) = points
+            .iter()
+            .map(|p| (Vector3::from(*p) - mean).norm())
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap_or((0, spread));
+        return Err(Ellipsoid3Error::OutOfRange {
+            spread,
+            farthest,
+            distance,
+        });
+    }
     let scaled = points
         .iter()
         .map(|p| (Vector3::from(*p) - mean) / spread)

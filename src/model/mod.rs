@@ -22,6 +22,8 @@
 //! - [`sphere`]: coverage of the sphere of directions, for 3-axis sensors.
 //! - [`sphere_buffer`]: the samples a 3-axis sensor collects until their
 //!   directions cover the sphere.
+//! - [`spike`]: the per-sample gate that keeps spikes out of the
+//!   rotation and the fit.
 //! - [`still`]: still segments (poses at rest) of a 3-axis recording.
 //! - [`tilt`]: the tilt-compensated heading from a magnetometer and an
 //!   accelerometer on one board.
@@ -54,6 +56,7 @@ pub mod residuals;
 pub mod rotation;
 pub mod sphere;
 pub mod sphere_buffer;
+pub mod spike;
 pub mod still;
 pub mod still_stream;
 pub mod tilt;

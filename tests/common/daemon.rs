@@ -301,3 +301,35 @@ impl Drop for Daemon {
 pub fn is_class(v: &Value, class: &str) -> bool {
     v["class"] == class
 }
+
+/// Sends one command line to a TCP subscriber and returns the answer's
+/// lines up to its STATUS reply, or its ERROR when refused.
+pub fn ask(stream: &mut std::net::TcpStream, command: &str) -> Vec<Value> {
+    use std::io::Write;
+    stream
+        .set_read_timeout(Some(Duration::from_secs(30)))
+        .unwrap();
+    writeln!(stream, "{command}").unwrap();
+    let mut reader = BufReader::new(stream.try_clone().unwrap());
+    let mut out = Vec::new();
+    loop {
+        let mut line = String::new();
+        assert!(reader.read_line(&mut line).unwrap() > 0, "closed: {out:?}");
+        let v: Value = serde_json::from_str(&line).unwrap();
+        let done = (is_class(&v, "STATUS") && v.get("subscriber").is_some())
+            || (is_class(&v, "ERROR") && v.get("sensor").is_none());
+        out.push(v);
+        if done {
+            return out;
+        }
+    }
+}
+
+/// The messages of the ERROR lines of an answer.
+pub fn errors(answer: &[Value]) -> Vec<String> {
+    answer
+        .iter()
+        .filter(|v| is_class(v, "ERROR"))
+        .map(|v| v["message"].as_str().unwrap_or_default().to_owned())
+        .collect()
+}

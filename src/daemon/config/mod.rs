@@ -583,11 +583,22 @@ impl Checker<'_> {
         }
     }
 
+    /// Messages show the path as the user would write it: without `.`
+    /// components (not `././mag.csv`).
     pub(crate) fn resolve(&self, path: &Path) -> PathBuf {
-        if path.is_absolute() {
+        let joined = if path.is_absolute() {
             path.to_path_buf()
         } else {
             self.base.join(path)
+        };
+        let tidy: PathBuf = joined
+            .components()
+            .filter(|c| !matches!(c, std::path::Component::CurDir))
+            .collect();
+        if tidy.as_os_str().is_empty() {
+            PathBuf::from(".")
+        } else {
+            tidy
         }
     }
 

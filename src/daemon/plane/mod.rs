@@ -227,6 +227,15 @@ impl Plane {
         })
     }
 
+    /// A sample of the plane at `time`, with the accelerometer and the
+    /// gyro's angle beside it now.
+    fn sample(&self, time: f64, raw: [f64; 3]) -> Sample {
+        Sample {
+            turned: self.gyro.as_ref().and_then(GyroTrack::angle),
+            ..Sample::beside(time, raw, self.last_accel)
+        }
+    }
+
     /// The tilt accelerometer's last raw reading, when it is at most
     /// [`MAX_TILT_AGE_S`] older than `time`.
     fn fresh_accel(&self, time: f64) -> Option<[f64; 3]> {
@@ -641,10 +650,7 @@ impl Geometry for Plane {
             .across
             .and_then(|i| row.values.get(i).copied())
             .unwrap_or(f64::NAN);
-        Some(Sample {
-            time: row.time,
-            raw: [x, y, across],
-        })
+        Some(self.sample(row.time, [x, y, across]))
     }
     fn reading_sample(&mut self, _life: &Lifecycle, reading: &Reading) -> Option<Sample> {
         if let Some(gyro) = &mut self.gyro {
@@ -669,13 +675,16 @@ impl Geometry for Plane {
             }
             _ => f64::NAN,
         };
-        Some(Sample {
-            time: reading.time,
-            raw: [x, y, across],
-        })
+        Some(self.sample(reading.time, [x, y, across]))
     }
     fn reading_line(&mut self, life: &Lifecycle, sample: Sample, row: Option<&CsvRow>) -> String {
         self.line_xy(life, sample.time, sample.raw, row)
+    }
+    fn axis_name(&self, axis: usize) -> &'static str {
+        ["x", "y", "the field across the turn"]
+            .get(axis)
+            .copied()
+            .unwrap_or("?")
     }
     fn push(
         &mut self,
@@ -684,6 +693,7 @@ impl Geometry for Plane {
         emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         let (time, [x, y, across]) = (sample.time, sample.raw);
+        let (accel, turned) = (sample.accel, sample.turned);
         // Calibrated: each later rotation is watched against the
         // calibration, until it is found stale.
         let watching = !life.collecting();
@@ -695,12 +705,10 @@ impl Geometry for Plane {
         {
             track.push(time, across);
         }
-        let accel = self.fresh_accel(time);
         if let (Some(track), Some(accel)) = (&mut self.level, accel) {
             track.push(time, accel);
         }
         // The gyro's integrated angle lets the buffer check the turn.
-        let turned = self.gyro.as_ref().and_then(GyroTrack::angle);
         match self.buffer.push_turned(time, x, y, turned) {
             RotationEvent::Collecting => None,
             RotationEvent::Rejected { reason } => {

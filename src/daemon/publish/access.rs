@@ -5,6 +5,7 @@
 //! descriptor limit.
 
 use std::fmt;
+use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
 use serde::Serialize;
@@ -38,9 +39,11 @@ pub const DEFAULT_MAX_SUBSCRIBERS: usize = 64;
 /// (2), the signal pipe (2), three listeners (3), the sources' ports or
 /// files (1 to 2 each, up to 8 sources: 12), the state writer (the
 /// temporary file, the directory it fsyncs, a stored file read at start:
-/// 3), the systemd notify socket (1), and 6 for the live page's short
-/// requests and a connection being refused.
-pub const RESERVED_DESCRIPTORS: u64 = 32;
+/// 3), the systemd notify socket (1), 6 for the live page's short
+/// requests and a connection being refused, and 6 for new page
+/// connections waiting for their first bytes while the page is full
+/// ([`crate::daemon::http::WAITING`]).
+pub const RESERVED_DESCRIPTORS: u64 = 38;
 
 /// A token bucket's rate: `per_s` tokens a second, holding at most `burst`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -113,9 +116,11 @@ impl Origin {
 }
 
 /// A secret read from `[outputs] token_file`. Compared in constant time;
-/// never printed.
+/// never printed. Its clones (the hub's, the live page's) share one cell,
+/// so a reload that reads a new token file changes it for every listener
+/// at once ([`Token::replace_with`]), or revokes it ([`Token::revoke`]).
 #[derive(Clone)]
-pub struct Token(Box<[u8]>);
+pub struct Token(Arc<RwLock<Box<[u8]>>>);
 
 /// The shortest token `token_file` may hold: 16 bytes. A token is sent
 /// over the TCP and HTTP listeners, where a client may try as many as it
@@ -127,28 +132,54 @@ impl Token {
     /// None for an empty token.
     pub fn new(text: &str) -> Option<Token> {
         let text = text.trim();
-        (!text.is_empty()).then(|| Token(text.as_bytes().into()))
+        (!text.is_empty()).then(|| Token(Arc::new(RwLock::new(text.as_bytes().into()))))
+    }
+
+    /// The secret (a poisoned lock still holds a whole one: it is only
+    /// ever replaced whole).
+    fn secret(&self) -> std::sync::RwLockReadGuard<'_, Box<[u8]>> {
+        self.0
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// Its length in bytes.
     pub fn len(&self) -> usize {
-        self.0.len()
+        self.secret().len()
     }
 
-    /// Whether it is empty (never, as made by [`Token::new`]).
+    /// Whether it is empty: revoked (never, as made by [`Token::new`]).
     pub fn is_empty(&self) -> bool {
-        self.0.is_empty()
+        self.secret().is_empty()
     }
 
     /// Whether `given` is the token; the time taken depends only on the
-    /// lengths, not on where they differ.
+    /// lengths, not on where they differ. A revoked token matches nothing.
     pub fn matches(&self, given: &str) -> bool {
+        let secret = self.secret();
         let given = given.as_bytes();
-        let mut diff = u8::from(given.len() != self.0.len());
-        for (i, &b) in self.0.iter().enumerate() {
+        let mut diff = u8::from(given.len() != secret.len() || secret.is_empty());
+        for (i, &b) in secret.iter().enumerate() {
             diff |= b ^ given.get(i).copied().unwrap_or(!b);
         }
         std::hint::black_box(diff) == 0
+    }
+
+    /// Takes `new`'s secret, for every clone of this token.
+    pub fn replace_with(&self, new: &Token) {
+        let secret = new.secret().clone();
+        *self
+            .0
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = secret;
+    }
+
+    /// Accepts no token any more, in every clone of this one.
+    pub fn revoke(&self) {
+        *self
+            .0
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Box::default();
     }
 }
 
@@ -160,7 +191,14 @@ impl fmt::Debug for Token {
 
 impl PartialEq for Token {
     fn eq(&self, other: &Token) -> bool {
-        std::str::from_utf8(&other.0).is_ok_and(|o| self.matches(o))
+        if Arc::ptr_eq(&self.0, &other.0) {
+            return true;
+        }
+        let theirs = other.secret().clone();
+        match std::str::from_utf8(&theirs) {
+            Ok(o) if !o.is_empty() => self.matches(o),
+            _ => self.is_empty() && theirs.is_empty(),
+        }
     }
 }
 

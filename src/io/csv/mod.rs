@@ -49,6 +49,10 @@ pub enum CsvError {
         "{path}: the file is empty; it needs a header line such as `t,x,y` and one sample per line"
     )]
     Empty { path: PathBuf },
+    #[error(
+        "{path}: the header ({columns}) has no sample after it; record some, one per line, and try again"
+    )]
+    NoRows { path: PathBuf, columns: String },
     #[error("{path}:{line}: {message}")]
     Malformed {
         path: PathBuf,
@@ -321,6 +325,13 @@ pub fn parse_dataset<R: Read>(
                 Role::Ignored => {}
             }
         }
+    }
+    if first_row {
+        // Nothing can be said of its columns (which are numbers) nor fitted.
+        return Err(CsvError::NoRows {
+            path: path.to_path_buf(),
+            columns: super::name_list(&names),
+        });
     }
 
     // The reader checked lengths and finiteness value by value.

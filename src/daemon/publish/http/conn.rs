@@ -15,6 +15,15 @@
 //! trickles its head) is closed to make room, so a crowd of idle or slow
 //! clients cannot lock the page out; when all of them are busy, the new
 //! client is closed after [`ROOM_WAIT`].
+//!
+//! While every permit is held, a new client must show its request first:
+//! one whose bytes are there when it is accepted is served (room is made
+//! for it); one that sent nothing yet waits, with at most [`WAITING`]
+//! others, up to [`FIRST_BYTES`] for them, and is closed if none come (at
+//! once, when [`WAITING`] others already wait). So a crowd of connections
+//! that send nothing, queued in the kernel's backlog in front of a
+//! browser's request, is drained at the speed of `accept`, not one
+//! eviction at a time.
 
 use std::future::Future;
 use std::io;
@@ -25,6 +34,8 @@ use std::sync::{Arc, Mutex, Weak};
 use std::task::{Context, Poll};
 use std::time::Duration;
 
+use futures_util::StreamExt;
+use futures_util::stream::FuturesUnordered;
 use futures_util::task::AtomicWaker;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
@@ -55,6 +66,16 @@ pub const EVICT_AFTER: Duration = Duration::from_secs(1);
 /// How long a new connection waits for room when every held one is busy
 /// before it is closed.
 pub const ROOM_WAIT: Duration = Duration::from_secs(2);
+/// While the page is full, how long a new connection has to send its
+/// first bytes before it is closed: 200 ms. A client sends its request
+/// as soon as its side of the handshake completes, so the request follows
+/// the connection within one round trip (a few ms on a robot's LAN or
+/// Wi-Fi, 100-200 ms over a slow radio link).
+pub const FIRST_BYTES: Duration = Duration::from_millis(200);
+/// New connections that may wait for their first bytes at once while the
+/// page is full: their descriptors are kept for them in
+/// [`crate::daemon::publish::RESERVED_DESCRIPTORS`].
+pub const WAITING: usize = 6;
 
 /// How many connections, and how long a head may take and one may be idle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -146,6 +167,23 @@ impl Peer {
     }
 }
 
+/// A new connection that showed its first bytes (or closed) within
+/// [`FIRST_BYTES`], or None.
+type Newcomer = Pin<Box<dyn Future<Output = Option<(TcpStream, SocketAddr)>> + Send>>;
+
+/// A connection just accepted, and whether its first bytes (or its close)
+/// are already there; None when it cannot be looked at (it is dropped).
+fn sent_something(stream: TcpStream) -> Option<(TcpStream, bool)> {
+    let raw = stream.into_std().ok()?;
+    let mut byte = [0u8; 1];
+    let sent = match raw.peek(&mut byte) {
+        Ok(_) => true,
+        Err(e) if e.kind() == io::ErrorKind::WouldBlock => false,
+        Err(_) => true,
+    };
+    Some((TcpStream::from_std(raw).ok()?, sent))
+}
+
 /// A TCP listener whose connections are bounded by [`ConnectionLimits`].
 pub struct BoundedListener {
     inner: TcpListener,
@@ -153,6 +191,9 @@ pub struct BoundedListener {
     limits: ConnectionLimits,
     epoch: std::time::Instant,
     slots: Vec<Weak<Slot>>,
+    /// New connections accepted while the page was full, waiting for
+    /// their first bytes (at most [`WAITING`]).
+    waiting: FuturesUnordered<Newcomer>,
 }
 
 impl axum::extract::connect_info::Connected<axum::serve::IncomingStream<'_, BoundedListener>>
@@ -171,6 +212,50 @@ impl BoundedListener {
             limits,
             epoch: std::time::Instant::now(),
             slots: Vec::new(),
+            waiting: FuturesUnordered::new(),
+        }
+    }
+
+    /// The next connection to serve: one just accepted while a permit is
+    /// free, or one that showed its first bytes while the page was full.
+    /// One accepted while the page is full waits for its bytes beside the
+    /// others, so the backlog behind it keeps draining.
+    async fn next_client(&mut self) -> (TcpStream, SocketAddr) {
+        loop {
+            let accepting = self.waiting.len() < WAITING;
+            tokio::select! {
+                biased;
+                Some(ready) = self.waiting.next(), if !self.waiting.is_empty() => {
+                    if let Some(client) = ready {
+                        return client;
+                    }
+                }
+                (stream, addr) = axum::serve::Listener::accept(&mut self.inner) => {
+                    if self.permits.available_permits() > 0 {
+                        return (stream, addr);
+                    }
+                    let Some(stream) = sent_something(stream) else {
+                        continue;
+                    };
+                    if stream.1 {
+                        return (stream.0, addr);
+                    }
+                    if !accepting {
+                        tracing::debug!(%addr, "the live page is full: a new connection that sent nothing yet was closed");
+                        continue;
+                    }
+                    let stream = stream.0;
+                    self.waiting.push(Box::pin(async move {
+                        match tokio::time::timeout(FIRST_BYTES, stream.readable()).await {
+                            Ok(Ok(())) => Some((stream, addr)),
+                            _ => {
+                                tracing::debug!(%addr, "the live page is full: a new connection that sent nothing was closed");
+                                None
+                            }
+                        }
+                    }));
+                }
+            }
         }
     }
 
@@ -229,7 +314,7 @@ impl axum::serve::Listener for BoundedListener {
         loop {
             // Accepted first, so a client waiting for room is known to
             // exist before an idle one is closed for it.
-            let (stream, addr) = axum::serve::Listener::accept(&mut self.inner).await;
+            let (stream, addr) = self.next_client().await;
             let Some(permit) = self.room().await else {
                 tracing::debug!(%addr, "the live page is busy: a new connection was closed");
                 drop(stream);

@@ -51,8 +51,8 @@ use tokio::sync::{mpsc, watch};
 use super::{Access, ClientCommand, Hub, MAX_COMMAND_LEN, Origin, ReplyTo, SubscribeError};
 use crate::daemon::config::{Config, SensorGeometry};
 use crate::model::effects::{model_name, parse_list};
-pub use conn::ConnectionLimits;
 use conn::{BoundedListener, Peer};
+pub use conn::{ConnectionLimits, FIRST_BYTES, WAITING};
 
 pub mod conn;
 pub mod guard;

@@ -1,0 +1,515 @@
+//! A per-sample gate against spikes: one bad frame, a burst of EMI, a
+//! loose connector, a garbage row in a recording. Pure and streaming:
+//! samples in, each one kept or refused as a spike, in order.
+//!
+//! A Hampel filter: a sample is a spike when, on some axis, it lies further
+//! than [`THRESHOLD_SIGMAS`] σ from the median of the window centred on it
+//! ([`HALF_WINDOW`] samples each side), σ being the larger of the window's
+//! own spread (1.4826 MAD) and the sensor's noise ([`NoiseFloor`]).
+//!
+//! Only a window centred on the sample tells a spike from the start of a
+//! turn: causally both are a jump away from the samples before, and only
+//! the samples after show whether it comes back. So a sample is judged at
+//! once, against the window before it, and kept when it lies within the
+//! bound there (nearly every sample of a sensor at rest or turning
+//! steadily); one that does not is held until the [`HALF_WINDOW`] samples
+//! after it arrive and judged then. A held sample delays those after it,
+//! so the order is kept; nothing is held longer than [`HALF_WINDOW`] samples.
+//!
+//! Up to [`HALF_WINDOW`] spikes in a row are refused; a longer change is a
+//! step of the field (a magnet placed near, a turn), kept.
+
+use std::collections::VecDeque;
+
+/// Samples each side of the one judged: a burst up to this long is a spike.
+pub const HALF_WINDOW: usize = 3;
+const WINDOW: usize = 2 * HALF_WINDOW + 1;
+
+/// The bound on a sample's distance from its window's median, in σ. For
+/// Gaussian noise a kept sample is refused with a probability of about
+/// 1e-8 per axis (its distance from the median of 7 has a standard
+/// deviation of about 1.1 σ, so the bound is about 5.5 of those), once a
+/// day at 20 Hz on three axes; a spike smaller than this is within what
+/// the fit's own noise absorbs.
+pub const THRESHOLD_SIGMAS: f64 = 6.0;
+
+/// A new sample is held for the samples after it when it lies beyond
+/// this many times the bound from its prediction: the prediction (the
+/// last few samples carried along the slope) has a spread of its own,
+/// about 1.9 σ with the sample's noise, where the centred median's is
+/// about 1 σ.
+const PREDICTION_MARGIN: f64 = 2.0;
+
+/// 1.4826 MAD estimates σ of Gaussian noise.
+const MAD_TO_SIGMA: f64 = 1.4826;
+
+/// Second differences the noise is measured over.
+const NOISE_WINDOW: usize = 64;
+
+/// The median |Δ²| of Gaussian noise of σ is 0.6745 √6 σ.
+const SECOND_DIFF_TO_SIGMA: f64 = 1.0 / (0.674_49 * 2.449_49);
+
+/// A sample refused as a spike: the axis that broke the bound most, in σ.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Spike {
+    /// The axis (0, 1, 2: x, y, and the third).
+    pub axis: usize,
+    pub value: f64,
+    /// What the window centred on it gives at its time, on that axis: the
+    /// median of the samples with their local slope taken out.
+    pub median: f64,
+    /// σ on that axis: the window's spread or the noise, the larger.
+    pub sigma: f64,
+    /// Samples in the window (fewer than `2 HALF_WINDOW + 1` at the start).
+    pub window: usize,
+}
+
+impl Spike {
+    /// Its distance from the median, in σ.
+    pub fn sigmas(&self) -> f64 {
+        (self.value - self.median).abs() / self.sigma
+    }
+
+    /// The sentence a log line or a message gives.
+    pub fn describe(&self, axis_name: &str) -> String {
+        format!(
+            "{axis_name} = {} is {:.0} σ from the {} the {} samples around it give (limit {THRESHOLD_SIGMAS} σ, σ = {})",
+            crate::numfmt::significant(self.value, 4),
+            self.sigmas().min(1e12),
+            crate::numfmt::significant(self.median, 4),
+            self.window,
+            crate::numfmt::significant(self.sigma, 2),
+        )
+    }
+}
+
+/// What the gate decided about one sample, in the order samples came.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Gated<T> {
+    Kept(T),
+    Refused(T, Spike),
+}
+
+/// The sensor's noise on each axis, measured on the stream itself: the
+/// median |second difference| of the last [`NOISE_WINDOW`] samples (a
+/// steady turn cancels out of it), floored at the smallest step the
+/// numbers take (a quantised sensor at rest reads the same count again).
+#[derive(Debug, Clone, Default)]
+struct NoiseFloor {
+    /// The last two samples.
+    last: [Option<[f64; 3]>; 2],
+    second_diffs: [VecDeque<f64>; 3],
+    /// The smallest non-zero |Δ| seen, per axis.
+    quantum: [f64; 3],
+    scratch: Vec<f64>,
+}
+
+impl NoiseFloor {
+    fn observe(&mut self, raw: [f64; 3]) {
+        if let Some(prev) = self.last[1] {
+            for axis in 0..3 {
+                let step = (raw[axis] - prev[axis]).abs();
+                if step > 0.0 && step.is_finite() {
+                    let q = &mut self.quantum[axis];
+                    *q = if *q > 0.0 { q.min(step) } else { step };
+                }
+                if let Some(before) = self.last[0] {
+                    let d2 = (raw[axis] - 2.0 * prev[axis] + before[axis]).abs();
+                    if d2.is_finite() {
+                        let window = &mut self.second_diffs[axis];
+                        if window.len() == NOISE_WINDOW {
+                            window.pop_front();
+                        }
+                        window.push_back(d2);
+                    }
+                }
+            }
+        }
+        self.last = [self.last[1], Some(raw)];
+    }
+
+    /// σ of the noise on `axis`; 0 before anything is known.
+    fn sigma(&mut self, axis: usize) -> f64 {
+        self.scratch.clear();
+        self.scratch.extend(self.second_diffs[axis].iter().copied());
+        let measured = median_of(&mut self.scratch).map_or(0.0, |m| m * SECOND_DIFF_TO_SIGMA);
+        measured.max(self.quantum[axis])
+    }
+}
+
+/// The median of `values` (reordered), None when empty.
+fn median_of(values: &mut [f64]) -> Option<f64> {
+    let n = values.len();
+    if n == 0 {
+        return None;
+    }
+    let (_, &mut upper, _) = values.select_nth_unstable_by(n / 2, f64::total_cmp);
+    if n % 2 == 1 {
+        return Some(upper);
+    }
+    let lower = values[..n / 2]
+        .iter()
+        .copied()
+        .fold(f64::NEG_INFINITY, f64::max);
+    Some(0.5 * (lower + upper))
+}
+
+/// The gate of one sensor's stream of samples (`T`: what travels with
+/// each; `raw` gives its axes, NaN for one it does not have).
+#[derive(Debug, Clone)]
+pub struct SpikeGate<T> {
+    /// The last samples kept, up to a window, oldest first: the left half
+    /// of a centred window, and what a new sample is predicted from.
+    kept: VecDeque<[f64; 3]>,
+    /// Samples not yet decided, oldest first (at most `HALF_WINDOW + 1`).
+    held: VecDeque<(T, [f64; 3])>,
+    /// Whether the oldest held sample broke the bound of its prediction:
+    /// only its centred window decides it then.
+    suspect: bool,
+    /// Decisions not yet taken by [`SpikeGate::decided`].
+    out: VecDeque<Gated<T>>,
+    noise: NoiseFloor,
+    refused: u64,
+    scratch: Vec<f64>,
+}
+
+impl<T> Default for SpikeGate<T> {
+    fn default() -> Self {
+        SpikeGate {
+            kept: VecDeque::with_capacity(WINDOW),
+            held: VecDeque::with_capacity(HALF_WINDOW + 1),
+            suspect: false,
+            out: VecDeque::with_capacity(HALF_WINDOW + 1),
+            noise: NoiseFloor::default(),
+            refused: 0,
+            scratch: Vec::with_capacity(WINDOW),
+        }
+    }
+}
+
+impl<T> SpikeGate<T> {
+    /// Spikes refused so far.
+    pub fn refused(&self) -> u64 {
+        self.refused
+    }
+
+    /// Feeds one sample; its decision, and those of any held before it it
+    /// settles, come out of [`SpikeGate::decided`] in order.
+    pub fn feed(&mut self, item: T, raw: [f64; 3]) {
+        self.noise.observe(raw);
+        self.held.push_back((item, raw));
+        self.settle();
+    }
+
+    /// The next decision, in the order the samples came.
+    pub fn decided(&mut self) -> Option<Gated<T>> {
+        self.out.pop_front()
+    }
+
+    /// Drops the samples held undecided (a new rotation starts: they
+    /// belong to the one before), keeping what the gate has learnt of
+    /// the stream.
+    pub fn drop_held(&mut self) {
+        self.held.clear();
+        self.suspect = false;
+    }
+
+    fn remember(&mut self, raw: [f64; 3]) {
+        if self.kept.len() == WINDOW {
+            self.kept.pop_front();
+        }
+        self.kept.push_back(raw);
+    }
+
+    /// Decides what can be decided: the oldest held sample once the
+    /// samples after it fill its centred window; each sample within the
+    /// bound of its prediction from the samples before it, when nothing is
+    /// held before it.
+    fn settle(&mut self) {
+        while let Some(&(_, raw)) = self.held.front() {
+            let verdict = if self.held.len() > HALF_WINDOW {
+                // Centred: the last HALF_WINDOW decided, it, and the
+                // HALF_WINDOW after it.
+                let before = self.kept.len().min(HALF_WINDOW);
+                let window: Vec<[f64; 3]> = self
+                    .kept
+                    .iter()
+                    .skip(self.kept.len() - before)
+                    .copied()
+                    .chain(self.held.iter().take(HALF_WINDOW + 1).map(|(_, r)| *r))
+                    .collect();
+                let all = 0..window.len();
+                self.judge(&window, all.clone(), all, before, 1.0)
+            } else if self.suspect {
+                return;
+            } else if self.kept.len() < HALF_WINDOW {
+                // Too little known of the stream to predict: kept.
+                None
+            } else {
+                // Causal: kept at once when within the bound of its
+                // prediction; else held for the samples after it.
+                let mut window: Vec<[f64; 3]> = self.kept.iter().copied().collect();
+                let at = window.len();
+                window.push(raw);
+                if self
+                    .judge(&window, 0..at, at - HALF_WINDOW..at, at, PREDICTION_MARGIN)
+                    .is_some()
+                {
+                    self.suspect = true;
+                    return;
+                }
+                None
+            };
+            self.suspect = false;
+            let Some((item, raw)) = self.held.pop_front() else {
+                return;
+            };
+            match verdict {
+                None => {
+                    self.remember(raw);
+                    self.out.push_back(Gated::Kept(item));
+                }
+                Some(spike) => {
+                    self.refused = self.refused.saturating_add(1);
+                    self.out.push_back(Gated::Refused(item, spike));
+                }
+            }
+        }
+    }
+
+    /// Whether the sample of `window` at `at` breaks its bound on some
+    /// axis: the axis it breaks most, in σ. The slope is the median step
+    /// between the samples of `steps`; the reference, the median of the
+    /// samples of `reference` carried along that slope to `at`, so a
+    /// turn's steady change is no distance, and a spike in the window moves
+    /// neither. σ is the largest of the stream's noise, the spread of the
+    /// steps about their median (a turn's curvature, a shaking hand: for a
+    /// centred window, `margin` 1), and the smallest step the numbers
+    /// take; the bound is [`THRESHOLD_SIGMAS`] `margin` σ.
+    fn judge(
+        &mut self,
+        window: &[[f64; 3]],
+        steps: std::ops::Range<usize>,
+        reference: std::ops::Range<usize>,
+        at: usize,
+        margin: f64,
+    ) -> Option<Spike> {
+        let mut worst: Option<Spike> = None;
+        for axis in 0..3 {
+            let value = window[at][axis];
+            if !value.is_finite() {
+                continue;
+            }
+            let floor = self.noise.sigma(axis);
+            // The steps between the samples used (not into the one judged
+            // causally: it is the one in question).
+            self.scratch.clear();
+            self.scratch.extend(
+                window[steps.clone()]
+                    .windows(2)
+                    .map(|w| w[1][axis] - w[0][axis])
+                    .filter(|d| d.is_finite()),
+            );
+            let slope = median_of(&mut self.scratch).unwrap_or(0.0);
+            for d in &mut self.scratch {
+                *d = (*d - slope).abs();
+            }
+            let step_spread = median_of(&mut self.scratch).unwrap_or(0.0);
+            // A prediction from a few steps is judged against the stream's
+            // noise alone (their spread is too uncertain to widen a bound
+            // that only decides whether to wait for the samples after).
+            let local = if margin == 1.0 {
+                MAD_TO_SIGMA * step_spread / std::f64::consts::SQRT_2
+            } else {
+                0.0
+            };
+            let sigma = floor.max(local);
+            self.scratch.clear();
+            self.scratch.extend(
+                window[reference.clone()]
+                    .iter()
+                    .zip(reference.clone())
+                    .map(|(r, j)| r[axis] - (j as f64 - at as f64) * slope)
+                    .filter(|v| v.is_finite()),
+            );
+            let Some(reference) = median_of(&mut self.scratch) else {
+                continue;
+            };
+            let n = self.scratch.len();
+            let off = (value - reference).abs();
+            // Nothing known of the noise yet (a constant stream): no bound.
+            if !(sigma > 0.0) || off <= THRESHOLD_SIGMAS * margin * sigma {
+                continue;
+            }
+            let spike = Spike {
+                axis,
+                value,
+                median: reference,
+                sigma,
+                window: n,
+            };
+            if worst.as_ref().is_none_or(|w| spike.sigmas() > w.sigmas()) {
+                worst = Some(spike);
+            }
+        }
+        worst
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Feeds every sample, returns the indices refused and the order kept.
+    fn run(samples: &[[f64; 3]]) -> (Vec<usize>, Vec<usize>) {
+        let mut gate = SpikeGate::default();
+        let (mut refused, mut kept) = (Vec::new(), Vec::new());
+        for (i, &raw) in samples.iter().enumerate() {
+            gate.feed(i, raw);
+            while let Some(g) = gate.decided() {
+                match g {
+                    Gated::Kept(i) => kept.push(i),
+                    Gated::Refused(i, _) => refused.push(i),
+                }
+            }
+        }
+        (refused, kept)
+    }
+
+    /// A turn at `deg_per_sample`, radius 1000 counts, rounded to counts,
+    /// with a deterministic ±2-count jitter.
+    fn turn(n: usize, deg_per_sample: f64) -> Vec<[f64; 3]> {
+        (0..n)
+            .map(|i| {
+                let h = (i as f64 * deg_per_sample).to_radians();
+                let jitter = ((i * 7919) % 5) as f64 - 2.0;
+                [
+                    (300.0 + 1000.0 * h.cos() + jitter).round(),
+                    (-200.0 + 1000.0 * h.sin() - jitter).round(),
+                    f64::NAN,
+                ]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn single_spikes_and_short_bursts_are_refused_and_the_rest_kept_in_order() {
+        let mut samples = turn(400, 1.8);
+        samples[100][0] = 65535.0;
+        samples[200][1] = -4096.0;
+        for s in &mut samples[300..303] {
+            s[0] = 5000.0;
+        }
+        let (refused, kept) = run(&samples);
+        assert_eq!(refused, vec![100, 200, 300, 301, 302]);
+        // Every other sample is kept, in order (the last HALF_WINDOW may
+        // still be held).
+        assert!(kept.windows(2).all(|w| w[0] < w[1]));
+        assert!(
+            kept.len() + refused.len() >= 400 - HALF_WINDOW,
+            "{}",
+            kept.len()
+        );
+    }
+
+    #[test]
+    fn a_turn_that_starts_or_stops_at_once_and_a_step_of_the_field_are_kept() {
+        // At rest, then at once 18° per sample (360°/s at 20 Hz), then at
+        // rest again; then the field steps by 30 % and stays.
+        let mut samples = vec![[1300.0, -200.0, f64::NAN]; 50];
+        samples.extend(turn(40, 18.0).into_iter().skip(1));
+        let last = *samples.last().unwrap();
+        samples.extend(std::iter::repeat_n(last, 50));
+        samples.extend(std::iter::repeat_n(
+            [last[0] + 300.0, last[1], f64::NAN],
+            50,
+        ));
+        let (refused, kept) = run(&samples);
+        assert!(refused.is_empty(), "{refused:?}");
+        assert!(kept.len() >= samples.len() - HALF_WINDOW, "{}", kept.len());
+        assert!(kept.windows(2).all(|w| w[0] < w[1]));
+    }
+
+    #[test]
+    fn gaussian_noise_at_rest_and_turning_is_never_refused() {
+        let mut normal = normals(0x2545_f491_4f6c_dd1d);
+        let samples: Vec<[f64; 3]> = (0..100_000)
+            .map(|i| {
+                // Turning at 0.5° a sample, then at 9°.
+                let h = (i as f64 * if i < 50_000 { 0.5 } else { 9.0 }).to_radians();
+                [
+                    50.0 * h.cos() + 0.5 * normal(),
+                    50.0 * h.sin() + 0.5 * normal(),
+                    20.0 + 0.5 * normal(),
+                ]
+            })
+            .collect();
+        let (refused, _) = run(&samples);
+        assert!(refused.is_empty(), "{refused:?}");
+    }
+
+    /// A deterministic normal generator (Box-Muller on an LCG).
+    fn normals(seed: u64) -> impl FnMut() -> f64 {
+        let mut state = seed;
+        move || {
+            let mut uniform = || {
+                state = state
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1_442_695_040_888_963_407);
+                ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+            };
+            let (u, v) = (uniform(), uniform());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        }
+    }
+
+    #[test]
+    fn spikes_of_twenty_noise_sds_are_refused_while_turning_fast_or_slowly() {
+        // Radius 1000 counts, noise 2; 0.9° a sample (a turn in 4 s at
+        // 100 Hz): a spike of 20 to 50 noise SDs on one axis every 37
+        // samples. At 4.5° a sample (a turn in 4 s at 20 Hz) the turn's
+        // curvature (6 counts a step) widens σ: spikes of 20 to 50 times
+        // 6 counts. Smaller ones there are within what the local line
+        // through the window can tell from the turn.
+        for (step_deg, sd) in [(0.9, 2.0), (4.5, 6.0)] {
+            let mut normal = normals(7);
+            let mut samples: Vec<[f64; 3]> = (0..4000)
+                .map(|i| {
+                    let h = (i as f64 * step_deg).to_radians();
+                    [
+                        150.0 + 1100.0 * h.cos() + 2.0 * normal(),
+                        -80.0 + 1000.0 * h.sin() + 2.0 * normal(),
+                        f64::NAN,
+                    ]
+                })
+                .collect();
+            let mut spoilt = Vec::new();
+            for i in (20..4000).step_by(37) {
+                let size = sd * (20.0 + (i % 31) as f64);
+                let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
+                samples[i][i % 2] += sign * size;
+                spoilt.push(i);
+            }
+            let (refused, kept) = run(&samples);
+            assert_eq!(refused, spoilt, "{step_deg}° a sample");
+            assert!(kept.len() + refused.len() >= 4000 - HALF_WINDOW);
+        }
+    }
+
+    #[test]
+    fn nothing_waits_longer_than_half_a_window_and_held_samples_can_be_dropped() {
+        let mut gate = SpikeGate::default();
+        for i in 0..20 {
+            gate.feed(i, [f64::from(i % 2), 0.0, f64::NAN]);
+        }
+        let mut decided = 0;
+        while gate.decided().is_some() {
+            decided += 1;
+        }
+        assert!(decided >= 20 - HALF_WINDOW);
+        gate.feed(20, [1e9, 0.0, f64::NAN]);
+        gate.drop_held();
+        gate.feed(21, [0.0, 0.0, f64::NAN]);
+        assert!(matches!(gate.decided(), Some(Gated::Kept(21))));
+    }
+}
