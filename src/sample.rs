@@ -115,6 +115,20 @@ impl Dataset {
         Ok(dataset)
     }
 
+    /// The dataset without the rows `drop` (ascending indices).
+    pub fn without_rows(mut self, drop: &[usize]) -> Self {
+        let keep = kept(self.len(), drop);
+        retain_rows(&mut self.x, &keep);
+        retain_rows(&mut self.y, &keep);
+        if let Some(t) = &mut self.t {
+            retain_rows(t, &keep);
+        }
+        for c in &mut self.covariates {
+            retain_rows(&mut c.values, &keep);
+        }
+        self
+    }
+
     /// A dataset of just two axes, named `x` and `y`.
     pub fn from_xy(x: Vec<f64>, y: Vec<f64>) -> Result<Self, DatasetError> {
         Self::new("x", "y", None, x, y, Vec::new())
@@ -233,6 +247,39 @@ impl Dataset3 {
     pub fn covariate(&self, name: &str) -> Option<&Covariate> {
         self.covariates.iter().find(|c| c.name == name)
     }
+
+    /// The recording without the rows `drop` (ascending indices).
+    pub fn without_rows(mut self, drop: &[usize]) -> Self {
+        let keep = kept(self.len(), drop);
+        retain_rows(&mut self.points, &keep);
+        if let Some(t) = &mut self.t {
+            retain_rows(t, &keep);
+        }
+        for c in &mut self.covariates {
+            retain_rows(&mut c.values, &keep);
+        }
+        self
+    }
+}
+
+/// Which of `n` rows stay when the rows `drop` go.
+fn kept(n: usize, drop: &[usize]) -> Vec<bool> {
+    let mut keep = vec![true; n];
+    for &i in drop {
+        if let Some(k) = keep.get_mut(i) {
+            *k = false;
+        }
+    }
+    keep
+}
+
+fn retain_rows<T>(values: &mut Vec<T>, keep: &[bool]) {
+    let mut row = 0;
+    values.retain(|_| {
+        let k = keep.get(row).copied().unwrap_or(true);
+        row += 1;
+        k
+    });
 }
 
 /// What a device reported in one frame or one poll, in raw counts, stamped

@@ -100,7 +100,9 @@ fn axes_that_did_not_turn_are_named_as_the_cause() {
     let file = file.to_str().unwrap();
     let msg = run_err(&["diagnose", file, "--x", "acc_y", "--y", "acc_z"]);
     assert!(msg.contains("mpu6050.csv: no diagnosis"), "{msg}");
-    assert!(msg.contains("go only 102° round"), "{msg}");
+    // 103°: the two jolts the spike gate leaves out (rows 568 and 672)
+    // reached 1° further.
+    assert!(msg.contains("go only 103° round"), "{msg}");
     assert!(msg.contains("--x and --y"), "{msg}");
     // The axes that did turn are diagnosed.
     let out = run_ok(&["diagnose", file, "--x", "acc_x", "--y", "acc_z", "--json"]);

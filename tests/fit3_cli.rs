@@ -397,7 +397,9 @@ fn real_magnetometer_tumble_fits_in_3d() {
     ]))
     .unwrap();
     assert_eq!(v["model"], "offset+scale+cross-axis");
-    assert_eq!(v["n"], 4322);
+    // 4322 readings; the spike gate leaves out one of them (row 1483:
+    // mag_z 23 counts off the 7 around it, 6.2 σ).
+    assert_eq!(v["n"], 4321);
     assert_eq!(v["units"], Value::Null);
     let r = f(&v["params"]["r"]);
     // The Earth's field is 0.22 to 0.67 G everywhere (WMM2025 total

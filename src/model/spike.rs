@@ -356,6 +356,23 @@ impl<T> SpikeGate<T> {
     }
 }
 
+/// The rows of a whole recording the gate refuses, ascending, each with
+/// why: the daemon's gate run over it (the last few rows, with no samples
+/// after them to show whether they came back, are kept).
+pub fn refused_rows(points: impl IntoIterator<Item = [f64; 3]>) -> Vec<(usize, Spike)> {
+    let mut gate = SpikeGate::default();
+    let mut refused = Vec::new();
+    for (i, raw) in points.into_iter().enumerate() {
+        gate.feed(i, raw);
+        while let Some(decided) = gate.decided() {
+            if let Gated::Refused(i, spike) = decided {
+                refused.push((i, spike));
+            }
+        }
+    }
+    refused
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

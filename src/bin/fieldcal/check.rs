@@ -380,7 +380,10 @@ fn check_three(args: &CheckArgs, root: &serde_json::Value) -> Result<()> {
         .z
         .clone()
         .unwrap_or_else(|| stored_column(2, "z"));
-    let data = fieldcal::io::csv::read_dataset3(&args.input.file, &spec, &z)?;
+    let data = crate::without_spikes3(
+        &args.input.file,
+        fieldcal::io::csv::read_dataset3(&args.input.file, &spec, &z)?,
+    );
     let file = args.input.file.display().to_string();
     let checked = check3(&data.points, &stored)
         .with_context(|| format!("{file}: cannot check {cal_name} against it"));

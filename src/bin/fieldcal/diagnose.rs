@@ -304,7 +304,7 @@ fn diagnose3(args: DiagnoseArgs, z: &str) -> Result<()> {
             "{file}: --gyro checks the heading of a turn in one plane and has no 3-D form; drop --gyro, or choose two axes with --x and --y"
         );
     }
-    let data = args.input.read3(z)?;
+    let data = args.input.read3_gated(z)?;
     let baseline = baseline_effects(&args, &file, |column| data.covariate(column).is_some())?;
     let diagnosis =
         diagnose_3d(&data, &baseline).with_context(|| format!("{file}: no diagnosis"))?;

@@ -373,7 +373,7 @@ fn still_gyro(args: &FitArgs, data: &Dataset3, file: &str) -> Result<Option<Gyro
 /// `fit` on three axes.
 fn fit3(args: &FitArgs, z: &str) -> Result<()> {
     refuse_2d_options(args)?;
-    let data = args.input.read3(z)?;
+    let data = args.input.read3_gated(z)?;
     let file = args.input.file.display().to_string();
     let (base, extra) = match &args.effects {
         Some(list) => parse_effects3(&list.text).map_err(|e| anyhow::anyhow!("--effects: {e}"))?,

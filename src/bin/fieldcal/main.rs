@@ -12,7 +12,7 @@ mod run;
 mod signals;
 mod simulate;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context as _;
@@ -183,13 +183,28 @@ impl CsvInput {
         Ok(fieldcal::io::csv::read_dataset3(&self.file, &spec, z)?)
     }
 
+    /// The 2-axis recording, without the readings the spike gate refuses
+    /// (told on stderr).
     fn read(&self) -> anyhow::Result<fieldcal::sample::Dataset> {
         let spec = fieldcal::io::csv::ColumnSpec {
             x: self.x_column().to_string(),
             y: self.y_column().to_string(),
             t: self.t.clone(),
         };
-        Ok(fieldcal::io::csv::read_dataset(&self.file, &spec)?)
+        let data = fieldcal::io::csv::read_dataset(&self.file, &spec)?;
+        let refused = fieldcal::model::spike::refused_rows(
+            data.x.iter().zip(&data.y).map(|(&x, &y)| [x, y, f64::NAN]),
+        );
+        tell_spikes(&self.file, &refused, [&data.x_name, &data.y_name, ""]);
+        let rows: Vec<usize> = refused.iter().map(|(i, _)| *i).collect();
+        Ok(data.without_rows(&rows))
+    }
+
+    /// [`Self::read3`] for a fit or a check: without the readings the
+    /// spike gate refuses (told on stderr).
+    fn read3_gated(&self, z: &str) -> anyhow::Result<fieldcal::sample::Dataset3> {
+        let data = self.read3(z)?;
+        Ok(without_spikes3(&self.file, data))
     }
 
     /// The recording, and the gyro's heading reference when --gyro names
@@ -278,6 +293,57 @@ impl CsvInput {
         };
         Ok((data, Some(reference)))
     }
+}
+
+/// Readings a spike warning lists by row at most.
+const SPIKES_LISTED: usize = 5;
+
+/// Notes for stderr once the command has done its work (a failed one
+/// prints its one error line alone).
+static NOTES: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+
+fn note(text: String) {
+    if let Ok(mut notes) = NOTES.lock() {
+        notes.push(text);
+    }
+}
+
+/// Tells on stderr, after the command's output, which readings of `file`
+/// the spike gate left out of the analysis (the daemon's gate,
+/// [`fieldcal::model::spike`]).
+fn tell_spikes(file: &Path, refused: &[(usize, fieldcal::model::spike::Spike)], axes: [&str; 3]) {
+    if refused.is_empty() {
+        return;
+    }
+    let listed: Vec<String> = refused
+        .iter()
+        .take(SPIKES_LISTED)
+        .map(|(i, s)| {
+            let axis = axes.get(s.axis).copied().unwrap_or("?");
+            format!("row {} after the header: {}", i + 1, s.describe(axis))
+        })
+        .collect();
+    let more = refused.len().saturating_sub(SPIKES_LISTED);
+    note(format!(
+        "fieldcal: {}: {} left out as spikes (far off the readings around them: a bad frame, EMI, a garbage row, a jolt): {}{}",
+        file.display(),
+        fieldcal::sample::count(refused.len() as u64, "reading"),
+        listed.join("; "),
+        if more > 0 {
+            format!("; and {more} more")
+        } else {
+            String::new()
+        }
+    ));
+}
+
+/// A 3-axis recording without the readings the spike gate refuses (told
+/// on stderr).
+fn without_spikes3(file: &Path, data: fieldcal::sample::Dataset3) -> fieldcal::sample::Dataset3 {
+    let refused = fieldcal::model::spike::refused_rows(data.points.iter().copied());
+    tell_spikes(file, &refused, [&data.x_name, &data.y_name, &data.z_name]);
+    let rows: Vec<usize> = refused.iter().map(|(i, _)| *i).collect();
+    data.without_rows(&rows)
 }
 
 #[derive(Debug, Args)]
@@ -654,7 +720,12 @@ fn main() -> ExitCode {
         Command::Replay(args) => replay::replay(args),
     };
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) => {
+            for text in NOTES.lock().map(|n| n.clone()).unwrap_or_default() {
+                eprintln!("{text}");
+            }
+            ExitCode::SUCCESS
+        }
         Err(err) => {
             // Library errors often name their cause in their own text; a
             // cause already said is not said twice.
