@@ -25,6 +25,13 @@ const MAX_ANSWER: usize = 1 << 16;
 fn server() -> SocketAddr {
     static ADDR: OnceLock<SocketAddr> = OnceLock::new();
     *ADDR.get_or_init(|| {
+        // libFuzzer's C main does not set up what a Rust binary's does: a
+        // write to a connection the server closed would kill the fuzzer
+        // with SIGPIPE instead of failing with EPIPE, as it does in
+        // fieldcal itself.
+        // SAFETY: setting a signal's disposition to SIG_IGN touches no
+        // memory; it is done once, before any thread of ours writes.
+        unsafe { libc::signal(libc::SIGPIPE, libc::SIG_IGN) };
         let (tx, rx) = std::sync::mpsc::channel();
         std::thread::spawn(move || {
             let runtime = tokio::runtime::Builder::new_multi_thread()

@@ -72,9 +72,9 @@ impl Lifecycle {
         }
     }
 
-    /// A sample refused by the gate as `spike` (`what` says which axis and
-    /// by how much): counted, and logged unless one was within
-    /// [`SPIKE_LOG_INTERVAL_S`].
+    /// A sample refused by the gate as `spike` (on the axis `axis_name`):
+    /// counted, and logged unless one was within [`SPIKE_LOG_INTERVAL_S`]
+    /// (either way: a clock that went back does not mute it).
     pub fn refuse_spike(&mut self, sample: &Sample, spike: &Spike, axis_name: &str) {
         self.spikes = self.spikes.saturating_add(1);
         let sentence = format!(
@@ -84,7 +84,7 @@ impl Lifecycle {
         );
         let due = self
             .spike_logged_at
-            .is_none_or(|t| !(sample.time - t < SPIKE_LOG_INTERVAL_S));
+            .is_none_or(|t| !((sample.time - t).abs() < SPIKE_LOG_INTERVAL_S));
         if due {
             self.spike_logged_at = Some(sample.time);
             self.spike_log = Some(format!("{sentence} ({} so far)", self.spikes));
@@ -106,7 +106,8 @@ impl Lifecycle {
     /// Collects anew; the current calibration keeps correcting until a
     /// new one is accepted.
     pub fn restart(&mut self) {
-        // Samples held by the gate belong to the rotation before.
+        // Samples held or decided but not yet collected belong to the
+        // rotation before.
         self.gate.drop_held();
         self.state = if self.current.is_some() {
             SensorState::Recalibrating

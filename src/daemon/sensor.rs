@@ -106,6 +106,9 @@ pub struct Sample {
     pub accel: Option<[f64; 3]>,
     /// The gyro's integrated angle, degrees (a plane checked by a gyro).
     pub turned: Option<f64>,
+    /// The 3-axis gyro's latest rate, deg/s, when it was fresh (a sphere
+    /// with a gyro).
+    pub gyro: Option<[f64; 3]>,
 }
 
 impl Sample {
@@ -120,6 +123,7 @@ impl Sample {
                 .filter(|(t, _)| (time - t).abs() <= super::sensor3::MAX_TILT_AGE_S)
                 .map(|(_, a)| a),
             turned: None,
+            gyro: None,
         }
     }
 }

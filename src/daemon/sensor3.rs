@@ -836,7 +836,7 @@ impl Geometry for Sensor3 {
         // The accelerometer beside this sample, unless it was stale.
         let accel = self.config.tilt.is_some().then_some(sample.accel);
         if let (Some(gyro), Some(Some(a))) = (&mut self.gyro, accel) {
-            gyro.keep(time, raw, a, self.buffer.points().is_empty());
+            gyro.keep(time, [raw, a], sample.gyro, self.buffer.points().is_empty());
         }
         if !self.buffer.push(time, raw, accel) {
             return None;
@@ -903,7 +903,7 @@ impl Geometry for Sensor3 {
             return None;
         }
         let raw = values(at)?;
-        Some(Sample::beside(row.time, raw, self.last_accel))
+        Some(self.sample_at(row.time, raw))
     }
     fn reading_sample(&mut self, _life: &Lifecycle, reading: &Reading) -> Option<Sample> {
         if let Some(gyro) = &mut self.gyro {
@@ -919,7 +919,7 @@ impl Geometry for Sensor3 {
             return None;
         }
         let raw = pick(field_of(reading, self.field)?, self.config.axes);
-        Some(Sample::beside(reading.time, raw, self.last_accel))
+        Some(self.sample_at(reading.time, raw))
     }
     fn loaded_line(
         &self,

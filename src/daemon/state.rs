@@ -513,7 +513,6 @@ fn read_bounded(path: &Path) -> io::Result<Option<Vec<u8>>> {
     }
 }
 
-/// Parses and checks a stored file; the error is the problem, for a person.
 /// A state file's bytes as [`StateStore::load`] reads them for `sensor`
 /// (without the file system): the calibration, or why the file is corrupt.
 /// For tools and the fuzz target of the loader.
@@ -521,6 +520,7 @@ pub fn decode_state(bytes: &[u8], sensor: &str) -> Result<Calibration, String> {
     decode(bytes, sensor)
 }
 
+/// Parses and checks a stored file; the error is the problem, for a person.
 fn decode(bytes: &[u8], sensor: &str) -> Result<Calibration, String> {
     if bytes.is_empty() {
         return Err("empty file".into());

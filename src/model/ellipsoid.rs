@@ -213,13 +213,16 @@ pub enum Ellipsoid3Error {
     )]
     Degenerate,
     #[error(
-        "the readings spread over {spread:.1e} (their rms distance from their mean), outside the {min:.0e} to {max:.0e} the 3-D fit computes in; the farthest, reading {farthest}, lies {distance:.1e} from their mean: if it alone is off, it is a spike to remove, else give the readings in the sensor's counts or in physical units",
+        "the readings spread over {spread:.1e} (their rms distance from their mean), outside the {min:.0e} to {max:.0e} the 3-D fit computes in; the farthest, ({:.3e}, {:.3e}, {:.3e}), lies {distance:.1e} from their mean: if it alone is off, it is a spike to remove, else give the readings in the sensor's counts or in physical units",
+        farthest[0],
+        farthest[1],
+        farthest[2],
         min = MIN_SPREAD,
         max = MAX_SPREAD
     )]
     OutOfRange {
         spread: f64,
-        farthest: usize,
+        farthest: [f64; 3],
         distance: f64,
     },
     #[error(
@@ -305,10 +308,9 @@ fn normalise(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Normalised, 
     if !(MIN_SPREAD..=MAX_SPREAD).contains(&spread) {
         let (farthest, distance) = points
             .iter()
-            .map(|p| (Vector3::from(*p) - mean).norm())
-            .enumerate()
+            .map(|p| (*p, (Vector3::from(*p) - mean).norm()))
             .max_by(|a, b| a.1.total_cmp(&b.1))
-            .unwrap_or((0, spread));
+            .unwrap_or(([f64::NAN; 3], spread));
         return Err(Ellipsoid3Error::OutOfRange {
             spread,
             farthest,

@@ -3,18 +3,26 @@
 //! samples in, each one kept or refused as a spike, in order.
 //!
 //! A Hampel filter: a sample is a spike when, on some axis, it lies further
-//! than [`THRESHOLD_SIGMAS`] σ from the median of the window centred on it
-//! ([`HALF_WINDOW`] samples each side), σ being the larger of the window's
-//! own spread (1.4826 MAD) and the sensor's noise ([`NoiseFloor`]).
+//! than [`THRESHOLD_SIGMAS`] σ from what the window centred on it gives
+//! ([`HALF_WINDOW`] samples each side): the median of the window's samples
+//! with its local slope (the median step) taken out, so a turn's steady
+//! change is no distance. σ is the largest of the stream's noise
+//! ([`NoiseFloor`], from the samples kept), the spread of the window's
+//! steps about their median (1.4826 MAD / √2: a turn's curvature, a
+//! shaking hand), and the smallest step the numbers take. Samples are
+//! counted, not timed: a gap in the stream is a step like any other.
 //!
 //! Only a window centred on the sample tells a spike from the start of a
 //! turn: causally both are a jump away from the samples before, and only
 //! the samples after show whether it comes back. So a sample is judged at
-//! once, against the window before it, and kept when it lies within the
-//! bound there (nearly every sample of a sensor at rest or turning
-//! steadily); one that does not is held until the [`HALF_WINDOW`] samples
-//! after it arrive and judged then. A held sample delays those after it,
-//! so the order is kept; nothing is held longer than [`HALF_WINDOW`] samples.
+//! once, against its prediction from the samples before it, and kept when
+//! it lies within [`PREDICTION_MARGIN`] times the bound there (nearly every
+//! sample of a sensor at rest or turning steadily); one that does not, and
+//! each of the first [`HALF_WINDOW`] of a stream, is held until the
+//! [`HALF_WINDOW`] samples after it arrive and judged then. A held sample
+//! delays those after it, so the order is kept; nothing is held longer
+//! than [`HALF_WINDOW`] samples, except at the end of a stream, where
+//! [`SpikeGate::finish`] judges what is left on the samples there are.
 //!
 //! Up to [`HALF_WINDOW`] spikes in a row are refused; a longer change is a
 //! step of the field (a magnet placed near, a turn), kept.
@@ -25,12 +33,13 @@ use std::collections::VecDeque;
 pub const HALF_WINDOW: usize = 3;
 const WINDOW: usize = 2 * HALF_WINDOW + 1;
 
-/// The bound on a sample's distance from its window's median, in σ. For
-/// Gaussian noise a kept sample is refused with a probability of about
+/// The bound on a sample's distance from what its window gives, in σ. For
+/// Gaussian noise a good sample lies beyond it with a probability of about
 /// 1e-8 per axis (its distance from the median of 7 has a standard
-/// deviation of about 1.1 σ, so the bound is about 5.5 of those), once a
-/// day at 20 Hz on three axes; a spike smaller than this is within what
-/// the fit's own noise absorbs.
+/// deviation of about 1.1 σ, so the bound is about 5.5 of those): at 20 Hz
+/// on three axes, once in 20 days (and it must first have failed its
+/// prediction). A spike smaller than this is within what the fit's own
+/// noise absorbs.
 pub const THRESHOLD_SIGMAS: f64 = 6.0;
 
 /// A new sample is held for the samples after it when it lies beyond
@@ -38,13 +47,20 @@ pub const THRESHOLD_SIGMAS: f64 = 6.0;
 /// last few samples carried along the slope) has a spread of its own,
 /// about 1.9 σ with the sample's noise, where the centred median's is
 /// about 1 σ.
-const PREDICTION_MARGIN: f64 = 2.0;
+pub const PREDICTION_MARGIN: f64 = 2.0;
 
 /// 1.4826 MAD estimates σ of Gaussian noise.
 const MAD_TO_SIGMA: f64 = 1.4826;
 
-/// Second differences the noise is measured over.
+/// Second differences the noise is measured over: 64, enough for the
+/// median to settle within about 15 % (its relative spread is about
+/// 1.25/√n), few enough to follow a sensor whose noise changes within a
+/// few seconds at 20 Hz.
 const NOISE_WINDOW: usize = 64;
+
+/// Second differences the noise must have been measured over before it
+/// bounds a sample (before, only what the window's own steps say does).
+const MIN_SECOND_DIFFS: usize = 8;
 
 /// The median |Δ²| of Gaussian noise of σ is 0.6745 √6 σ.
 const SECOND_DIFF_TO_SIGMA: f64 = 1.0 / (0.674_49 * 2.449_49);
@@ -72,6 +88,14 @@ impl Spike {
 
     /// The sentence a log line or a message gives.
     pub fn describe(&self, axis_name: &str) -> String {
+        if !(self.sigma > 0.0) {
+            return format!(
+                "{axis_name} = {} where the {} samples around it all give {}",
+                crate::numfmt::significant(self.value, 4),
+                self.window,
+                crate::numfmt::significant(self.median, 4),
+            );
+        }
         format!(
             "{axis_name} = {} is {:.0} σ from the {} the {} samples around it give (limit {THRESHOLD_SIGMAS} σ, σ = {})",
             crate::numfmt::significant(self.value, 4),
@@ -128,6 +152,11 @@ impl NoiseFloor {
         self.last = [self.last[1], Some(raw)];
     }
 
+    /// Whether enough is known of `axis`'s noise to bound a sample by it.
+    fn known(&self, axis: usize) -> bool {
+        self.second_diffs[axis].len() >= MIN_SECOND_DIFFS
+    }
+
     /// σ of the noise on `axis`; 0 before anything is known.
     fn sigma(&mut self, axis: usize) -> f64 {
         self.scratch.clear();
@@ -171,6 +200,8 @@ pub struct SpikeGate<T> {
     noise: NoiseFloor,
     refused: u64,
     scratch: Vec<f64>,
+    /// The window being judged (kept here to be reused).
+    window: Vec<[f64; 3]>,
 }
 
 impl<T> Default for SpikeGate<T> {
@@ -183,6 +214,7 @@ impl<T> Default for SpikeGate<T> {
             noise: NoiseFloor::default(),
             refused: 0,
             scratch: Vec::with_capacity(WINDOW),
+            window: Vec::with_capacity(WINDOW + 1),
         }
     }
 }
@@ -196,9 +228,14 @@ impl<T> SpikeGate<T> {
     /// Feeds one sample; its decision, and those of any held before it it
     /// settles, come out of [`SpikeGate::decided`] in order.
     pub fn feed(&mut self, item: T, raw: [f64; 3]) {
-        self.noise.observe(raw);
         self.held.push_back((item, raw));
-        self.settle();
+        self.settle(false);
+    }
+
+    /// The stream has ended: what is still held is judged on the samples
+    /// there are (a window short on its right).
+    pub fn finish(&mut self) {
+        self.settle(true);
     }
 
     /// The next decision, in the order the samples came.
@@ -206,15 +243,20 @@ impl<T> SpikeGate<T> {
         self.out.pop_front()
     }
 
-    /// Drops the samples held undecided (a new rotation starts: they
-    /// belong to the one before), keeping what the gate has learnt of
-    /// the stream.
+    /// Drops the samples held undecided, and the decisions not yet taken
+    /// (a new rotation starts: they belong to the one before), keeping
+    /// what the gate has learnt of the stream.
     pub fn drop_held(&mut self) {
         self.held.clear();
+        self.out.clear();
         self.suspect = false;
     }
 
+    /// A sample kept: the next ones are predicted from it, and the noise
+    /// is measured on the samples kept (a spike's own jump never widens
+    /// the bound it is judged by).
     fn remember(&mut self, raw: [f64; 3]) {
+        self.noise.observe(raw);
         if self.kept.len() == WINDOW {
             self.kept.pop_front();
         }
@@ -225,40 +267,38 @@ impl<T> SpikeGate<T> {
     /// samples after it fill its centred window; each sample within the
     /// bound of its prediction from the samples before it, when nothing is
     /// held before it.
-    fn settle(&mut self) {
+    fn settle(&mut self, ended: bool) {
         while let Some(&(_, raw)) = self.held.front() {
-            let verdict = if self.held.len() > HALF_WINDOW {
-                // Centred: the last HALF_WINDOW decided, it, and the
-                // HALF_WINDOW after it.
+            let mut window = std::mem::take(&mut self.window);
+            window.clear();
+            let verdict = if self.held.len() > HALF_WINDOW || ended {
+                // Centred: the last HALF_WINDOW kept, it, and the
+                // HALF_WINDOW after it (fewer at an end).
                 let before = self.kept.len().min(HALF_WINDOW);
-                let window: Vec<[f64; 3]> = self
-                    .kept
-                    .iter()
-                    .skip(self.kept.len() - before)
-                    .copied()
-                    .chain(self.held.iter().take(HALF_WINDOW + 1).map(|(_, r)| *r))
-                    .collect();
+                window.extend(self.kept.iter().skip(self.kept.len() - before));
+                window.extend(self.held.iter().take(HALF_WINDOW + 1).map(|(_, r)| *r));
                 let all = 0..window.len();
-                self.judge(&window, all.clone(), all, before, 1.0)
-            } else if self.suspect {
-                return;
-            } else if self.kept.len() < HALF_WINDOW {
-                // Too little known of the stream to predict: kept.
-                None
+                Ok(self.judge(&window, all.clone(), all, before, None))
+            } else if self.suspect || self.kept.len() < HALF_WINDOW {
+                // Waits for the samples after it (the first ones of a
+                // stream have nothing before them to be predicted from).
+                Err(())
             } else {
                 // Causal: kept at once when within the bound of its
                 // prediction; else held for the samples after it.
-                let mut window: Vec<[f64; 3]> = self.kept.iter().copied().collect();
+                window.extend(self.kept.iter().copied());
                 let at = window.len();
                 window.push(raw);
-                if self
-                    .judge(&window, 0..at, at - HALF_WINDOW..at, at, PREDICTION_MARGIN)
-                    .is_some()
-                {
-                    self.suspect = true;
-                    return;
+                let prediction = at - HALF_WINDOW..at;
+                match self.judge(&window, 0..at, prediction, at, Some(PREDICTION_MARGIN)) {
+                    None => Ok(None),
+                    Some(_) => Err(()),
                 }
-                None
+            };
+            self.window = window;
+            let Ok(verdict) = verdict else {
+                self.suspect = true;
+                return;
             };
             self.suspect = false;
             let Some((item, raw)) = self.held.pop_front() else {
@@ -285,14 +325,15 @@ impl<T> SpikeGate<T> {
     /// neither. σ is the largest of the stream's noise, the spread of the
     /// steps about their median (a turn's curvature, a shaking hand: for a
     /// centred window, `margin` 1), and the smallest step the numbers
-    /// take; the bound is [`THRESHOLD_SIGMAS`] `margin` σ.
+    /// take; the bound is [`THRESHOLD_SIGMAS`] σ, times the prediction's
+    /// `margin` when it is one.
     fn judge(
         &mut self,
         window: &[[f64; 3]],
         steps: std::ops::Range<usize>,
         reference: std::ops::Range<usize>,
         at: usize,
-        margin: f64,
+        prediction: Option<f64>,
     ) -> Option<Spike> {
         let mut worst: Option<Spike> = None;
         for axis in 0..3 {
@@ -318,12 +359,31 @@ impl<T> SpikeGate<T> {
             // A prediction from a few steps is judged against the stream's
             // noise alone (their spread is too uncertain to widen a bound
             // that only decides whether to wait for the samples after).
-            let local = if margin == 1.0 {
-                MAD_TO_SIGMA * step_spread / std::f64::consts::SQRT_2
-            } else {
-                0.0
+            let known = self.noise.known(axis);
+            let (local, margin) = match prediction {
+                None => (MAD_TO_SIGMA * step_spread / std::f64::consts::SQRT_2, 1.0),
+                Some(margin) => (0.0, margin),
             };
-            let sigma = floor.max(local);
+            // Nothing known of the noise yet (the first samples of a
+            // stream): only what the steps themselves say bounds a sample,
+            // so only a gross spike is refused there.
+            let first_steps = if known {
+                0.0
+            } else {
+                self.scratch.clear();
+                self.scratch.extend(
+                    window[steps.clone()]
+                        .windows(2)
+                        .map(|w| (w[1][axis] - w[0][axis]).abs())
+                        .filter(|d| d.is_finite()),
+                );
+                MAD_TO_SIGMA * median_of(&mut self.scratch).unwrap_or(0.0)
+                    / std::f64::consts::SQRT_2
+            };
+            let sigma = floor.max(local).max(first_steps);
+            if !known && !(sigma > 0.0) {
+                continue;
+            }
             self.scratch.clear();
             self.scratch.extend(
                 window[reference.clone()]
@@ -337,8 +397,9 @@ impl<T> SpikeGate<T> {
             };
             let n = self.scratch.len();
             let off = (value - reference).abs();
-            // Nothing known of the noise yet (a constant stream): no bound.
-            if !(sigma > 0.0) || off <= THRESHOLD_SIGMAS * margin * sigma {
+            // σ 0: the samples around it do not vary at all, and any
+            // difference from them is beyond the bound.
+            if off <= THRESHOLD_SIGMAS * margin * sigma {
                 continue;
             }
             let spike = Spike {
@@ -357,8 +418,8 @@ impl<T> SpikeGate<T> {
 }
 
 /// The rows of a whole recording the gate refuses, ascending, each with
-/// why: the daemon's gate run over it (the last few rows, with no samples
-/// after them to show whether they came back, are kept).
+/// why: the daemon's gate run over it, the last rows judged on the
+/// samples before them ([`SpikeGate::finish`]).
 pub fn refused_rows(points: impl IntoIterator<Item = [f64; 3]>) -> Vec<(usize, Spike)> {
     let mut gate = SpikeGate::default();
     let mut refused = Vec::new();
@@ -368,6 +429,12 @@ pub fn refused_rows(points: impl IntoIterator<Item = [f64; 3]>) -> Vec<(usize, S
             if let Gated::Refused(i, spike) = decided {
                 refused.push((i, spike));
             }
+        }
+    }
+    gate.finish();
+    while let Some(decided) = gate.decided() {
+        if let Gated::Refused(i, spike) = decided {
+            refused.push((i, spike));
         }
     }
     refused
@@ -514,6 +581,34 @@ mod tests {
     }
 
     #[test]
+    fn spikes_at_either_end_and_on_a_constant_axis_are_refused() {
+        // A garbage first row (a partial line as logging starts), a
+        // garbage last row (a torn tail), and a spike on an axis that
+        // otherwise never changes (the field across a flat turn).
+        let mut samples = turn(200, 1.8);
+        for s in &mut samples {
+            s[2] = 250.0;
+        }
+        samples[0][0] = 65535.0;
+        samples[199][1] = -4096.0;
+        samples[120][2] = 4000.0;
+        let refused: Vec<usize> = refused_rows(samples.iter().copied())
+            .into_iter()
+            .map(|(i, _)| i)
+            .collect();
+        assert_eq!(refused, vec![0, 120, 199]);
+        // The constant axis's spike is said without a σ of 0.
+        let (_, spike) = refused_rows(samples.iter().copied())
+            .into_iter()
+            .find(|(i, _)| *i == 120)
+            .unwrap();
+        assert_eq!(
+            spike.describe("z"),
+            "z = 4000 where the 7 samples around it all give 250.0"
+        );
+    }
+
+    #[test]
     fn nothing_waits_longer_than_half_a_window_and_held_samples_can_be_dropped() {
         let mut gate = SpikeGate::default();
         for i in 0..20 {
@@ -528,5 +623,9 @@ mod tests {
         gate.drop_held();
         gate.feed(21, [0.0, 0.0, f64::NAN]);
         assert!(matches!(gate.decided(), Some(Gated::Kept(21))));
+        // Decisions not yet taken go with a restart too.
+        gate.feed(22, [1.0, 0.0, f64::NAN]);
+        gate.drop_held();
+        assert!(gate.decided().is_none());
     }
 }

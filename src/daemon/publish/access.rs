@@ -241,7 +241,8 @@ impl Access {
         if self.allows(origin) {
             return Ok(());
         }
-        match (&self.token, token) {
+        // A token revoked by a reload is as none.
+        match (self.token.as_ref().filter(|t| !t.is_empty()), token) {
             (Some(ours), Some(given)) if ours.matches(given) => Ok(()),
             (Some(_), Some(_)) => Err(format!(
                 "recalibrate refused: the \"token\" does not match [outputs] token_file (recalibrate from {o} needs the token, or \"{o}\" in [outputs] recalibrate_from)",

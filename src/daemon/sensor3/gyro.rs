@@ -11,6 +11,17 @@ use crate::daemon::config::Gyro3Choice;
 use crate::model::calibration::GyroFit;
 use crate::model::gyro3::{GyroSample, fit_gyro3, heading_rate};
 
+impl Sensor3 {
+    /// A sample of the sphere at `time`, with the accelerometer and the
+    /// gyro's rate beside it now.
+    pub(super) fn sample_at(&self, time: f64, raw: [f64; 3]) -> Sample {
+        Sample {
+            gyro: self.gyro.as_ref().and_then(|g| g.fresh(time)),
+            ..Sample::beside(time, raw, self.last_accel)
+        }
+    }
+}
+
 /// The gyro of a 3-axis compass.
 #[derive(Debug, Clone)]
 pub(super) struct Gyro3Track {
@@ -122,13 +133,20 @@ impl Gyro3Track {
     }
 
     /// Keeps a sample of the sphere with the accelerometer beside it (raw)
-    /// and the gyro, when the gyro's is fresh; `fresh_sphere` (the buffer
-    /// held nothing before it) lets the last sphere's go first.
-    pub(super) fn keep(&mut self, time: f64, raw: [f64; 3], accel: [f64; 3], fresh_sphere: bool) {
+    /// and the gyro's rate fresh when it came, if there was one;
+    /// `fresh_sphere` (the buffer held nothing before it) lets the last
+    /// sphere's go first.
+    pub(super) fn keep(
+        &mut self,
+        time: f64,
+        [raw, accel]: [[f64; 3]; 2],
+        gyro: Option<[f64; 3]>,
+        fresh_sphere: bool,
+    ) {
         if fresh_sphere {
             self.kept.clear();
         }
-        if let Some(gyro) = self.fresh(time) {
+        if let Some(gyro) = gyro {
             self.kept.push(time, [raw, accel, gyro]);
         }
     }

@@ -68,13 +68,16 @@ pub const EVICT_AFTER: Duration = Duration::from_secs(1);
 pub const ROOM_WAIT: Duration = Duration::from_secs(2);
 /// While the page is full, how long a new connection has to send its
 /// first bytes before it is closed: 200 ms. A client sends its request
-/// as soon as its side of the handshake completes, so the request follows
-/// the connection within one round trip (a few ms on a robot's LAN or
-/// Wi-Fi, 100-200 ms over a slow radio link).
+/// as soon as its side of the handshake completes, right behind the
+/// handshake's last segment, so it arrives with it or a few ms later on
+/// a robot's LAN or Wi-Fi; 200 ms also covers a lost segment's first
+/// retransmission on a slow radio link (Linux's minimum RTO).
 pub const FIRST_BYTES: Duration = Duration::from_millis(200);
 /// New connections that may wait for their first bytes at once while the
-/// page is full: their descriptors are kept for them in
-/// [`crate::daemon::publish::RESERVED_DESCRIPTORS`].
+/// page is full: as many as the page's own connections
+/// ([`PAGE_REQUESTS`]), a browser's worth; their descriptors are kept for
+/// them in [`crate::daemon::publish::RESERVED_DESCRIPTORS`]. Beyond them a
+/// new connection that sent nothing yet is closed at once.
 pub const WAITING: usize = 6;
 
 /// How many connections, and how long a head may take and one may be idle.
@@ -171,15 +174,17 @@ impl Peer {
 /// [`FIRST_BYTES`], or None.
 type Newcomer = Pin<Box<dyn Future<Output = Option<(TcpStream, SocketAddr)>> + Send>>;
 
-/// A connection just accepted, and whether its first bytes (or its close)
-/// are already there; None when it cannot be looked at (it is dropped).
+/// A connection just accepted, and whether its first bytes are already
+/// there; None when it is closed already, was reset, or cannot be looked
+/// at (it is dropped: nothing to serve).
 fn sent_something(stream: TcpStream) -> Option<(TcpStream, bool)> {
     let raw = stream.into_std().ok()?;
     let mut byte = [0u8; 1];
     let sent = match raw.peek(&mut byte) {
+        Ok(0) => return None,
         Ok(_) => true,
         Err(e) if e.kind() == io::ErrorKind::WouldBlock => false,
-        Err(_) => true,
+        Err(_) => return None,
     };
     Some((TcpStream::from_std(raw).ok()?, sent))
 }

@@ -134,7 +134,7 @@ pub fn page_config(config: &Config) -> Value {
         .collect();
     let access = &config.outputs.access;
     let allowed = access.allows(Origin::Http);
-    let token = !allowed && access.token.is_some();
+    let token = !allowed && access.token.as_ref().is_some_and(|t| !t.is_empty());
     let reason = (!allowed).then(|| {
         if token {
             "the live page needs the token of [outputs] token_file to recalibrate".to_owned()
