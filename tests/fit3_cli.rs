@@ -447,7 +447,7 @@ fn real_magnetometer_tumble_fits_in_3d() {
         .iter()
         .map(|m| (m / r - 1.0).powi(2))
         .sum::<f64>()
-        / 4322.0)
+        / magnitudes.len() as f64)
         .sqrt();
     assert!((rms - f(&v["rms"])).abs() < 1e-9, "{rms} vs {}", v["rms"]);
     // The text report names the units as unknown and every model's rms.
