@@ -400,23 +400,15 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
                 )
             }
         }
-        None => match &refit_refused {
-            Some(e) if !matches!(e, Ellipsoid3Error::NotCovered { .. }) => (
-                None,
-                format!(
-                    "not decided: {rms_text}, but the {} model could not be refitted to the new recording to compare its parameters: {e}",
-                    stored.model
-                ),
+        None => (
+            None,
+            undecided(
+                &rms_text,
+                refit_refused.as_ref(),
+                coverage.fraction,
+                stored.model,
             ),
-            _ => (
-                None,
-                format!(
-                    "not decided: {rms_text}, but the new recording covers {:.0} % of the sphere, too little to refit the {} model and compare its parameters (a magnitude rms alone cannot show an offset moved along a direction the recording never pointed); tumble the sensor through the missing directions to check it",
-                    coverage.fraction * 100.0,
-                    stored.model
-                ),
-            ),
-        },
+        ),
     };
     Ok(Check3Report {
         axes: 3,
@@ -436,6 +428,25 @@ pub fn check3(points: &[[f64; 3]], stored: &Stored3) -> Result<Check3Report, Che
         holds,
         verdict,
     })
+}
+
+/// The verdict when the stored model could not be refitted to the new
+/// recording: why (its coverage, or the refit's own error).
+fn undecided(
+    rms_text: &str,
+    refused: Option<&Ellipsoid3Error>,
+    coverage: f64,
+    model: Ellipsoid3Model,
+) -> String {
+    match refused {
+        Some(e) if !matches!(e, Ellipsoid3Error::NotCovered { .. }) => format!(
+            "not decided: {rms_text}, but the {model} model could not be refitted to the new recording to compare its parameters: {e}"
+        ),
+        _ => format!(
+            "not decided: {rms_text}, but the new recording covers {:.0} % of the sphere, too little to refit the {model} model and compare its parameters (a magnitude rms alone cannot show an offset moved along a direction the recording never pointed); tumble the sensor through the missing directions to check it",
+            coverage * 100.0,
+        ),
+    }
 }
 
 #[cfg(test)]

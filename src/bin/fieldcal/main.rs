@@ -192,11 +192,8 @@ impl CsvInput {
             t: self.t.clone(),
         };
         let data = fieldcal::io::csv::read_dataset(&self.file, &spec)?;
-        let refused = fieldcal::model::spike::refused_rows(
-            data.x.iter().zip(&data.y).map(|(&x, &y)| [x, y, f64::NAN]),
-        );
-        tell_spikes(&self.file, &refused, [&data.x_name, &data.y_name, ""]);
-        let rows: Vec<usize> = refused.iter().map(|(i, _)| *i).collect();
+        let points = data.x.iter().zip(&data.y).map(|(&x, &y)| [x, y, f64::NAN]);
+        let rows = spike_rows(&self.file, points, [&data.x_name, &data.y_name, ""]);
         Ok(data.without_rows(&rows))
     }
 
@@ -340,10 +337,21 @@ fn tell_spikes(file: &Path, refused: &[(usize, fieldcal::model::spike::Spike)], 
 /// A 3-axis recording without the readings the spike gate refuses (told
 /// on stderr).
 fn without_spikes3(file: &Path, data: fieldcal::sample::Dataset3) -> fieldcal::sample::Dataset3 {
-    let refused = fieldcal::model::spike::refused_rows(data.points.iter().copied());
-    tell_spikes(file, &refused, [&data.x_name, &data.y_name, &data.z_name]);
-    let rows: Vec<usize> = refused.iter().map(|(i, _)| *i).collect();
+    let points = data.points.iter().copied();
+    let rows = spike_rows(file, points, [&data.x_name, &data.y_name, &data.z_name]);
     data.without_rows(&rows)
+}
+
+/// The rows of `file`'s `points` the spike gate refuses, told on stderr
+/// ([`tell_spikes`]).
+fn spike_rows(
+    file: &Path,
+    points: impl IntoIterator<Item = [f64; 3]>,
+    axes: [&str; 3],
+) -> Vec<usize> {
+    let refused = fieldcal::model::spike::refused_rows(points);
+    tell_spikes(file, &refused, axes);
+    refused.iter().map(|(i, _)| *i).collect()
 }
 
 #[derive(Debug, Args)]
