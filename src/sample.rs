@@ -117,6 +117,9 @@ impl Dataset {
 
     /// The dataset without the rows `drop` (ascending indices).
     pub fn without_rows(mut self, drop: &[usize]) -> Self {
+        if drop.is_empty() {
+            return self;
+        }
         let keep = kept(self.len(), drop);
         retain_rows(&mut self.x, &keep);
         retain_rows(&mut self.y, &keep);
@@ -250,6 +253,9 @@ impl Dataset3 {
 
     /// The recording without the rows `drop` (ascending indices).
     pub fn without_rows(mut self, drop: &[usize]) -> Self {
+        if drop.is_empty() {
+            return self;
+        }
         let keep = kept(self.len(), drop);
         retain_rows(&mut self.points, &keep);
         if let Some(t) = &mut self.t {

@@ -5,7 +5,12 @@ use fieldcal::capture::{
     CaptureFile, CaptureHeader, CaptureWriter, Chunk, MAGIC, StreamInfo, StreamKind, Truncation,
     TruncationReason, VERSION, nanos_to_seconds, parse_capture,
 };
+use std::sync::atomic::AtomicBool;
+
+use fieldcal::capture::{open_capture, read_capture};
 use fieldcal::protocol::chips::Chip;
+use fieldcal::source::SourceCounters;
+use fieldcal::source::replay::{ReplaySummary, Speed, replay_counted, replay_playable};
 use proptest::prelude::*;
 
 /// Stream ids the generated headers declare.
@@ -226,4 +231,109 @@ proptest! {
         prop_assert_eq!(t.offset, record_start as u64);
         prop_assert_eq!(t.chunks_intact, index);
     }
+}
+
+/// A replay of the file at `path` read whole, and read as it plays: every
+/// reading handed on, and the summary (or the error's message).
+type Played = Result<(Vec<fieldcal::sample::Reading>, ReplaySummary), String>;
+
+fn play_both(path: &std::path::Path) -> (Played, Played) {
+    let stop = AtomicBool::new(false);
+    let whole = read_capture(path).map_err(|e| e.to_string()).and_then(|file| {
+        let mut readings = Vec::new();
+        let counters = SourceCounters::default();
+        replay_counted(&file, "f", Speed::Max, &stop, &counters, &mut |r| readings.push(r))
+            .map(|summary| (readings, summary))
+            .map_err(|e| e.to_string())
+    });
+    let streamed = open_capture(path).map_err(|e| e.to_string()).and_then(|mut file| {
+        let mut readings = Vec::new();
+        let counters = SourceCounters::default();
+        replay_playable(&mut file, "f", Speed::Max, &stop, &counters, &mut |r| readings.push(r))
+            .map(|summary| (readings, summary))
+            .map_err(|e| e.to_string())
+    });
+    (whole, streamed)
+}
+
+/// Falcon-GX frames that decode, split anywhere, for the Falcon stream.
+fn falcon_bytes(frames: usize, seed: u8) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    for k in 0..frames {
+        let frame = fieldcal::protocol::falcon::FalconFrame {
+            timer: (k as u16).wrapping_mul(50),
+            mag: [1000 + i16::from(seed), -(k as i16), 200],
+            accel: [0, 0, 4096],
+            rate: [0, 0, 360],
+        };
+        bytes.extend_from_slice(&frame.encode());
+    }
+    bytes
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 128, ..ProptestConfig::default() })]
+
+    /// Read as it plays, a capture gives what it gives read whole: the
+    /// same readings, summary, truncation and errors, whole, cut anywhere,
+    /// with a byte damaged anywhere, with a record of a stream the header
+    /// does not declare, and as a raw dump.
+    #[test]
+    fn a_capture_read_as_it_plays_plays_as_one_read_whole(
+        chunks in chunks(),
+        frames in 0usize..30,
+        split in 1usize..40,
+        cut in any::<prop::sample::Index>(),
+        flip in any::<prop::sample::Index>(),
+        damage in 0u8..5,
+    ) {
+        let falcon = falcon_bytes(frames, 3);
+        let mut all = chunks;
+        for (k, part) in falcon.chunks(split).enumerate() {
+            all.push(Chunk { time: 1e-3 * k as f64, stream: IDS[0], bytes: part.to_vec() });
+        }
+        let mut bytes = match damage {
+            // A raw dump: the Falcon bytes alone.
+            4 => falcon.clone(),
+            _ => write(&header(0.0, None, None), &all),
+        };
+        match damage {
+            1 if !bytes.is_empty() => bytes.truncate(cut.index(bytes.len())),
+            2 if !bytes.is_empty() => {
+                let at = flip.index(bytes.len());
+                bytes[at] ^= 0x5A;
+            }
+            3 => {
+                // A record of stream 7 (undeclared), intact, in the middle.
+                let mut wider = header(0.0, None, None);
+                wider.streams.push(StreamInfo { id: 7, kind: StreamKind::Falcon });
+                let mut odd = all.clone();
+                odd.insert(cut.index(odd.len() + 1), Chunk { time: 0.5, stream: 7, bytes: vec![1, 2] });
+                let written = write(&wider, &odd);
+                let records = records_at(&written);
+                bytes = write(&header(0.0, None, None), &[]);
+                bytes.extend_from_slice(&written[records..]);
+                if cut.index(4) == 0 {
+                    // And a damaged record before everything.
+                    let first = records_at(&bytes) + 13;
+                    if first < bytes.len() {
+                        bytes[first] ^= 1;
+                    }
+                }
+            }
+            _ => {}
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.fcap");
+        std::fs::write(&path, &bytes).unwrap();
+        let (whole, streamed) = play_both(&path);
+        prop_assert_eq!(whole, streamed);
+    }
+}
+
+/// Where the records of a capture written by [`write`] start.
+fn records_at(bytes: &[u8]) -> usize {
+    let at = MAGIC.len();
+    let len = u32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]);
+    at + 4 + len as usize
 }

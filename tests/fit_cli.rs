@@ -320,8 +320,14 @@ fn non_finite_value_names_line_and_column() {
     );
     lines[5] = "0.2,30,5,NaN".into();
     let f = write(&dir, "nan.csv", &(lines.join("\n") + "\n"));
-    let msg = run_err(&["fit", &f]);
+    // A command that reads the column refuses it where it is; the paper's
+    // model reads the axes and time alone, and fits.
+    let msg = run_err(&["fit", &f, "--effects", "covariate:temp"]);
     assert!(msg.contains("nan.csv:6: column 'temp' (field 4)"), "{msg}");
+    let msg = run_err(&["diagnose", &f]);
+    assert!(msg.contains("nan.csv:6: column 'temp' (field 4)"), "{msg}");
+    let fitted = run_ok(&["fit", &f, "--json"]);
+    assert!(fitted.contains("\"n\":40"), "{fitted}");
 }
 
 #[test]

@@ -20,7 +20,7 @@ use super::FitError;
 use super::calibration::Terms;
 use super::centred_split::{as_one_kc, fit_with_gyro};
 use super::effects::{Effect, model_name, parse_list};
-use super::fit::{FitOptions, fit_paper};
+use super::fit::{FitOptions, fit_paper_turned};
 use super::gyro::{GyroError, HeadingCheck, HeadingReference};
 use super::heading::coverage;
 use super::nonlinear::{KC_AXES, Param, TurnFrame, apply_model};
@@ -660,8 +660,9 @@ fn refit(
             min_coverage_deg,
             ..FitOptions::default()
         };
+        // `check` ran the turn gate on these samples before the refit.
         let report =
-            fit_paper(&data.x, &data.y, &options, &mut |_| {}).map_err(CheckError::Refit)?;
+            fit_paper_turned(&data.x, &data.y, &options, &mut |_| {}).map_err(CheckError::Refit)?;
         let se = closed_form_se(&data.x, &data.y, &report.theta).unwrap_or(PaperCalibration {
             a: f64::NAN,
             b: f64::NAN,

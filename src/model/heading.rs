@@ -46,20 +46,80 @@ pub fn coverage(headings: impl IntoIterator<Item = f64>) -> Coverage {
             gap_start_deg: 0.0,
         };
     }
+    let largest = largest_gap_by_buckets(&deg).unwrap_or_else(|| largest_gap_by_sorting(&mut deg));
+    Coverage {
+        covered_deg: 360.0 - largest.0,
+        largest_gap_deg: largest.0,
+        gap_start_deg: largest.1,
+    }
+}
+
+/// The largest gap between neighbouring headings (degrees in [0, 360],
+/// at least one) and the heading it starts at: the wrap-around gap from
+/// the last heading back to the first, unless a gap between neighbours is
+/// larger (the first such, in order of heading).
+fn largest_gap_by_sorting(deg: &mut [f64]) -> (f64, f64) {
     deg.sort_unstable_by(f64::total_cmp);
-    // The wrap-around gap from the last heading back to the first.
-    let mut largest = (deg[0] + 360.0 - deg[deg.len() - 1], deg[deg.len() - 1]);
+    let last = deg[deg.len() - 1];
+    let mut largest = (deg[0] + 360.0 - last, last);
     for pair in deg.windows(2) {
         let gap = pair[1] - pair[0];
         if gap > largest.0 {
             largest = (gap, pair[0]);
         }
     }
-    Coverage {
-        covered_deg: 360.0 - largest.0,
-        largest_gap_deg: largest.0,
-        gap_start_deg: largest.1,
+    largest
+}
+
+/// Fewest headings for which the buckets are worth their set-up.
+const BUCKETS_FROM: usize = 64;
+
+/// [`largest_gap_by_sorting`] in linear time, the same result to the bit:
+/// the headings go into as many buckets as there are headings, by a
+/// mapping that keeps their order, so neighbours in different buckets are
+/// the largest of one and the smallest of the next non-empty one. A gap
+/// inside a bucket is at most the bucket's span: when every span is below
+/// the largest gap between buckets, no gap inside one can be the largest,
+/// nor tie with it. `None` when that does not hold (the caller sorts).
+fn largest_gap_by_buckets(deg: &[f64]) -> Option<(f64, f64)> {
+    let n = deg.len();
+    if n < BUCKETS_FROM {
+        return None;
     }
+    let by = |a: &f64, b: &f64| a.total_cmp(b);
+    let lo = deg.iter().copied().min_by(by)?;
+    let hi = deg.iter().copied().max_by(by)?;
+    let per_degree = (n - 1) as f64 / (hi - lo);
+    if !(per_degree.is_finite() && per_degree > 0.0) {
+        return None;
+    }
+    // Smallest and largest heading of each bucket (NaN: empty).
+    let mut bucket = vec![[f64::NAN; 2]; n];
+    for &h in deg {
+        let i = (((h - lo) * per_degree) as usize).min(n - 1);
+        let b = &mut bucket[i];
+        if b[0].is_nan() {
+            *b = [h, h];
+        } else if h.total_cmp(&b[0]).is_lt() {
+            b[0] = h;
+        } else if h.total_cmp(&b[1]).is_gt() {
+            b[1] = h;
+        }
+    }
+    let mut largest = (lo + 360.0 - hi, hi);
+    let mut widest_bucket = 0.0f64;
+    let mut previous_top: Option<f64> = None;
+    for b in bucket.iter().filter(|b| !b[0].is_nan()) {
+        if let Some(top) = previous_top {
+            let gap = b[0] - top;
+            if gap > largest.0 {
+                largest = (gap, top);
+            }
+        }
+        widest_bucket = widest_bucket.max(b[1] - b[0]);
+        previous_top = Some(b[1]);
+    }
+    (widest_bucket < largest.0).then_some(largest)
 }
 
 /// Most sweeps of the SVD in [`circle_centre`]. Golub-Kahan SVD converges
@@ -118,4 +178,51 @@ pub fn circle_centre(x: &[f64], y: &[f64]) -> Result<(f64, f64), FitError> {
         return Err(FitError::Degenerate);
     }
     Ok((mx + p[0] * spread, my + p[1] * spread))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Headings in [0, 360]: spread, bunched on a few values (repeats, a
+    /// quantised sensor), or both.
+    fn headings() -> impl Strategy<Value = Vec<f64>> {
+        let spread = proptest::collection::vec(0.0f64..360.0, 1..600);
+        let bunched =
+            proptest::collection::vec((0u32..40).prop_map(|k| f64::from(k) * 9.0), 1..600);
+        let mixed = (spread.clone(), bunched.clone()).prop_map(|(mut a, b)| {
+            a.extend(b);
+            a
+        });
+        prop_oneof![spread, bunched, mixed]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+
+        /// The buckets give the sort's gap and start to the bit, or
+        /// leave it to the sort.
+        #[test]
+        fn buckets_find_the_largest_gap_the_sort_finds(deg in headings()) {
+            if let Some(found) = largest_gap_by_buckets(&deg) {
+                let sorted = largest_gap_by_sorting(&mut deg.clone());
+                prop_assert_eq!(found.0.to_bits(), sorted.0.to_bits());
+                prop_assert_eq!(found.1.to_bits(), sorted.1.to_bits());
+            }
+        }
+    }
+
+    /// A turn's headings take the linear path (the sort is the exception).
+    #[test]
+    fn a_turn_is_covered_without_sorting() {
+        let n = 5000;
+        let deg: Vec<f64> = (0..n)
+            .map(|i| (i as f64 * 0.0731 + (i as f64 * 1.7).sin()).rem_euclid(1.0) * 300.0)
+            .collect();
+        let found = largest_gap_by_buckets(&deg).expect("the buckets decide a turn");
+        let sorted = largest_gap_by_sorting(&mut deg.clone());
+        assert_eq!(found, sorted);
+        assert!((found.0 - 60.0).abs() < 0.5, "{found:?}");
+    }
 }

@@ -122,10 +122,13 @@ pub enum Gated<T> {
 struct NoiseFloor {
     /// The last two samples.
     last: [Option<[f64; 3]>; 2],
+    /// The last |Δ²| per axis, oldest first.
     second_diffs: [VecDeque<f64>; 3],
+    /// The same values in ascending order, so that their median costs
+    /// nothing to look up (a sample is judged against it on every axis).
+    sorted: [Vec<f64>; 3],
     /// The smallest non-zero |Δ| seen, per axis.
     quantum: [f64; 3],
-    scratch: Vec<f64>,
 }
 
 impl NoiseFloor {
@@ -141,10 +144,28 @@ impl NoiseFloor {
                     let d2 = (raw[axis] - 2.0 * prev[axis] + before[axis]).abs();
                     if d2.is_finite() {
                         let window = &mut self.second_diffs[axis];
-                        if window.len() == NOISE_WINDOW {
-                            window.pop_front();
-                        }
+                        let sorted = &mut self.sorted[axis];
+                        let at = sorted.partition_point(|v| v.total_cmp(&d2).is_lt());
+                        let gone = match window.len() == NOISE_WINDOW {
+                            true => window.pop_front(),
+                            false => None,
+                        };
                         window.push_back(d2);
+                        match gone
+                            .and_then(|old| sorted.binary_search_by(|v| v.total_cmp(&old)).ok())
+                        {
+                            // The oldest value leaves where the new one
+                            // comes in: one shift of the values between.
+                            Some(out) if at <= out => {
+                                sorted.copy_within(at..out, at + 1);
+                                sorted[at] = d2;
+                            }
+                            Some(out) => {
+                                sorted.copy_within(out + 1..at, out);
+                                sorted[at - 1] = d2;
+                            }
+                            None => sorted.insert(at, d2),
+                        }
                     }
                 }
             }
@@ -158,12 +179,52 @@ impl NoiseFloor {
     }
 
     /// σ of the noise on `axis`; 0 before anything is known.
-    fn sigma(&mut self, axis: usize) -> f64 {
-        self.scratch.clear();
-        self.scratch.extend(self.second_diffs[axis].iter().copied());
-        let measured = median_of(&mut self.scratch).map_or(0.0, |m| m * SECOND_DIFF_TO_SIGMA);
+    fn sigma(&self, axis: usize) -> f64 {
+        let measured = sorted_median(&self.sorted[axis]).map_or(0.0, |m| m * SECOND_DIFF_TO_SIGMA);
         measured.max(self.quantum[axis])
     }
+}
+
+/// Sorts six finite values ascending: a network of 12 compare-exchanges.
+fn sort6(v: &mut [f64; 6]) {
+    const PAIRS: [(usize, usize); 12] = [
+        (0, 5),
+        (1, 3),
+        (2, 4),
+        (1, 2),
+        (3, 4),
+        (0, 3),
+        (2, 5),
+        (0, 1),
+        (2, 3),
+        (4, 5),
+        (1, 2),
+        (3, 4),
+    ];
+    for (i, j) in PAIRS {
+        let (low, high) = (v[i].min(v[j]), v[i].max(v[j]));
+        v[i] = low;
+        v[j] = high;
+    }
+}
+
+/// The middle one of three finite values.
+fn median3(a: f64, b: f64, c: f64) -> f64 {
+    a.min(b).max(a.max(b).min(c))
+}
+
+/// Values up to which [`median_of`] sorts (a window's).
+const SMALL: usize = 2 * WINDOW;
+
+/// The median of values in ascending order (as [`median_of`] gives it),
+/// None when empty.
+fn sorted_median(sorted: &[f64]) -> Option<f64> {
+    let n = sorted.len();
+    let upper = *sorted.get(n / 2)?;
+    if n % 2 == 1 {
+        return Some(upper);
+    }
+    Some(0.5 * (sorted[n / 2 - 1] + upper))
 }
 
 /// The median of `values` (reordered), None when empty.
@@ -171,6 +232,17 @@ fn median_of(values: &mut [f64]) -> Option<f64> {
     let n = values.len();
     if n == 0 {
         return None;
+    }
+    if n <= SMALL {
+        // A window's few values: sorted in place, cheaper than selection.
+        for i in 1..n {
+            let mut j = i;
+            while j > 0 && values[j - 1].total_cmp(&values[j]).is_gt() {
+                values.swap(j - 1, j);
+                j -= 1;
+            }
+        }
+        return sorted_median(values);
     }
     let (_, &mut upper, _) = values.select_nth_unstable_by(n / 2, f64::total_cmp);
     if n % 2 == 1 {
@@ -283,9 +355,11 @@ impl<T> SpikeGate<T> {
                 // Waits for the samples after it (the first ones of a
                 // stream have nothing before them to be predicted from).
                 Err(())
-            } else {
+            } else if self.surely_within_prediction(raw) {
                 // Causal: kept at once when within the bound of its
                 // prediction; else held for the samples after it.
+                Ok(None)
+            } else {
                 window.extend(self.kept.iter().copied());
                 let at = window.len();
                 window.push(raw);
@@ -315,6 +389,42 @@ impl<T> SpikeGate<T> {
                 }
             }
         }
+    }
+
+    /// Whether `raw`, the next sample, lies within the bound of its causal
+    /// prediction on every axis: what [`SpikeGate::judge`] decides from a
+    /// full window of kept samples, computed without its scratch copies
+    /// (the medians of six steps and of three values by sorting networks,
+    /// the same values a sort gives). `false`: not decided here (a window
+    /// not yet full, an axis whose noise is not yet known, a value that is
+    /// not finite, or a sample beyond its bound): judge it.
+    fn surely_within_prediction(&self, raw: [f64; 3]) -> bool {
+        if self.kept.len() != WINDOW {
+            return false;
+        }
+        let at = WINDOW as f64;
+        for (axis, &value) in raw.iter().enumerate() {
+            if !value.is_finite() {
+                continue;
+            }
+            if !self.noise.known(axis) {
+                return false;
+            }
+            let k: [f64; WINDOW] = std::array::from_fn(|i| self.kept[i][axis]);
+            let mut steps: [f64; WINDOW - 1] = std::array::from_fn(|i| k[i + 1] - k[i]);
+            if !steps.iter().all(|d| d.is_finite()) {
+                return false;
+            }
+            sort6(&mut steps);
+            let slope = 0.5 * (steps[2] + steps[3]);
+            let [a, b, c] = [4, 5, 6].map(|j| k[j] - (j as f64 - at) * slope);
+            let reference = median3(a, b, c);
+            let sigma = self.noise.sigma(axis);
+            if !((value - reference).abs() <= THRESHOLD_SIGMAS * PREDICTION_MARGIN * sigma) {
+                return false;
+            }
+        }
+        true
     }
 
     /// Whether the sample of `window` at `at` breaks its bound on some
@@ -352,16 +462,18 @@ impl<T> SpikeGate<T> {
                     .filter(|d| d.is_finite()),
             );
             let slope = median_of(&mut self.scratch).unwrap_or(0.0);
-            for d in &mut self.scratch {
-                *d = (*d - slope).abs();
-            }
-            let step_spread = median_of(&mut self.scratch).unwrap_or(0.0);
             // A prediction from a few steps is judged against the stream's
             // noise alone (their spread is too uncertain to widen a bound
             // that only decides whether to wait for the samples after).
             let known = self.noise.known(axis);
             let (local, margin) = match prediction {
-                None => (MAD_TO_SIGMA * step_spread / std::f64::consts::SQRT_2, 1.0),
+                None => {
+                    for d in &mut self.scratch {
+                        *d = (*d - slope).abs();
+                    }
+                    let step_spread = median_of(&mut self.scratch).unwrap_or(0.0);
+                    (MAD_TO_SIGMA * step_spread / std::f64::consts::SQRT_2, 1.0)
+                }
                 Some(margin) => (0.0, margin),
             };
             // Nothing known of the noise yet (the first samples of a
@@ -627,5 +739,53 @@ mod tests {
         gate.feed(22, [1.0, 0.0, f64::NAN]);
         gate.drop_held();
         assert!(gate.decided().is_none());
+    }
+
+    /// The sorted copy of the noise window gives the median of the window
+    /// itself, to the bit, as values come and go (repeats and a quantised
+    /// axis among them).
+    #[test]
+    fn the_noise_floor_keeps_its_window_sorted() {
+        let mut noise = normals(7);
+        let mut floor = NoiseFloor::default();
+        for i in 0..2000 {
+            let x = noise() * 3.0;
+            let quantised = (x * 0.5).round();
+            let constant = if i % 500 < 200 { 1.0 } else { x };
+            floor.observe([x, quantised, constant]);
+            for axis in 0..3 {
+                let mut window: Vec<f64> = floor.second_diffs[axis].iter().copied().collect();
+                let expected = median_of(&mut window);
+                let found = sorted_median(&floor.sorted[axis]);
+                assert_eq!(
+                    found.map(f64::to_bits),
+                    expected.map(f64::to_bits),
+                    "sample {i}, axis {axis}"
+                );
+                assert_eq!(floor.sorted[axis].len(), floor.second_diffs[axis].len());
+            }
+        }
+    }
+
+    /// The network sorts every order of six values (0-1 principle: every
+    /// 0/1 input, and random ones), and the median of three is the middle.
+    #[test]
+    fn the_sorting_networks_sort() {
+        for bits in 0u32..64 {
+            let mut v: [f64; 6] = std::array::from_fn(|i| f64::from((bits >> i) & 1));
+            sort6(&mut v);
+            assert!(v.windows(2).all(|w| w[0] <= w[1]), "{bits:06b}: {v:?}");
+        }
+        let mut noise = normals(3);
+        for _ in 0..1000 {
+            let mut v: [f64; 6] = std::array::from_fn(|_| noise());
+            let mut sorted = v;
+            sorted.sort_unstable_by(f64::total_cmp);
+            sort6(&mut v);
+            assert_eq!(v, sorted);
+            let [a, b, c] = [noise(), noise(), noise()];
+            let mut three = [a, b, c];
+            assert_eq!(median3(a, b, c), median_of(&mut three).unwrap_or(f64::NAN));
+        }
     }
 }

@@ -14,8 +14,10 @@
 //! - D, round the centre: the readings near the ring (radius within
 //!   [`RING_BAND`] of the median) cover the required heading.
 //!
-//! Everything is O(n log n) (medians by sorting, one least-squares fit of
-//! four unknowns), so the daemon runs it on every rotation.
+//! Everything is linear in the samples (medians by selection, one
+//! least-squares fit of four unknowns, the coverage's largest gap by
+//! buckets) but the quantum, which sorts an axis only when it could matter,
+//! so the daemon runs it on every rotation.
 
 use serde::Serialize;
 
@@ -177,11 +179,8 @@ fn check_named(
     let ring = Ring::about_centre(&u, &v, (mu, mv));
     let noise_diff =
         (0.5 * (second_difference_sd(&u).powi(2) + second_difference_sd(&v).powi(2))).sqrt();
-    let quantum = quantum(&u).max(quantum(&v));
-    let noise = noise_diff
-        .min(ring.radial_noise)
-        .max(quantum / 12f64.sqrt())
-        .max(ROUNDING_FLOOR);
+    let noise =
+        at_least_quantisation(noise_diff.min(ring.radial_noise), &u, &v).max(ROUNDING_FLOOR);
     let ratio = if noise > 0.0 {
         spread / noise
     } else if spread > 0.0 {
@@ -359,17 +358,44 @@ fn mad_sd(values: &mut [f64]) -> f64 {
     MAD_TO_SD * median(values)
 }
 
+/// The median of `values` (reordered), in linear time: the same value a
+/// sort would give (the middle one, or the mean of the two middle ones).
 fn median(values: &mut [f64]) -> f64 {
     if values.is_empty() {
         return 0.0;
     }
-    values.sort_unstable_by(f64::total_cmp);
     let n = values.len();
+    let (lower, &mut upper, _) = values.select_nth_unstable_by(n / 2, f64::total_cmp);
     if n % 2 == 1 {
-        values[n / 2]
-    } else {
-        0.5 * (values[n / 2 - 1] + values[n / 2])
+        return upper;
     }
+    // The largest of the lower half is the sorted values' [n/2 - 1].
+    let below = lower
+        .iter()
+        .copied()
+        .max_by(f64::total_cmp)
+        .unwrap_or(upper);
+    0.5 * (below + upper)
+}
+
+/// Samples of each axis whose quantum is looked at before the whole axis's.
+const QUANTUM_PROBE: usize = 4096;
+
+/// `noise`, or the SD of the quantisation (quantum/√12) when that is
+/// larger. The smallest step between the values of a part of an axis is at
+/// least that of the whole axis: when the first [`QUANTUM_PROBE`] samples'
+/// quantum cannot lift `noise`, neither can the whole's, and the sort of
+/// every value is skipped (the result is the same).
+fn at_least_quantisation(noise: f64, u: &[f64], v: &[f64]) -> f64 {
+    let sd = |q: f64| q / 12f64.sqrt();
+    if u.len() > QUANTUM_PROBE {
+        let probe = [u, v].map(|axis| quantum(&axis[..QUANTUM_PROBE.min(axis.len())]));
+        // A probe with no step at all (one value) bounds nothing.
+        if probe.iter().all(|&q| q > 0.0 && sd(q) <= noise) {
+            return noise;
+        }
+    }
+    noise.max(sd(quantum(u).max(quantum(v))))
 }
 
 /// The smallest step between distinct values of an axis: the quantum of an
@@ -384,4 +410,54 @@ fn quantum(values: &[f64]) -> f64 {
         .filter(|d| *d > 0.0)
         .fold(f64::INFINITY, f64::min);
     if step.is_finite() { step } else { 0.0 }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn sorted_median(values: &[f64]) -> f64 {
+        let mut v = values.to_vec();
+        v.sort_unstable_by(f64::total_cmp);
+        let n = v.len();
+        if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            0.5 * (v[n / 2 - 1] + v[n / 2])
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+
+        /// Selection gives the sort's median to the bit.
+        #[test]
+        fn the_median_by_selection_is_the_sorted_one(
+            values in proptest::collection::vec(prop_oneof![-1e3f64..1e3, (0u8..5).prop_map(f64::from)], 1..300)
+        ) {
+            let mut v = values.clone();
+            prop_assert_eq!(median(&mut v).to_bits(), sorted_median(&values).to_bits());
+        }
+
+        /// The probe of the quantum never changes the noise: the same value
+        /// as the quantum of every sample, whether the steps are fine,
+        /// coarse, or only start after the probe.
+        #[test]
+        fn the_quantum_probe_gives_the_whole_axis_result(
+            step in prop_oneof![Just(1e-6f64), Just(1.0), Just(16.0)],
+            noise in 0.0f64..20.0,
+            still in 0usize..(2 * QUANTUM_PROBE),
+            n in (QUANTUM_PROBE + 1)..(3 * QUANTUM_PROBE),
+        ) {
+            let axis = |phase: f64| -> Vec<f64> {
+                (0..n)
+                    .map(|i| if i < still { 0.0 } else { ((i as f64 * 0.01 + phase).sin() * 500.0 / step).round() * step })
+                    .collect()
+            };
+            let (u, v) = (axis(0.0), axis(1.0));
+            let whole = noise.max(quantum(&u).max(quantum(&v)) / 12f64.sqrt());
+            prop_assert_eq!(at_least_quantisation(noise, &u, &v).to_bits(), whole.to_bits());
+        }
+    }
 }

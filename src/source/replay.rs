@@ -12,7 +12,9 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use crate::capture::{CaptureFile, StreamKind};
+use crate::capture::{
+    CaptureFile, CaptureHeader, CaptureStream, Chunk, ChunkRef, Playable, RawDump, StreamKind,
+};
 use crate::protocol::chips::Chip;
 use crate::protocol::falcon::{DecoderCounters, FalconDecoder, NOMINAL_PERIOD};
 use crate::sample::Reading;
@@ -79,6 +81,12 @@ pub enum ReplayError {
         "{name}: neither a fieldcal capture nor a raw dump of Falcon-GX frames (no valid frame in {bytes} bytes); record one with `fieldcal record`"
     )]
     NotACapture { name: String, bytes: usize },
+    #[error("{name}: cannot read it: {source}")]
+    Read {
+        name: String,
+        #[source]
+        source: std::io::Error,
+    },
 }
 
 /// What a replay went through.
@@ -206,91 +214,159 @@ pub fn replay_counted(
             chunks,
             truncated,
         } => {
-            let mut decoders: Vec<(u8, StreamDecoder, DecoderCounters)> = header
-                .streams
-                .iter()
-                .map(|s| {
-                    let decoder = match s.kind {
-                        StreamKind::Falcon => StreamDecoder::Falcon(Box::default()),
-                        StreamKind::Chip { chip, .. } => StreamDecoder::Chip(chip),
-                    };
-                    (s.id, decoder, DecoderCounters::default())
-                })
-                .collect();
-            let mut summary = ReplaySummary {
-                truncated: truncated.as_ref().map(|t| t.to_string()),
-                ..Default::default()
-            };
-            let mut pacer = Pacer::new(speed);
-            let mut frames = Vec::new();
-            let mut last = 0.0;
-            for chunk in chunks {
-                if stop.load(Ordering::Relaxed) {
-                    summary.stopped = true;
-                    break;
-                }
-                let gap = chunk.time - last;
-                if gap > MAX_GAP_S {
-                    tracing::warn!(
-                        "{name}: the capture's time jumps {gap:.3e} s at {:.3} s, more than {MAX_GAP_S} s: treated as a gap, played on at once",
-                        last
-                    );
-                    pacer.skip(gap);
-                }
-                last = chunk.time;
-                pacer.wait_for(chunk.time, stop);
-                summary.chunks += 1;
-                summary.span_s = chunk.time;
-                SourceCounters::add(&counters.bytes_read, chunk.bytes.len() as u64);
-                let decoder = decoders
-                    .iter_mut()
-                    .find(|(id, _, _)| *id == chunk.stream)
-                    .map(|(_, d, reported)| (d, reported));
-                match decoder {
-                    Some((StreamDecoder::Falcon(decoder), reported)) => {
-                        // Counted before the readings are handed on, so a
-                        // STATUS made on a reading includes its frame.
-                        frames.clear();
-                        decoder.decode(&chunk.bytes, |frame| frames.push(frame));
-                        publish_counters(decoder, reported, counters);
-                        for frame in frames.drain(..) {
-                            summary.readings += 1;
-                            emit(Reading {
-                                stream: chunk.stream,
-                                ..frame.to_reading(chunk.time)
-                            });
-                        }
-                    }
-                    Some((StreamDecoder::Chip(chip), _)) => {
-                        match chip.decode(&chunk.bytes, chunk.time) {
-                            Ok(reading) => {
-                                SourceCounters::add(&counters.frames_good, 1);
-                                summary.readings += 1;
-                                // As the live bridge stamps it: the chip's stream.
-                                emit(Reading {
-                                    stream: chunk.stream,
-                                    ..reading
-                                });
-                            }
-                            Err(e) => {
-                                SourceCounters::add(&counters.frames_bad, 1);
-                                summary.chip_errors += 1;
-                                tracing::warn!("{name}: record at {:.3} s: {e}", chunk.time);
-                            }
-                        }
-                    }
-                    // The reader refuses records of undeclared streams.
-                    None => {}
-                }
-            }
-            for (_, decoder, _) in &decoders {
-                if let StreamDecoder::Falcon(d) = decoder {
-                    add_counters(&mut summary.falcon, d.counters());
-                }
-            }
+            let mut records = InMemory(chunks.iter());
+            let mut summary = play_records(header, &mut records, playback, emit);
+            summary.truncated = truncated.as_ref().map(|t| t.to_string());
             Ok(summary)
         }
     }
+}
+
+/// [`replay_counted`] of a capture opened to be read as it plays
+/// ([`crate::capture::open_capture`]): memory does not grow with its
+/// length, and everything before a torn tail plays.
+pub fn replay_playable(
+    playable: &mut Playable,
+    name: &str,
+    speed: Speed,
+    stop: &AtomicBool,
+    counters: &SourceCounters,
+    emit: &mut dyn FnMut(Reading),
+) -> Result<ReplaySummary, ReplayError> {
+    let playback = Playback {
+        name,
+        speed,
+        stop,
+        counters,
+    };
+    match playable {
+        Playable::Whole(file) => replay_counted(file, name, speed, stop, counters, emit),
+        Playable::Raw(dump) => replay_raw_dump(dump, playback, emit),
+        Playable::Stream(stream) => {
+            let header = stream.header().clone();
+            let mut summary = play_records(&header, stream.as_mut(), playback, emit);
+            summary.truncated = stream.truncated().map(|t| t.to_string());
+            Ok(summary)
+        }
+    }
+}
+
+/// Records of a capture, one at a time.
+trait Records {
+    fn next_chunk(&mut self) -> Option<ChunkRef<'_>>;
+}
+
+impl Records for CaptureStream {
+    fn next_chunk(&mut self) -> Option<ChunkRef<'_>> {
+        CaptureStream::next_chunk(self)
+    }
+}
+
+/// The records of a capture read whole.
+struct InMemory<'a>(std::slice::Iter<'a, Chunk>);
+
+impl Records for InMemory<'_> {
+    fn next_chunk(&mut self) -> Option<ChunkRef<'_>> {
+        self.0.next().map(|c| ChunkRef {
+            time: c.time,
+            stream: c.stream,
+            bytes: &c.bytes,
+        })
+    }
+}
+
+/// Plays the records of a capture with `header` through its streams'
+/// decoders.
+fn play_records(
+    header: &CaptureHeader,
+    records: &mut dyn Records,
+    playback: Playback,
+    emit: &mut dyn FnMut(Reading),
+) -> ReplaySummary {
+    let Playback {
+        name,
+        speed,
+        stop,
+        counters,
+    } = playback;
+    let mut decoders: Vec<(u8, StreamDecoder, DecoderCounters)> = header
+        .streams
+        .iter()
+        .map(|s| {
+            let decoder = match s.kind {
+                StreamKind::Falcon => StreamDecoder::Falcon(Box::default()),
+                StreamKind::Chip { chip, .. } => StreamDecoder::Chip(chip),
+            };
+            (s.id, decoder, DecoderCounters::default())
+        })
+        .collect();
+    let mut summary = ReplaySummary::default();
+    let mut pacer = Pacer::new(speed);
+    let mut frames = Vec::new();
+    let mut last = 0.0;
+    while let Some(chunk) = records.next_chunk() {
+        if stop.load(Ordering::Relaxed) {
+            summary.stopped = true;
+            break;
+        }
+        let gap = chunk.time - last;
+        if gap > MAX_GAP_S {
+            tracing::warn!(
+                "{name}: the capture's time jumps {gap:.3e} s at {:.3} s, more than {MAX_GAP_S} s: treated as a gap, played on at once",
+                last
+            );
+            pacer.skip(gap);
+        }
+        last = chunk.time;
+        pacer.wait_for(chunk.time, stop);
+        summary.chunks += 1;
+        summary.span_s = chunk.time;
+        SourceCounters::add(&counters.bytes_read, chunk.bytes.len() as u64);
+        let decoder = decoders
+            .iter_mut()
+            .find(|(id, _, _)| *id == chunk.stream)
+            .map(|(_, d, reported)| (d, reported));
+        match decoder {
+            Some((StreamDecoder::Falcon(decoder), reported)) => {
+                // Counted before the readings are handed on, so a
+                // STATUS made on a reading includes its frame.
+                frames.clear();
+                decoder.decode(chunk.bytes, |frame| frames.push(frame));
+                publish_counters(decoder, reported, counters);
+                for frame in frames.drain(..) {
+                    summary.readings += 1;
+                    emit(Reading {
+                        stream: chunk.stream,
+                        ..frame.to_reading(chunk.time)
+                    });
+                }
+            }
+            Some((StreamDecoder::Chip(chip), _)) => match chip.decode(chunk.bytes, chunk.time) {
+                Ok(reading) => {
+                    SourceCounters::add(&counters.frames_good, 1);
+                    summary.readings += 1;
+                    // As the live bridge stamps it: the chip's stream.
+                    emit(Reading {
+                        stream: chunk.stream,
+                        ..reading
+                    });
+                }
+                Err(e) => {
+                    SourceCounters::add(&counters.frames_bad, 1);
+                    summary.chip_errors += 1;
+                    tracing::warn!("{name}: record at {:.3} s: {e}", chunk.time);
+                }
+            },
+            // The reader refuses records of undeclared streams.
+            None => {}
+        }
+    }
+    for (_, decoder, _) in &decoders {
+        if let StreamDecoder::Falcon(d) = decoder {
+            add_counters(&mut summary.falcon, d.counters());
+        }
+    }
+    summary
 }
 
 /// How a replay plays: the name its messages use, its speed, the flag
@@ -360,6 +436,86 @@ fn replay_raw(
         summary.truncated = Some(format!(
             "{name}: the last {} bytes are an incomplete frame",
             decoder.pending()
+        ));
+    }
+    Ok(summary)
+}
+
+/// [`replay_raw`] of a dump read in blocks, twice: once to count what it
+/// holds (its bytes and bad frames count from the start, as when it is
+/// decoded at once), once to hand its frames on.
+fn replay_raw_dump(
+    dump: &mut RawDump,
+    playback: Playback,
+    emit: &mut dyn FnMut(Reading),
+) -> Result<ReplaySummary, ReplayError> {
+    let Playback {
+        name,
+        speed,
+        stop,
+        counters,
+    } = playback;
+    let read_error = |source| ReplayError::Read {
+        name: name.to_string(),
+        source,
+    };
+    let mut counted = FalconDecoder::new();
+    let mut frames_in_dump = 0u64;
+    dump.blocks(&mut |block| {
+        counted.decode(block, |_| frames_in_dump += 1);
+        true
+    })
+    .map_err(read_error)?;
+    if frames_in_dump == 0 {
+        return Err(ReplayError::NotACapture {
+            name: name.to_string(),
+            bytes: usize::try_from(dump.len()).unwrap_or(usize::MAX),
+        });
+    }
+    SourceCounters::add(&counters.bytes_read, dump.len());
+    let decoded = counted.counters();
+    publish_counters(
+        &counted,
+        &mut DecoderCounters {
+            frames_good: decoded.frames_good,
+            ..DecoderCounters::default()
+        },
+        counters,
+    );
+    let period = NOMINAL_PERIOD.as_secs_f64();
+    let pacer = Pacer::new(speed);
+    let mut summary = ReplaySummary {
+        falcon: counted.counters(),
+        chunks: 1,
+        ..Default::default()
+    };
+    let mut decoder = FalconDecoder::new();
+    let mut frames = Vec::new();
+    let mut k = 0u64;
+    dump.blocks(&mut |block| {
+        frames.clear();
+        decoder.decode(block, |frame| frames.push(frame));
+        for frame in &frames {
+            if stop.load(Ordering::Relaxed) {
+                summary.stopped = true;
+                return false;
+            }
+            // Rounded to the nanosecond, as capture times are.
+            let time = (k as f64 * period * 1e9).round() / 1e9;
+            k += 1;
+            pacer.wait_for(time, stop);
+            summary.readings += 1;
+            summary.span_s = time;
+            SourceCounters::add(&counters.frames_good, 1);
+            emit(frame.to_reading(time));
+        }
+        true
+    })
+    .map_err(read_error)?;
+    if counted.pending() > 0 {
+        summary.truncated = Some(format!(
+            "{name}: the last {} bytes are an incomplete frame",
+            counted.pending()
         ));
     }
     Ok(summary)

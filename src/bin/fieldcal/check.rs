@@ -1,6 +1,7 @@
 //! `fieldcal check`: does a stored calibration hold on another recording?
 
 use anyhow::{Context, Result};
+use fieldcal::io::csv::Covariates;
 
 use fieldcal::model::check::{
     CheckReport, ParamShift, StoredCalibration, check as check_calibration, parse_stored,
@@ -39,7 +40,7 @@ pub fn check(args: CheckArgs) -> Result<()> {
         );
     }
     let stored = parse_stored(&bytes).with_context(|| format!("{cal_name}"))?;
-    let (data, reference) = args.input.read_with_reference()?;
+    let (data, reference) = args.input.read_with_reference(&Covariates::All)?;
     let file = args.input.file.display().to_string();
     let checked = check_calibration(&data, &stored, reference.as_ref(), args.min_coverage)
         .with_context(|| format!("{file}: cannot check {cal_name} against it"));

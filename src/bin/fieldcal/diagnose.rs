@@ -2,6 +2,7 @@
 //! add them one by one, and say whether what is left is noise.
 
 use anyhow::{Context, Result};
+use fieldcal::io::csv::Covariates;
 use serde::Serialize;
 
 use fieldcal::model::diagnose::params_text;
@@ -21,7 +22,7 @@ pub fn diagnose(args: DiagnoseArgs) -> Result<()> {
     if let Some(z) = args.input.z_column()? {
         return diagnose3(args, &z);
     }
-    let (data, reference) = args.input.read_with_reference()?;
+    let (data, reference) = args.input.read_with_reference(&Covariates::All)?;
     let file = args.input.file.display().to_string();
     let baseline = baseline_effects(&args, &file, |column| data.covariate(column).is_some())?;
     let mut diagnosis = run_diagnosis(&data, &baseline, reference.as_ref())
@@ -304,7 +305,7 @@ fn diagnose3(args: DiagnoseArgs, z: &str) -> Result<()> {
             "{file}: --gyro checks the heading of a turn in one plane and has no 3-D form; drop --gyro, or choose two axes with --x and --y"
         );
     }
-    let data = args.input.read3_gated(z)?;
+    let data = args.input.read3_gated(z, &Covariates::All)?;
     let baseline = baseline_effects(&args, &file, |column| data.covariate(column).is_some())?;
     let diagnosis =
         diagnose_3d(&data, &baseline).with_context(|| format!("{file}: no diagnosis"))?;

@@ -1,6 +1,7 @@
 //! `fieldcal fit`: read a CSV, fit, report. Two columns: the paper's model
 //! (or --effects) on a turn; three (--z, or a `z` column): the ellipsoid.
 
+use fieldcal::io::csv::Covariates;
 use std::io::IsTerminal;
 
 use std::time::Instant;
@@ -14,7 +15,7 @@ use fieldcal::model::effects::Effect;
 use fieldcal::model::ellipsoid::{self, Ellipsoid3Error, Ellipsoid3Fit, Ellipsoid3Model};
 use fieldcal::model::ellipsoid_effects::{self, Effects3Error, Ellipsoid3EffectsFit};
 use fieldcal::model::fit::DEFAULT_MIN_COVERAGE_DEG;
-use fieldcal::model::fit::{FitOptions, fit_paper};
+use fieldcal::model::fit::{FitOptions, fit_paper_turned};
 use fieldcal::model::gyro::GyroUnits;
 use fieldcal::model::gyro::{HeadingCheck, HeadingReference};
 use fieldcal::model::heading::coverage;
@@ -37,7 +38,13 @@ pub fn fit(args: FitArgs) -> Result<()> {
     if args.still || args.units.is_some() {
         anyhow::bail!("--still and --units are for a 3-axis fit: name the third axis with --z COL");
     }
-    let (data, reference) = args.input.read_with_reference()?;
+    // The paper's model reads the axes, time and a gyro column; the
+    // effects may name any column.
+    let covariates = match args.effects {
+        Some(_) => Covariates::All,
+        None => Covariates::Only(Vec::new()),
+    };
+    let (data, reference) = args.input.read_with_reference(&covariates)?;
     let options = FitOptions {
         solver: args.solver,
         gradient_descent: GradientDescentOptions {
@@ -51,8 +58,17 @@ pub fn fit(args: FitArgs) -> Result<()> {
     // A turn, or no calibration: the same gate for both models, naming the
     // recording's columns.
     if let Err(err) = check_turn_of(&data, args.min_coverage) {
+        // The hint names the recording's other numeric columns.
+        // (as they are beside the gyro's own, which is no covariate).
+        let every_column = || -> Result<fieldcal::sample::Dataset> {
+            let mut all = args.input.read(&Covariates::All)?;
+            if let Some(gyro) = args.input.own_gyro_column() {
+                all.covariates.retain(|c| c.name != gyro);
+            }
+            Ok(all)
+        };
         if let FitError::DiscNotRing { .. } = err
-            && let Some(hint) = third_axis_hint(&data)
+            && let Some(hint) = every_column().ok().and_then(|all| third_axis_hint(&all))
         {
             anyhow::bail!("{file}: no calibration: {err}; {hint}");
         }
@@ -72,7 +88,8 @@ pub fn fit(args: FitArgs) -> Result<()> {
         return fit_effects(&args, &data, reference.as_ref(), effects, &file);
     }
     let mut progress = progress_printer();
-    let report = fit_paper(&data.x, &data.y, &options, &mut progress);
+    // The gate above judged the turn: the fit does not judge it again.
+    let report = fit_paper_turned(&data.x, &data.y, &options, &mut progress);
     finish_progress();
     let report = report.with_context(|| format!("{file}: no calibration"))?;
 
@@ -373,7 +390,13 @@ fn still_gyro(args: &FitArgs, data: &Dataset3, file: &str) -> Result<Option<Gyro
 /// `fit` on three axes.
 fn fit3(args: &FitArgs, z: &str) -> Result<()> {
     refuse_2d_options(args)?;
-    let data = args.input.read3_gated(z)?;
+    // The model's fit reads the axes alone; --still reads the gyro, and
+    // the effects may name any column.
+    let covariates = match args.effects.is_none() && !args.still {
+        true => Covariates::Only(Vec::new()),
+        false => Covariates::All,
+    };
+    let data = args.input.read3_gated(z, &covariates)?;
     let file = args.input.file.display().to_string();
     let (base, extra) = match &args.effects {
         Some(list) => parse_effects3(&list.text).map_err(|e| anyhow::anyhow!("--effects: {e}"))?,

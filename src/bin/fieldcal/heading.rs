@@ -6,6 +6,7 @@
 //! [`fieldcal::model::heading_analysis`], the report
 //! [`fieldcal::report::heading`].
 
+use fieldcal::io::csv::Covariates;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
@@ -183,7 +184,7 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
     let mag_file = args.input.file.clone();
     let main = mag_file.display().to_string();
     let z = args.input.z_column()?.unwrap_or_else(|| "z".to_string());
-    let data = args.input.read3(&z)?;
+    let data = args.input.read3(&z, &Covariates::All)?;
     let Some(mag_t) = data.t.clone() else {
         bail!(
             "{main}: the magnetometer's recording has no time column (t, t_s, time or time_s, or choose one with --t): the accelerometer and the gyro are joined to it by time"

@@ -18,6 +18,7 @@ use std::process::ExitCode;
 use anyhow::Context as _;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
+use fieldcal::io::csv::Covariates;
 use fieldcal::model::gyro::{GyroUnits, HeadingReference};
 use fieldcal::sample::Dataset;
 
@@ -174,24 +175,29 @@ impl CsvInput {
     }
 
     /// The 3-axis recording, with its z column from [`Self::z_column`].
-    fn read3(&self, z: &str) -> anyhow::Result<fieldcal::sample::Dataset3> {
-        let spec = fieldcal::io::csv::ColumnSpec {
-            x: self.x_column().to_string(),
-            y: self.y_column().to_string(),
-            t: self.t.clone(),
-        };
-        Ok(fieldcal::io::csv::read_dataset3(&self.file, &spec, z)?)
+    fn read3(
+        &self,
+        z: &str,
+        covariates: &Covariates,
+    ) -> anyhow::Result<fieldcal::sample::Dataset3> {
+        let spec = self.spec();
+        let data = fieldcal::io::csv::read_dataset3_with(&self.file, &spec, z, covariates)?;
+        Ok(data)
     }
 
-    /// The 2-axis recording, without the readings the spike gate refuses
-    /// (told on stderr).
-    fn read(&self) -> anyhow::Result<fieldcal::sample::Dataset> {
-        let spec = fieldcal::io::csv::ColumnSpec {
+    fn spec(&self) -> fieldcal::io::csv::ColumnSpec {
+        fieldcal::io::csv::ColumnSpec {
             x: self.x_column().to_string(),
             y: self.y_column().to_string(),
             t: self.t.clone(),
-        };
-        let data = fieldcal::io::csv::read_dataset(&self.file, &spec)?;
+        }
+    }
+
+    /// The 2-axis recording with the `covariates` chosen, without the
+    /// readings the spike gate refuses (told on stderr).
+    fn read(&self, covariates: &Covariates) -> anyhow::Result<fieldcal::sample::Dataset> {
+        let spec = self.spec();
+        let data = fieldcal::io::csv::read_dataset_with(&self.file, &spec, covariates)?;
         let points = data.x.iter().zip(&data.y).map(|(&x, &y)| [x, y, f64::NAN]);
         let rows = spike_rows(&self.file, points, [&data.x_name, &data.y_name, ""]);
         Ok(data.without_rows(&rows))
@@ -199,8 +205,12 @@ impl CsvInput {
 
     /// [`Self::read3`] for a fit or a check: without the readings the
     /// spike gate refuses (told on stderr).
-    fn read3_gated(&self, z: &str) -> anyhow::Result<fieldcal::sample::Dataset3> {
-        let data = self.read3(z)?;
+    fn read3_gated(
+        &self,
+        z: &str,
+        covariates: &Covariates,
+    ) -> anyhow::Result<fieldcal::sample::Dataset3> {
+        let data = self.read3(z, covariates)?;
         Ok(without_spikes3(&self.file, data))
     }
 
@@ -228,16 +238,34 @@ impl CsvInput {
         }
     }
 
-    fn read_with_reference(&self) -> anyhow::Result<(Dataset, Option<HeadingReference>)> {
-        let mut data = self.read()?;
+    /// The recording with the `covariates` chosen (and the gyro column,
+    /// when it is the recording's), and the gyro's heading reference.
+    /// The column `--gyro` names when it is the recording's own.
+    fn own_gyro_column(&self) -> Option<&str> {
+        let gyro = self.gyro.as_deref()?;
+        let column = gyro.rsplit_once(':').map_or(gyro, |(_, column)| column);
+        self.gyro_in_recording().then_some(column)
+    }
+
+    fn read_with_reference(
+        &self,
+        covariates: &Covariates,
+    ) -> anyhow::Result<(Dataset, Option<HeadingReference>)> {
         let Some(gyro) = &self.gyro else {
-            return Ok((data, None));
+            return Ok((self.read(covariates)?, None));
         };
         // FILE:COLUMN splits at the last ':' (a path may hold one).
         let (file, column) = match gyro.rsplit_once(':') {
             Some((file, column)) => (Some(PathBuf::from(file)), column),
             None => (None, gyro.as_str()),
         };
+        let covariates = match covariates {
+            Covariates::Only(names) if self.gyro_in_recording() => {
+                Covariates::Only(names.iter().cloned().chain([column.to_string()]).collect())
+            }
+            chosen => chosen.clone(),
+        };
+        let mut data = self.read(&covariates)?;
         if column.is_empty() || file.as_ref().is_some_and(|f| f.as_os_str().is_empty()) {
             anyhow::bail!(
                 "--gyro '{gyro}': give a column of the recording (--gyro gyro_z) or a file and its column (--gyro imu.csv:gyro_z)"
@@ -253,6 +281,10 @@ impl CsvInput {
         let reference = match &other_file {
             None => {
                 let Some(k) = data.covariates.iter().position(|c| c.name == column) else {
+                    // Every numeric column is named: read them all.
+                    if covariates != Covariates::All {
+                        return self.read_with_reference(&Covariates::All);
+                    }
                     let names: Vec<&str> =
                         data.covariates.iter().map(|c| c.name.as_str()).collect();
                     let names = if names.is_empty() {

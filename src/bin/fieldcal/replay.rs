@@ -6,12 +6,12 @@ use std::sync::atomic::AtomicBool;
 use anyhow::{Context, Result};
 use serde::Serialize;
 
-use fieldcal::capture::read_capture;
+use fieldcal::capture::open_capture;
 use fieldcal::daemon::config::{Config, SourceKind};
 use fieldcal::daemon::run::DaemonError;
 use fieldcal::io::csv::looks_like_csv;
 use fieldcal::sample::Reading;
-use fieldcal::source::replay::{Speed, replay as run_replay};
+use fieldcal::source::replay::{Speed, replay_playable};
 
 use crate::ReplayArgs;
 
@@ -36,14 +36,15 @@ pub fn replay(args: ReplayArgs) -> Result<()> {
              \"COL_Y\"]); `fieldcal fit {name} --x COL_X --y COL_Y` fits it without one"
         );
     }
-    let file = read_capture(&args.file)?;
+    let mut file = open_capture(&args.file)?;
     let speed = args.speed.unwrap_or(Speed::Times(1.0));
     let stop = AtomicBool::new(false);
     let stdout = std::io::stdout();
     let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
     let mut write_error: Option<std::io::Error> = None;
     let realtime = !matches!(speed, Speed::Max);
-    let summary = run_replay(&file, &name, speed, &stop, &mut |reading| {
+    let counters = fieldcal::source::SourceCounters::default();
+    let summary = replay_playable(&mut file, &name, speed, &stop, &counters, &mut |reading| {
         if write_error.is_some() {
             return;
         }
@@ -118,10 +119,10 @@ fn replay_with_config(args: &ReplayArgs, config: &Config, name: &str) -> Result<
         if let Some(source) = source.filter(|_| looks_like_csv(&args.file)) {
             return Err(DaemonError::NotCsv(source.name.clone()).into());
         }
-        let file = read_capture(&args.file)?;
-        fieldcal::daemon::run::replay_through_pipeline(
+        let mut file = open_capture(&args.file)?;
+        fieldcal::daemon::run::replay_playable_through_pipeline(
             config,
-            &file,
+            &mut file,
             name,
             args.source.as_deref(),
             speed,

@@ -8,14 +8,15 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::DaemonError;
 use super::sensors::Sensors;
-use crate::capture::CaptureFile;
+use crate::capture::{CaptureFile, Playable};
 use crate::daemon::config::{Config, SourceKind};
 use crate::daemon::messages::SourceStatus;
 use crate::daemon::publish::Lane;
 use crate::daemon::sensor::Emitter;
 use crate::daemon::source_kinds::Csv;
+use crate::sample::Reading;
 use crate::source::csv::{CsvPlayback, check_csv, play_csv};
-use crate::source::replay::{ReplaySummary, Speed, replay_counted};
+use crate::source::replay::{ReplayError, ReplaySummary, Speed, replay_counted, replay_playable};
 use crate::source::{SourceCounters, SourceEvent};
 
 /// STATUS lines due at once after a gap in a recording, at most: a longer
@@ -151,10 +152,46 @@ pub fn replay_through_pipeline(
     speed: Speed,
     out: &mut dyn Write,
 ) -> Result<ReplaySummary, DaemonError> {
+    let play: Play =
+        &mut |stop, counters, emit| replay_counted(capture, name, speed, stop, counters, emit);
+    through_pipeline(config, source, speed, out, play)
+}
+
+/// [`replay_through_pipeline`] of a capture read as it plays
+/// ([`crate::capture::open_capture`]): memory does not grow with its
+/// length.
+pub fn replay_playable_through_pipeline(
+    config: &Config,
+    capture: &mut Playable,
+    name: &str,
+    source: Option<&str>,
+    speed: Speed,
+    out: &mut dyn Write,
+) -> Result<ReplaySummary, DaemonError> {
+    let play: Play =
+        &mut |stop, counters, emit| replay_playable(capture, name, speed, stop, counters, emit);
+    through_pipeline(config, source, speed, out, play)
+}
+
+/// A replay: plays its readings into the callback, with the stop flag
+/// and the counters it keeps.
+type Play<'a> = &'a mut dyn FnMut(
+    &AtomicBool,
+    &SourceCounters,
+    &mut dyn FnMut(Reading),
+) -> Result<ReplaySummary, ReplayError>;
+
+fn through_pipeline(
+    config: &Config,
+    source: Option<&str>,
+    speed: Speed,
+    out: &mut dyn Write,
+    play: Play,
+) -> Result<ReplaySummary, DaemonError> {
     let mut pipeline = Pipeline::new(config, source, speed)?;
     let stop = AtomicBool::new(false);
     let counters = SourceCounters::default();
-    let summary = replay_counted(capture, name, speed, &stop, &counters, &mut |reading| {
+    let summary = play(&stop, &counters, &mut |reading| {
         pipeline.handle(
             reading.time,
             SourceEvent::Reading(reading),

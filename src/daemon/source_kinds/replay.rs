@@ -5,12 +5,12 @@ use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 
 use super::{Checked, Keys, Kind};
-use crate::capture::read_capture;
+use crate::capture::open_capture;
 use crate::daemon::config::{ConfigError, SensorConfig, SourceConfig};
 use crate::daemon::reload::ReloadError;
 use crate::daemon::run::{DaemonError, SourceTask, Start, Started};
 use crate::source::SourceEvent;
-use crate::source::replay::{Speed, replay_counted};
+use crate::source::replay::{Speed, replay_playable};
 use crate::source::serial::unix_now;
 
 /// A capture (or raw Falcon dump) played back.
@@ -59,9 +59,9 @@ impl Kind for Replay {
         keys
     }
 
-    /// The capture, read whole.
+    /// The capture's header and records, checked as `spawn` reads them.
     fn preflight(&self, _name: &str, _sensors: &[SensorConfig]) -> Result<(), ReloadError> {
-        read_capture(&self.file)?;
+        open_capture(&self.file)?;
         Ok(())
     }
 
@@ -70,7 +70,8 @@ impl Kind for Replay {
     }
 
     fn spawn(&self, _source: &SourceConfig, start: Start<'_>) -> Result<Started, DaemonError> {
-        let capture = read_capture(&self.file)?;
+        // Read as it plays: memory does not grow with the capture.
+        let mut capture = open_capture(&self.file)?;
         let speed = self.speed;
         let (name, stop) = (self.file.display().to_string(), start.stop_flag.clone());
         let (tx, counters) = (start.tx, start.counters.clone());
@@ -82,7 +83,7 @@ impl Kind for Replay {
             // host's clock, from this source's start.
             let start = unix_now();
             let result =
-                replay_counted(&capture, &name, speed, &stop, &counters, &mut |reading| {
+                replay_playable(&mut capture, &name, speed, &stop, &counters, &mut |reading| {
                     let reading = crate::sample::Reading {
                         time: start + reading.time,
                         ..reading

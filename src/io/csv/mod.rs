@@ -164,13 +164,64 @@ enum Role {
     Ignored,
 }
 
+/// Which of the other columns a reader keeps as covariates.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub enum Covariates {
+    /// Every numeric column (an analysis that tries them all).
+    #[default]
+    All,
+    /// Only these, where the file has them and they are numeric: the
+    /// other columns are neither parsed nor checked, and cost nothing.
+    Only(Vec<String>),
+}
+
+impl Covariates {
+    fn wants(&self, name: &str) -> bool {
+        match self {
+            Covariates::All => true,
+            Covariates::Only(names) => names.iter().any(|n| n == name),
+        }
+    }
+}
+
 /// Reads a recording from a file.
 pub fn read_dataset(path: &Path, spec: &ColumnSpec) -> Result<Dataset, CsvError> {
+    read_dataset_with(path, spec, &Covariates::All)
+}
+
+/// [`read_dataset`], keeping only the `covariates` chosen.
+pub fn read_dataset_with(
+    path: &Path,
+    spec: &ColumnSpec,
+    covariates: &Covariates,
+) -> Result<Dataset, CsvError> {
     let file = open_regular(path).map_err(|source| CsvError::Io {
         path: path.to_path_buf(),
         source,
     })?;
-    parse_dataset(io::BufReader::with_capacity(1 << 16, file), path, spec)
+    let size = file.metadata().map_or(0, |m| m.len());
+    parse_dataset_sized(
+        io::BufReader::with_capacity(1 << 16, file),
+        path,
+        spec,
+        covariates,
+        size,
+    )
+}
+
+/// Most rows reserved ahead of reading (more grow as they come).
+const ROWS_RESERVED_AT_MOST: u64 = 1 << 24;
+
+/// The rows a file of `size` bytes holds when they are about as long as
+/// `first` (its fields and their separators), with a tenth to spare: room
+/// reserved for the columns from the start, instead of growing them
+/// through copies.
+fn rows_expected(size: u64, first: &csv::ByteRecord) -> usize {
+    let row = (first.as_slice().len() + first.len()).max(1) as u64;
+    let rows = (size / row)
+        .saturating_add(size / row / 10)
+        .min(ROWS_RESERVED_AT_MOST);
+    usize::try_from(rows).unwrap_or(0)
 }
 
 /// The number in field `i` of a record, or an error naming the file, the
@@ -201,7 +252,9 @@ fn open_with_header<R: Read>(
     let mut csv = csv::ReaderBuilder::new()
         .has_headers(true)
         .flexible(false)
-        .trim(csv::Trim::All)
+        // Fields are trimmed where they are parsed ([`parse_number`]):
+        // trimming whole records copies every one of them.
+        .trim(csv::Trim::Headers)
         .comment(Some(b'#'))
         .from_reader(reader);
     let header = csv.byte_headers().map_err(|e| csv_error(path, e))?.clone();
@@ -237,6 +290,19 @@ pub fn parse_dataset<R: Read>(
     reader: R,
     path: &Path,
     spec: &ColumnSpec,
+) -> Result<Dataset, CsvError> {
+    parse_dataset_sized(reader, path, spec, &Covariates::All, 0)
+}
+
+/// [`parse_dataset`] keeping the `covariates` chosen; `size`: the bytes
+/// the reader holds, when known (0 otherwise), to reserve room for its
+/// rows.
+fn parse_dataset_sized<R: Read>(
+    reader: R,
+    path: &Path,
+    spec: &ColumnSpec,
+    wanted: &Covariates,
+    size: u64,
 ) -> Result<Dataset, CsvError> {
     let (mut csv, names) = open_with_header(reader, path)?;
     let err_at = |e: csv::Error| csv_error(path, e);
@@ -277,20 +343,26 @@ pub fn parse_dataset<R: Read>(
             _ if i == x_index => Role::X,
             _ if i == y_index => Role::Y,
             _ if Some(i) == t_index => Role::T,
+            _ if !wanted.wants(&names[i]) => Role::Ignored,
             _ => Role::Covariate(usize::MAX), // numbered once the first row shows it is numeric
         })
         .collect();
-
     let mut x = Vec::new();
     let mut y = Vec::new();
     let mut t = t_index.map(|_| Vec::new());
     let mut covariates: Vec<Covariate> = Vec::new();
     let mut record = csv::ByteRecord::new();
     let mut first_row = true;
+    // The columns read, in the order of the record's fields.
+    let mut read: Vec<(usize, Role)> = Vec::new();
 
     while csv.read_byte_record(&mut record).map_err(err_at)? {
         let line = record.position().map_or(0, |p| p.line());
         if first_row {
+            let reserve = rows_expected(size, &record);
+            for column in [&mut x, &mut y].into_iter().chain(t.as_mut()) {
+                column.reserve_exact(reserve);
+            }
             // A column whose first value is not a number is a text column
             // (a label, a unit): it is not a covariate, and is skipped.
             for (i, role) in roles.iter_mut().enumerate() {
@@ -298,7 +370,7 @@ pub fn parse_dataset<R: Read>(
                     *role = if parse_number(&record[i]).is_ok() {
                         covariates.push(Covariate {
                             name: names[i].clone(),
-                            values: Vec::new(),
+                            values: Vec::with_capacity(reserve),
                         });
                         Role::Covariate(covariates.len() - 1)
                     } else {
@@ -307,13 +379,16 @@ pub fn parse_dataset<R: Read>(
                 }
             }
             first_row = false;
+            read = roles
+                .iter()
+                .copied()
+                .enumerate()
+                .filter(|(_, role)| *role != Role::Ignored)
+                .collect();
         }
-        for (i, role) in roles.iter().enumerate() {
-            if *role == Role::Ignored {
-                continue;
-            }
+        for &(i, role) in &read {
             let value = cell(&record, i, &names, path, line)?;
-            match *role {
+            match role {
                 Role::X => x.push(value),
                 Role::Y => y.push(value),
                 Role::T => {
@@ -353,11 +428,36 @@ pub fn parse_dataset<R: Read>(
 /// Reads a 3-axis recording: `spec`'s x and y, and `z` (a numeric
 /// column, neither x, y nor time).
 pub fn read_dataset3(path: &Path, spec: &ColumnSpec, z: &str) -> Result<Dataset3, CsvError> {
+    read_dataset3_with(path, spec, z, &Covariates::All)
+}
+
+/// [`read_dataset3`], keeping only the `covariates` chosen.
+pub fn read_dataset3_with(
+    path: &Path,
+    spec: &ColumnSpec,
+    z: &str,
+    covariates: &Covariates,
+) -> Result<Dataset3, CsvError> {
     let file = open_regular(path).map_err(|source| CsvError::Io {
         path: path.to_path_buf(),
         source,
     })?;
-    parse_dataset3(io::BufReader::with_capacity(1 << 16, file), path, spec, z)
+    let size = file.metadata().map_or(0, |m| m.len());
+    // z travels as a covariate until the dataset is built.
+    let covariates = match covariates {
+        Covariates::All => Covariates::All,
+        Covariates::Only(names) => {
+            Covariates::Only(names.iter().cloned().chain([z.to_string()]).collect())
+        }
+    };
+    let reader = io::BufReader::with_capacity(1 << 16, file);
+    match dataset3_of(reader, path, spec, z, &covariates, size) {
+        // The message lists every column z could have been: read them.
+        Err(CsvError::MissingColumn { .. }) if covariates != Covariates::All => {
+            read_dataset3(path, spec, z)
+        }
+        read => read,
+    }
 }
 
 /// Reads a 3-axis recording from any reader; `path` is used in messages.
@@ -366,6 +466,17 @@ pub fn parse_dataset3<R: Read>(
     path: &Path,
     spec: &ColumnSpec,
     z: &str,
+) -> Result<Dataset3, CsvError> {
+    dataset3_of(reader, path, spec, z, &Covariates::All, 0)
+}
+
+fn dataset3_of<R: Read>(
+    reader: R,
+    path: &Path,
+    spec: &ColumnSpec,
+    z: &str,
+    covariates: &Covariates,
+    size: u64,
 ) -> Result<Dataset3, CsvError> {
     if z == spec.x || z == spec.y || spec.t.as_deref() == Some(z) {
         let other = if z == spec.x {
@@ -381,7 +492,7 @@ pub fn parse_dataset3<R: Read>(
             y: format!("'{}'", super::excerpt(other)),
         });
     }
-    let dataset = parse_dataset(reader, path, spec)?;
+    let dataset = parse_dataset_sized(reader, path, spec, covariates, size)?;
     let names: Vec<String> = dataset.covariates.iter().map(|c| c.name.clone()).collect();
     let time_name = dataset.t.as_ref().and(spec.t.clone());
     Dataset3::from_dataset(dataset, z).ok_or_else(|| {
@@ -496,6 +607,7 @@ pub fn parse_series<R: Read>(
 
 /// Parses one field as a finite number, or says what is wrong with it.
 fn parse_number(field: &[u8]) -> Result<f64, String> {
+    let field = field.trim_ascii();
     let text =
         std::str::from_utf8(field).map_err(|_| "the value is not valid UTF-8 text".to_string())?;
     if text.is_empty() {

@@ -75,6 +75,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::protocol::chips::Chip;
 
+mod stream;
+pub use stream::{CaptureStream, ChunkRef, Playable, RawDump, open_capture};
+
 /// The first bytes of every capture file.
 pub const MAGIC: &[u8] = b"FIELDCAL-CAPTURE";
 
@@ -522,6 +525,77 @@ pub fn parse_capture(bytes: &[u8], name: &str) -> Result<CaptureFile, CaptureErr
 
 /// The parse: `None` for a raw dump (the caller owns the bytes).
 fn parse(bytes: &[u8], name: &str) -> Result<Option<CaptureFile>, CaptureError> {
+    let Some((header, json_end)) = parse_head(bytes, name)? else {
+        return Ok(None);
+    };
+    let declared = header.declared();
+    let mut chunks = Vec::new();
+    let mut pos = json_end;
+    let mut truncated = None;
+    while let Some(rest) = bytes.get(pos..).filter(|rest| !rest.is_empty()) {
+        let reason = match read_record(rest) {
+            Record::Intact {
+                time_ns,
+                stream,
+                data,
+                size,
+            } => {
+                if !declared[usize::from(stream)] {
+                    return Err(undeclared(name, &header, pos as u64, chunks.len(), stream));
+                }
+                chunks.push(Chunk {
+                    time: nanos_to_seconds(time_ns),
+                    stream,
+                    bytes: data.to_vec(),
+                });
+                pos += size;
+                continue;
+            }
+            Record::Torn => TruncationReason::Torn,
+            Record::BadChecksum => TruncationReason::BadChecksum,
+        };
+        truncated = Some(Truncation {
+            offset: pos as u64,
+            chunks_intact: chunks.len(),
+            bytes_dropped: rest.len() as u64,
+            reason,
+        });
+        break;
+    }
+    Ok(Some(CaptureFile::Capture {
+        header,
+        chunks,
+        truncated,
+    }))
+}
+
+/// The error for record `index` at `offset`, of a `stream` the header does
+/// not declare.
+fn undeclared(
+    name: &str,
+    header: &CaptureHeader,
+    offset: u64,
+    index: usize,
+    stream: u8,
+) -> CaptureError {
+    CaptureError::UndeclaredStream {
+        name: name.into(),
+        offset,
+        index,
+        stream,
+        declared: header
+            .streams
+            .iter()
+            .map(|s| s.id.to_string())
+            .collect::<Vec<_>>()
+            .join(", "),
+    }
+}
+
+/// The magic and header at the start of `bytes` (the whole file, or at
+/// least its first [`HEAD_LEN_AT_MOST`] bytes), and where the records
+/// start; `None`: a raw dump.
+fn parse_head(bytes: &[u8], name: &str) -> Result<Option<(CaptureHeader, usize)>, CaptureError> {
     if bytes.is_empty() {
         return Err(CaptureError::Empty { name: name.into() });
     }
@@ -573,58 +647,11 @@ fn parse(bytes: &[u8], name: &str) -> Result<Option<CaptureFile>, CaptureError> 
         },
         HeaderFault::Problem(problem, at) => bad(json_at + at, problem),
     })?;
-
-    let declared = header.declared();
-    let mut chunks = Vec::new();
-    let mut pos = json_end;
-    let mut truncated = None;
-    while let Some(rest) = bytes.get(pos..).filter(|rest| !rest.is_empty()) {
-        let reason = match read_record(rest) {
-            Record::Intact {
-                time_ns,
-                stream,
-                data,
-                size,
-            } => {
-                if !declared[usize::from(stream)] {
-                    return Err(CaptureError::UndeclaredStream {
-                        name: name.into(),
-                        offset: pos as u64,
-                        index: chunks.len(),
-                        stream,
-                        declared: header
-                            .streams
-                            .iter()
-                            .map(|s| s.id.to_string())
-                            .collect::<Vec<_>>()
-                            .join(", "),
-                    });
-                }
-                chunks.push(Chunk {
-                    time: nanos_to_seconds(time_ns),
-                    stream,
-                    bytes: data.to_vec(),
-                });
-                pos += size;
-                continue;
-            }
-            Record::Torn => TruncationReason::Torn,
-            Record::BadChecksum => TruncationReason::BadChecksum,
-        };
-        truncated = Some(Truncation {
-            offset: pos as u64,
-            chunks_intact: chunks.len(),
-            bytes_dropped: rest.len() as u64,
-            reason,
-        });
-        break;
-    }
-    Ok(Some(CaptureFile::Capture {
-        header,
-        chunks,
-        truncated,
-    }))
+    Ok(Some((header, json_end)))
 }
+
+/// The most bytes the magic, the length field and the header take.
+const HEAD_LEN_AT_MOST: usize = MAGIC.len() + LENGTH_FIELD_LEN + MAX_HEADER_LEN as usize;
 
 enum HeaderFault {
     Version(u64),
