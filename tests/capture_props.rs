@@ -239,20 +239,28 @@ type Played = Result<(Vec<fieldcal::sample::Reading>, ReplaySummary), String>;
 
 fn play_both(path: &std::path::Path) -> (Played, Played) {
     let stop = AtomicBool::new(false);
-    let whole = read_capture(path).map_err(|e| e.to_string()).and_then(|file| {
-        let mut readings = Vec::new();
-        let counters = SourceCounters::default();
-        replay_counted(&file, "f", Speed::Max, &stop, &counters, &mut |r| readings.push(r))
+    let whole = read_capture(path)
+        .map_err(|e| e.to_string())
+        .and_then(|file| {
+            let mut readings = Vec::new();
+            let counters = SourceCounters::default();
+            replay_counted(&file, "f", Speed::Max, &stop, &counters, &mut |r| {
+                readings.push(r)
+            })
             .map(|summary| (readings, summary))
             .map_err(|e| e.to_string())
-    });
-    let streamed = open_capture(path).map_err(|e| e.to_string()).and_then(|mut file| {
-        let mut readings = Vec::new();
-        let counters = SourceCounters::default();
-        replay_playable(&mut file, "f", Speed::Max, &stop, &counters, &mut |r| readings.push(r))
+        });
+    let streamed = open_capture(path)
+        .map_err(|e| e.to_string())
+        .and_then(|mut file| {
+            let mut readings = Vec::new();
+            let counters = SourceCounters::default();
+            replay_playable(&mut file, "f", Speed::Max, &stop, &counters, &mut |r| {
+                readings.push(r)
+            })
             .map(|summary| (readings, summary))
             .map_err(|e| e.to_string())
-    });
+        });
     (whole, streamed)
 }
 

@@ -778,15 +778,19 @@ fn compute_reference_variances(model: Ellipsoid3Model) -> Vec<f64> {
 /// A restricted model is supported whenever a richer one is (its
 /// parameters are a subset, fixed at values the richer fit could reach).
 pub fn supports(model: Ellipsoid3Model, directions: &[[f64; 3]]) -> bool {
+    supports_covered(model, &sphere::coverage(directions.iter().copied()))
+}
+
+/// [`supports`], given the directions' coverage of the sphere.
+pub fn supports_covered(model: Ellipsoid3Model, covered: &sphere::SphereCoverage) -> bool {
     Ellipsoid3Model::ALL
         .into_iter()
         .filter(|m| m.unknowns() >= model.unknowns())
-        .any(|m| determines(m, directions))
+        .any(|m| determines(m, covered))
 }
 
 /// The rule of [`supports`] for one model alone.
-fn determines(model: Ellipsoid3Model, directions: &[[f64; 3]]) -> bool {
-    let covered = sphere::coverage(directions.iter().copied());
+fn determines(model: Ellipsoid3Model, covered: &sphere::SphereCoverage) -> bool {
     let centres: Vec<Vector3<f64>> = (0..sphere::REGIONS)
         .filter(|&k| covered.counts[k] > 0)
         .map(|k| Vector3::from(sphere::region(k).centre))
@@ -800,9 +804,8 @@ fn determines(model: Ellipsoid3Model, directions: &[[f64; 3]]) -> bool {
 
 /// The richest model the directions support, if any.
 pub fn best_supported(directions: &[[f64; 3]]) -> Option<Ellipsoid3Model> {
-    Ellipsoid3Model::ALL
-        .into_iter()
-        .find(|&m| supports(m, directions))
+    let covered = sphere::coverage(directions.iter().copied());
+    (Ellipsoid3Model::ALL.into_iter()).find(|&m| supports_covered(m, &covered))
 }
 
 fn directions_about(p: &[Vector3<f64>], e: &Ellipsoid) -> Vec<[f64; 3]> {

@@ -42,8 +42,16 @@ pub const BANDS: [usize; 10] = [1, 6, 11, 15, 17, 17, 15, 11, 6, 1];
 /// not a tuned value.
 pub const NEIGHBOUR_DEG: f64 = 1.5 * 20.3;
 
+/// The bands' bounds, worked out once ([`band_bounds_of`]).
+static BAND_BOUNDS: std::sync::LazyLock<[(f64, f64, usize, usize); 10]> =
+    std::sync::LazyLock::new(band_bounds_of);
+
 /// The band a region lies in and its index within the band.
-fn band_bounds() -> [(f64, f64, usize, usize); 10] {
+fn band_bounds() -> &'static [(f64, f64, usize, usize); 10] {
+    &BAND_BOUNDS
+}
+
+fn band_bounds_of() -> [(f64, f64, usize, usize); 10] {
     // (elevation low, elevation high, first region, count), radians.
     let mut out = [(0.0, 0.0, 0, 0); 10];
     let mut above = 0usize;

@@ -788,4 +788,50 @@ mod tests {
             assert_eq!(median3(a, b, c), median_of(&mut three).unwrap_or(f64::NAN));
         }
     }
+
+    /// Whatever the sorting networks keep at once, the full judgement
+    /// keeps too: the same decision on every sample of turns fast and
+    /// slow, at rest, quantised, with spikes and steps.
+    #[test]
+    fn the_quick_causal_check_keeps_only_what_the_judgement_keeps() {
+        let mut noise = normals(11);
+        let (mut quick, mut agreed) = (0, 0);
+        for (case, deg) in [0.0, 0.5, 4.0, 15.0].into_iter().enumerate() {
+            let mut gate: SpikeGate<usize> = SpikeGate::default();
+            for (i, mut raw) in turn(3000, deg).into_iter().enumerate() {
+                for v in raw.iter_mut().take(2) {
+                    *v += noise() * 2.0;
+                    if case == 3 {
+                        *v = v.round();
+                    }
+                }
+                if i % 97 == 0 {
+                    raw[i % 2] += 400.0;
+                }
+                if i == 1500 {
+                    raw[1] += 50.0;
+                }
+                if gate.held.is_empty() && !gate.suspect && gate.kept.len() == WINDOW {
+                    let mut window: Vec<[f64; 3]> = gate.kept.iter().copied().collect();
+                    let at = window.len();
+                    window.push(raw);
+                    let prediction = at - HALF_WINDOW..at;
+                    let judged =
+                        gate.judge(&window, 0..at, prediction, at, Some(PREDICTION_MARGIN));
+                    if gate.surely_within_prediction(raw) {
+                        quick += 1;
+                        assert!(judged.is_none(), "case {case}, sample {i}: {judged:?}");
+                    } else {
+                        agreed += usize::from(judged.is_some());
+                    }
+                }
+                gate.feed(i, raw);
+                while gate.decided().is_some() {}
+            }
+        }
+        // Nearly every sample is decided quickly; the rest are what the
+        // judgement holds.
+        assert!(quick > 6_000, "{quick}");
+        assert!(agreed > 100, "{agreed}");
+    }
 }

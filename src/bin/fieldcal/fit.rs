@@ -15,7 +15,7 @@ use fieldcal::model::effects::Effect;
 use fieldcal::model::ellipsoid::{self, Ellipsoid3Error, Ellipsoid3Fit, Ellipsoid3Model};
 use fieldcal::model::ellipsoid_effects::{self, Effects3Error, Ellipsoid3EffectsFit};
 use fieldcal::model::fit::DEFAULT_MIN_COVERAGE_DEG;
-use fieldcal::model::fit::{FitOptions, fit_paper_turned};
+use fieldcal::model::fit::{FitOptions, Solver, fit_paper_turned};
 use fieldcal::model::gyro::GyroUnits;
 use fieldcal::model::gyro::{HeadingCheck, HeadingReference};
 use fieldcal::model::heading::coverage;
@@ -55,9 +55,27 @@ pub fn fit(args: FitArgs) -> Result<()> {
         min_coverage_deg: args.min_coverage,
     };
     let file = args.input.file.display().to_string();
+    // The paper's closed form and its standard errors run beside the turn
+    // gate, on the other core: the gate decides whether they are told.
+    let beside = args.effects.is_none() && args.solver == Solver::Lsq;
+    let (turn, early) = std::thread::scope(|s| {
+        let early = beside.then(|| {
+            s.spawn(|| {
+                let report = fit_paper_turned(&data.x, &data.y, &options, &mut |_| {});
+                let se = report
+                    .as_ref()
+                    .ok()
+                    .and_then(|r| closed_form_se(&data.x, &data.y, &r.theta));
+                (report, se)
+            })
+        });
+        let turn = check_turn_of(&data, args.min_coverage);
+        let early = early.map(|fit| fit.join().unwrap_or_else(|e| std::panic::resume_unwind(e)));
+        (turn, early)
+    });
     // A turn, or no calibration: the same gate for both models, naming the
     // recording's columns.
-    if let Err(err) = check_turn_of(&data, args.min_coverage) {
+    if let Err(err) = turn {
         // The hint names the recording's other numeric columns.
         // (as they are beside the gyro's own, which is no covariate).
         let every_column = || -> Result<fieldcal::sample::Dataset> {
@@ -87,10 +105,20 @@ pub fn fit(args: FitArgs) -> Result<()> {
         }
         return fit_effects(&args, &data, reference.as_ref(), effects, &file);
     }
-    let mut progress = progress_printer();
     // The gate above judged the turn: the fit does not judge it again.
-    let report = fit_paper_turned(&data.x, &data.y, &options, &mut progress);
-    finish_progress();
+    let (report, se) = match early {
+        Some(done) => done,
+        None => {
+            let mut progress = progress_printer();
+            let report = fit_paper_turned(&data.x, &data.y, &options, &mut progress);
+            finish_progress();
+            let se = report
+                .as_ref()
+                .ok()
+                .and_then(|r| closed_form_se(&data.x, &data.y, &r.theta));
+            (report, se)
+        }
+    };
     let report = report.with_context(|| format!("{file}: no calibration"))?;
 
     if let Some(output) = &args.output {
@@ -103,7 +131,6 @@ pub fn fit(args: FitArgs) -> Result<()> {
         write_output(output, data.t.as_deref(), &cx, &cy)?;
     }
 
-    let se = closed_form_se(&data.x, &data.y, &report.theta);
     let heading = match &reference {
         Some(reference) => {
             let headings: Vec<f64> = data
@@ -429,9 +456,10 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
             .collect(),
         None => points.iter().map(|&p| fit.apply(p)).collect(),
     };
+    let covered = fieldcal::model::sphere::coverage(directions.iter().copied());
     let supported: Vec<Ellipsoid3Model> = Ellipsoid3Model::ALL
         .into_iter()
-        .filter(|&m| ellipsoid::supports(m, &directions))
+        .filter(|&m| ellipsoid::supports_covered(m, &covered))
         .collect();
     let extras = extras3(effects_fit.as_ref(), &extra, &models, fitted);
 

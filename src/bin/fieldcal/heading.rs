@@ -181,10 +181,42 @@ fn axis(text: &str, flag: &str) -> Result<[f64; 3]> {
 }
 
 pub fn heading(args: HeadingArgs) -> Result<()> {
+    let only = columns_named(&args);
+    match heading_of(&args, &only) {
+        // What went wrong may be a column missing: its message names
+        // every numeric column of the recording.
+        Err(_) if only != Covariates::All => heading_of(&args, &Covariates::All),
+        done => done,
+    }
+}
+
+/// The columns of the magnetometer's recording the options name (the
+/// accelerometer's, the gyro's), read beside its axes: the others are not
+/// parsed. Every numeric column when the options cannot be read (their
+/// message comes from the reading that fails).
+fn columns_named(args: &HeadingArgs) -> Covariates {
+    let mut names = Vec::new();
+    for spec in std::iter::once(&args.accel).chain(&args.rates) {
+        let Ok((_, columns)) = split_columns(spec, "", "") else {
+            return Covariates::All;
+        };
+        names.extend(columns.map(|c| c.trim_start_matches('-').to_string()));
+    }
+    if let Some(gyro) = &args.input.gyro {
+        names.push(
+            gyro.rsplit_once(':')
+                .map_or(gyro.as_str(), |(_, c)| c)
+                .to_string(),
+        );
+    }
+    Covariates::Only(names)
+}
+
+fn heading_of(args: &HeadingArgs, covariates: &Covariates) -> Result<()> {
     let mag_file = args.input.file.clone();
     let main = mag_file.display().to_string();
     let z = args.input.z_column()?.unwrap_or_else(|| "z".to_string());
-    let data = args.input.read3(&z, &Covariates::All)?;
+    let data = args.input.read3(&z, covariates)?;
     let Some(mag_t) = data.t.clone() else {
         bail!(
             "{main}: the magnetometer's recording has no time column (t, t_s, time or time_s, or choose one with --t): the accelerometer and the gyro are joined to it by time"
@@ -209,10 +241,10 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
         calibration: args.mag_calibration.clone(),
         points: calibrated(mag_cal.as_ref(), data.points.clone()),
     };
-    let (accel_sensor, interpolation) = read_accelerometer(&args, &data, &mag_file, &mag_t)?;
+    let (accel_sensor, interpolation) = read_accelerometer(args, &data, &mag_file, &mag_t)?;
 
     // The place: the model's declination and field.
-    let model = place_model(&args)?;
+    let model = place_model(args)?;
     let declination = Declination::choose(model.as_ref(), args.declination)?;
 
     // The magnetometer's axes on the board.
@@ -230,7 +262,7 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
     let fusion = match &args.rates {
         None => None,
         Some(spec) => Some(read_fusion(
-            &args,
+            args,
             spec,
             &data,
             &mag_t,
@@ -255,7 +287,7 @@ pub fn heading(args: HeadingArgs) -> Result<()> {
     // The gyro: a column of its own, or without --gyro, the three rates
     // give the rate about the vertical.
     let reference = match (&args.input.gyro, &fusion) {
-        (Some(spec), _) => Some(gyro_reference(&args, spec, &data, &mag_t, &main)?),
+        (Some(spec), _) => Some(gyro_reference(args, spec, &data, &mag_t, &main)?),
         (None, Some(f)) => Some(
             rate_reference(&mag_t, f, args.input.gyro_units)
                 .with_context(|| format!("{main}: the gyro's rate about the vertical"))?,

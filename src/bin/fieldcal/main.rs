@@ -18,8 +18,9 @@ use std::process::ExitCode;
 use anyhow::Context as _;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
-use fieldcal::io::csv::Covariates;
+use fieldcal::io::csv::{Covariates, CsvError, RowsRead};
 use fieldcal::model::gyro::{GyroUnits, HeadingReference};
+use fieldcal::model::spike::Spike;
 use fieldcal::sample::Dataset;
 
 use fieldcal::model::fit::{DEFAULT_MIN_COVERAGE_DEG, Solver};
@@ -197,9 +198,11 @@ impl CsvInput {
     /// readings the spike gate refuses (told on stderr).
     fn read(&self, covariates: &Covariates) -> anyhow::Result<fieldcal::sample::Dataset> {
         let spec = self.spec();
-        let data = fieldcal::io::csv::read_dataset_with(&self.file, &spec, covariates)?;
-        let points = data.x.iter().zip(&data.y).map(|(&x, &y)| [x, y, f64::NAN]);
-        let rows = spike_rows(&self.file, points, [&data.x_name, &data.y_name, ""]);
+        let (data, refused) = read_gated(None, |watch| {
+            fieldcal::io::csv::read_dataset_watched(&self.file, &spec, covariates, watch)
+        });
+        let data = data?;
+        let rows = tell_spikes(&self.file, &refused, [&data.x_name, &data.y_name, ""]);
         Ok(data.without_rows(&rows))
     }
 
@@ -210,8 +213,17 @@ impl CsvInput {
         z: &str,
         covariates: &Covariates,
     ) -> anyhow::Result<fieldcal::sample::Dataset3> {
-        let data = self.read3(z, covariates)?;
-        Ok(without_spikes3(&self.file, data))
+        let spec = self.spec();
+        let (data, refused) = read_gated(Some(z), |watch| {
+            fieldcal::io::csv::read_dataset3_watched(&self.file, &spec, z, covariates, watch)
+        });
+        let data = data?;
+        let rows = tell_spikes(
+            &self.file,
+            &refused,
+            [&data.x_name, &data.y_name, &data.z_name],
+        );
+        Ok(data.without_rows(&rows))
     }
 
     /// The recording, and the gyro's heading reference when --gyro names
@@ -339,10 +351,11 @@ fn note(text: String) {
 
 /// Tells on stderr, after the command's output, which readings of `file`
 /// the spike gate left out of the analysis (the daemon's gate,
-/// [`fieldcal::model::spike`]).
-fn tell_spikes(file: &Path, refused: &[(usize, fieldcal::model::spike::Spike)], axes: [&str; 3]) {
+/// [`fieldcal::model::spike`]); their rows.
+fn tell_spikes(file: &Path, refused: &[(usize, Spike)], axes: [&str; 3]) -> Vec<usize> {
+    let rows = refused.iter().map(|(i, _)| *i).collect();
     if refused.is_empty() {
-        return;
+        return rows;
     }
     let listed: Vec<String> = refused
         .iter()
@@ -364,26 +377,43 @@ fn tell_spikes(file: &Path, refused: &[(usize, fieldcal::model::spike::Spike)], 
             String::new()
         }
     ));
+    rows
 }
 
 /// A 3-axis recording without the readings the spike gate refuses (told
 /// on stderr).
 fn without_spikes3(file: &Path, data: fieldcal::sample::Dataset3) -> fieldcal::sample::Dataset3 {
-    let points = data.points.iter().copied();
-    let rows = spike_rows(file, points, [&data.x_name, &data.y_name, &data.z_name]);
+    let refused = fieldcal::model::spike::refused_rows(data.points.iter().copied());
+    let rows = tell_spikes(file, &refused, [&data.x_name, &data.y_name, &data.z_name]);
     data.without_rows(&rows)
 }
 
-/// The rows of `file`'s `points` the spike gate refuses, told on stderr
-/// ([`tell_spikes`]).
-fn spike_rows(
-    file: &Path,
-    points: impl IntoIterator<Item = [f64; 3]>,
-    axes: [&str; 3],
-) -> Vec<usize> {
-    let refused = fieldcal::model::spike::refused_rows(points);
-    tell_spikes(file, &refused, axes);
-    refused.iter().map(|(i, _)| *i).collect()
+/// What `read` reads, and the rows the spike gate refuses, judged on the
+/// other core as they are read: the two axes, and the covariate `z` as
+/// the third when it is one (a 3-axis recording).
+fn read_gated<D>(
+    z: Option<&str>,
+    read: impl FnOnce(&mut dyn FnMut(RowsRead<'_>)) -> Result<D, CsvError>,
+) -> (Result<D, CsvError>, Vec<(usize, Spike)>) {
+    // A few blocks in flight: the reader waits rather than queue a file.
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<[f64; 3]>>(4);
+    std::thread::scope(|s| {
+        let gate = s.spawn(move || fieldcal::model::spike::refused_rows(rx.into_iter().flatten()));
+        let read = read(&mut |rows: RowsRead<'_>| {
+            let third = z.and_then(|z| rows.covariates.iter().find(|c| c.name == z));
+            let block = (rows.from..rows.x.len())
+                .map(|i| {
+                    let z = third.and_then(|c| c.values.get(i)).copied();
+                    [rows.x[i], rows.y[i], z.unwrap_or(f64::NAN)]
+                })
+                .collect();
+            // The gate ends early only by a panic, which the join raises.
+            let _ = tx.send(block);
+        });
+        drop(tx);
+        let refused = gate.join().unwrap_or_else(|e| std::panic::resume_unwind(e));
+        (read, refused)
+    })
 }
 
 #[derive(Debug, Args)]

@@ -195,6 +195,30 @@ pub fn read_dataset_with(
     spec: &ColumnSpec,
     covariates: &Covariates,
 ) -> Result<Dataset, CsvError> {
+    read_dataset_watched(path, spec, covariates, &mut |_| {})
+}
+
+/// The rows read so far, shown to a watcher a block at a time while the
+/// rest are read: the new ones are those from `from`.
+#[derive(Debug, Clone, Copy)]
+pub struct RowsRead<'a> {
+    pub from: usize,
+    pub x: &'a [f64],
+    pub y: &'a [f64],
+    pub covariates: &'a [Covariate],
+}
+
+/// Rows a watcher is shown at a time.
+const WATCHED_ROWS: usize = 1 << 13;
+
+/// [`read_dataset_with`], showing `watch` the rows as they are read (a
+/// spike gate can judge them meanwhile, on another core).
+pub fn read_dataset_watched(
+    path: &Path,
+    spec: &ColumnSpec,
+    covariates: &Covariates,
+    watch: &mut dyn FnMut(RowsRead<'_>),
+) -> Result<Dataset, CsvError> {
     let file = open_regular(path).map_err(|source| CsvError::Io {
         path: path.to_path_buf(),
         source,
@@ -206,6 +230,7 @@ pub fn read_dataset_with(
         spec,
         covariates,
         size,
+        watch,
     )
 }
 
@@ -291,7 +316,7 @@ pub fn parse_dataset<R: Read>(
     path: &Path,
     spec: &ColumnSpec,
 ) -> Result<Dataset, CsvError> {
-    parse_dataset_sized(reader, path, spec, &Covariates::All, 0)
+    parse_dataset_sized(reader, path, spec, &Covariates::All, 0, &mut |_| {})
 }
 
 /// [`parse_dataset`] keeping the `covariates` chosen; `size`: the bytes
@@ -303,6 +328,7 @@ fn parse_dataset_sized<R: Read>(
     spec: &ColumnSpec,
     wanted: &Covariates,
     size: u64,
+    watch: &mut dyn FnMut(RowsRead<'_>),
 ) -> Result<Dataset, CsvError> {
     let (mut csv, names) = open_with_header(reader, path)?;
     let err_at = |e: csv::Error| csv_error(path, e);
@@ -355,6 +381,8 @@ fn parse_dataset_sized<R: Read>(
     let mut first_row = true;
     // The columns read, in the order of the record's fields.
     let mut read: Vec<(usize, Role)> = Vec::new();
+    // Rows shown to `watch` so far.
+    let mut shown = 0;
 
     while csv.read_byte_record(&mut record).map_err(err_at)? {
         let line = record.position().map_or(0, |p| p.line());
@@ -363,28 +391,8 @@ fn parse_dataset_sized<R: Read>(
             for column in [&mut x, &mut y].into_iter().chain(t.as_mut()) {
                 column.reserve_exact(reserve);
             }
-            // A column whose first value is not a number is a text column
-            // (a label, a unit): it is not a covariate, and is skipped.
-            for (i, role) in roles.iter_mut().enumerate() {
-                if let Role::Covariate(_) = role {
-                    *role = if parse_number(&record[i]).is_ok() {
-                        covariates.push(Covariate {
-                            name: names[i].clone(),
-                            values: Vec::with_capacity(reserve),
-                        });
-                        Role::Covariate(covariates.len() - 1)
-                    } else {
-                        Role::Ignored
-                    };
-                }
-            }
+            read = first_record(&record, &mut roles, &names, &mut covariates, reserve);
             first_row = false;
-            read = roles
-                .iter()
-                .copied()
-                .enumerate()
-                .filter(|(_, role)| *role != Role::Ignored)
-                .collect();
         }
         for &(i, role) in &read {
             let value = cell(&record, i, &names, path, line)?;
@@ -400,6 +408,23 @@ fn parse_dataset_sized<R: Read>(
                 Role::Ignored => {}
             }
         }
+        if x.len() - shown == WATCHED_ROWS {
+            watch(RowsRead {
+                from: shown,
+                x: &x,
+                y: &y,
+                covariates: &covariates,
+            });
+            shown = x.len();
+        }
+    }
+    if x.len() > shown {
+        watch(RowsRead {
+            from: shown,
+            x: &x,
+            y: &y,
+            covariates: &covariates,
+        });
     }
     if first_row {
         // Nothing can be said of its columns (which are numbers) nor fitted.
@@ -425,6 +450,34 @@ fn parse_dataset_sized<R: Read>(
     })
 }
 
+/// The columns a reader parses, from the first record: a column whose
+/// first value is not a number is a text column (a label, a unit), not a
+/// covariate, and is skipped. The covariates it finds are numbered in
+/// `roles` and pushed to `covariates`, with room for `reserve` rows.
+fn first_record(
+    record: &csv::ByteRecord,
+    roles: &mut [Role],
+    names: &[String],
+    covariates: &mut Vec<Covariate>,
+    reserve: usize,
+) -> Vec<(usize, Role)> {
+    for (i, role) in roles.iter_mut().enumerate() {
+        if let Role::Covariate(_) = role {
+            *role = if parse_number(&record[i]).is_ok() {
+                covariates.push(Covariate {
+                    name: names[i].clone(),
+                    values: Vec::with_capacity(reserve),
+                });
+                Role::Covariate(covariates.len() - 1)
+            } else {
+                Role::Ignored
+            };
+        }
+    }
+    let read = roles.iter().copied().enumerate();
+    read.filter(|(_, role)| *role != Role::Ignored).collect()
+}
+
 /// Reads a 3-axis recording: `spec`'s x and y, and `z` (a numeric
 /// column, neither x, y nor time).
 pub fn read_dataset3(path: &Path, spec: &ColumnSpec, z: &str) -> Result<Dataset3, CsvError> {
@@ -437,6 +490,18 @@ pub fn read_dataset3_with(
     spec: &ColumnSpec,
     z: &str,
     covariates: &Covariates,
+) -> Result<Dataset3, CsvError> {
+    read_dataset3_watched(path, spec, z, covariates, &mut |_| {})
+}
+
+/// [`read_dataset3_with`], showing `watch` the rows as they are read (z
+/// among their covariates, under its name).
+pub fn read_dataset3_watched(
+    path: &Path,
+    spec: &ColumnSpec,
+    z: &str,
+    covariates: &Covariates,
+    watch: &mut dyn FnMut(RowsRead<'_>),
 ) -> Result<Dataset3, CsvError> {
     let file = open_regular(path).map_err(|source| CsvError::Io {
         path: path.to_path_buf(),
@@ -451,7 +516,7 @@ pub fn read_dataset3_with(
         }
     };
     let reader = io::BufReader::with_capacity(1 << 16, file);
-    match dataset3_of(reader, path, spec, z, &covariates, size) {
+    match dataset3_of(reader, path, spec, z, &covariates, size, watch) {
         // The message lists every column z could have been: read them.
         Err(CsvError::MissingColumn { .. }) if covariates != Covariates::All => {
             read_dataset3(path, spec, z)
@@ -467,7 +532,7 @@ pub fn parse_dataset3<R: Read>(
     spec: &ColumnSpec,
     z: &str,
 ) -> Result<Dataset3, CsvError> {
-    dataset3_of(reader, path, spec, z, &Covariates::All, 0)
+    dataset3_of(reader, path, spec, z, &Covariates::All, 0, &mut |_| {})
 }
 
 fn dataset3_of<R: Read>(
@@ -477,6 +542,7 @@ fn dataset3_of<R: Read>(
     z: &str,
     covariates: &Covariates,
     size: u64,
+    watch: &mut dyn FnMut(RowsRead<'_>),
 ) -> Result<Dataset3, CsvError> {
     if z == spec.x || z == spec.y || spec.t.as_deref() == Some(z) {
         let other = if z == spec.x {
@@ -492,7 +558,7 @@ fn dataset3_of<R: Read>(
             y: format!("'{}'", super::excerpt(other)),
         });
     }
-    let dataset = parse_dataset_sized(reader, path, spec, covariates, size)?;
+    let dataset = parse_dataset_sized(reader, path, spec, covariates, size, watch)?;
     let names: Vec<String> = dataset.covariates.iter().map(|c| c.name.clone()).collect();
     let time_name = dataset.t.as_ref().and(spec.t.clone());
     Dataset3::from_dataset(dataset, z).ok_or_else(|| {
