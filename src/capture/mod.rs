@@ -88,8 +88,9 @@ pub const VERSION: u32 = 1;
 /// means the file is damaged (real headers are a few hundred bytes).
 pub const MAX_HEADER_LEN: u32 = 1 << 20;
 
-/// The largest capture (or raw dump) a reader takes, in bytes: captures are
-/// read whole into memory. The Falcon-GX's line at 38 400 baud carries at
+/// The largest capture (or raw dump) a reader takes, in bytes: the
+/// whole-file reader ([`read_capture`]) holds it in memory, and the one that
+/// plays it as it reads ([`open_capture`]) refuses the same files. The Falcon-GX's line at 38 400 baud carries at
 /// most 3 840 bytes/s, so a day of it, with each record's 17 bytes of
 /// overhead, stays under 0.4 GB; 1 GiB holds well over two days of one and
 /// is still an allocation a 32-bit board can make. Anything larger is not a
