@@ -85,6 +85,7 @@ pub fn open_capture(path: &Path) -> Result<Playable, CaptureError> {
         chunks: 0,
         record: Vec::new(),
         truncated: None,
+        failed: None,
     })))
 }
 
@@ -141,6 +142,8 @@ pub struct CaptureStream {
     /// The record being read: head, data and CRC.
     record: Vec<u8>,
     truncated: Option<Truncation>,
+    /// A read that failed (not a file cut short): the reading ended there.
+    failed: Option<io::Error>,
 }
 
 impl CaptureStream {
@@ -158,18 +161,28 @@ impl CaptureStream {
         self.truncated.as_ref()
     }
 
-    /// The next intact record; `None` at the end of the file, or at a torn
-    /// or damaged record ([`CaptureStream::truncated`] says which).
+    /// A read of the file that failed, once it has (the records before it
+    /// were handed on).
+    pub fn take_error(&mut self) -> Option<io::Error> {
+        self.failed.take()
+    }
+
+    /// The next intact record; `None` at the end of the file, at a torn
+    /// or damaged record ([`CaptureStream::truncated`] says which), or at
+    /// a read that fails ([`CaptureStream::take_error`]).
     pub fn next_chunk(&mut self) -> Option<ChunkRef<'_>> {
         loop {
-            if self.truncated.is_some() || self.pos >= self.len {
+            if self.truncated.is_some() || self.failed.is_some() || self.pos >= self.len {
                 return None;
             }
             let reason = match self.read_next() {
                 Ok(Err(reason)) => reason,
-                // A read that fails, or a file cut shorter since it was
-                // opened: the tail is as good as torn.
-                Err(_) => TruncationReason::Torn,
+                // A file cut shorter since it was opened: a torn tail.
+                Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => TruncationReason::Torn,
+                Err(e) => {
+                    self.failed = Some(e);
+                    return None;
+                }
                 Ok(Ok((time_ns, stream, size))) => {
                     self.pos += size as u64;
                     // Cleared when the file was opened: only a file changed

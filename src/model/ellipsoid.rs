@@ -805,7 +805,8 @@ fn determines(model: Ellipsoid3Model, covered: &sphere::SphereCoverage) -> bool 
 /// The richest model the directions support, if any.
 pub fn best_supported(directions: &[[f64; 3]]) -> Option<Ellipsoid3Model> {
     let covered = sphere::coverage(directions.iter().copied());
-    (Ellipsoid3Model::ALL.into_iter()).find(|&m| supports_covered(m, &covered))
+    let mut models = Ellipsoid3Model::ALL.into_iter();
+    models.find(|&m| supports_covered(m, &covered))
 }
 
 fn directions_about(p: &[Vector3<f64>], e: &Ellipsoid) -> Vec<[f64; 3]> {

@@ -146,10 +146,8 @@ impl NoiseFloor {
                         let window = &mut self.second_diffs[axis];
                         let sorted = &mut self.sorted[axis];
                         let at = sorted.partition_point(|v| v.total_cmp(&d2).is_lt());
-                        let gone = match window.len() == NOISE_WINDOW {
-                            true => window.pop_front(),
-                            false => None,
-                        };
+                        let full = window.len() == NOISE_WINDOW;
+                        let gone = if full { window.pop_front() } else { None };
                         window.push_back(d2);
                         match gone
                             .and_then(|old| sorted.binary_search_by(|v| v.total_cmp(&old)).ok())
@@ -418,6 +416,10 @@ impl<T> SpikeGate<T> {
             sort6(&mut steps);
             let slope = 0.5 * (steps[2] + steps[3]);
             let [a, b, c] = [4, 5, 6].map(|j| k[j] - (j as f64 - at) * slope);
+            // (`judge` leaves out a value that is not finite.)
+            if ![a, b, c].iter().all(|v| v.is_finite()) {
+                return false;
+            }
             let reference = median3(a, b, c);
             let sigma = self.noise.sigma(axis);
             if !((value - reference).abs() <= THRESHOLD_SIGMAS * PREDICTION_MARGIN * sigma) {

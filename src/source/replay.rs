@@ -245,6 +245,13 @@ pub fn replay_playable(
         Playable::Stream(stream) => {
             let header = stream.header().clone();
             let mut summary = play_records(&header, stream.as_mut(), playback, emit);
+            if let Some(source) = stream.take_error() {
+                return Err(ReplayError::Read {
+                    name: name.to_string(),
+                    source,
+                });
+            }
+            // Known once the reading reaches it (not when stopped before).
             summary.truncated = stream.truncated().map(|t| t.to_string());
             Ok(summary)
         }

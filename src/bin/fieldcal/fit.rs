@@ -76,8 +76,8 @@ pub fn fit(args: FitArgs) -> Result<()> {
     // A turn, or no calibration: the same gate for both models, naming the
     // recording's columns.
     if let Err(err) = turn {
-        // The hint names the recording's other numeric columns.
-        // (as they are beside the gyro's own, which is no covariate).
+        // The hint names the recording's other numeric columns (all
+        // but the gyro's own, which is no covariate).
         let every_column = || -> Result<fieldcal::sample::Dataset> {
             let mut all = args.input.read(&Covariates::All)?;
             if let Some(gyro) = args.input.own_gyro_column() {
@@ -107,7 +107,11 @@ pub fn fit(args: FitArgs) -> Result<()> {
     }
     // The gate above judged the turn: the fit does not judge it again.
     let (report, se) = match early {
-        Some(done) => done,
+        Some(done) => {
+            // As after a fit that showed its progress (a terminal's line).
+            finish_progress();
+            done
+        }
         None => {
             let mut progress = progress_printer();
             let report = fit_paper_turned(&data.x, &data.y, &options, &mut progress);
@@ -419,9 +423,10 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
     refuse_2d_options(args)?;
     // The model's fit reads the axes alone; --still reads the gyro, and
     // the effects may name any column.
-    let covariates = match args.effects.is_none() && !args.still {
-        true => Covariates::Only(Vec::new()),
-        false => Covariates::All,
+    let covariates = if args.effects.is_none() && !args.still {
+        Covariates::Only(Vec::new())
+    } else {
+        Covariates::All
     };
     let data = args.input.read3_gated(z, &covariates)?;
     let file = args.input.file.display().to_string();

@@ -182,12 +182,24 @@ fn axis(text: &str, flag: &str) -> Result<[f64; 3]> {
 
 pub fn heading(args: HeadingArgs) -> Result<()> {
     let only = columns_named(&args);
-    match heading_of(&args, &only) {
+    let done = match heading_of(&args, &only) {
         // What went wrong may be a column missing: its message names
-        // every numeric column of the recording.
-        Err(_) if only != Covariates::All => heading_of(&args, &Covariates::All),
-        done => done,
+        // every numeric column of the recording. Nothing is written yet.
+        Err(_) if only != Covariates::All => heading_of(&args, &Covariates::All)?,
+        done => done?,
+    };
+    if let Some(output) = &args.output {
+        write_series(output, &done.t, &done.series)
+            .with_context(|| format!("cannot write the headings to {}", output.display()))?;
     }
+    write_stdout(done.text.as_bytes())
+}
+
+/// What `heading` writes: the series for --output, and the report.
+struct Headings {
+    t: Vec<f64>,
+    series: HeadingSeries,
+    text: String,
 }
 
 /// The columns of the magnetometer's recording the options name (the
@@ -212,7 +224,7 @@ fn columns_named(args: &HeadingArgs) -> Covariates {
     Covariates::Only(names)
 }
 
-fn heading_of(args: &HeadingArgs, covariates: &Covariates) -> Result<()> {
+fn heading_of(args: &HeadingArgs, covariates: &Covariates) -> Result<Headings> {
     let mag_file = args.input.file.clone();
     let main = mag_file.display().to_string();
     let z = args.input.z_column()?.unwrap_or_else(|| "z".to_string());
@@ -306,11 +318,6 @@ fn heading_of(args: &HeadingArgs, covariates: &Covariates) -> Result<()> {
         )?),
     };
 
-    if let Some(output) = &args.output {
-        write_series(output, &mag_t, &series)
-            .with_context(|| format!("cannot write the headings to {}", output.display()))?;
-    }
-
     let report = HeadingReport {
         mag: mag_sensor,
         accel: accel_sensor,
@@ -333,7 +340,11 @@ fn heading_of(args: &HeadingArgs, covariates: &Covariates) -> Result<()> {
     } else {
         heading_text(&report)
     };
-    write_stdout(text.as_bytes())
+    Ok(Headings {
+        t: mag_t,
+        series,
+        text,
+    })
 }
 
 /// The accelerometer: columns of the magnetometer's file, or of a second

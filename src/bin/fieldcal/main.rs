@@ -226,9 +226,6 @@ impl CsvInput {
         Ok(data.without_rows(&rows))
     }
 
-    /// The recording, and the gyro's heading reference when --gyro names
-    /// one. A gyro column of the recording itself is not a covariate: it is
-    /// taken out of the dataset's covariates.
     /// Whether `--gyro` names a column of the recording's own file (by its
     /// path or by none): that column is then the heading reference and no
     /// covariate.
@@ -250,8 +247,6 @@ impl CsvInput {
         }
     }
 
-    /// The recording with the `covariates` chosen (and the gyro column,
-    /// when it is the recording's), and the gyro's heading reference.
     /// The column `--gyro` names when it is the recording's own.
     fn own_gyro_column(&self) -> Option<&str> {
         let gyro = self.gyro.as_deref()?;
@@ -259,6 +254,10 @@ impl CsvInput {
         self.gyro_in_recording().then_some(column)
     }
 
+    /// The recording with the `covariates` chosen (and the gyro column,
+    /// when it is the recording's), and the gyro's heading reference when
+    /// --gyro names one. A gyro column of the recording itself is not a
+    /// covariate: it is taken out of the dataset's covariates.
     fn read_with_reference(
         &self,
         covariates: &Covariates,

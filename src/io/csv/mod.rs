@@ -234,18 +234,19 @@ pub fn read_dataset_watched(
     )
 }
 
-/// Most rows reserved ahead of reading (more grow as they come).
-const ROWS_RESERVED_AT_MOST: u64 = 1 << 24;
+/// Most bytes reserved ahead of reading, over every column read (more
+/// grow as rows come): a short first row cannot reserve far more than a
+/// file needs.
+const RESERVED_BYTES_AT_MOST: u64 = 1 << 28;
 
 /// The rows a file of `size` bytes holds when they are about as long as
-/// `first` (its fields and their separators), with a tenth to spare: room
-/// reserved for the columns from the start, instead of growing them
-/// through copies.
-fn rows_expected(size: u64, first: &csv::ByteRecord) -> usize {
+/// `first` (its fields and their separators), with a tenth to spare, for
+/// `columns` columns read: room reserved for them from the start, instead
+/// of growing them through copies.
+fn rows_expected(size: u64, first: &csv::ByteRecord, columns: usize) -> usize {
     let row = (first.as_slice().len() + first.len()).max(1) as u64;
-    let rows = (size / row)
-        .saturating_add(size / row / 10)
-        .min(ROWS_RESERVED_AT_MOST);
+    let most = RESERVED_BYTES_AT_MOST / (8 * columns.max(1) as u64);
+    let rows = (size / row).saturating_add(size / row / 10).min(most);
     usize::try_from(rows).unwrap_or(0)
 }
 
@@ -387,11 +388,17 @@ fn parse_dataset_sized<R: Read>(
     while csv.read_byte_record(&mut record).map_err(err_at)? {
         let line = record.position().map_or(0, |p| p.line());
         if first_row {
-            let reserve = rows_expected(size, &record);
-            for column in [&mut x, &mut y].into_iter().chain(t.as_mut()) {
-                column.reserve_exact(reserve);
+            read = first_record(&record, &mut roles, &names, &mut covariates);
+            let reserve = rows_expected(size, &record, read.len());
+            let covariates = covariates.iter_mut().map(|c| &mut c.values);
+            for column in [&mut x, &mut y]
+                .into_iter()
+                .chain(t.as_mut())
+                .chain(covariates)
+            {
+                // Room is a hint: a file whose first row misleads grows.
+                let _ = column.try_reserve_exact(reserve);
             }
-            read = first_record(&record, &mut roles, &names, &mut covariates, reserve);
             first_row = false;
         }
         for &(i, role) in &read {
@@ -453,20 +460,19 @@ fn parse_dataset_sized<R: Read>(
 /// The columns a reader parses, from the first record: a column whose
 /// first value is not a number is a text column (a label, a unit), not a
 /// covariate, and is skipped. The covariates it finds are numbered in
-/// `roles` and pushed to `covariates`, with room for `reserve` rows.
+/// `roles` and pushed to `covariates`.
 fn first_record(
     record: &csv::ByteRecord,
     roles: &mut [Role],
     names: &[String],
     covariates: &mut Vec<Covariate>,
-    reserve: usize,
 ) -> Vec<(usize, Role)> {
     for (i, role) in roles.iter_mut().enumerate() {
         if let Role::Covariate(_) = role {
             *role = if parse_number(&record[i]).is_ok() {
                 covariates.push(Covariate {
                     name: names[i].clone(),
-                    values: Vec::with_capacity(reserve),
+                    values: Vec::new(),
                 });
                 Role::Covariate(covariates.len() - 1)
             } else {
