@@ -8,7 +8,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use fieldcal::capture::{CaptureFile, parse_capture};
+use fieldcal::capture::{CaptureFile, Playable, parse_capture};
 use fieldcal::daemon::config::{Config, parse};
 use fieldcal::daemon::run::replay_through_pipeline;
 
@@ -32,11 +32,11 @@ fn long_capture() -> CaptureFile {
 
 fn replay(c: &mut Criterion) {
     let config = pipeline_config();
-    let capture = long_capture();
-    let run = || {
+    let mut capture = Playable::Whole(long_capture());
+    let mut run = || {
         replay_through_pipeline(
             &config,
-            &capture,
+            &mut capture,
             "long.fcap",
             None,
             Speed::Max,
@@ -58,7 +58,7 @@ fn replay(c: &mut Criterion) {
     group.throughput(Throughput::Elements(readings));
     group.sample_size(10);
     group.bench_function("speed max, 100k frames, JSON to a null sink", |b| {
-        b.iter(run)
+        b.iter(&mut run)
     });
     group.finish();
 }

@@ -388,71 +388,49 @@ struct Playback<'a> {
 
 /// A plain dump has no timing: frames are replayed at the nominal period.
 fn replay_raw(
-    bytes: &[u8],
+    mut bytes: &[u8],
     playback: Playback,
     emit: &mut dyn FnMut(Reading),
 ) -> Result<ReplaySummary, ReplayError> {
-    let Playback {
-        name,
-        speed,
-        stop,
-        counters,
-    } = playback;
-    let mut decoder = FalconDecoder::new();
-    let mut frames = Vec::new();
-    decoder.decode(bytes, |frame| frames.push(frame));
-    if frames.is_empty() {
-        return Err(ReplayError::NotACapture {
-            name: name.to_string(),
-            bytes: bytes.len(),
-        });
-    }
-    // The dump is decoded at once: its bytes and bad frames count from the
-    // start, its good frames as they are handed on.
-    SourceCounters::add(&counters.bytes_read, bytes.len() as u64);
-    let decoded = decoder.counters();
-    publish_counters(
-        &decoder,
-        &mut DecoderCounters {
-            frames_good: decoded.frames_good,
-            ..DecoderCounters::default()
-        },
-        counters,
-    );
-    let period = NOMINAL_PERIOD.as_secs_f64();
-    let pacer = Pacer::new(speed);
-    let mut summary = ReplaySummary {
-        falcon: decoder.counters(),
-        chunks: 1,
-        ..Default::default()
-    };
-    for (k, frame) in frames.iter().enumerate() {
-        if stop.load(Ordering::Relaxed) {
-            summary.stopped = true;
-            break;
-        }
-        // Rounded to the nanosecond, as capture times are.
-        let time = (k as f64 * period * 1e9).round() / 1e9;
-        pacer.wait_for(time, stop);
-        summary.readings += 1;
-        summary.span_s = time;
-        SourceCounters::add(&counters.frames_good, 1);
-        emit(frame.to_reading(time));
-    }
-    if decoder.pending() > 0 {
-        summary.truncated = Some(format!(
-            "{name}: the last {} bytes are an incomplete frame",
-            decoder.pending()
-        ));
-    }
-    Ok(summary)
+    replay_raw_dump(&mut bytes, playback, emit)
 }
 
-/// [`replay_raw`] of a dump read in blocks, twice: once to count what it
-/// holds (its bytes and bad frames count from the start, as when it is
-/// decoded at once), once to hand its frames on.
+/// A plain dump's bytes, handed on in blocks as often as they are asked
+/// for: a file ([`RawDump`]) or bytes in memory (one block).
+trait DumpBlocks {
+    /// Its length in bytes.
+    fn len(&self) -> u64;
+    /// Hands its bytes to `each` in order, from the start, until `each`
+    /// returns false.
+    fn blocks(&mut self, each: &mut dyn FnMut(&[u8]) -> bool) -> std::io::Result<()>;
+}
+
+impl DumpBlocks for RawDump {
+    fn len(&self) -> u64 {
+        RawDump::len(self)
+    }
+
+    fn blocks(&mut self, each: &mut dyn FnMut(&[u8]) -> bool) -> std::io::Result<()> {
+        RawDump::blocks(self, each)
+    }
+}
+
+impl DumpBlocks for &[u8] {
+    fn len(&self) -> u64 {
+        <[u8]>::len(self) as u64
+    }
+
+    fn blocks(&mut self, each: &mut dyn FnMut(&[u8]) -> bool) -> std::io::Result<()> {
+        each(self);
+        Ok(())
+    }
+}
+
+/// Replays a plain dump at the nominal period. It is read twice: once to
+/// count what it holds (its bytes and bad frames count from the start, as
+/// when it is decoded at once), once to hand its frames on.
 fn replay_raw_dump(
-    dump: &mut RawDump,
+    dump: &mut dyn DumpBlocks,
     playback: Playback,
     emit: &mut dyn FnMut(Reading),
 ) -> Result<ReplaySummary, ReplayError> {

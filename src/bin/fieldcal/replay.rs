@@ -120,7 +120,7 @@ fn replay_with_config(args: &ReplayArgs, config: &Config, name: &str) -> Result<
             return Err(DaemonError::NotCsv(source.name.clone()).into());
         }
         let mut file = open_capture(&args.file)?;
-        fieldcal::daemon::run::replay_playable_through_pipeline(
+        fieldcal::daemon::run::replay_through_pipeline(
             config,
             &mut file,
             name,

@@ -38,10 +38,7 @@ mod sources;
 pub(crate) use sensors::Sensors;
 pub(crate) use sources::{SourceTask, Start, Started, cannot_start};
 
-pub use pipeline::{
-    MAX_STATUS_CATCH_UP, replay_csv_through_pipeline, replay_playable_through_pipeline,
-    replay_through_pipeline,
-};
+pub use pipeline::{MAX_STATUS_CATCH_UP, replay_csv_through_pipeline, replay_through_pipeline};
 
 use outputs::{Outputs, subscriber_policy};
 use serve::Daemon;

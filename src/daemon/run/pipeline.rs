@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::DaemonError;
 use super::sensors::Sensors;
-use crate::capture::{CaptureFile, Playable};
+use crate::capture::Playable;
 use crate::daemon::config::{Config, SourceKind};
 use crate::daemon::messages::SourceStatus;
 use crate::daemon::publish::Lane;
@@ -16,7 +16,7 @@ use crate::daemon::sensor::Emitter;
 use crate::daemon::source_kinds::Csv;
 use crate::sample::Reading;
 use crate::source::csv::{CsvPlayback, check_csv, play_csv};
-use crate::source::replay::{ReplayError, ReplaySummary, Speed, replay_counted, replay_playable};
+use crate::source::replay::{ReplayError, ReplaySummary, Speed, replay_playable};
 use crate::source::{SourceCounters, SourceEvent};
 
 /// STATUS lines due at once after a gap in a recording, at most: a longer
@@ -143,24 +143,10 @@ impl Pipeline {
 /// published to `out`, losslessly. STATUS lines come every
 /// `status_interval_s` of capture time, so the output is the same on every
 /// run; their counters are the replay's, as a live source keeps them. No
-/// state is read or written.
+/// state is read or written. A capture opened to be read as it plays
+/// ([`crate::capture::open_capture`]) keeps memory from growing with its
+/// length; one read whole plays as [`Playable::Whole`].
 pub fn replay_through_pipeline(
-    config: &Config,
-    capture: &CaptureFile,
-    name: &str,
-    source: Option<&str>,
-    speed: Speed,
-    out: &mut dyn Write,
-) -> Result<ReplaySummary, DaemonError> {
-    let play: Play =
-        &mut |stop, counters, emit| replay_counted(capture, name, speed, stop, counters, emit);
-    through_pipeline(config, source, speed, out, play)
-}
-
-/// [`replay_through_pipeline`] of a capture read as it plays
-/// ([`crate::capture::open_capture`]): memory does not grow with its
-/// length.
-pub fn replay_playable_through_pipeline(
     config: &Config,
     capture: &mut Playable,
     name: &str,
