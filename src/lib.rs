@@ -31,6 +31,7 @@ pub mod io;
 pub mod mock;
 pub mod model;
 pub mod numfmt;
+pub mod parallel;
 pub mod protocol;
 pub mod record;
 pub mod report;

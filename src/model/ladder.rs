@@ -98,11 +98,11 @@ pub(crate) use ladder_types;
 
 /// One geometry of the diagnosis: its fit, its residual, its steps and
 /// candidates, and which effects it can offer a model.
-pub(crate) trait Geometry {
-    type Fit: LadderFit;
-    type Residuals: ResidualStats + Clone;
-    type Step: Clone;
-    type Candidate: Ranked;
+pub(crate) trait Geometry: Sync {
+    type Fit: LadderFit + Sync;
+    type Residuals: ResidualStats + Clone + Sync;
+    type Step: Clone + Sync;
+    type Candidate: Ranked + Send;
     type Error;
 
     /// Fits the model of `effects` to the recording.
@@ -479,20 +479,25 @@ pub(crate) fn rank<G: Geometry>(
     let (current, now) = current;
     let base_bic = g.bic(current);
     let (offered, mut refused) = g.offered(model, current);
-    let mut candidates: Vec<G::Candidate> = Vec::new();
-    for effect in offered {
-        let fit = match g.fit(&with_effect(model, &effect)) {
+    // What became of one offered effect.
+    enum Tried<C> {
+        Fitted(C),
+        Refused(Option<NotDetermined>),
+        NotFinite,
+    }
+    // The candidates are fitted on every core, one fit per core alive at
+    // once; each is judged where it was fitted, so only its judgement is
+    // kept.
+    let tried = crate::parallel::map_in_order(&offered, |effect| {
+        let fit = match g.fit(&with_effect(model, effect)) {
             Ok(fit) if fit.rms().is_finite() && fit.rss().is_finite() => fit,
-            Ok(_) => continue,
-            Err(err) => {
-                refused.extend(g.no_fit(effect, err));
-                continue;
-            }
+            Ok(_) => return Tried::NotFinite,
+            Err(err) => return Tried::Refused(g.no_fit(effect.clone(), err)),
         };
         let delta_bic = g.bic(&fit) - base_bic;
         let params = own_params(&fit, current);
-        candidates.push(g.candidate(Offer {
-            effect,
+        Tried::Fitted(g.candidate(Offer {
+            effect: effect.clone(),
             fit: &fit,
             current,
             res,
@@ -500,7 +505,15 @@ pub(crate) fn rank<G: Geometry>(
             now,
             params,
             delta_bic,
-        }));
+        }))
+    });
+    let mut candidates: Vec<G::Candidate> = Vec::new();
+    for tried in tried {
+        match tried {
+            Tried::Fitted(candidate) => candidates.push(candidate),
+            Tried::Refused(note) => refused.extend(note),
+            Tried::NotFinite => {}
+        }
     }
     candidates.sort_by(|a, b| {
         b.supported()

@@ -6,7 +6,7 @@
 //! These are what [`super::diagnose`] reads to say which effect the data
 //! supports and why, in words a person understands.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use serde::Serialize;
 
 use super::nonlinear::ModelFit;
@@ -256,27 +256,40 @@ fn used_in_time_order(data: &Dataset, fit: &ModelFit) -> Vec<usize> {
     used
 }
 
-/// Median of the values (0 for none). Sorts a copy.
+/// Median of the values (0 for none), of a copy ([`median_mut`]).
 pub fn median(values: &[f64]) -> f64 {
+    median_mut(&mut values.to_vec())
+}
+
+/// The median of `values` (reordered), in linear time: the same value a
+/// sort would give (the middle one, or the mean of the two middle ones).
+pub(crate) fn median_mut(values: &mut [f64]) -> f64 {
     if values.is_empty() {
         return 0.0;
     }
-    let mut v = values.to_vec();
-    v.sort_by(f64::total_cmp);
-    let m = v.len() / 2;
-    if v.len() % 2 == 1 {
-        v[m]
-    } else {
-        0.5 * (v[m - 1] + v[m])
+    let n = values.len();
+    let (lower, &mut upper, _) = values.select_nth_unstable_by(n / 2, f64::total_cmp);
+    if n % 2 == 1 {
+        return upper;
     }
+    // The largest of the lower half is the sorted values' [n/2 - 1].
+    let below = lower
+        .iter()
+        .copied()
+        .max_by(f64::total_cmp)
+        .unwrap_or(upper);
+    0.5 * (below + upper)
 }
 
 /// 1.4826 · median absolute deviation: the SD for Gaussian data, barely
 /// moved by a few spikes.
 pub fn robust_sd(values: &[f64]) -> f64 {
-    let m = median(values);
-    let dev: Vec<f64> = values.iter().map(|v| (v - m).abs()).collect();
-    MAD_TO_SD * median(&dev)
+    let mut work = values.to_vec();
+    let m = median_mut(&mut work);
+    for (w, v) in work.iter_mut().zip(values) {
+        *w = (v - m).abs();
+    }
+    MAD_TO_SD * median_mut(&mut work)
 }
 
 /// Each group of headings needs this many samples for its own scale.
@@ -369,15 +382,69 @@ fn standardized(e: &[f64], theta: &[f64]) -> Vec<f64> {
     }
 }
 
+/// Columns of the harmonic fit: 1, then cos kθ and sin kθ for each order.
+const HARMONIC_COLUMNS: usize = 1 + 2 * MAX_HARMONIC as usize;
+
+/// The normal equations are solved directly when their matrix's smallest
+/// eigenvalue is at least this fraction of its largest: a condition of the
+/// design under 10⁵, so squaring it loses at most 10⁻⁶ of a result that
+/// matters to three figures. Below it (a turn that covers only a few
+/// headings) the design is solved by its SVD, as accurately as it allows.
+const NORMAL_EQUATIONS_MIN_RCOND: f64 = 1e-10;
+
 /// Least squares of e on `[1, cos kθ, sin kθ]`, k = 1..=4, jointly (the
-/// columns are not orthogonal on an uneven turn).
+/// columns are not orthogonal on an uneven turn). One pass forms the 9 × 9
+/// normal equations, with cos kθ and sin kθ from cos θ and sin θ by the
+/// angle-addition formulas; no design matrix is kept, so memory does not
+/// grow with the samples.
 pub fn harmonics(e: &[f64], theta: &[f64]) -> Vec<Harmonic> {
     let n = e.len().min(theta.len());
-    let columns = 1 + 2 * MAX_HARMONIC as usize;
-    if n <= columns {
+    if n <= HARMONIC_COLUMNS {
         return Vec::new();
     }
-    let design = DMatrix::from_fn(n, columns, |i, j| {
+    let mut ata = SMatrix::<f64, HARMONIC_COLUMNS, HARMONIC_COLUMNS>::zeros();
+    let mut atb = SVector::<f64, HARMONIC_COLUMNS>::zeros();
+    for (&t, &value) in theta[..n].iter().zip(&e[..n]) {
+        let row = harmonic_row(t);
+        for j in 0..HARMONIC_COLUMNS {
+            atb[j] += row[j] * value;
+            for k in j..HARMONIC_COLUMNS {
+                ata[(j, k)] += row[j] * row[k];
+            }
+        }
+    }
+    ata.fill_lower_triangle_with_upper_triangle();
+    let eigen = ata.symmetric_eigenvalues();
+    let (low, high) = (eigen.min(), eigen.max());
+    let coef = if high > 0.0 && low >= NORMAL_EQUATIONS_MIN_RCOND * high {
+        match ata.cholesky() {
+            Some(c) => c.solve(&atb),
+            None => return harmonics_by_svd(&e[..n], &theta[..n]),
+        }
+    } else {
+        return harmonics_by_svd(&e[..n], &theta[..n]);
+    };
+    amplitudes(coef.as_slice())
+}
+
+/// One row of the harmonic design at heading `t`.
+fn harmonic_row(t: f64) -> [f64; HARMONIC_COLUMNS] {
+    let mut row = [0.0; HARMONIC_COLUMNS];
+    row[0] = 1.0;
+    let (s1, c1) = t.sin_cos();
+    let (mut c, mut s) = (c1, s1);
+    for k in 0..MAX_HARMONIC as usize {
+        row[2 * k + 1] = c;
+        row[2 * k + 2] = s;
+        (c, s) = (c * c1 - s * s1, s * c1 + c * s1);
+    }
+    row
+}
+
+/// [`harmonics`] by the SVD of the whole design, for a turn whose columns
+/// are too close to dependent for the normal equations.
+fn harmonics_by_svd(e: &[f64], theta: &[f64]) -> Vec<Harmonic> {
+    let design = DMatrix::from_fn(e.len(), HARMONIC_COLUMNS, |i, j| {
         if j == 0 {
             return 1.0;
         }
@@ -388,7 +455,7 @@ pub fn harmonics(e: &[f64], theta: &[f64]) -> Vec<Harmonic> {
             (k * theta[i]).sin()
         }
     });
-    let target = DVector::from_column_slice(&e[..n]);
+    let target = DVector::from_column_slice(e);
     // Bounded iterations: an SVD that cannot converge must not hang the tool.
     let Some(svd) = design.try_svd(true, true, f64::EPSILON, 1000) else {
         return Vec::new();
@@ -396,6 +463,12 @@ pub fn harmonics(e: &[f64], theta: &[f64]) -> Vec<Harmonic> {
     let Ok(coef) = svd.solve(&target, 1e-12) else {
         return Vec::new();
     };
+    amplitudes(coef.as_slice())
+}
+
+/// Each order's amplitude and phase from the coefficients of
+/// `[1, cos kθ, sin kθ]`.
+fn amplitudes(coef: &[f64]) -> Vec<Harmonic> {
     (1..=MAX_HARMONIC)
         .map(|k| {
             let a = coef[2 * k as usize - 1];
@@ -606,6 +679,67 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let normal = Normal::new(0.0, sd).unwrap();
         (0..n).map(|_| normal.sample(&mut rng)).collect()
+    }
+
+    /// Headings of an uneven turn over `span` radians, and a residual of
+    /// harmonics and noise on them.
+    fn uneven_turn(seed: u64, n: usize, span: f64) -> (Vec<f64>, Vec<f64>) {
+        use rand::RngExt;
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let noise = gaussian(n, 1e-3, seed + 100);
+        let amp: Vec<f64> = (0..8).map(|_| rng.random_range(-0.02..0.02)).collect();
+        let start: f64 = rng.random_range(-3.0..3.0);
+        let theta: Vec<f64> = (0..n)
+            .map(|i| {
+                let u = i as f64 / n as f64;
+                // Slower at some headings than others.
+                start + span * (u + 0.1 * (u * 7.0).sin() / 7.0)
+            })
+            .collect();
+        let e = theta
+            .iter()
+            .zip(&noise)
+            .map(|(t, w)| {
+                (1..=4)
+                    .map(|k| {
+                        let kt = k as f64 * t;
+                        amp[2 * k - 2] * kt.cos() + amp[2 * k - 1] * kt.sin()
+                    })
+                    .sum::<f64>()
+                    + w
+            })
+            .collect();
+        (theta, e)
+    }
+
+    #[test]
+    fn harmonics_by_normal_equations_match_the_svd_of_the_design() {
+        for seed in 0..20 {
+            let span = [std::f64::consts::TAU, 5.5, 4.0][seed as usize % 3];
+            let (theta, e) = uneven_turn(seed, 3000 + 500 * seed as usize, span);
+            let fast = harmonics(&e, &theta);
+            let svd = harmonics_by_svd(&e, &theta);
+            assert_eq!(fast.len(), 4);
+            for (f, s) in fast.iter().zip(&svd) {
+                assert!(
+                    (f.amplitude - s.amplitude).abs() < 1e-12,
+                    "seed {seed}: {fast:?} against {svd:?}"
+                );
+                if s.amplitude > 1e-4 {
+                    assert!((f.phase_deg - s.phase_deg).abs() < 1e-7, "seed {seed}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_turn_over_few_headings_is_solved_by_the_svd() {
+        // 20° of heading: cos kθ and sin kθ are nearly dependent, and the
+        // normal equations would square their condition.
+        for seed in 0..5 {
+            let (theta, e) = uneven_turn(seed, 2000, 20f64.to_radians());
+            assert_eq!(harmonics(&e, &theta), harmonics_by_svd(&e, &theta));
+        }
     }
 
     #[test]

@@ -24,6 +24,7 @@ use serde::Serialize;
 use super::FitError;
 use super::heading::{Coverage, circle_centre, coverage};
 use super::paper::closed_form;
+use super::residuals::median_mut as median;
 use crate::sample::Dataset;
 
 /// Fewest samples from which the gates can tell a turn. A coverage of 300°
@@ -356,26 +357,6 @@ fn mad_sd(values: &mut [f64]) -> f64 {
         *v = (*v - m).abs();
     }
     MAD_TO_SD * median(values)
-}
-
-/// The median of `values` (reordered), in linear time: the same value a
-/// sort would give (the middle one, or the mean of the two middle ones).
-fn median(values: &mut [f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    let n = values.len();
-    let (lower, &mut upper, _) = values.select_nth_unstable_by(n / 2, f64::total_cmp);
-    if n % 2 == 1 {
-        return upper;
-    }
-    // The largest of the lower half is the sorted values' [n/2 - 1].
-    let below = lower
-        .iter()
-        .copied()
-        .max_by(f64::total_cmp)
-        .unwrap_or(upper);
-    0.5 * (below + upper)
 }
 
 /// Samples of each axis whose quantum is looked at before the whole axis's.

@@ -550,30 +550,29 @@ fn still_selection(
 /// itself for its own model when `fit_is_base`: no extra effects), or why
 /// it was refused.
 fn model_table(points: &[[f64; 3]], fit: &Ellipsoid3Fit, fit_is_base: bool) -> Vec<ModelRms> {
-    Ellipsoid3Model::ALL
-        .into_iter()
-        .map(|m| {
-            let result = if m == fit.model && fit_is_base {
-                Ok(fit.clone())
-            } else {
-                ellipsoid::fit(points, m)
-            };
-            match result {
-                Ok(f) => ModelRms {
-                    model: m.name(),
-                    rms: Some(f.rms),
-                    r: Some(f.r),
-                    refused: None,
-                },
-                Err(e) => ModelRms {
-                    model: m.name(),
-                    rms: None,
-                    r: None,
-                    refused: Some(e.to_string()),
-                },
-            }
-        })
-        .collect()
+    // The three fits are independent: on every core at once, each kept
+    // only as its row.
+    fieldcal::parallel::map_in_order(&Ellipsoid3Model::ALL, |&m| {
+        let result = if m == fit.model && fit_is_base {
+            Ok(fit.clone())
+        } else {
+            ellipsoid::fit(points, m)
+        };
+        match result {
+            Ok(f) => ModelRms {
+                model: m.name(),
+                rms: Some(f.rms),
+                r: Some(f.r),
+                refused: None,
+            },
+            Err(e) => ModelRms {
+                model: m.name(),
+                rms: None,
+                r: None,
+                refused: Some(e.to_string()),
+            },
+        }
+    })
 }
 
 /// What a fit with extra effects adds to the report: the extras' own
