@@ -73,6 +73,8 @@ fn largest_gap_by_sorting(deg: &mut [f64]) -> (f64, f64) {
 
 /// Fewest headings for which the buckets are worth their set-up.
 const BUCKETS_FROM: usize = 64;
+/// Buckets filled at a time: 32 KiB of them, which stay in the cache.
+const BUCKET_BLOCK: usize = 2048;
 
 /// [`largest_gap_by_sorting`] in linear time, the same result to the bit:
 /// the headings go into as many buckets as there are headings, by a
@@ -93,31 +95,55 @@ fn largest_gap_by_buckets(deg: &[f64]) -> Option<(f64, f64)> {
     if !(per_degree.is_finite() && per_degree > 0.0) {
         return None;
     }
-    // Smallest and largest heading of each bucket (NaN: empty).
-    let mut bucket = vec![[f64::NAN; 2]; n];
+    let fine = |h: f64| (((h - lo) * per_degree) as usize).min(n - 1);
+    // The buckets are filled a block of them at a time, so that a block's
+    // buckets stay in the cache: the headings are first put in the order
+    // of their blocks (a counting sort), then each block's go into its
+    // buckets. A bucket's smallest and largest do not depend on the order
+    // its headings come in, so this is the one-pass result to the bit.
+    let blocks = n.div_ceil(BUCKET_BLOCK);
+    let mut start = vec![0usize; blocks + 1];
     for &h in deg {
-        let i = (((h - lo) * per_degree) as usize).min(n - 1);
-        let b = &mut bucket[i];
-        if b[0].is_nan() {
-            *b = [h, h];
-        } else if h.total_cmp(&b[0]).is_lt() {
-            b[0] = h;
-        } else if h.total_cmp(&b[1]).is_gt() {
-            b[1] = h;
-        }
+        start[fine(h) / BUCKET_BLOCK + 1] += 1;
+    }
+    for k in 1..=blocks {
+        start[k] += start[k - 1];
+    }
+    let mut next = start.clone();
+    let mut by_block = vec![0.0; n];
+    for &h in deg {
+        let k = fine(h) / BUCKET_BLOCK;
+        by_block[next[k]] = h;
+        next[k] += 1;
     }
     let mut largest = (lo + 360.0 - hi, hi);
     let mut widest_bucket = 0.0f64;
     let mut previous_top: Option<f64> = None;
-    for b in bucket.iter().filter(|b| !b[0].is_nan()) {
-        if let Some(top) = previous_top {
-            let gap = b[0] - top;
-            if gap > largest.0 {
-                largest = (gap, top);
+    // Smallest and largest heading of each bucket of a block (NaN: empty).
+    let mut bucket = [[f64::NAN; 2]; BUCKET_BLOCK];
+    for k in 0..blocks {
+        bucket.fill([f64::NAN; 2]);
+        let first = k * BUCKET_BLOCK;
+        for &h in &by_block[start[k]..start[k + 1]] {
+            let b = &mut bucket[fine(h) - first];
+            if b[0].is_nan() {
+                *b = [h, h];
+            } else if h.total_cmp(&b[0]).is_lt() {
+                b[0] = h;
+            } else if h.total_cmp(&b[1]).is_gt() {
+                b[1] = h;
             }
         }
-        widest_bucket = widest_bucket.max(b[1] - b[0]);
-        previous_top = Some(b[1]);
+        for b in bucket.iter().filter(|b| !b[0].is_nan()) {
+            if let Some(top) = previous_top {
+                let gap = b[0] - top;
+                if gap > largest.0 {
+                    largest = (gap, top);
+                }
+            }
+            widest_bucket = widest_bucket.max(b[1] - b[0]);
+            previous_top = Some(b[1]);
+        }
     }
     (widest_bucket < largest.0).then_some(largest)
 }
@@ -188,9 +214,10 @@ mod tests {
     /// Headings in [0, 360]: spread, bunched on a few values (repeats, a
     /// quantised sensor), or both.
     fn headings() -> impl Strategy<Value = Vec<f64>> {
-        let spread = proptest::collection::vec(0.0f64..360.0, 1..600);
+        // Up to three blocks of buckets ([`BUCKET_BLOCK`]).
+        let spread = proptest::collection::vec(0.0f64..360.0, 1..3000);
         let bunched =
-            proptest::collection::vec((0u32..40).prop_map(|k| f64::from(k) * 9.0), 1..600);
+            proptest::collection::vec((0u32..40).prop_map(|k| f64::from(k) * 9.0), 1..3000);
         let mixed = (spread.clone(), bunched.clone()).prop_map(|(mut a, b)| {
             a.extend(b);
             a

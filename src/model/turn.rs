@@ -251,34 +251,37 @@ impl Ring {
     /// `mean`; distances in calibrated units when the paper's fit exists.
     fn about_centre(u: &[f64], v: &[f64], mean: (f64, f64)) -> Ring {
         let n = u.len();
-        // Calibrated (sx, sy) and raw (dx, dy) offsets from the centre.
-        let mut cal: Vec<(f64, f64)> = Vec::with_capacity(n);
-        let mut raw: Vec<(f64, f64)> = Vec::with_capacity(n);
         let paper = closed_form(u, v)
             .and_then(|t| t.to_calibration())
             .ok()
             .filter(|c| [c.a, c.b, c.d, c.r].iter().all(|p| p.is_finite()) && c.a > 0.0);
-        let (centre, from) = if let Some(c) = paper {
-            for (&x, &y) in u.iter().zip(v) {
-                let (sx, sy) = c.apply(x, y);
-                cal.push((sx, sy));
-                raw.push((sx / c.a, sy));
-            }
-            ((-c.b / c.a, -c.d), CentreFrom::Paper)
+        // A reading's calibrated offset (sx, sy) from the centre, and its
+        // raw one (dx, dy); worked out where they are used rather than kept.
+        let (centre, from, gain) = if let Some(c) = paper {
+            ((-c.b / c.a, -c.d), CentreFrom::Paper, Some(c))
         } else {
             let (centre, from) = match circle_centre(u, v) {
                 Ok(c) if c.0.is_finite() && c.1.is_finite() => (c, CentreFrom::Circle),
                 _ => (mean, CentreFrom::Mean),
             };
-            for (&x, &y) in u.iter().zip(v) {
-                let d = (x - centre.0, y - centre.1);
-                cal.push(d);
-                raw.push(d);
-            }
-            (centre, from)
+            (centre, from, None)
         };
-        let rho: Vec<f64> = cal.iter().map(|(a, b)| a.hypot(*b)).collect();
-        let rho_raw: Vec<f64> = raw.iter().map(|(a, b)| a.hypot(*b)).collect();
+        let calibrated = |x: f64, y: f64| match &gain {
+            Some(c) => c.apply(x, y),
+            None => (x - centre.0, y - centre.1),
+        };
+        let (rho, rho_raw): (Vec<f64>, Vec<f64>) = u
+            .iter()
+            .zip(v)
+            .map(|(&x, &y)| {
+                let (sx, sy) = calibrated(x, y);
+                let raw = match &gain {
+                    Some(c) => (sx / c.a, sy),
+                    None => (sx, sy),
+                };
+                (sx.hypot(sy), raw.0.hypot(raw.1))
+            })
+            .unzip();
         let median_rho = median(&mut rho.clone());
         let raw_radius = median(&mut rho_raw.clone());
 
@@ -311,11 +314,15 @@ impl Ring {
             1.0
         };
         let band = (RING_BAND[0] * median_rho, RING_BAND[1] * median_rho);
-        let in_band: Vec<f64> = cal
+        let in_band: Vec<f64> = u
             .iter()
+            .zip(v)
             .zip(&rho)
             .filter(|(_, r)| (band.0..=band.1).contains(*r) && **r > 0.0)
-            .map(|((a, b), _)| b.atan2(*a))
+            .map(|((&x, &y), _)| {
+                let (a, b) = calibrated(x, y);
+                b.atan2(a)
+            })
             .collect();
         Ring {
             centre,
