@@ -5,6 +5,7 @@
 //! function of the recording, so they can run at once and still give the
 //! very same results in the very same order.
 
+use std::sync::OnceLock;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// `work` applied to each of `items`, the results in the order of `items`.
@@ -19,9 +20,7 @@ where
     R: Send,
     F: Fn(&T) -> R + Sync,
 {
-    let threads = std::thread::available_parallelism()
-        .map_or(1, |n| n.get())
-        .min(items.len());
+    let threads = cores().min(items.len());
     if threads <= 1 {
         return items.iter().map(&work).collect();
     }
@@ -55,11 +54,20 @@ where
             }
         }
     });
+    // Every item was taken by a thread that was joined, so every result
+    // is there; were one missing, it is worked out here rather than lost.
     results
         .into_iter()
         .zip(items)
         .map(|(result, item)| result.unwrap_or_else(|| work(item)))
         .collect()
+}
+
+/// The cores this process may use, asked once (the answer reads the
+/// cgroup's files).
+fn cores() -> usize {
+    static CORES: OnceLock<usize> = OnceLock::new();
+    *CORES.get_or_init(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
 }
 
 #[cfg(test)]

@@ -6,7 +6,9 @@
 //! These are what [`super::diagnose`] reads to say which effect the data
 //! supports and why, in words a person understands.
 
-use nalgebra::{DMatrix, DVector, SMatrix, SVector};
+use nalgebra::{DMatrix, DVector, SMatrix, SVector, SymmetricEigen};
+
+use super::heading::SVD_MAX_ITERATIONS;
 use serde::Serialize;
 
 use super::nonlinear::ModelFit;
@@ -256,7 +258,7 @@ fn used_in_time_order(data: &Dataset, fit: &ModelFit) -> Vec<usize> {
     used
 }
 
-/// Median of the values (0 for none), of a copy ([`median_mut`]).
+/// Median of the values (0 for none), selected in a copy.
 pub fn median(values: &[f64]) -> f64 {
     median_mut(&mut values.to_vec())
 }
@@ -284,12 +286,20 @@ pub(crate) fn median_mut(values: &mut [f64]) -> f64 {
 /// 1.4826 · median absolute deviation: the SD for Gaussian data, barely
 /// moved by a few spikes.
 pub fn robust_sd(values: &[f64]) -> f64 {
-    let mut work = values.to_vec();
-    let m = median_mut(&mut work);
-    for (w, v) in work.iter_mut().zip(values) {
-        *w = (v - m).abs();
+    MAD_TO_SD * mad(&mut values.to_vec())
+}
+
+/// The median absolute deviation from the median of `values` (0 for
+/// none), in place: they are left as the deviations, reordered.
+pub(crate) fn mad(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
     }
-    MAD_TO_SD * median_mut(&mut work)
+    let m = median_mut(values);
+    for v in values.iter_mut() {
+        *v = (*v - m).abs();
+    }
+    median_mut(values)
 }
 
 /// Each group of headings needs this many samples for its own scale.
@@ -414,17 +424,17 @@ pub fn harmonics(e: &[f64], theta: &[f64]) -> Vec<Harmonic> {
         }
     }
     ata.fill_lower_triangle_with_upper_triangle();
-    let eigen = ata.symmetric_eigenvalues();
-    let (low, high) = (eigen.min(), eigen.max());
-    let coef = if high > 0.0 && low >= NORMAL_EQUATIONS_MIN_RCOND * high {
-        match ata.cholesky() {
-            Some(c) => c.solve(&atb),
-            None => return harmonics_by_svd(&e[..n], &theta[..n]),
-        }
-    } else {
-        return harmonics_by_svd(&e[..n], &theta[..n]);
-    };
-    amplitudes(coef.as_slice())
+    // Bounded iterations, as the SVD's: a solve that cannot converge must
+    // not hang the tool; a value that is not finite goes to the SVD.
+    let conditioned = ata.iter().all(|v| v.is_finite())
+        && SymmetricEigen::try_new(ata, f64::EPSILON, SVD_MAX_ITERATIONS).is_some_and(|eigen| {
+            let (low, high) = (eigen.eigenvalues.min(), eigen.eigenvalues.max());
+            high > 0.0 && low >= NORMAL_EQUATIONS_MIN_RCOND * high
+        });
+    match ata.cholesky().filter(|_| conditioned) {
+        Some(c) => amplitudes(c.solve(&atb).as_slice()),
+        None => harmonics_by_svd(&e[..n], &theta[..n]),
+    }
 }
 
 /// One row of the harmonic design at heading `t`.
@@ -457,7 +467,7 @@ fn harmonics_by_svd(e: &[f64], theta: &[f64]) -> Vec<Harmonic> {
     });
     let target = DVector::from_column_slice(e);
     // Bounded iterations: an SVD that cannot converge must not hang the tool.
-    let Some(svd) = design.try_svd(true, true, f64::EPSILON, 1000) else {
+    let Some(svd) = design.try_svd(true, true, f64::EPSILON, SVD_MAX_ITERATIONS) else {
         return Vec::new();
     };
     let Ok(coef) = svd.solve(&target, 1e-12) else {

@@ -24,7 +24,7 @@ use serde::Serialize;
 use super::FitError;
 use super::heading::{Coverage, circle_centre, coverage};
 use super::paper::closed_form;
-use super::residuals::median_mut as median;
+use super::residuals::{mad, median_mut as median};
 use crate::sample::Dataset;
 
 /// Fewest samples from which the gates can tell a turn. A coverage of 300°
@@ -255,9 +255,7 @@ impl Ring {
             .and_then(|t| t.to_calibration())
             .ok()
             .filter(|c| [c.a, c.b, c.d, c.r].iter().all(|p| p.is_finite()) && c.a > 0.0);
-        // A reading's calibrated offset (sx, sy) from the centre, and its
-        // raw one (dx, dy); worked out where they are used rather than kept.
-        let (centre, from, gain) = if let Some(c) = paper {
+        let (centre, from, paper_cal) = if let Some(c) = paper {
             ((-c.b / c.a, -c.d), CentreFrom::Paper, Some(c))
         } else {
             let (centre, from) = match circle_centre(u, v) {
@@ -266,7 +264,9 @@ impl Ring {
             };
             (centre, from, None)
         };
-        let calibrated = |x: f64, y: f64| match &gain {
+        // A reading's calibrated offset (sx, sy) from the centre, and its
+        // raw one; worked out where they are used rather than kept.
+        let calibrated = |x: f64, y: f64| match &paper_cal {
             Some(c) => c.apply(x, y),
             None => (x - centre.0, y - centre.1),
         };
@@ -275,7 +275,7 @@ impl Ring {
             .zip(v)
             .map(|(&x, &y)| {
                 let (sx, sy) = calibrated(x, y);
-                let raw = match &gain {
+                let raw = match &paper_cal {
                     Some(c) => (sx / c.a, sy),
                     None => (sx, sy),
                 };
@@ -356,14 +356,7 @@ fn second_difference_sd(values: &[f64]) -> f64 {
 
 /// 1.4826 · median absolute deviation from the median.
 fn mad_sd(values: &mut [f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    let m = median(values);
-    for v in values.iter_mut() {
-        *v = (*v - m).abs();
-    }
-    MAD_TO_SD * median(values)
+    MAD_TO_SD * mad(values)
 }
 
 /// Samples of each axis whose quantum is looked at before the whole axis's.
