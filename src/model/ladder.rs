@@ -50,6 +50,8 @@ pub(crate) trait LadderFit {
     fn flagged(&self) -> usize;
     /// Every fitted parameter, with its standard error.
     fn params(&self) -> &[Param];
+    /// Samples fitted.
+    fn samples(&self) -> usize;
 }
 
 /// What the gates and the verdict read of a residual, in either geometry.
@@ -84,6 +86,9 @@ macro_rules! ladder_types {
             }
             fn params(&self) -> &[$crate::model::nonlinear::Param] {
                 &self.params
+            }
+            fn samples(&self) -> usize {
+                self.n
             }
         }
 
@@ -466,6 +471,12 @@ pub(crate) fn judge(t: &Scores<'_>, gates: &dyn Gates) -> Judgement {
     }
 }
 
+/// Samples from which [`rank`] fits the candidates on every core. A
+/// candidate's fit costs about 0.4 µs a sample (2-D, `cargo bench --bench
+/// fit`, "diagnosis of one rotation"), starting and joining a thread some
+/// 50 µs: from 5,000 samples a fit takes 2 ms, forty times that.
+const PARALLEL_FROM_SAMPLES: usize = 5_000;
+
 /// Fits and ranks every candidate against `current` (already fitted):
 /// supported ones first, then by ΔBIC. Also returns the effects the
 /// recording cannot determine.
@@ -485,10 +496,7 @@ pub(crate) fn rank<G: Geometry>(
         Refused(Option<NotDetermined>),
         NotFinite,
     }
-    // The candidates are fitted on every core, one fit per core alive at
-    // once; each is judged where it was fitted, so only its judgement is
-    // kept.
-    let tried = crate::parallel::map_in_order(&offered, |effect| {
+    let try_one = |effect: &Effect| {
         let fit = match g.fit(&with_effect(model, effect)) {
             Ok(fit) if fit.rms().is_finite() && fit.rss().is_finite() => fit,
             Ok(_) => return Tried::NotFinite,
@@ -506,7 +514,17 @@ pub(crate) fn rank<G: Geometry>(
             params,
             delta_bic,
         }))
-    });
+    };
+    // The candidates are fitted on every core, one fit per core alive at
+    // once, each judged where it was fitted so that only its judgement is
+    // kept; a short recording's (one turn, as the daemon diagnoses in its
+    // loop) on this thread, where starting threads would cost more than
+    // they save.
+    let tried: Vec<Tried<G::Candidate>> = if current.samples() >= PARALLEL_FROM_SAMPLES {
+        crate::parallel::map_in_order(&offered, try_one)
+    } else {
+        offered.iter().map(try_one).collect()
+    };
     let mut candidates: Vec<G::Candidate> = Vec::new();
     for tried in tried {
         match tried {
