@@ -119,34 +119,35 @@ fn solve_and_print(ata: DMatrix<f64>, atb: DVector<f64>, out: &mut Vec<u8>) {
 /// The floor of `fit` in 2-D: the paper's closed form (eq. 6,
 /// `y² = θ1 x² + θ2 x + θ3 y + θ4`) by its normal equations.
 fn floor_fit2(path: &Path) {
-    let mut ata = DMatrix::<f64>::zeros(4, 4);
-    let mut atb = DVector::<f64>::zeros(4);
-    for_each_row(path, &["x", "y"], |v| {
+    floor_normal_equations(path, &["x", "y"], |v| {
         let (x, y) = (v[0], v[1]);
-        let row = [x * x, x, y, 1.0];
-        for i in 0..4 {
-            atb[i] += row[i] * y * y;
-            for j in 0..4 {
-                ata[(i, j)] += row[i] * row[j];
-            }
-        }
+        ([x * x, x, y, 1.0], y * y)
     });
-    let mut out = Vec::new();
-    solve_and_print(ata, atb, &mut out);
-    std::hint::black_box(out);
 }
 
 /// The floor of `fit` in 3-D: the algebraic ellipsoid (nine terms and the
 /// constant) by its normal equations.
 fn floor_fit3(path: &Path) {
-    let mut ata = DMatrix::<f64>::zeros(9, 9);
-    let mut atb = DVector::<f64>::zeros(9);
-    for_each_row(path, &["x", "y", "z"], |v| {
+    floor_normal_equations(path, &["x", "y", "z"], |v| {
         let (x, y, z) = (v[0], v[1], v[2]);
-        let row = [x * x, y * y, z * z, x * y, x * z, y * z, x, y, z];
-        for i in 0..9 {
-            atb[i] += row[i];
-            for j in 0..9 {
+        ([x * x, y * y, z * z, x * y, x * z, y * z, x, y, z], 1.0)
+    });
+}
+
+/// Least squares of the rows' targets on their design rows (`term` gives
+/// both from a row's `columns`), by the normal equations in one pass.
+fn floor_normal_equations<const K: usize>(
+    path: &Path,
+    columns: &[&str],
+    term: impl Fn(&[f64]) -> ([f64; K], f64),
+) {
+    let mut ata = DMatrix::<f64>::zeros(K, K);
+    let mut atb = DVector::<f64>::zeros(K);
+    for_each_row(path, columns, |v| {
+        let (row, target) = term(v);
+        for i in 0..K {
+            atb[i] += row[i] * target;
+            for j in 0..K {
                 ata[(i, j)] += row[i] * row[j];
             }
         }

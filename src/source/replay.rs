@@ -208,7 +208,7 @@ pub fn replay_counted(
         counters,
     };
     match file {
-        CaptureFile::Raw { bytes } => replay_raw(bytes, playback, emit),
+        CaptureFile::Raw { bytes } => replay_raw_dump(&mut bytes.as_slice(), playback, emit),
         CaptureFile::Capture {
             header,
             chunks,
@@ -386,15 +386,6 @@ struct Playback<'a> {
     counters: &'a SourceCounters,
 }
 
-/// A plain dump has no timing: frames are replayed at the nominal period.
-fn replay_raw(
-    mut bytes: &[u8],
-    playback: Playback,
-    emit: &mut dyn FnMut(Reading),
-) -> Result<ReplaySummary, ReplayError> {
-    replay_raw_dump(&mut bytes, playback, emit)
-}
-
 /// A plain dump's bytes, handed on in blocks as often as they are asked
 /// for: a file ([`RawDump`]) or bytes in memory (one block).
 trait DumpBlocks {
@@ -426,7 +417,7 @@ impl DumpBlocks for &[u8] {
     }
 }
 
-/// Replays a plain dump at the nominal period. It is read twice: once to
+/// Replays a plain dump (it has no timing) at the nominal period. It is read twice: once to
 /// count what it holds (its bytes and bad frames count from the start, as
 /// when it is decoded at once), once to hand its frames on.
 fn replay_raw_dump(
