@@ -65,7 +65,7 @@ where
 
 /// The cores this process may use, asked once (the answer reads the
 /// cgroup's files).
-fn cores() -> usize {
+pub(crate) fn cores() -> usize {
     static CORES: OnceLock<usize> = OnceLock::new();
     *CORES.get_or_init(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
 }

@@ -196,9 +196,10 @@ fn quantile(values: &[f64], q: f64) -> f64 {
     v[k.min(v.len() - 1)]
 }
 
+/// The upper median of a non-empty `v` (found by selection).
 fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+    let middle = v.len() / 2;
+    *v.select_nth_unstable_by(middle, f64::total_cmp).1
 }
 
 /// Samples covered by a still window, as segments.

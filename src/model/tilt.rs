@@ -347,18 +347,13 @@ pub struct RobustSpread {
     pub n: usize,
 }
 
-/// The median of `values` (sorted in place); NaN when there are none.
+/// The median of `values` (found by selection: they are reordered); NaN
+/// when there are none.
 pub(crate) fn median_of(values: &mut [f64]) -> f64 {
-    values.sort_by(|a, b| a.total_cmp(b));
-    let n = values.len();
-    if n == 0 {
+    if values.is_empty() {
         return f64::NAN;
     }
-    if n % 2 == 1 {
-        values[n / 2]
-    } else {
-        0.5 * (values[n / 2 - 1] + values[n / 2])
-    }
+    super::residuals::median_mut(values)
 }
 
 /// The median and robust spread of the finite values; `None` when there

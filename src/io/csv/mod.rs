@@ -195,7 +195,7 @@ pub fn read_dataset_with(
     spec: &ColumnSpec,
     covariates: &Covariates,
 ) -> Result<Dataset, CsvError> {
-    read_dataset_watched(path, spec, covariates, &mut |_| {})
+    read_file(path, spec, covariates, None)
 }
 
 /// The rows read so far, shown to a watcher a block at a time while the
@@ -219,19 +219,36 @@ pub fn read_dataset_watched(
     covariates: &Covariates,
     watch: &mut dyn FnMut(RowsRead<'_>),
 ) -> Result<Dataset, CsvError> {
+    read_file(path, spec, covariates, Some(watch))
+}
+
+/// A file read whole: on two cores when it is large and nobody `watch`es
+/// (a watcher, the spike gate, has the other core already: a second
+/// reader would only leave it the rest of the file to judge alone, after).
+fn read_file(
+    path: &Path,
+    spec: &ColumnSpec,
+    covariates: &Covariates,
+    watch: Option<&mut dyn FnMut(RowsRead<'_>)>,
+) -> Result<Dataset, CsvError> {
+    let (file, size) = open_sized(path)?;
+    let front = Front::file(
+        &file,
+        watch.is_none().then(|| halves::cut(&file, size)).flatten(),
+    );
+    let mut unwatched = |_: RowsRead<'_>| {};
+    let watch = watch.unwrap_or(&mut unwatched);
+    parse_dataset_sized(front, path, spec, covariates, size, watch)
+}
+
+/// A regular file, open, and its size in bytes (0 when unknown).
+fn open_sized(path: &Path) -> Result<(File, u64), CsvError> {
     let file = open_regular(path).map_err(|source| CsvError::Io {
         path: path.to_path_buf(),
         source,
     })?;
     let size = file.metadata().map_or(0, |m| m.len());
-    parse_dataset_sized(
-        io::BufReader::with_capacity(1 << 16, file),
-        path,
-        spec,
-        covariates,
-        size,
-        watch,
-    )
+    Ok((file, size))
 }
 
 /// Most bytes reserved ahead of reading, over every column read (more
@@ -268,6 +285,9 @@ fn cell(
     })
 }
 
+/// Bytes a reader of a recording asks for at a time.
+const READ_BYTES: usize = 1 << 16;
+
 /// A CSV reader as fieldcal reads recordings (a header line, trimmed
 /// fields, `#` comments), and the header's column names; an empty header
 /// is an error naming the file.
@@ -282,6 +302,9 @@ fn open_with_header<R: Read>(
         // trimming whole records copies every one of them.
         .trim(csv::Trim::Headers)
         .comment(Some(b'#'))
+        // Reads of 64 KiB: a file is read straight, through no buffer of
+        // its own.
+        .buffer_capacity(READ_BYTES)
         .from_reader(reader);
     let header = csv.byte_headers().map_err(|e| csv_error(path, e))?.clone();
     if header.is_empty() || (header.len() == 1 && header[0].is_empty()) {
@@ -317,123 +340,42 @@ pub fn parse_dataset<R: Read>(
     path: &Path,
     spec: &ColumnSpec,
 ) -> Result<Dataset, CsvError> {
-    parse_dataset_sized(reader, path, spec, &Covariates::All, 0, &mut |_| {})
+    let front = Front::stream(reader);
+    parse_dataset_sized(front, path, spec, &Covariates::All, 0, &mut |_| {})
 }
 
 /// [`parse_dataset`] keeping the `covariates` chosen; `size`: the bytes
 /// the reader holds, when known (0 otherwise), to reserve room for its
-/// rows.
-fn parse_dataset_sized<R: Read>(
-    reader: R,
+/// rows. A file with a cut is read on two cores (see [`halves`]).
+fn parse_dataset_sized(
+    front: Front<'_>,
     path: &Path,
     spec: &ColumnSpec,
     wanted: &Covariates,
     size: u64,
     watch: &mut dyn FnMut(RowsRead<'_>),
 ) -> Result<Dataset, CsvError> {
-    let (mut csv, names) = open_with_header(reader, path)?;
-    let err_at = |e: csv::Error| csv_error(path, e);
+    let (mut csv, names) = open_with_header(front, path)?;
     check_unique(&names, path)?;
-    if spec.x == spec.y {
-        return Err(CsvError::SameAxis {
-            path: path.to_path_buf(),
-            x: spec.x.clone(),
-            y: spec.y.clone(),
-        });
-    }
-
-    let find = |name: &str| names.iter().position(|n| n == name);
-    let missing = |name: &str, role: &'static str, flag: &'static str| CsvError::MissingColumn {
-        path: path.to_path_buf(),
-        name: name.to_string(),
-        role,
-        flag,
-        available: super::name_list(&names),
-    };
-    let x_index = find(&spec.x).ok_or_else(|| missing(&spec.x, "the x axis", "--x"))?;
-    let y_index = find(&spec.y).ok_or_else(|| missing(&spec.y, "the y axis", "--y"))?;
-    let t_index = match &spec.t {
-        Some(t) => Some(find(t).ok_or_else(|| missing(t, "time", "--t"))?),
-        None => DEFAULT_TIME_COLUMNS.iter().find_map(|t| find(t)),
-    };
-    if t_index == Some(x_index) || t_index == Some(y_index) {
-        let t = &names[t_index.unwrap_or_default()];
-        return Err(CsvError::SameAxis {
-            path: path.to_path_buf(),
-            x: format!("'{t}' (time)"),
-            y: "an axis".into(),
-        });
-    }
-
-    let mut roles: Vec<Role> = (0..names.len())
-        .map(|i| match i {
-            _ if i == x_index => Role::X,
-            _ if i == y_index => Role::Y,
-            _ if Some(i) == t_index => Role::T,
-            _ if !wanted.wants(&names[i]) => Role::Ignored,
-            _ => Role::Covariate(usize::MAX), // numbered once the first row shows it is numeric
-        })
-        .collect();
-    let mut x = Vec::new();
-    let mut y = Vec::new();
-    let mut t = t_index.map(|_| Vec::new());
-    let mut covariates: Vec<Covariate> = Vec::new();
-    let mut record = csv::ByteRecord::new();
-    let mut first_row = true;
-    // The columns read, in the order of the record's fields.
-    let mut read: Vec<(usize, Role)> = Vec::new();
-    // Rows shown to `watch` so far.
-    let mut shown = 0;
-
-    while csv.read_byte_record(&mut record).map_err(err_at)? {
-        let line = record.position().map_or(0, |p| p.line());
-        if first_row {
-            read = first_record(&record, &mut roles, &names, &mut covariates);
-            let reserve = rows_expected(size, &record, read.len());
-            let covariates = covariates.iter_mut().map(|c| &mut c.values);
-            for column in [&mut x, &mut y]
-                .into_iter()
-                .chain(t.as_mut())
-                .chain(covariates)
-            {
-                // Room is a hint: a file whose first row misleads grows.
-                let _ = column.try_reserve_exact(reserve);
-            }
-            first_row = false;
-        }
-        for &(i, role) in &read {
-            let value = cell(&record, i, &names, path, line)?;
-            match role {
-                Role::X => x.push(value),
-                Role::Y => y.push(value),
-                Role::T => {
-                    if let Some(t) = t.as_mut() {
-                        t.push(value)
-                    }
-                }
-                Role::Covariate(k) => covariates[k].values.push(value),
-                Role::Ignored => {}
-            }
-        }
-        if x.len() - shown == WATCHED_ROWS {
-            watch(RowsRead {
-                from: shown,
-                x: &x,
-                y: &y,
-                covariates: &covariates,
-            });
-            shown = x.len();
-        }
-    }
-    if x.len() > shown {
-        watch(RowsRead {
-            from: shown,
-            x: &x,
-            y: &y,
-            covariates: &covariates,
-        });
-    }
-    if first_row {
+    let layout = Layout::of(&names, path, spec, wanted)?;
+    let columns = std::thread::scope(|scope| {
+        let reader = Reader {
+            names: &names,
+            path,
+            size,
+        };
+        let read = reader.read_front(
+            &mut csv,
+            scope,
+            layout.roles,
+            layout.t_index.is_some(),
+            watch,
+        );
+        // Before the scope waits for the other core.
+        csv.get_ref().stop_rest();
+        read
+    })?;
+    if columns.x.is_empty() {
         // Nothing can be said of its columns (which are numbers) nor fitted.
         return Err(CsvError::NoRows {
             path: path.to_path_buf(),
@@ -443,18 +385,84 @@ fn parse_dataset_sized<R: Read>(
 
     // The reader checked lengths and finiteness value by value.
     Dataset::new(
-        names[x_index].clone(),
-        names[y_index].clone(),
-        t,
-        x,
-        y,
-        covariates,
+        names[layout.x_index].clone(),
+        names[layout.y_index].clone(),
+        columns.t,
+        columns.x,
+        columns.y,
+        columns.covariates,
     )
     .map_err(|e| CsvError::Malformed {
         path: path.to_path_buf(),
         line: 0,
         message: e.to_string(),
     })
+}
+
+/// Which column of a header is what.
+struct Layout {
+    x_index: usize,
+    y_index: usize,
+    t_index: Option<usize>,
+    /// Each column's role, the covariates not yet numbered.
+    roles: Vec<Role>,
+}
+
+impl Layout {
+    /// The columns `spec` names, and the covariates `wanted`, in a header
+    /// of `names`.
+    fn of(
+        names: &[String],
+        path: &Path,
+        spec: &ColumnSpec,
+        wanted: &Covariates,
+    ) -> Result<Layout, CsvError> {
+        if spec.x == spec.y {
+            return Err(CsvError::SameAxis {
+                path: path.to_path_buf(),
+                x: spec.x.clone(),
+                y: spec.y.clone(),
+            });
+        }
+        let find = |name: &str| names.iter().position(|n| n == name);
+        let missing =
+            |name: &str, role: &'static str, flag: &'static str| CsvError::MissingColumn {
+                path: path.to_path_buf(),
+                name: name.to_string(),
+                role,
+                flag,
+                available: super::name_list(names),
+            };
+        let x_index = find(&spec.x).ok_or_else(|| missing(&spec.x, "the x axis", "--x"))?;
+        let y_index = find(&spec.y).ok_or_else(|| missing(&spec.y, "the y axis", "--y"))?;
+        let t_index = match &spec.t {
+            Some(t) => Some(find(t).ok_or_else(|| missing(t, "time", "--t"))?),
+            None => DEFAULT_TIME_COLUMNS.iter().find_map(|t| find(t)),
+        };
+        if t_index == Some(x_index) || t_index == Some(y_index) {
+            let t = &names[t_index.unwrap_or_default()];
+            return Err(CsvError::SameAxis {
+                path: path.to_path_buf(),
+                x: format!("'{t}' (time)"),
+                y: "an axis".into(),
+            });
+        }
+        let roles = (0..names.len())
+            .map(|i| match i {
+                _ if i == x_index => Role::X,
+                _ if i == y_index => Role::Y,
+                _ if Some(i) == t_index => Role::T,
+                _ if !wanted.wants(&names[i]) => Role::Ignored,
+                _ => Role::Covariate(usize::MAX), // numbered once the first row shows it is numeric
+            })
+            .collect();
+        Ok(Layout {
+            x_index,
+            y_index,
+            t_index,
+            roles,
+        })
+    }
 }
 
 /// The columns a reader parses, from the first record: a column whose
@@ -497,7 +505,7 @@ pub fn read_dataset3_with(
     z: &str,
     covariates: &Covariates,
 ) -> Result<Dataset3, CsvError> {
-    read_dataset3_watched(path, spec, z, covariates, &mut |_| {})
+    read_file3(path, spec, z, covariates, None)
 }
 
 /// [`read_dataset3_with`], showing `watch` the rows as they are read (z
@@ -509,11 +517,18 @@ pub fn read_dataset3_watched(
     covariates: &Covariates,
     watch: &mut dyn FnMut(RowsRead<'_>),
 ) -> Result<Dataset3, CsvError> {
-    let file = open_regular(path).map_err(|source| CsvError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let size = file.metadata().map_or(0, |m| m.len());
+    read_file3(path, spec, z, covariates, Some(watch))
+}
+
+/// [`read_file`] for a 3-axis recording.
+fn read_file3(
+    path: &Path,
+    spec: &ColumnSpec,
+    z: &str,
+    covariates: &Covariates,
+    watch: Option<&mut dyn FnMut(RowsRead<'_>)>,
+) -> Result<Dataset3, CsvError> {
+    let (file, size) = open_sized(path)?;
     // z travels as a covariate until the dataset is built.
     let covariates = match covariates {
         Covariates::All => Covariates::All,
@@ -521,8 +536,13 @@ pub fn read_dataset3_watched(
             Covariates::Only(names.iter().cloned().chain([z.to_string()]).collect())
         }
     };
-    let reader = io::BufReader::with_capacity(1 << 16, file);
-    match dataset3_of(reader, path, spec, z, &covariates, size, watch) {
+    let front = Front::file(
+        &file,
+        watch.is_none().then(|| halves::cut(&file, size)).flatten(),
+    );
+    let mut unwatched = |_: RowsRead<'_>| {};
+    let watch = watch.unwrap_or(&mut unwatched);
+    match dataset3_of(front, path, spec, z, &covariates, size, watch) {
         // The message lists every column z could have been: read them.
         Err(CsvError::MissingColumn { .. }) if covariates != Covariates::All => {
             read_dataset3(path, spec, z)
@@ -538,11 +558,12 @@ pub fn parse_dataset3<R: Read>(
     spec: &ColumnSpec,
     z: &str,
 ) -> Result<Dataset3, CsvError> {
-    dataset3_of(reader, path, spec, z, &Covariates::All, 0, &mut |_| {})
+    let front = Front::stream(reader);
+    dataset3_of(front, path, spec, z, &Covariates::All, 0, &mut |_| {})
 }
 
-fn dataset3_of<R: Read>(
-    reader: R,
+fn dataset3_of(
+    front: Front<'_>,
     path: &Path,
     spec: &ColumnSpec,
     z: &str,
@@ -564,7 +585,7 @@ fn dataset3_of<R: Read>(
             y: format!("'{}'", super::excerpt(other)),
         });
     }
-    let dataset = parse_dataset_sized(reader, path, spec, covariates, size, watch)?;
+    let dataset = parse_dataset_sized(front, path, spec, covariates, size, watch)?;
     let names: Vec<String> = dataset.covariates.iter().map(|c| c.name.clone()).collect();
     let time_name = dataset.t.as_ref().and(spec.t.clone());
     Dataset3::from_dataset(dataset, z).ok_or_else(|| {
@@ -588,7 +609,7 @@ pub fn header(path: &Path) -> Result<Vec<String>, CsvError> {
         path: path.to_path_buf(),
         source,
     })?;
-    let (_, names) = open_with_header(io::BufReader::new(file), path)?;
+    let (_, names) = open_with_header(file, path)?;
     Ok(names)
 }
 
@@ -615,13 +636,7 @@ pub fn read_series(
         path: path.to_path_buf(),
         source,
     })?;
-    parse_series(
-        io::BufReader::with_capacity(1 << 16, file),
-        path,
-        column,
-        role,
-        flag,
-    )
+    parse_series(file, path, column, role, flag)
 }
 
 /// [`read_series`] from any reader; `path` is used in messages only.
@@ -709,7 +724,7 @@ fn csv_error(path: &Path, e: csv::Error) -> CsvError {
         } => CsvError::Malformed {
             path: path.to_path_buf(),
             line,
-            message: format!("this line has {len} fields but the header has {expected_len}"),
+            message: unequal_lengths(len, expected_len),
         },
         csv::ErrorKind::Utf8 { .. } => CsvError::Malformed {
             path: path.to_path_buf(),
@@ -724,8 +739,18 @@ fn csv_error(path: &Path, e: csv::Error) -> CsvError {
     }
 }
 
+/// What is wrong with a line of `len` fields under a header of `expected`.
+fn unequal_lengths(len: impl std::fmt::Display, expected: impl std::fmt::Display) -> String {
+    format!("this line has {len} fields but the header has {expected}")
+}
+
+mod columns;
+mod halves;
 mod stream;
 mod write;
+
+use columns::{Columns, Reader};
+use halves::{Back, Front, Positional, RestError};
 
 pub use stream::*;
 pub use write::*;

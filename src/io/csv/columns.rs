@@ -1,0 +1,262 @@
+//! The rows of a recording read into columns: on the calling thread, and
+//! the rest of a large file on another core ([`super::halves`]).
+
+use std::path::Path;
+
+use super::{
+    Back, CsvError, Front, Positional, READ_BYTES, RestError, Role, RowsRead, WATCHED_ROWS, cell,
+    csv_error, first_record, rows_expected, unequal_lengths,
+};
+use crate::sample::Covariate;
+
+/// The values read, column by column.
+pub(super) struct Columns {
+    pub x: Vec<f64>,
+    pub y: Vec<f64>,
+    pub t: Option<Vec<f64>>,
+    pub covariates: Vec<Covariate>,
+}
+
+impl Columns {
+    /// No values yet, in columns shaped as `self`'s.
+    fn empty_like(&self) -> Columns {
+        let covariates = self.covariates.iter().map(|c| Covariate {
+            name: c.name.clone(),
+            values: Vec::new(),
+        });
+        Columns {
+            x: Vec::new(),
+            y: Vec::new(),
+            t: self.t.as_ref().map(|_| Vec::new()),
+            covariates: covariates.collect(),
+        }
+    }
+
+    /// Room for `rows` more, as a hint: a file whose first row misleads
+    /// grows.
+    fn reserve(&mut self, rows: usize) {
+        let covariates = self.covariates.iter_mut().map(|c| &mut c.values);
+        for column in [&mut self.x, &mut self.y]
+            .into_iter()
+            .chain(self.t.as_mut())
+            .chain(covariates)
+        {
+            let _ = column.try_reserve_exact(rows);
+        }
+    }
+
+    /// The values of `record` (on `line`) in the columns `read`.
+    fn push(
+        &mut self,
+        record: &csv::ByteRecord,
+        read: &[(usize, Role)],
+        reader: &Reader<'_>,
+        line: u64,
+    ) -> Result<(), CsvError> {
+        for &(i, role) in read {
+            let value = cell(record, i, reader.names, reader.path, line)?;
+            match role {
+                Role::X => self.x.push(value),
+                Role::Y => self.y.push(value),
+                Role::T => {
+                    if let Some(t) = self.t.as_mut() {
+                        t.push(value)
+                    }
+                }
+                Role::Covariate(k) => self.covariates[k].values.push(value),
+                Role::Ignored => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// `rest`'s values after these.
+    fn append(&mut self, mut rest: Columns) {
+        self.x.append(&mut rest.x);
+        self.y.append(&mut rest.y);
+        if let (Some(t), Some(rest)) = (self.t.as_mut(), rest.t.as_mut()) {
+            t.append(rest);
+        }
+        for (mine, theirs) in self.covariates.iter_mut().zip(&mut rest.covariates) {
+            mine.values.append(&mut theirs.values);
+        }
+    }
+
+    /// Shows `watch` the rows from `from`, a block at a time.
+    fn show(&self, from: usize, watch: &mut dyn FnMut(RowsRead<'_>)) {
+        let mut shown = from;
+        while shown < self.x.len() {
+            let to = (shown + WATCHED_ROWS).min(self.x.len());
+            watch(RowsRead {
+                from: shown,
+                x: &self.x[..to],
+                y: &self.y[..to],
+                covariates: &self.covariates,
+            });
+            shown = to;
+        }
+    }
+}
+
+/// What reading a file's rows needs to know of it.
+pub(super) struct Reader<'a> {
+    pub names: &'a [String],
+    pub path: &'a Path,
+    /// Its bytes (0 when unknown).
+    pub size: u64,
+}
+
+impl Reader<'_> {
+    /// The rows of `csv`, showing `watch` a block at a time as they are
+    /// read; from the first row, the rest of the file is handed to another
+    /// core when it can be (see [`halves`]), its rows joined after these.
+    pub(super) fn read_front<'a: 's, 's>(
+        &self,
+        csv: &mut csv::Reader<Front<'a>>,
+        scope: &'s std::thread::Scope<'s, '_>,
+        mut roles: Vec<Role>,
+        timed: bool,
+        watch: &mut dyn FnMut(RowsRead<'_>),
+    ) -> Result<Columns, CsvError> {
+        let mut columns = Columns {
+            x: Vec::new(),
+            y: Vec::new(),
+            t: timed.then(Vec::new),
+            covariates: Vec::new(),
+        };
+        let mut record = csv::ByteRecord::new();
+        // The columns read, in the order of the record's fields.
+        let mut read: Vec<(usize, Role)> = Vec::new();
+        let mut shown = 0;
+        // The line the reader counts once past the last record (csv counts
+        // the line a record starts on from where the reader stood: blank
+        // lines, comments and the LF of a CRLF after the last record are
+        // not yet counted).
+        let mut after_last = 1;
+        while csv
+            .read_byte_record(&mut record)
+            .map_err(|e| csv_error(self.path, e))?
+        {
+            let line = record.position().map_or(0, |p| p.line());
+            if read.is_empty() {
+                read = first_record(&record, &mut roles, self.names, &mut columns.covariates);
+                columns.reserve(rows_expected(self.size, &record, read.len()));
+                self.hand_over(csv.get_mut(), scope, &read, &columns, &record);
+            }
+            columns.push(&record, &read, self, line)?;
+            after_last = csv.position().line();
+            if columns.x.len() - shown == WATCHED_ROWS {
+                columns.show(shown, watch);
+                shown = columns.x.len();
+            }
+        }
+        // The other core's rows, after these. Its lines are counted from
+        // the cut (its first record on line 1), which follows this half's
+        // lines; one reader would number its first record as the line it
+        // stood on after this half's last.
+        if let Some(back) = csv.get_mut().take_back() {
+            let rows = back.rows.map_err(
+                |RestError {
+                     error,
+                     first_record,
+                 }| {
+                    let lines = match first_record {
+                        true => after_last,
+                        false => csv.position().line(),
+                    };
+                    error.moved_down(lines.saturating_sub(1))
+                },
+            );
+            columns.append(rows?);
+        }
+        columns.show(shown, watch);
+        Ok(columns)
+    }
+
+    /// Hands the rest of the file (if it has a cut) to another core, which
+    /// reads the columns `read` into columns shaped as `columns`.
+    fn hand_over<'a: 's, 's>(
+        &self,
+        front: &mut Front<'a>,
+        scope: &'s std::thread::Scope<'s, '_>,
+        read: &[(usize, Role)],
+        columns: &Columns,
+        first: &csv::ByteRecord,
+    ) {
+        let mut rest = columns.empty_like();
+        let read = read.to_vec();
+        let names = self.names.to_vec();
+        let path = self.path.to_path_buf();
+        let size = self.size;
+        let row = first.clone();
+        front.hand_over(scope, move |bytes| {
+            let reader = Reader {
+                names: &names,
+                path: &path,
+                size,
+            };
+            rest.reserve(rows_expected(
+                size.saturating_sub(bytes.position()),
+                &row,
+                read.len(),
+            ));
+            let mut csv = csv::ReaderBuilder::new()
+                .has_headers(false)
+                .flexible(true)
+                .comment(Some(b'#'))
+                .buffer_capacity(READ_BYTES)
+                .from_reader(bytes);
+            let rows = reader.read_rest(&mut csv, &read, rest);
+            Back {
+                rows,
+                quoted: csv.get_ref().quoted(),
+            }
+        });
+    }
+
+    /// The rows of the rest of a file (no header), into `columns`.
+    fn read_rest(
+        &self,
+        csv: &mut csv::Reader<Positional<'_>>,
+        read: &[(usize, Role)],
+        mut columns: Columns,
+    ) -> Result<Columns, RestError> {
+        let mut record = csv::ByteRecord::new();
+        let mut first_record = true;
+        let at = |error, first_record| RestError {
+            error,
+            first_record,
+        };
+        while csv
+            .read_byte_record(&mut record)
+            .map_err(|e| at(csv_error(self.path, e), first_record))?
+        {
+            let line = record.position().map_or(0, |p| p.line());
+            if record.len() != self.names.len() {
+                // As the first half's reader says it (it checks lengths).
+                let message = unequal_lengths(record.len(), self.names.len());
+                let path = self.path.to_path_buf();
+                let error = CsvError::Malformed {
+                    path,
+                    line,
+                    message,
+                };
+                return Err(at(error, first_record));
+            }
+            (columns.push(&record, read, self, line)).map_err(|e| at(e, first_record))?;
+            first_record = false;
+        }
+        Ok(columns)
+    }
+}
+
+impl CsvError {
+    /// The error with its line moved down by `lines` (found in a part of
+    /// a file that begins after that many lines).
+    fn moved_down(mut self, lines: u64) -> CsvError {
+        if let CsvError::Malformed { line, .. } | CsvError::BadValue { line, .. } = &mut self {
+            *line += lines;
+        }
+        self
+    }
+}
