@@ -29,11 +29,56 @@ impl Kind for Stdout {
         let stop = start.stop.clone();
         let task = match start.progress.and_then(ProgressFeed::stdout_above) {
             Some(out) => tokio::spawn(hub.serve_writer(out, stop)),
-            None => tokio::spawn(hub.serve_writer(tokio::io::stdout(), stop)),
+            None => {
+                // A thread of its own, writing each batch of lines with
+                // one system call: tokio's stdout hands every write to a
+                // thread of the blocking pool and waits for it (two
+                // wake-ups a batch).
+                let writing = hub.serve_writer(BlockingStdout, stop);
+                let runtime = tokio::runtime::Handle::current();
+                tokio::task::spawn_blocking(move || runtime.block_on(writing))
+            }
         };
         Ok(Running {
             finish: Some(task),
             ..Running::default()
         })
+    }
+}
+
+/// Standard output written straight from the thread that polls it: for a
+/// writer with a thread of its own, which may block in a write (a pipe
+/// nobody reads) without holding up the runtime.
+struct BlockingStdout;
+
+impl tokio::io::AsyncWrite for BlockingStdout {
+    fn poll_write(
+        self: std::pin::Pin<&mut Self>,
+        _: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        use std::io::Write;
+        let mut out = std::io::stdout().lock();
+        loop {
+            match out.write(buf) {
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                written => return std::task::Poll::Ready(written),
+            }
+        }
+    }
+
+    fn poll_flush(
+        self: std::pin::Pin<&mut Self>,
+        _: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        use std::io::Write;
+        std::task::Poll::Ready(std::io::stdout().lock().flush())
+    }
+
+    fn poll_shutdown(
+        self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        self.poll_flush(cx)
     }
 }

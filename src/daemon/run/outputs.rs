@@ -55,10 +55,10 @@ impl Outputs {
     /// to write what it holds, then what was undone at start is (the Unix
     /// socket bound at start is removed; a file put at the path since
     /// stays).
-    pub(super) async fn stop(self) {
+    pub(super) async fn stop(mut self) {
         let _ = self.stop_tx.send(true);
         let mut undo = Vec::new();
-        for running in self.running {
+        for running in std::mem::take(&mut self.running) {
             if let Some(task) = running.finish {
                 let _ = tokio::time::timeout(Duration::from_secs(1), task).await;
             }
@@ -67,6 +67,16 @@ impl Outputs {
         for undo in undo {
             undo();
         }
+    }
+}
+
+impl Drop for Outputs {
+    /// Outputs dropped unstopped (the daemon failed after they started, or
+    /// its loop panicked) are told to stop all the same: the stdout writer
+    /// runs on a thread of the blocking pool, which the runtime waits for
+    /// when it is dropped.
+    fn drop(&mut self) {
+        let _ = self.stop_tx.send(true);
     }
 }
 

@@ -44,6 +44,11 @@ pub(super) fn cut_after(file: &File, from: u64) -> Option<u64> {
     let mut buf = vec![0; MAX_LINE_BYTES];
     let n = file.read_at(&mut buf, from).ok()?;
     let newline = buf[..n].iter().position(|&b| b == b'\n')?;
+    // A new reader would strip a byte-order mark there; one reader keeps
+    // it (and refuses the field): leave such a file to one reader.
+    if buf[newline + 1..n].starts_with(b"\xEF\xBB\xBF") {
+        return None;
+    }
     Some(from + newline as u64 + 1)
 }
 
@@ -333,6 +338,8 @@ mod tests {
         // A newline inside quotes is no end of a record, wherever the cut.
         same_at_every_cut("t,x,y,note\n0,1,2,\"a\nb\"\n1,2,3,c\n2,3,4,\"d\n\ne\"\n3,4,5,f\n");
         same_at_every_cut("t,x,y\n0,1,2\n1,\"2\n\",3\n2,3,4\n");
+        // A byte-order mark after a newline stays in its field.
+        same_at_every_cut("t,x,y\n0,1,2\n\u{feff}1,2,3\n2,3,4\n");
     }
 
     proptest! {
