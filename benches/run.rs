@@ -13,7 +13,8 @@
 //! the field.
 //!
 //! Run: `cargo bench --bench run`; `FIELDCAL_BENCH_SENSORS=1,16,64` and
-//! `FIELDCAL_BENCH_SECONDS=10` choose the runs.
+//! `FIELDCAL_BENCH_SECONDS=10` choose the runs, `FIELDCAL_BENCH_BIN`
+//! another build of `fieldcal` to measure.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::fd::AsRawFd;
@@ -136,7 +137,7 @@ fn measure(n: usize, seconds: u64, kind: Kind) -> Result<Measured, String> {
             let config = dir.path().join("fieldcal.toml");
             std::fs::write(&config, daemon_config(&paths, dir.path()))
                 .map_err(|e| format!("config: {e}"))?;
-            Command::new(env!("CARGO_BIN_EXE_fieldcal"))
+            Command::new(daemon_binary())
                 .arg("run")
                 .arg("--config")
                 .arg(&config)
@@ -201,6 +202,12 @@ fn measure(n: usize, seconds: u64, kind: Kind) -> Result<Measured, String> {
         readings: read,
         rss_mb,
     })
+}
+
+/// The daemon measured: this build's, or another build's given in
+/// `FIELDCAL_BENCH_BIN` (to compare two commits in one run).
+fn daemon_binary() -> std::ffi::OsString {
+    std::env::var_os("FIELDCAL_BENCH_BIN").unwrap_or_else(|| env!("CARGO_BIN_EXE_fieldcal").into())
 }
 
 fn daemon_config(paths: &[String], dir: &std::path::Path) -> String {

@@ -26,7 +26,6 @@ use super::publish::{ClientCommand, Hub, Lane, ReplyTo};
 use super::state::StateStore;
 use super::state_writer::{SaveFailure, StateWriter};
 use crate::io::csv::CsvError;
-use crate::source::SourceEvent;
 use crate::source::replay::ReplayError;
 
 mod outputs;
@@ -169,8 +168,7 @@ pub async fn run_with(
     }
     publish_loaded(&sensors, &hub);
 
-    let (events_tx, events) = mpsc::channel::<(usize, SourceEvent)>(8192);
-    let sources = Sources::start(&config, &mut sensors, events_tx)?;
+    let (sources, events) = Sources::start(&config, &mut sensors)?;
 
     notifier.ready();
     notifier.status(&format!(

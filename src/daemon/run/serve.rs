@@ -9,7 +9,7 @@ use tokio::sync::{mpsc, watch};
 
 use super::outputs::Outputs;
 use super::sensors::{Sensors, status_text};
-use super::sources::{SourceHandle, Sources};
+use super::sources::{SourceEvents, SourceHandle, Sources};
 use crate::daemon::Calibration;
 use crate::daemon::config::Config;
 use crate::daemon::messages::{CalibrationEvent, to_line};
@@ -35,7 +35,7 @@ pub(super) struct Daemon {
     pub(super) sensors: Sensors,
     pub(super) sources: Sources,
     pub(super) outputs: Outputs,
-    pub(super) events: mpsc::Receiver<(usize, SourceEvent)>,
+    pub(super) events: SourceEvents,
     pub(super) commands: mpsc::Receiver<(ClientCommand, ReplyTo)>,
     pub(super) writer: StateWriter,
     pub(super) save_failures: mpsc::UnboundedReceiver<SaveFailure>,
@@ -108,7 +108,7 @@ impl Daemon {
         self.notifier.stopping();
         tracing::info!("stopping");
         self.sources.stop().await;
-        while let Ok((index, event)) = self.events.try_recv() {
+        while let Some((index, event)) = self.events.try_recv() {
             self.handle_event(index, event);
         }
         if let Some(progress) = &self.progress {

@@ -1,11 +1,13 @@
 //! The daemon's running sources. Each kind's start function is in
 //! [`crate::daemon::source_kinds`]: each owns its port or file in a task or
-//! thread of its own and sends [`SourceEvent`]s, which one forwarding task
-//! per source tags with the source's index for the loop.
+//! thread of its own and sends [`SourceEvent`]s into a bounded queue of
+//! its own, which the loop reads straight through [`SourceEvents`].
 
+use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::task::{Context, Poll};
 use std::time::Duration;
 
 use tokio::sync::{mpsc, watch};
@@ -42,6 +44,10 @@ pub(super) struct Sources {
     stop_flag: Arc<AtomicBool>,
 }
 
+/// Events a source's queue holds before the source waits (or, for a
+/// bridge, counts what it could not queue): a 1 kHz source's 4 s.
+const QUEUE: usize = 4096;
+
 /// What a source's start function is given beside its configuration.
 pub(crate) struct Start<'a> {
     /// The source's index in the configuration.
@@ -74,19 +80,19 @@ impl From<SourceTask> for Started {
 }
 
 impl Sources {
-    /// Starts every source of `config`, in order; its events reach
-    /// `events` tagged with the source's index.
+    /// Starts every source of `config`, in order, each with a bounded
+    /// queue of its own for its events.
     pub(super) fn start(
         config: &Config,
         sensors: &mut Sensors,
-        events: mpsc::Sender<(usize, SourceEvent)>,
-    ) -> Result<Sources, DaemonError> {
+    ) -> Result<(Sources, SourceEvents), DaemonError> {
         let (stop_tx, stop_rx) = watch::channel(false);
         let stop_flag = Arc::new(AtomicBool::new(false));
         let mut handles = Vec::new();
+        let mut queues = Vec::new();
         for (index, source) in config.sources.iter().enumerate() {
             let counters = Arc::new(SourceCounters::default());
-            let (tx, mut rx) = mpsc::channel::<SourceEvent>(4096);
+            let (tx, rx) = mpsc::channel::<SourceEvent>(QUEUE);
             let start = Start {
                 index,
                 sensors: &mut *sensors,
@@ -96,15 +102,7 @@ impl Sources {
                 stop_flag: &stop_flag,
             };
             let Started { task, csv_layout } = source.kind.spawn(source, start)?;
-            // One channel for the loop, each event tagged with its source.
-            let forward = events.clone();
-            tokio::spawn(async move {
-                while let Some(event) = rx.recv().await {
-                    if forward.send((index, event)).await.is_err() {
-                        break;
-                    }
-                }
-            });
+            queues.push(rx);
             handles.push(SourceHandle {
                 name: source.name.clone(),
                 counters,
@@ -113,11 +111,12 @@ impl Sources {
                 csv_layout,
             });
         }
-        Ok(Sources {
+        let sources = Sources {
             handles,
             stop_tx,
             stop_flag,
-        })
+        };
+        Ok((sources, SourceEvents::new(queues)))
     }
 
     /// Asks every source to stop (the Falcon source sends its stop
@@ -156,10 +155,225 @@ impl Sources {
     }
 }
 
+/// Every source's events, as the loop takes them: one bounded queue a
+/// source, read straight from the loop (no forwarding task a source). Each
+/// sweep takes what is waiting in every queue, up to [`TAKE_PER_QUEUE`]
+/// from each, starting one queue further round each time, so a busy
+/// source cannot keep the others waiting and the queues are looked at
+/// once a batch rather than once an event. Only when every queue is empty
+/// does the loop ask them all to wake it.
+pub(super) struct SourceEvents {
+    queues: Vec<Option<mpsc::Receiver<SourceEvent>>>,
+    /// Taken from the queues, not yet handled, in order within a source.
+    ready: VecDeque<(usize, SourceEvent)>,
+    /// The queue the next sweep starts at.
+    first: usize,
+}
+
+/// Events taken from one queue in one sweep.
+const TAKE_PER_QUEUE: usize = 64;
+
+impl SourceEvents {
+    fn new(queues: Vec<mpsc::Receiver<SourceEvent>>) -> Self {
+        SourceEvents {
+            queues: queues.into_iter().map(Some).collect(),
+            ready: VecDeque::new(),
+            first: 0,
+        }
+    }
+
+    /// The next event and its source's index; `None` once every source has
+    /// ended and its queue is empty.
+    pub(super) async fn recv(&mut self) -> Option<(usize, SourceEvent)> {
+        std::future::poll_fn(|cx| self.poll_recv(cx)).await
+    }
+
+    fn poll_recv(&mut self, cx: &mut Context<'_>) -> Poll<Option<(usize, SourceEvent)>> {
+        // An event spends the task's budget as a channel's would, so a
+        // flood of events still lets the runtime run its other tasks.
+        let coop = std::task::ready!(tokio::task::coop::poll_proceed(cx));
+        if self.ready.is_empty() {
+            self.sweep();
+        }
+        if self.ready.is_empty() && !self.wait_for_any(cx) {
+            return Poll::Ready(None);
+        }
+        match self.ready.pop_front() {
+            Some(event) => {
+                coop.made_progress();
+                Poll::Ready(Some(event))
+            }
+            None => Poll::Pending,
+        }
+    }
+
+    /// Takes what waits in every queue, up to [`TAKE_PER_QUEUE`] from
+    /// each, starting one queue further round than the last sweep.
+    fn sweep(&mut self) {
+        let count = self.queues.len();
+        for step in 0..count {
+            let index = (self.first + step) % count;
+            let Some(queue) = &mut self.queues[index] else {
+                continue;
+            };
+            for _ in 0..TAKE_PER_QUEUE {
+                match queue.try_recv() {
+                    Ok(event) => self.ready.push_back((index, event)),
+                    Err(mpsc::error::TryRecvError::Empty) => break,
+                    Err(mpsc::error::TryRecvError::Disconnected) => {
+                        self.queues[index] = None;
+                        break;
+                    }
+                }
+            }
+        }
+        self.first = (self.first + 1) % count.max(1);
+    }
+
+    /// Asks every open queue to wake this task on its next event, taking
+    /// one that came meanwhile; whether any queue is still open.
+    fn wait_for_any(&mut self, cx: &mut Context<'_>) -> bool {
+        let mut open = false;
+        for (index, slot) in self.queues.iter_mut().enumerate() {
+            let Some(queue) = slot else { continue };
+            match queue.poll_recv(cx) {
+                Poll::Ready(Some(event)) => {
+                    self.ready.push_back((index, event));
+                    open = true;
+                }
+                Poll::Ready(None) => *slot = None,
+                Poll::Pending => open = true,
+            }
+        }
+        open
+    }
+
+    /// What is waiting now, without waiting: for the last events once the
+    /// sources are stopped.
+    pub(super) fn try_recv(&mut self) -> Option<(usize, SourceEvent)> {
+        if let Some(event) = self.ready.pop_front() {
+            return Some(event);
+        }
+        for (index, queue) in self.queues.iter_mut().enumerate() {
+            if let Some(queue) = queue
+                && let Ok(event) = queue.try_recv()
+            {
+                return Some((index, event));
+            }
+        }
+        None
+    }
+}
+
 /// A source whose thread could not be started.
 pub(crate) fn cannot_start(source: &SourceConfig, e: std::io::Error) -> DaemonError {
     DaemonError::Source {
         name: source.name.clone(),
         source: e,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn connected(device: &str) -> SourceEvent {
+        SourceEvent::Connected {
+            device: device.into(),
+        }
+    }
+
+    fn device(event: &SourceEvent) -> &str {
+        match event {
+            SourceEvent::Connected { device } => device,
+            other => panic!("not a Connected: {other:?}"),
+        }
+    }
+
+    #[tokio::test]
+    async fn a_busy_source_does_not_keep_the_others_waiting_and_each_keeps_its_order() {
+        let (busy_tx, busy_rx) = mpsc::channel(QUEUE);
+        let (quiet_tx, quiet_rx) = mpsc::channel(QUEUE);
+        for k in 0..1000 {
+            busy_tx.send(connected(&format!("busy{k}"))).await.unwrap();
+        }
+        quiet_tx.send(connected("quiet0")).await.unwrap();
+        quiet_tx.send(connected("quiet1")).await.unwrap();
+        let mut events = SourceEvents::new(vec![busy_rx, quiet_rx]);
+
+        let mut seen = Vec::new();
+        for _ in 0..(TAKE_PER_QUEUE + 2) {
+            let (index, event) = events.recv().await.unwrap();
+            seen.push((index, device(&event).to_owned()));
+        }
+        // The quiet source's two events come within the busy one's first
+        // batch, not after its thousand.
+        let quiet: Vec<_> = seen.iter().filter(|(i, _)| *i == 1).collect();
+        assert_eq!(quiet.len(), 2, "{seen:?}");
+        assert_eq!(quiet[0].1, "quiet0");
+        assert_eq!(quiet[1].1, "quiet1");
+        let busy: Vec<_> = seen
+            .iter()
+            .filter(|(i, _)| *i == 0)
+            .map(|(_, d)| d.clone())
+            .collect();
+        let expected: Vec<_> = (0..TAKE_PER_QUEUE).map(|k| format!("busy{k}")).collect();
+        assert_eq!(busy, expected);
+
+        // The rest, in order, then nothing once every source has ended.
+        drop((busy_tx, quiet_tx));
+        let mut rest = 0;
+        while let Some((index, event)) = events.recv().await {
+            assert_eq!(index, 0);
+            assert_eq!(device(&event), format!("busy{}", TAKE_PER_QUEUE + rest));
+            rest += 1;
+        }
+        assert_eq!(rest, 1000 - TAKE_PER_QUEUE);
+    }
+
+    #[tokio::test]
+    async fn the_loop_waits_for_a_quiet_source_and_wakes_for_its_event() {
+        let (first_tx, first_rx) = mpsc::channel(QUEUE);
+        let (second_tx, second_rx) = mpsc::channel(QUEUE);
+        let mut events = SourceEvents::new(vec![first_rx, second_rx]);
+        drop(first_tx);
+        let waiting = tokio::time::timeout(Duration::from_millis(50), events.recv()).await;
+        assert!(
+            waiting.is_err(),
+            "an open source's empty queue is waited on"
+        );
+        tokio::spawn(async move {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+            second_tx.send(connected("late")).await.unwrap();
+        });
+        let (index, event) = tokio::time::timeout(Duration::from_secs(5), events.recv())
+            .await
+            .expect("woken by the late event")
+            .unwrap();
+        assert_eq!((index, device(&event)), (1, "late"));
+        assert!(events.recv().await.is_none(), "both sources have ended");
+    }
+
+    #[test]
+    fn what_is_left_at_stop_is_taken_without_waiting() {
+        let (first_tx, first_rx) = mpsc::channel(QUEUE);
+        let (second_tx, second_rx) = mpsc::channel(QUEUE);
+        let mut events = SourceEvents::new(vec![first_rx, second_rx]);
+        assert!(events.try_recv().is_none());
+        first_tx.try_send(connected("a")).unwrap();
+        second_tx.try_send(connected("b")).unwrap();
+        first_tx.try_send(connected("c")).unwrap();
+        let mut left = Vec::new();
+        while let Some((index, event)) = events.try_recv() {
+            left.push((index, device(&event).to_owned()));
+        }
+        assert_eq!(
+            left,
+            [
+                (0, "a".to_owned()),
+                (0, "c".to_owned()),
+                (1, "b".to_owned())
+            ]
+        );
     }
 }

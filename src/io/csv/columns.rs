@@ -109,7 +109,7 @@ pub(super) struct Reader<'a> {
 impl Reader<'_> {
     /// The rows of `csv`, showing `watch` a block at a time as they are
     /// read; from the first row, the rest of the file is handed to another
-    /// core when it can be (see [`halves`]), its rows joined after these.
+    /// core when it can be (see [`super::halves`]), its rows joined after these.
     pub(super) fn read_front<'a: 's, 's>(
         &self,
         csv: &mut csv::Reader<Front<'a>>,

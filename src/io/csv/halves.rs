@@ -27,6 +27,13 @@ use super::{Columns, CsvError, MAX_LINE_BYTES};
 /// that.
 const SPLIT_FROM_BYTES: u64 = 1 << 20;
 
+#[cfg(test)]
+thread_local! {
+    /// Cuts taken on this thread (the other core's rows joined): for the
+    /// tests to see that the second core really read.
+    static CUTS_TAKEN: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
 /// Where the second half of a file of `size` bytes begins when it is read
 /// on two cores: just after the first newline from its middle. `None` for
 /// a small file, for one core, or when no newline comes within
@@ -244,6 +251,8 @@ impl Read for Front<'_> {
                 && !back.quoted
             {
                 self.cut = Cut::Stopped(Some(back));
+                #[cfg(test)]
+                CUTS_TAKEN.with(|taken| taken.set(taken.get() + 1));
                 return Ok(0);
             }
             self.read_on_alone();
@@ -313,9 +322,14 @@ mod tests {
 
     #[test]
     fn rows_read_in_two_halves_are_the_rows_one_reader_reads() {
-        same_at_every_cut(
-            "t,x,y,temp,label\n0,1.5,-2,20,a\n1,2.5,-3,21,b\n2,3.5,-4,22,c\n3,4.5,-5,23,d\n",
-        );
+        let text = "t,x,y,temp,label\n0,1.5,-2,20,a\n1,2.5,-3,21,b\n2,3.5,-4,22,c\n3,4.5,-5,23,d\n";
+        let before = CUTS_TAKEN.with(std::cell::Cell::get);
+        same_at_every_cut(text);
+        // The other core read the rest at every cut from the first row on
+        // (from bytes 17 to 72: 56 cuts, the last at the end of the file);
+        // a cut after the header alone leaves the file to one reader.
+        let taken = CUTS_TAKEN.with(std::cell::Cell::get) - before;
+        assert_eq!(taken, 56, "cuts taken in {} bytes", text.len());
         // CRLF, comments, blank lines, no newline at the end.
         same_at_every_cut("t,x,y\r\n0,1,2\r\n# a note\r\n\r\n1,2,3\r\n\n2, 3 ,4\r\n3,4,5");
     }
