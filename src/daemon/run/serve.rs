@@ -107,7 +107,23 @@ impl Daemon {
     pub(super) async fn stop(mut self) {
         self.notifier.stopping();
         tracing::info!("stopping");
-        self.sources.stop().await;
+        // Their last events are handled while they stop: a source waiting
+        // on a full queue would not see its stop.
+        let stopped = self.sources.stop();
+        tokio::pin!(stopped);
+        loop {
+            tokio::select! {
+                biased;
+                () = &mut stopped => break,
+                event = self.events.recv() => match event {
+                    Some((index, event)) => self.handle_event(index, event),
+                    None => {
+                        (&mut stopped).await;
+                        break;
+                    }
+                },
+            }
+        }
         while let Some((index, event)) = self.events.try_recv() {
             self.handle_event(index, event);
         }

@@ -33,6 +33,8 @@ pub(super) struct SourceHandle {
 pub(crate) enum SourceTask {
     Async(tokio::task::JoinHandle<()>),
     Thread(std::thread::JoinHandle<()>),
+    /// Asked to stop, and waited for.
+    Stopped,
 }
 
 /// Every configured source, started, and what stops them.
@@ -44,8 +46,9 @@ pub(super) struct Sources {
     stop_flag: Arc<AtomicBool>,
 }
 
-/// Events a source's queue holds before the source waits (or, for a
-/// bridge, counts what it could not queue): a 1 kHz source's 4 s.
+/// Events a source's queue holds before the source waits (a bridge a
+/// millisecond at a time, then skips the polls it missed): a 1 kHz
+/// source's 4 s.
 const QUEUE: usize = 4096;
 
 /// What a source's start function is given beside its configuration.
@@ -120,23 +123,31 @@ impl Sources {
     }
 
     /// Asks every source to stop (the Falcon source sends its stop
-    /// command) and waits up to 2 s for each.
-    pub(super) async fn stop(&mut self) {
+    /// command). The future waits up to 2 s for each; it holds no borrow
+    /// of the sources, so the loop can take their last events meanwhile
+    /// (a source blocked on a full queue would not see its stop).
+    pub(super) fn stop(&mut self) -> impl Future<Output = ()> + 'static {
         let _ = self.stop_tx.send(true);
         self.stop_flag.store(true, Ordering::Relaxed);
-        for source in &mut self.handles {
-            let task =
-                std::mem::replace(&mut source.task, SourceTask::Async(tokio::spawn(async {})));
-            match task {
-                SourceTask::Async(handle) => {
-                    let _ = tokio::time::timeout(Duration::from_secs(2), handle).await;
-                }
-                SourceTask::Thread(handle) => {
-                    let _ = tokio::time::timeout(
-                        Duration::from_secs(2),
-                        tokio::task::spawn_blocking(move || handle.join()),
-                    )
-                    .await;
+        let tasks: Vec<SourceTask> = self
+            .handles
+            .iter_mut()
+            .map(|source| std::mem::replace(&mut source.task, SourceTask::Stopped))
+            .collect();
+        async move {
+            for task in tasks {
+                match task {
+                    SourceTask::Async(handle) => {
+                        let _ = tokio::time::timeout(Duration::from_secs(2), handle).await;
+                    }
+                    SourceTask::Thread(handle) => {
+                        let _ = tokio::time::timeout(
+                            Duration::from_secs(2),
+                            tokio::task::spawn_blocking(move || handle.join()),
+                        )
+                        .await;
+                    }
+                    SourceTask::Stopped => {}
                 }
             }
         }
@@ -168,6 +179,8 @@ pub(super) struct SourceEvents {
     ready: VecDeque<(usize, SourceEvent)>,
     /// The queue the next sweep starts at.
     first: usize,
+    /// One queue's events as a sweep takes them.
+    batch: Vec<SourceEvent>,
 }
 
 /// Events taken from one queue in one sweep.
@@ -179,6 +192,7 @@ impl SourceEvents {
             queues: queues.into_iter().map(Some).collect(),
             ready: VecDeque::new(),
             first: 0,
+            batch: Vec::with_capacity(TAKE_PER_QUEUE),
         }
     }
 
@@ -192,59 +206,43 @@ impl SourceEvents {
         // An event spends the task's budget as a channel's would, so a
         // flood of events still lets the runtime run its other tasks.
         let coop = std::task::ready!(tokio::task::coop::poll_proceed(cx));
-        if self.ready.is_empty() {
-            self.sweep();
-        }
-        if self.ready.is_empty() && !self.wait_for_any(cx) {
-            return Poll::Ready(None);
-        }
+        let open = self.ready.is_empty() && self.sweep(cx);
         match self.ready.pop_front() {
             Some(event) => {
                 coop.made_progress();
                 Poll::Ready(Some(event))
             }
-            None => Poll::Pending,
+            None if open => Poll::Pending,
+            None => Poll::Ready(None),
         }
     }
 
     /// Takes what waits in every queue, up to [`TAKE_PER_QUEUE`] from
-    /// each, starting one queue further round than the last sweep.
-    fn sweep(&mut self) {
+    /// each, starting one queue further round than the last sweep; a queue
+    /// found empty wakes this task on its next event. Whether any queue is
+    /// still open.
+    fn sweep(&mut self, cx: &mut Context<'_>) -> bool {
         let count = self.queues.len();
+        let mut open = false;
         for step in 0..count {
             let index = (self.first + step) % count;
             let Some(queue) = &mut self.queues[index] else {
                 continue;
             };
-            for _ in 0..TAKE_PER_QUEUE {
-                match queue.try_recv() {
-                    Ok(event) => self.ready.push_back((index, event)),
-                    Err(mpsc::error::TryRecvError::Empty) => break,
-                    Err(mpsc::error::TryRecvError::Disconnected) => {
-                        self.queues[index] = None;
-                        break;
-                    }
-                }
-            }
-        }
-        self.first = (self.first + 1) % count.max(1);
-    }
-
-    /// Asks every open queue to wake this task on its next event, taking
-    /// one that came meanwhile; whether any queue is still open.
-    fn wait_for_any(&mut self, cx: &mut Context<'_>) -> bool {
-        let mut open = false;
-        for (index, slot) in self.queues.iter_mut().enumerate() {
-            let Some(queue) = slot else { continue };
-            match queue.poll_recv(cx) {
-                Poll::Ready(Some(event)) => {
-                    self.ready.push_back((index, event));
+            // Unlike `try_recv`, this never parks the thread while a
+            // sender is half-way through its send.
+            match queue.poll_recv_many(cx, &mut self.batch, TAKE_PER_QUEUE) {
+                // Closed, and nothing left in it.
+                Poll::Ready(0) => self.queues[index] = None,
+                Poll::Ready(_) => {
                     open = true;
+                    self.ready
+                        .extend(self.batch.drain(..).map(|event| (index, event)));
                 }
-                Poll::Ready(None) => *slot = None,
                 Poll::Pending => open = true,
             }
         }
+        self.first = (self.first + 1) % count.max(1);
         open
     }
 
@@ -332,6 +330,30 @@ mod tests {
     }
 
     #[tokio::test]
+    async fn each_sweep_starts_one_queue_further_round() {
+        let (first_tx, first_rx) = mpsc::channel(QUEUE);
+        let (second_tx, second_rx) = mpsc::channel(QUEUE);
+        for k in 0..200 {
+            first_tx.try_send(connected(&format!("a{k}"))).unwrap();
+            second_tx.try_send(connected(&format!("b{k}"))).unwrap();
+        }
+        let mut events = SourceEvents::new(vec![first_rx, second_rx]);
+        let mut order = Vec::new();
+        for _ in 0..(4 * TAKE_PER_QUEUE) {
+            order.push(events.recv().await.unwrap().0);
+        }
+        let batches: Vec<usize> = order.chunks(TAKE_PER_QUEUE).map(|c| c[0]).collect();
+        assert!(
+            order
+                .chunks(TAKE_PER_QUEUE)
+                .all(|c| c.iter().all(|&i| i == c[0])),
+            "{order:?}"
+        );
+        // The second sweep starts at the second queue.
+        assert_eq!(batches, [0, 1, 1, 0]);
+    }
+
+    #[tokio::test]
     async fn the_loop_waits_for_a_quiet_source_and_wakes_for_its_event() {
         let (first_tx, first_rx) = mpsc::channel(QUEUE);
         let (second_tx, second_rx) = mpsc::channel(QUEUE);
@@ -342,6 +364,7 @@ mod tests {
             waiting.is_err(),
             "an open source's empty queue is waited on"
         );
+        let sent = std::time::Instant::now();
         tokio::spawn(async move {
             tokio::time::sleep(Duration::from_millis(20)).await;
             second_tx.send(connected("late")).await.unwrap();
@@ -351,11 +374,17 @@ mod tests {
             .expect("woken by the late event")
             .unwrap();
         assert_eq!((index, device(&event)), (1, "late"));
+        // Woken by the event, not found when the timeout gave up.
+        assert!(
+            sent.elapsed() < Duration::from_secs(2),
+            "{:?}",
+            sent.elapsed()
+        );
         assert!(events.recv().await.is_none(), "both sources have ended");
     }
 
-    #[test]
-    fn what_is_left_at_stop_is_taken_without_waiting() {
+    #[tokio::test]
+    async fn what_is_left_at_stop_is_taken_without_waiting_in_order() {
         let (first_tx, first_rx) = mpsc::channel(QUEUE);
         let (second_tx, second_rx) = mpsc::channel(QUEUE);
         let mut events = SourceEvents::new(vec![first_rx, second_rx]);
@@ -363,6 +392,10 @@ mod tests {
         first_tx.try_send(connected("a")).unwrap();
         second_tx.try_send(connected("b")).unwrap();
         first_tx.try_send(connected("c")).unwrap();
+        // The loop took one; the sweep left the others taken, not handled.
+        let (index, event) = events.recv().await.unwrap();
+        assert_eq!((index, device(&event)), (0, "a"));
+        first_tx.try_send(connected("d")).unwrap();
         let mut left = Vec::new();
         while let Some((index, event)) = events.try_recv() {
             left.push((index, device(&event).to_owned()));
@@ -370,9 +403,9 @@ mod tests {
         assert_eq!(
             left,
             [
-                (0, "a".to_owned()),
                 (0, "c".to_owned()),
-                (1, "b".to_owned())
+                (1, "b".to_owned()),
+                (0, "d".to_owned())
             ]
         );
     }
