@@ -60,6 +60,9 @@ pub fn run(args: RunArgs) -> Result<()> {
             .await
             .map_err(anyhow::Error::from)
     });
+    // A writer thread stuck in a write to a pipe nobody reads (its 1 s
+    // grace is over) does not keep the process from ending.
+    runtime.shutdown_timeout(std::time::Duration::from_secs(1));
     if let Some(display) = display {
         display.finish();
     }

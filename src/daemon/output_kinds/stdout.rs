@@ -48,7 +48,10 @@ impl Kind for Stdout {
 
 /// Standard output written straight from the thread that polls it: for a
 /// writer with a thread of its own, which may block in a write (a pipe
-/// nobody reads) without holding up the runtime.
+/// nobody reads) without holding up the runtime's workers. Such a thread
+/// is left behind at exit (`fieldcal run` shuts its runtime down with a
+/// timeout); its writes never wait, so the close grace is checked between
+/// them.
 struct BlockingStdout;
 
 impl tokio::io::AsyncWrite for BlockingStdout {

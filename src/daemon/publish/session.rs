@@ -264,11 +264,17 @@ async fn read_loop<R: AsyncRead + Unpin>(
     }
 }
 
-/// Runs `fut` unless the subscriber's deadline passes first.
+/// Runs `fut` unless the subscriber's deadline passes first. A deadline
+/// already past ends the session before `fut` starts: a writer that never
+/// waits (standard output on a thread of its own) would otherwise never
+/// let the deadline be seen.
 async fn by_deadline<F: Future>(
     deadline: &mut watch::Receiver<Option<Instant>>,
     fut: F,
 ) -> Result<F::Output, SessionEnd> {
+    if deadline.borrow().is_some_and(|d| d <= Instant::now()) {
+        return Err(SessionEnd::TimedOut);
+    }
     tokio::select! {
         biased;
         out = fut => Ok(out),

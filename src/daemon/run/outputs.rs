@@ -40,15 +40,18 @@ impl Outputs {
             stop: &stop,
             progress,
         };
-        let mut running = Vec::with_capacity(config.outputs.outputs.len());
-        for output in &config.outputs.outputs {
-            running.push(output.start(&start).await?);
-        }
-        Ok(Outputs {
-            page: running.iter_mut().find_map(|r| r.page.take()),
-            running,
+        // Built first, so an output that fails to start drops it, and the
+        // ones started before are told to stop (see `Drop`).
+        let mut outputs = Outputs {
+            page: None,
+            running: Vec::with_capacity(config.outputs.outputs.len()),
             stop_tx,
-        })
+        };
+        for output in &config.outputs.outputs {
+            outputs.running.push(output.start(&start).await?);
+        }
+        outputs.page = outputs.running.iter_mut().find_map(|r| r.page.take());
+        Ok(outputs)
     }
 
     /// Stops the outputs once the hub is closed: each writer is given 1 s

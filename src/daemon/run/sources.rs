@@ -171,8 +171,8 @@ impl Sources {
 /// sweep takes what is waiting in every queue, up to [`TAKE_PER_QUEUE`]
 /// from each, starting one queue further round each time, so a busy
 /// source cannot keep the others waiting and the queues are looked at
-/// once a batch rather than once an event. Only when every queue is empty
-/// does the loop ask them all to wake it.
+/// once a batch rather than once an event. A queue found empty wakes the
+/// loop on its next event.
 pub(super) struct SourceEvents {
     queues: Vec<Option<mpsc::Receiver<SourceEvent>>>,
     /// Taken from the queues, not yet handled, in order within a source.

@@ -34,6 +34,9 @@ thread_local! {
     static CUTS_TAKEN: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
 }
 
+/// UTF-8's byte-order mark.
+const BOM: &[u8] = b"\xEF\xBB\xBF";
+
 /// Where the second half of a file of `size` bytes begins when it is read
 /// on two cores: just after the first newline from its middle. `None` for
 /// a small file, for one core, or when no newline comes within
@@ -48,12 +51,16 @@ pub(super) fn cut(file: &File, size: u64) -> Option<u64> {
 /// Just after the first newline at or after byte `from`, within
 /// [`MAX_LINE_BYTES`].
 pub(super) fn cut_after(file: &File, from: u64) -> Option<u64> {
-    let mut buf = vec![0; MAX_LINE_BYTES];
+    // Three bytes more than the newline is looked for in: the whole of a
+    // byte-order mark just after it.
+    let mut buf = vec![0; MAX_LINE_BYTES + BOM.len()];
     let n = file.read_at(&mut buf, from).ok()?;
-    let newline = buf[..n].iter().position(|&b| b == b'\n')?;
+    let newline = buf[..n.min(MAX_LINE_BYTES)]
+        .iter()
+        .position(|&b| b == b'\n')?;
     // A new reader would strip a byte-order mark there; one reader keeps
     // it (and refuses the field): leave such a file to one reader.
-    if buf[newline + 1..n].starts_with(b"\xEF\xBB\xBF") {
+    if buf[newline + 1..n].starts_with(BOM) {
         return None;
     }
     Some(from + newline as u64 + 1)
@@ -354,6 +361,22 @@ mod tests {
         same_at_every_cut("t,x,y\n0,1,2\n1,\"2\n\",3\n2,3,4\n");
         // A byte-order mark after a newline stays in its field.
         same_at_every_cut("t,x,y\n0,1,2\n\u{feff}1,2,3\n2,3,4\n");
+    }
+
+    #[test]
+    fn a_byte_order_mark_just_past_the_window_still_forbids_the_cut() {
+        let mut file = tempfile::tempfile().unwrap();
+        let mut bytes = vec![b'1'; MAX_LINE_BYTES - 1];
+        bytes.push(b'\n');
+        bytes.extend_from_slice(BOM);
+        bytes.extend_from_slice(b"1,2,3\n");
+        file.write_all(&bytes).unwrap();
+        assert_eq!(cut_after(&file, 0), None);
+        // Without the mark, the cut is just after that newline.
+        file.set_len(MAX_LINE_BYTES as u64).unwrap();
+        file.write_all_at(b"1,2,3\n", MAX_LINE_BYTES as u64)
+            .unwrap();
+        assert_eq!(cut_after(&file, 0), Some(MAX_LINE_BYTES as u64));
     }
 
     proptest! {
