@@ -45,7 +45,10 @@ pub fn run(args: RunArgs) -> Result<()> {
         .enable_all()
         .build()
         .context("cannot start the runtime")?;
-    let result = runtime.block_on(async {
+    // The daemon's loop is a task on the workers, not the main thread's:
+    // a reading a source task sends is taken up on the same worker next
+    // (its LIFO slot), with no wake-up of another thread in between.
+    let daemon = async {
         let (stop_tx, stop_rx) = watch::channel(false);
         // SIGHUP reloads the configuration: the library reads the file again.
         let (reload_tx, reload_rx) = mpsc::channel(1);
@@ -59,6 +62,13 @@ pub fn run(args: RunArgs) -> Result<()> {
         fieldcal::daemon::run::run_with(config, stop_rx, options)
             .await
             .map_err(anyhow::Error::from)
+    };
+    let result = runtime.block_on(async {
+        match tokio::spawn(daemon).await {
+            Ok(result) => result,
+            Err(e) if e.is_panic() => std::panic::resume_unwind(e.into_panic()),
+            Err(e) => Err(anyhow::anyhow!("the daemon's task ended early: {e}")),
+        }
     });
     // A writer thread stuck in a write to a pipe nobody reads (its 1 s
     // grace is over) does not keep the process from ending.

@@ -54,7 +54,12 @@ impl Daemon {
         let mut status_tick = interval(self.running.daemon.status_interval);
         let watchdog = self.notifier.watchdog_interval();
         let mut watchdog_tick = interval(watchdog.unwrap_or(Duration::from_secs(3600)));
-        let mut progress_tick = interval(REDRAW);
+        // The progress snapshot rides on the loop's own wake-ups (a
+        // reading, a command) at most every REDRAW; the timer only wakes
+        // the loop when nothing else has for half a REDRAW longer.
+        let mut progress_due = tokio::time::Instant::now();
+        let progress_idle = tokio::time::sleep_until(progress_due + REDRAW / 2);
+        tokio::pin!(progress_idle);
 
         // Sensor events come before commands and status ticks (biased), so no
         // client can take the time the sensors need; after EVENT_BURST events
@@ -87,12 +92,16 @@ impl Daemon {
                         }
                     }
                 },
-                _ = progress_tick.tick(), if self.progress.is_some() => {
-                    if let Some(progress) = &self.progress {
-                        progress.update(self.sensors.sensors.iter().map(|(_, s)| s));
-                    }
-                }
+                () = &mut progress_idle, if self.progress.is_some() => {}
                 () = std::future::ready(()), if events_in_a_row >= EVENT_BURST => {}
+            }
+            if let Some(progress) = &self.progress {
+                let now = tokio::time::Instant::now();
+                if now >= progress_due {
+                    progress.update(self.sensors.sensors.iter().map(|(_, s)| s));
+                    progress_due = now + REDRAW;
+                    progress_idle.as_mut().reset(progress_due + REDRAW / 2);
+                }
             }
             if events_in_a_row == handled_before {
                 // Something else had its turn.
