@@ -213,7 +213,12 @@ axes = ["x", "y"]
             .enable_all()
             .build()
             .expect("runtime");
-        runtime.block_on(fieldcal::daemon::run::run(config, stop_rx))
+        // As `fieldcal run` runs it: the loop is a task on the workers.
+        runtime.block_on(async {
+            tokio::spawn(fieldcal::daemon::run::run(config, stop_rx))
+                .await
+                .expect("the daemon's task")
+        })
     });
 
     // The device side: notice the start command, drain whatever the daemon sends.

@@ -60,6 +60,145 @@ pub struct ReadingMessage<'a> {
     pub columns: Option<ColumnValues<'a>>,
 }
 
+impl ReadingMessage<'_> {
+    /// The line [`to_line`] writes for this message, byte for byte, written
+    /// directly: the keys are fixed text and each value is serde_json's
+    /// own (the same digits, the same escapes, `null` for a value that is
+    /// not finite), without the serializer's work for each key. A READING
+    /// goes out for every sample, so this is the replay's and the reading
+    /// path's line.
+    pub fn to_line(&self) -> String {
+        let mut out = Vec::with_capacity(LINE_CAPACITY);
+        out.extend_from_slice(b"{\"class\":");
+        json_value(&mut out, self.class);
+        out.extend_from_slice(b",\"sensor\":");
+        json_value(&mut out, self.sensor);
+        out.extend_from_slice(b",\"time\":");
+        json_value(&mut out, &self.time);
+        out.extend_from_slice(b",\"raw\":");
+        json_value(&mut out, &self.raw);
+        json_field(&mut out, b",\"corrected\":", self.corrected.as_ref());
+        json_field(&mut out, b",\"heading_deg\":", self.heading_deg.as_ref());
+        json_field(
+            &mut out,
+            b",\"true_heading_deg\":",
+            self.true_heading_deg.as_ref(),
+        );
+        json_field(&mut out, b",\"calibration\":", self.calibration.as_ref());
+        out.extend_from_slice(b",\"calibrated\":");
+        json_value(&mut out, &self.calibrated);
+        json_field(&mut out, b",\"trusted\":", self.trusted.as_ref());
+        json_field(&mut out, b",\"distrust\":", self.distrust.as_ref());
+        json_field(&mut out, b",\"columns\":", self.columns.as_ref());
+        out.push(b'}');
+        String::from_utf8(out).unwrap_or_else(|_| "{}".to_string())
+    }
+}
+
+/// The accelerometer beside a 3-axis magnetometer's READING.
+#[derive(Debug, Clone, Serialize)]
+pub struct TiltFields<'a> {
+    /// The accelerometer sensor.
+    pub sensor: &'a str,
+    /// Its calibration that corrected the accelerometer, or none: the
+    /// accelerometer's raw readings were used.
+    pub calibration: Option<u64>,
+    pub calibrated: bool,
+    pub tilt_deg: f64,
+    pub pitch_deg: f64,
+    pub inclination_deg: f64,
+}
+
+/// A sample of one 3-axis sensor, raw and (once calibrated) corrected.
+#[derive(Debug, Clone, Serialize)]
+pub struct Reading3Message<'a> {
+    pub class: &'static str,
+    pub sensor: &'a str,
+    pub time: f64,
+    pub axes: u8,
+    pub raw: [f64; 3],
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub corrected: Option<[f64; 3]>,
+    /// |corrected|: the field's magnitude, ≈ r.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub magnitude: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<u64>,
+    pub calibrated: bool,
+    /// Tilt-compensated, clockwise from magnetic north to the sensor's +x.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heading_deg: Option<f64>,
+    /// `heading_deg` from true north, when the sensor has a declination.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub true_heading_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tilt: Option<TiltFields<'a>>,
+    /// Why a calibrated magnetometer with a tilt source has no heading.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heading_omitted: Option<String>,
+    /// Whether the calibrated reading can be believed; absent while
+    /// uncalibrated ([`crate::model::trust`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub trusted: Option<bool>,
+    /// Why not, with the deciding numbers; absent when trusted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub distrust: Option<&'a [String]>,
+}
+
+impl Reading3Message<'_> {
+    /// The line [`to_line`] writes for this message, byte for byte, written
+    /// directly (as [`ReadingMessage::to_line`]).
+    pub fn to_line(&self) -> String {
+        let mut out = Vec::with_capacity(LINE_CAPACITY);
+        out.extend_from_slice(b"{\"class\":");
+        json_value(&mut out, self.class);
+        out.extend_from_slice(b",\"sensor\":");
+        json_value(&mut out, self.sensor);
+        out.extend_from_slice(b",\"time\":");
+        json_value(&mut out, &self.time);
+        out.extend_from_slice(b",\"axes\":");
+        json_value(&mut out, &self.axes);
+        out.extend_from_slice(b",\"raw\":");
+        json_value(&mut out, &self.raw);
+        json_field(&mut out, b",\"corrected\":", self.corrected.as_ref());
+        json_field(&mut out, b",\"magnitude\":", self.magnitude.as_ref());
+        json_field(&mut out, b",\"calibration\":", self.calibration.as_ref());
+        out.extend_from_slice(b",\"calibrated\":");
+        json_value(&mut out, &self.calibrated);
+        json_field(&mut out, b",\"heading_deg\":", self.heading_deg.as_ref());
+        json_field(
+            &mut out,
+            b",\"true_heading_deg\":",
+            self.true_heading_deg.as_ref(),
+        );
+        json_field(&mut out, b",\"tilt\":", self.tilt.as_ref());
+        json_field(
+            &mut out,
+            b",\"heading_omitted\":",
+            self.heading_omitted.as_ref(),
+        );
+        json_field(&mut out, b",\"trusted\":", self.trusted.as_ref());
+        json_field(&mut out, b",\"distrust\":", self.distrust.as_ref());
+        out.push(b'}');
+        String::from_utf8(out).unwrap_or_else(|_| "{}".to_string())
+    }
+}
+
+/// `key` and the value, when there is one.
+fn json_field<T: Serialize + ?Sized>(out: &mut Vec<u8>, key: &[u8], value: Option<&T>) {
+    if let Some(value) = value {
+        out.extend_from_slice(key);
+        json_value(out, value);
+    }
+}
+
+/// One value as serde_json writes it. Writing to a `Vec` cannot fail for
+/// the plain values of a message (strings, numbers, booleans, arrays and
+/// maps with string keys).
+fn json_value<T: Serialize + ?Sized>(out: &mut Vec<u8>, value: &T) {
+    let _ = serde_json::to_writer(&mut *out, value);
+}
+
 /// Some columns of a CSV row, serialised as a map from the header's names
 /// to the row's values; cells that are not numbers are left out. Borrows
 /// the header (resolved once) and the row: nothing is copied per reading.
@@ -435,3 +574,104 @@ pub fn to_line<T: Serialize>(message: &T) -> String {
 
 /// Bytes reserved for a line before it is written.
 const LINE_CAPACITY: usize = 256;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::collection::vec;
+    use proptest::option::of;
+    use proptest::prelude::*;
+
+    fn number() -> impl Strategy<Value = f64> {
+        prop_oneof![any::<f64>(), -1e4..1e4f64, Just(f64::NAN), Just(-0.0)]
+    }
+
+    proptest! {
+        /// The READING line written directly is the line serde_json
+        /// writes for the message, byte for byte, whatever it holds:
+        /// names that need escapes, values that are not finite, every
+        /// optional field present or not.
+        #[test]
+        fn a_reading_line_is_the_serialised_message(
+            sensor in ".{0,12}",
+            time in number(),
+            raw in [number(), number()],
+            corrected in of([number(), number()]),
+            heading_deg in of(number()),
+            true_heading_deg in of(number()),
+            calibration in of(any::<u64>()),
+            calibrated in any::<bool>(),
+            trusted in of(any::<bool>()),
+            distrust in of(vec(".{0,20}", 0..3)),
+            columns in of(vec((".{0,8}", number()), 0..4)),
+        ) {
+            let (names, values): (Vec<String>, Vec<f64>) =
+                columns.clone().unwrap_or_default().into_iter().unzip();
+            // One index past the row: left out, as a short row's is.
+            let indices: Vec<usize> = (0..=names.len()).collect();
+            let message = ReadingMessage {
+                class: "READING",
+                sensor: &sensor,
+                time,
+                raw,
+                corrected,
+                heading_deg,
+                true_heading_deg,
+                calibration,
+                calibrated,
+                trusted,
+                distrust: distrust.as_deref(),
+                columns: columns.as_ref().map(|_| ColumnValues {
+                    names: &names,
+                    indices: &indices,
+                    values: &values,
+                }),
+            };
+            prop_assert_eq!(message.to_line(), to_line(&message));
+        }
+
+        /// The same for a 3-axis sensor's READING.
+        #[test]
+        fn a_3d_reading_line_is_the_serialised_message(
+            sensor in ".{0,12}",
+            time in number(),
+            raw in [number(), number(), number()],
+            corrected in of([number(), number(), number()]),
+            magnitude in of(number()),
+            calibration in of(any::<u64>()),
+            calibrated in any::<bool>(),
+            heading_deg in of(number()),
+            true_heading_deg in of(number()),
+            tilt in of((".{0,8}", of(any::<u64>()), any::<bool>(), [number(), number(), number()])),
+            heading_omitted in of(".{0,20}"),
+            trusted in of(any::<bool>()),
+            distrust in of(vec(".{0,20}", 0..3)),
+        ) {
+            let message = Reading3Message {
+                class: "READING",
+                sensor: &sensor,
+                time,
+                axes: 3,
+                raw,
+                corrected,
+                magnitude,
+                calibration,
+                calibrated,
+                heading_deg,
+                true_heading_deg,
+                tilt: tilt.as_ref().map(|(sensor, calibration, calibrated, [t, p, i])| TiltFields {
+                    sensor,
+                    calibration: *calibration,
+                    calibrated: *calibrated,
+                    tilt_deg: *t,
+                    pitch_deg: *p,
+                    inclination_deg: *i,
+                }),
+                heading_omitted,
+                trusted,
+                distrust: distrust.as_deref(),
+            };
+            prop_assert_eq!(message.to_line(), to_line(&message));
+        }
+    }
+}

@@ -17,7 +17,7 @@ use serde::Serialize;
 
 use super::config::{Axis, Field, SensorConfig};
 use super::lifecycle::Lifecycle;
-use super::messages::{CalibrationEvent, as_published, to_line};
+use super::messages::{CalibrationEvent, Reading3Message, TiltFields, as_published, to_line};
 use super::north::{Earth, MeasuredDip, North, earth};
 use super::sensor::{Emitter, Geometry, Sample};
 use super::{Calibration, Ellipsoid3Params};
@@ -71,54 +71,6 @@ fn unit_of(field: Field) -> &'static str {
         Field::Accel => "g",
         Field::Gyro => "deg/s",
     }
-}
-
-#[derive(Serialize)]
-struct TiltFields<'a> {
-    /// The accelerometer sensor.
-    sensor: &'a str,
-    /// Its calibration that corrected the accelerometer, or none: the
-    /// accelerometer's raw readings were used.
-    calibration: Option<u64>,
-    calibrated: bool,
-    tilt_deg: f64,
-    pitch_deg: f64,
-    inclination_deg: f64,
-}
-
-#[derive(Serialize)]
-struct Reading3Message<'a> {
-    class: &'static str,
-    sensor: &'a str,
-    time: f64,
-    axes: u8,
-    raw: [f64; 3],
-    #[serde(skip_serializing_if = "Option::is_none")]
-    corrected: Option<[f64; 3]>,
-    /// |corrected|: the field's magnitude, ≈ r.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    magnitude: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    calibration: Option<u64>,
-    calibrated: bool,
-    /// Tilt-compensated, clockwise from magnetic north to the sensor's +x.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    heading_deg: Option<f64>,
-    /// `heading_deg` from true north, when the sensor has a declination.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    true_heading_deg: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    tilt: Option<TiltFields<'a>>,
-    /// Why a calibrated magnetometer with a tilt source has no heading.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    heading_omitted: Option<String>,
-    /// Whether the calibrated reading can be believed; absent while
-    /// uncalibrated ([`crate::model::trust`]).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    trusted: Option<bool>,
-    /// Why not, with the deciding numbers; absent when trusted.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    distrust: Option<&'a [String]>,
 }
 
 #[derive(Serialize)]
@@ -793,7 +745,7 @@ impl Geometry for Sensor3 {
                 accel,
             )
         });
-        to_line(&Reading3Message {
+        Reading3Message {
             class: "READING",
             sensor: &self.name,
             time,
@@ -812,7 +764,8 @@ impl Geometry for Sensor3 {
                 .as_ref()
                 .map(|v| v.reasons.as_slice())
                 .filter(|r| !r.is_empty()),
-        })
+        }
+        .to_line()
     }
     fn trust(&self) -> Option<TrustCounts> {
         self.trust.as_ref().map(|(_, m)| m.counts())

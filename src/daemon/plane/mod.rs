@@ -206,7 +206,7 @@ impl Plane {
                 indices: &binding.others,
                 values: &row.values,
             });
-        to_line(&ReadingMessage {
+        ReadingMessage {
             class: "READING",
             sensor: &self.config.name,
             time,
@@ -224,7 +224,8 @@ impl Plane {
                 .map(|v| v.reasons.as_slice())
                 .filter(|r| !r.is_empty()),
             columns: columns.filter(|c| !c.is_empty()),
-        })
+        }
+        .to_line()
     }
 
     /// A sample of the plane at `time`, with the accelerometer and the
