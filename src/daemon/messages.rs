@@ -1,5 +1,7 @@
 //! What the daemon publishes: one JSON object per line, each with a
-//! `class`, in the manner of gpsd. Absent values are omitted, never null.
+//! `class`, in the manner of gpsd. Absent values are omitted, never null
+//! (a number that is not finite is written `null`, as serde_json writes
+//! it).
 //!
 //! One clock for every message of a run (`time`, in seconds):
 //! - under `fieldcal run`, the host's Unix clock (seconds since the epoch).
@@ -196,7 +198,8 @@ fn json_field<T: Serialize + ?Sized>(out: &mut Vec<u8>, key: &[u8], value: Optio
 /// the plain values of a message (strings, numbers, booleans, arrays and
 /// maps with string keys).
 fn json_value<T: Serialize + ?Sized>(out: &mut Vec<u8>, value: &T) {
-    let _ = serde_json::to_writer(&mut *out, value);
+    let written = serde_json::to_writer(&mut *out, value);
+    debug_assert!(written.is_ok(), "a message's value did not serialise");
 }
 
 /// Some columns of a CSV row, serialised as a map from the header's names

@@ -26,8 +26,10 @@ pub use terminal::{Live, LogWriter, StdoutAbove, draw_target};
 use super::messages::CalibrationEvent;
 use super::sensor::Sensor;
 
-/// How often the live lines are redrawn and the loop takes a snapshot:
-/// ten times a second is as fast as a person reads a changing number.
+/// How often the live lines are redrawn, and the least time between the
+/// loop's snapshots (it takes one on its next wake-up after this, or after
+/// half as long again when nothing wakes it): ten times a second is as
+/// fast as a person reads a changing number.
 pub const REDRAW: Duration = Duration::from_millis(100);
 
 /// Most milestone messages kept between two drains (a log that nobody
