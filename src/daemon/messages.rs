@@ -70,30 +70,17 @@ impl ReadingMessage<'_> {
     /// goes out for every sample, so this is the replay's and the reading
     /// path's line.
     pub fn to_line(&self) -> String {
-        let mut out = Vec::with_capacity(LINE_CAPACITY);
-        out.extend_from_slice(b"{\"class\":");
-        json_value(&mut out, self.class);
-        out.extend_from_slice(b",\"sensor\":");
-        json_value(&mut out, self.sensor);
-        out.extend_from_slice(b",\"time\":");
-        json_value(&mut out, &self.time);
-        out.extend_from_slice(b",\"raw\":");
-        json_value(&mut out, &self.raw);
-        json_field(&mut out, b",\"corrected\":", self.corrected.as_ref());
-        json_field(&mut out, b",\"heading_deg\":", self.heading_deg.as_ref());
-        json_field(
-            &mut out,
-            b",\"true_heading_deg\":",
-            self.true_heading_deg.as_ref(),
-        );
-        json_field(&mut out, b",\"calibration\":", self.calibration.as_ref());
-        out.extend_from_slice(b",\"calibrated\":");
-        json_value(&mut out, &self.calibrated);
-        json_field(&mut out, b",\"trusted\":", self.trusted.as_ref());
-        json_field(&mut out, b",\"distrust\":", self.distrust.as_ref());
-        json_field(&mut out, b",\"columns\":", self.columns.as_ref());
-        out.push(b'}');
-        String::from_utf8(out).unwrap_or_else(|_| "{}".to_string())
+        let mut line = JsonLine::reading(self.class, self.sensor, self.time);
+        line.field(b"raw", &self.raw);
+        line.optional(b"corrected", self.corrected.as_ref());
+        line.optional(b"heading_deg", self.heading_deg.as_ref());
+        line.optional(b"true_heading_deg", self.true_heading_deg.as_ref());
+        line.optional(b"calibration", self.calibration.as_ref());
+        line.field(b"calibrated", &self.calibrated);
+        line.optional(b"trusted", self.trusted.as_ref());
+        line.optional(b"distrust", self.distrust.as_ref());
+        line.optional(b"columns", self.columns.as_ref());
+        line.end()
     }
 }
 
@@ -151,55 +138,66 @@ impl Reading3Message<'_> {
     /// The line [`to_line`] writes for this message, byte for byte, written
     /// directly (as [`ReadingMessage::to_line`]).
     pub fn to_line(&self) -> String {
-        let mut out = Vec::with_capacity(LINE_CAPACITY);
-        out.extend_from_slice(b"{\"class\":");
-        json_value(&mut out, self.class);
-        out.extend_from_slice(b",\"sensor\":");
-        json_value(&mut out, self.sensor);
-        out.extend_from_slice(b",\"time\":");
-        json_value(&mut out, &self.time);
-        out.extend_from_slice(b",\"axes\":");
-        json_value(&mut out, &self.axes);
-        out.extend_from_slice(b",\"raw\":");
-        json_value(&mut out, &self.raw);
-        json_field(&mut out, b",\"corrected\":", self.corrected.as_ref());
-        json_field(&mut out, b",\"magnitude\":", self.magnitude.as_ref());
-        json_field(&mut out, b",\"calibration\":", self.calibration.as_ref());
-        out.extend_from_slice(b",\"calibrated\":");
-        json_value(&mut out, &self.calibrated);
-        json_field(&mut out, b",\"heading_deg\":", self.heading_deg.as_ref());
-        json_field(
-            &mut out,
-            b",\"true_heading_deg\":",
-            self.true_heading_deg.as_ref(),
-        );
-        json_field(&mut out, b",\"tilt\":", self.tilt.as_ref());
-        json_field(
-            &mut out,
-            b",\"heading_omitted\":",
-            self.heading_omitted.as_ref(),
-        );
-        json_field(&mut out, b",\"trusted\":", self.trusted.as_ref());
-        json_field(&mut out, b",\"distrust\":", self.distrust.as_ref());
-        out.push(b'}');
-        String::from_utf8(out).unwrap_or_else(|_| "{}".to_string())
+        let mut line = JsonLine::reading(self.class, self.sensor, self.time);
+        line.field(b"axes", &self.axes);
+        line.field(b"raw", &self.raw);
+        line.optional(b"corrected", self.corrected.as_ref());
+        line.optional(b"magnitude", self.magnitude.as_ref());
+        line.optional(b"calibration", self.calibration.as_ref());
+        line.field(b"calibrated", &self.calibrated);
+        line.optional(b"heading_deg", self.heading_deg.as_ref());
+        line.optional(b"true_heading_deg", self.true_heading_deg.as_ref());
+        line.optional(b"tilt", self.tilt.as_ref());
+        line.optional(b"heading_omitted", self.heading_omitted.as_ref());
+        line.optional(b"trusted", self.trusted.as_ref());
+        line.optional(b"distrust", self.distrust.as_ref());
+        line.end()
     }
 }
 
-/// `key` and the value, when there is one.
-fn json_field<T: Serialize + ?Sized>(out: &mut Vec<u8>, key: &[u8], value: Option<&T>) {
-    if let Some(value) = value {
-        out.extend_from_slice(key);
-        json_value(out, value);
-    }
-}
+/// A message's line written field by field: keys are fixed text (they
+/// need no escapes), each value is written as serde_json writes it.
+struct JsonLine(Vec<u8>);
 
-/// One value as serde_json writes it. Writing to a `Vec` cannot fail for
-/// the plain values of a message (strings, numbers, booleans, arrays and
-/// maps with string keys).
-fn json_value<T: Serialize + ?Sized>(out: &mut Vec<u8>, value: &T) {
-    let written = serde_json::to_writer(&mut *out, value);
-    debug_assert!(written.is_ok(), "a message's value did not serialise");
+impl JsonLine {
+    /// `{"class":…,"sensor":…,"time":…`, the start of every READING.
+    fn reading(class: &str, sensor: &str, time: f64) -> Self {
+        let mut line = JsonLine(Vec::with_capacity(LINE_CAPACITY));
+        line.0.push(b'{');
+        line.value(b"class", class);
+        line.field(b"sensor", sensor);
+        line.field(b"time", &time);
+        line
+    }
+
+    /// `"key":value`, after a comma.
+    fn field<T: Serialize + ?Sized>(&mut self, key: &[u8], value: &T) {
+        self.0.push(b',');
+        self.value(key, value);
+    }
+
+    /// [`Self::field`], when there is a value.
+    fn optional<T: Serialize + ?Sized>(&mut self, key: &[u8], value: Option<&T>) {
+        if let Some(value) = value {
+            self.field(key, value);
+        }
+    }
+
+    /// `"key":value`. Writing to a `Vec` cannot fail for the plain values
+    /// of a message (strings, numbers, booleans, arrays and maps with
+    /// string keys).
+    fn value<T: Serialize + ?Sized>(&mut self, key: &[u8], value: &T) {
+        self.0.push(b'"');
+        self.0.extend_from_slice(key);
+        self.0.extend_from_slice(b"\":");
+        let written = serde_json::to_writer(&mut self.0, value);
+        debug_assert!(written.is_ok(), "a message's value did not serialise");
+    }
+
+    fn end(mut self) -> String {
+        self.0.push(b'}');
+        String::from_utf8(self.0).unwrap_or_else(|_| "{}".to_string())
+    }
 }
 
 /// Some columns of a CSV row, serialised as a map from the header's names
