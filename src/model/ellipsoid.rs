@@ -35,13 +35,17 @@ use std::fmt;
 use std::str::FromStr;
 use std::sync::OnceLock;
 
-use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen, Vector3};
+use nalgebra::{DMatrix, Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
 
 use super::calibration3::{Calibration3D, correct3};
 use super::lm::{self, LeastSquares, Weighting};
 use super::sphere::{self, SphereCoverage};
 use crate::sample::{MAX_MAGNITUDE, too_large};
+
+mod closed_form;
+
+use closed_form::{closed_form_scaled, sphere_fit};
 
 /// Cap on Levenberg–Marquardt iterations. From a closed-form start the
 /// fit converges in well under 50 on every simulated and real tumble; the
@@ -342,174 +346,6 @@ pub(super) fn mean_and_spread(points: &[[f64; 3]]) -> Result<(Vector3<f64>, f64)
         return Err(Ellipsoid3Error::Degenerate);
     }
     Ok((mean, spread))
-}
-
-/// Sphere fit: |p|² = 2c·p + k, linear least squares.
-fn sphere_fit(p: &[Vector3<f64>]) -> Result<Ellipsoid, Ellipsoid3Error> {
-    let n = p.len();
-    let design = DMatrix::from_fn(n, 4, |i, j| if j < 3 { 2.0 * p[i][j] } else { 1.0 });
-    let target = DVector::from_fn(n, |i, _| p[i].norm_squared());
-    let x = least_squares(design, target)?;
-    let o = Vector3::new(x[0], x[1], x[2]);
-    let r2 = x[3] + o.norm_squared();
-    if !(r2 > 0.0) {
-        return Err(Ellipsoid3Error::Degenerate);
-    }
-    Ok(Ellipsoid {
-        o,
-        a: Matrix3::identity() / r2.sqrt(),
-    })
-}
-
-fn least_squares(
-    design: DMatrix<f64>,
-    target: DVector<f64>,
-) -> Result<DVector<f64>, Ellipsoid3Error> {
-    let svd = design.svd(true, true);
-    let largest = svd.singular_values.max();
-    if svd.singular_values.min() <= largest * RANK_TOLERANCE {
-        return Err(Ellipsoid3Error::Degenerate);
-    }
-    svd.solve(&target, 0.0)
-        .map_err(|_| Ellipsoid3Error::Degenerate)
-}
-
-/// Li & Griffiths' ellipsoid-specific fit. `full` selects the general
-/// quadric (quadratic part a, b, c, d, e, f for x², y², z², 2yz, 2xz, 2xy)
-/// or the axis-aligned one (a, b, c only); linear part 2gx, 2hy, 2iz and
-/// the constant j. Minimises |Dv|² subject to kJ − I² = 1 (I = a + b + c,
-/// J = ab + bc + ca − d² − e² − f²): the generalised eigenproblem
-/// S̃ v1 = λ C1 v1 with S̃ = S11 − S12 S22⁻¹ S21 has exactly one positive
-/// eigenvalue, whose eigenvector is the ellipsoid.
-fn li_griffiths(p: &[Vector3<f64>], full: bool) -> Result<Ellipsoid, Ellipsoid3Error> {
-    let q = if full { 6 } else { 3 };
-    let n = p.len();
-    let design = DMatrix::from_fn(n, q + 4, |i, j| {
-        let [x, y, z] = [p[i][0], p[i][1], p[i][2]];
-        let quad = [x * x, y * y, z * z, 2.0 * y * z, 2.0 * x * z, 2.0 * x * y];
-        if j < q {
-            quad[j]
-        } else {
-            match j - q {
-                0 => 2.0 * x,
-                1 => 2.0 * y,
-                2 => 2.0 * z,
-                _ => 1.0,
-            }
-        }
-    });
-    let s = design.transpose() * &design;
-    let s11 = s.view((0, 0), (q, q)).into_owned();
-    let s12 = s.view((0, q), (q, 4)).into_owned();
-    let s22 = s.view((q, q), (4, 4)).into_owned();
-    let s22_inv = s22.try_inverse().ok_or(Ellipsoid3Error::Degenerate)?;
-    let reduced = &s11 - &s12 * &s22_inv * s12.transpose();
-    let reduced = (&reduced + reduced.transpose()) / 2.0;
-    // C1: the constraint's quadratic form on (a..f).
-    let k = LI_GRIFFITHS_K;
-    let mut c1 = DMatrix::<f64>::zeros(q, q);
-    for i in 0..3 {
-        for j in 0..3 {
-            c1[(i, j)] = if i == j { -1.0 } else { k / 2.0 - 1.0 };
-        }
-    }
-    for i in 3..q {
-        c1[(i, i)] = -k;
-    }
-    // S̃ = L Lᵀ; L⁻¹ C1 L⁻ᵀ w = μ w with w = Lᵀ v, μ = 1/λ: symmetric.
-    // Noiseless points make S̃ singular (the ellipsoid is its null
-    // vector): a ridge at the arithmetic's precision keeps the Cholesky
-    // factor and leaves that vector the solution.
-    let ridge = RANK_TOLERANCE * (0..q).map(|i| reduced[(i, i)]).fold(0.0, f64::max);
-    let chol = reduced
-        .clone()
-        .cholesky()
-        .or_else(|| (reduced + DMatrix::identity(q, q) * ridge).cholesky())
-        .ok_or(Ellipsoid3Error::Degenerate)?;
-    let l = chol.l();
-    let l_inv = l.clone().try_inverse().ok_or(Ellipsoid3Error::Degenerate)?;
-    let m = &l_inv * &c1 * l_inv.transpose();
-    let m = (&m + m.transpose()) / 2.0;
-    let eig = SymmetricEigen::new(m);
-    let (best, mu) =
-        eig.eigenvalues
-            .iter()
-            .enumerate()
-            .fold(
-                (0, f64::NEG_INFINITY),
-                |acc, (i, &v)| {
-                    if v > acc.1 { (i, v) } else { acc }
-                },
-            );
-    if !(mu > 0.0) {
-        return Err(Ellipsoid3Error::Degenerate);
-    }
-    let w = eig.eigenvectors.column(best).into_owned();
-    let v1 = l_inv.transpose() * w;
-    let v2 = -(&s22_inv * s12.transpose() * &v1);
-    let quad = |i: usize| if i < q { v1[i] } else { 0.0 };
-    let qm = Matrix3::new(
-        quad(0),
-        quad(5),
-        quad(4),
-        quad(5),
-        quad(1),
-        quad(3),
-        quad(4),
-        quad(3),
-        quad(2),
-    );
-    let lin = Vector3::new(v2[0], v2[1], v2[2]);
-    quadric_to_ellipsoid(qm, lin, v2[3])
-}
-
-/// pᵀQp + 2uᵀp + j = 0 → centre o = −Q⁻¹u, (p−o)ᵀ(Q/K)(p−o) = 1 with
-/// K = oᵀQo − j, A = sqrt(Q/K).
-fn quadric_to_ellipsoid(
-    qm: Matrix3<f64>,
-    u: Vector3<f64>,
-    j: f64,
-) -> Result<Ellipsoid, Ellipsoid3Error> {
-    let (qm, u, j) = if qm.trace() < 0.0 {
-        (-qm, -u, -j)
-    } else {
-        (qm, u, j)
-    };
-    let o = -(qm.try_inverse().ok_or(Ellipsoid3Error::Degenerate)? * u);
-    let k = (o.transpose() * qm * o)[(0, 0)] - j;
-    if !(k > 0.0) {
-        return Err(Ellipsoid3Error::Degenerate);
-    }
-    let a = sqrt_spd(qm / k).ok_or(Ellipsoid3Error::Degenerate)?;
-    Ok(Ellipsoid { o, a })
-}
-
-/// Square root of a symmetric positive definite matrix; `None` if it is
-/// not positive definite.
-fn sqrt_spd(m: Matrix3<f64>) -> Option<Matrix3<f64>> {
-    let m = (m + m.transpose()) / 2.0;
-    let eig = SymmetricEigen::new(m);
-    if eig
-        .eigenvalues
-        .iter()
-        .any(|&v| !(v > 0.0) || !v.is_finite())
-    {
-        return None;
-    }
-    let d = Matrix3::from_diagonal(&eig.eigenvalues.map(f64::sqrt));
-    Some(eig.eigenvectors * d * eig.eigenvectors.transpose())
-}
-
-/// The closed-form ellipsoid of a model on scaled data.
-fn closed_form_scaled(
-    p: &[Vector3<f64>],
-    model: Ellipsoid3Model,
-) -> Result<Ellipsoid, Ellipsoid3Error> {
-    match model {
-        Ellipsoid3Model::Offset => sphere_fit(p),
-        Ellipsoid3Model::OffsetScale => li_griffiths(p, false),
-        Ellipsoid3Model::Full => li_griffiths(p, true),
-    }
 }
 
 /// The closed-form (algebraic) fit alone, in raw units: (o, A) with
@@ -813,9 +649,82 @@ fn directions_about(p: &[Vector3<f64>], e: &Ellipsoid) -> Vec<[f64; 3]> {
     p.iter().map(|pi| (e.a * (pi - e.o)).into()).collect()
 }
 
+/// The coverage of [`directions_about`], without keeping the directions.
+fn coverage_about(p: &[Vector3<f64>], e: &Ellipsoid) -> SphereCoverage {
+    sphere::coverage(p.iter().map(|pi| (e.a * (pi - e.o)).into()))
+}
+
 /// Fits the 3-D `model` to raw readings: closed form, coverage rule,
 /// Levenberg–Marquardt, standard errors.
 pub fn fit(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Ellipsoid3Fit, Ellipsoid3Error> {
+    let refined = refine(points, model)?;
+    let Refined {
+        p,
+        mean,
+        spread,
+        v,
+        out,
+        rss,
+        cov,
+        iterations,
+    } = refined;
+    // Standard errors: cov propagated to the reported parameters by
+    // central differences of `report`.
+    let cov_out = propagate(&v, cov, out.len(), |v| report(model, v, &mean, spread));
+    let se = base_se(&cov_out);
+    let coverage = coverage_about(&p, &unpack(model, &v));
+    let n = points.len();
+    Ok(Ellipsoid3Fit {
+        model,
+        offset: [out[0], out[1], out[2]],
+        matrix: reported_matrix(&out),
+        r: out[12],
+        rms: (rss / n as f64).sqrt(),
+        n,
+        se,
+        coverage,
+        iterations,
+    })
+}
+
+/// What a model's fit leaves to compare it with others: its rms and its r.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FitSummary {
+    pub rms: f64,
+    pub r: f64,
+}
+
+/// [`fit`]'s rms and r alone (the same figures, and the same refusals),
+/// without the standard errors and the fitted directions' coverage.
+pub fn fit_summary(
+    points: &[[f64; 3]],
+    model: Ellipsoid3Model,
+) -> Result<FitSummary, Ellipsoid3Error> {
+    let refined = refine(points, model)?;
+    Ok(FitSummary {
+        rms: (refined.rss / points.len() as f64).sqrt(),
+        r: refined.out[12],
+    })
+}
+
+/// A fit refined by Levenberg–Marquardt, in the scaled frame.
+struct Refined {
+    /// The scaled points, their mean and their scale.
+    p: Vec<Vector3<f64>>,
+    mean: Vector3<f64>,
+    spread: f64,
+    /// The packed parameters, and the reported ones (o, W row-major, r).
+    v: Vec<f64>,
+    out: Vec<f64>,
+    /// The sum of squared residuals, and σ²(JᵀJ)⁻¹ of the packed ones.
+    rss: f64,
+    cov: DMatrix<f64>,
+    iterations: usize,
+}
+
+/// The fit up to its parameters: closed form, coverage rule,
+/// Levenberg–Marquardt, the parameters' covariance.
+fn refine(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Refined, Ellipsoid3Error> {
     let (p, mean, spread) = normalise(points, model)?;
     let start = match closed_form_scaled(&p, model) {
         Ok(e) => e,
@@ -833,9 +742,8 @@ pub fn fit(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Ellipsoid3Fit,
             return Err(error);
         }
     };
-    let dirs = directions_about(&p, &start);
-    if !supports(model, &dirs) {
-        return Err(not_covered(model, &dirs, &p));
+    if !supports_covered(model, &coverage_about(&p, &start)) {
+        return Err(not_covered(model, &directions_about(&p, &start), &p));
     }
     let mut v = pack(model, &start);
     let refinement = Refinement { model, points: &p };
@@ -858,23 +766,17 @@ pub fn fit(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Ellipsoid3Fit,
     if out.iter().any(|x| !x.is_finite()) {
         return Err(Ellipsoid3Error::Degenerate);
     }
-    // Standard errors: cov = σ²(JᵀJ)⁻¹ in the packed scaled parameters,
-    // propagated to the reported ones by central differences of `report`.
+    // cov = σ²(JᵀJ)⁻¹ in the packed scaled parameters.
     let sigma2 = rss / (n - k) as f64;
     let cov = jtj.try_inverse().ok_or(Ellipsoid3Error::Degenerate)? * sigma2;
-    let cov_out = propagate(&v, cov, out.len(), |v| report(model, v, &mean, spread));
-    let se = base_se(&cov_out);
-    let fitted = unpack(model, &v);
-    let coverage = sphere::coverage(directions_about(&p, &fitted));
-    Ok(Ellipsoid3Fit {
-        model,
-        offset: [out[0], out[1], out[2]],
-        matrix: reported_matrix(&out),
-        r: out[12],
-        rms: (rss / n as f64).sqrt(),
-        n,
-        se,
-        coverage,
+    Ok(Refined {
+        p,
+        mean,
+        spread,
+        v,
+        out,
+        rss,
+        cov,
         iterations,
     })
 }

@@ -315,17 +315,14 @@ pub(crate) fn parse_effects3(text: &str) -> Result<(Ellipsoid3Model, Vec<Effect>
 
 /// The 3-D fit of `base` plus the catalogue's other effects (drift,
 /// covariate:<col>, cubic, outliers) on `data` (the recording, or its still
-/// samples): the base model alone when there are none, else
-/// [`fieldcal::model::ellipsoid_effects::fit_effects`]. Refusals keep their
-/// types: a coverage refusal downcasts to [`Ellipsoid3Error`].
-fn fit_model3(
+/// samples), by [`fieldcal::model::ellipsoid_effects::fit_effects`], with
+/// its view as a base fit. Refusals keep their types: a coverage refusal
+/// downcasts to [`Ellipsoid3Error`].
+fn fit_effects3(
     data: &Dataset3,
     base: Ellipsoid3Model,
     extra: &[Effect],
-) -> Result<(Ellipsoid3Fit, Option<Ellipsoid3EffectsFit>)> {
-    if extra.is_empty() {
-        return Ok((ellipsoid::fit(&data.points, base)?, None));
-    }
+) -> Result<(Ellipsoid3Fit, Ellipsoid3EffectsFit)> {
     let fit = match ellipsoid_effects::fit_effects(data, base, extra) {
         Ok(fit) => fit,
         // The base fit's refusal as itself, so `refusal` finds the coverage
@@ -344,7 +341,7 @@ fn fit_model3(
         coverage: fit.coverage.clone(),
         iterations: fit.iterations,
     };
-    Ok((view, Some(fit)))
+    Ok((view, fit))
 }
 
 /// The samples `indices` of a recording, with their times and covariates.
@@ -444,24 +441,28 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
     let fitted: &Dataset3 = still_data.as_ref().unwrap_or(&data);
     let points = &fitted.points;
 
-    let started = Instant::now();
-    let (fit, effects_fit) =
-        fit_model3(fitted, base, &extra).map_err(|e| refusal(e, &file, still.as_ref(), &extra))?;
-    let elapsed = started.elapsed().as_secs_f64();
-
-    let models = model_table(points, &fit, effects_fit.is_none());
-    let directions: Vec<[f64; 3]> = match &effects_fit {
-        // The samples used (not the flagged ones), with the extras removed.
-        Some(e) => e
-            .calibrated
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| e.flagged.binary_search(i).is_err())
-            .map(|(_, &c)| c)
-            .collect(),
-        None => points.iter().map(|&p| fit.apply(p)).collect(),
+    let (fit, effects_fit, elapsed, models) = if extra.is_empty() {
+        let (fit, elapsed, models) = fit_base_models3(points, base);
+        let fit = fit.map_err(|e| refusal(anyhow::Error::new(e), &file, still.as_ref(), &extra))?;
+        (fit, None, elapsed, models)
+    } else {
+        let started = Instant::now();
+        let (fit, effects_fit) = fit_effects3(fitted, base, &extra)
+            .map_err(|e| refusal(e, &file, still.as_ref(), &extra))?;
+        let elapsed = started.elapsed().as_secs_f64();
+        (fit, Some(effects_fit), elapsed, model_table(points))
     };
-    let covered = fieldcal::model::sphere::coverage(directions.iter().copied());
+    let covered = match &effects_fit {
+        // The samples used (not the flagged ones), with the extras removed.
+        Some(e) => fieldcal::model::sphere::coverage(
+            e.calibrated
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| e.flagged.binary_search(i).is_err())
+                .map(|(_, &c)| c),
+        ),
+        None => fieldcal::model::sphere::coverage(points.iter().map(|&p| fit.apply(p))),
+    };
     let supported: Vec<Ellipsoid3Model> = Ellipsoid3Model::ALL
         .into_iter()
         .filter(|&m| ellipsoid::supports_covered(m, &covered))
@@ -546,33 +547,76 @@ fn still_selection(
     }
 }
 
-/// Every base model's rms and r on the fitted samples `points` (the fit
-/// itself for its own model when `fit_is_base`: no extra effects), or why
-/// it was refused.
-fn model_table(points: &[[f64; 3]], fit: &Ellipsoid3Fit, fit_is_base: bool) -> Vec<ModelRms> {
-    // The three fits are independent: on every core at once, each kept
-    // only as its row.
-    fieldcal::parallel::map_in_order(&Ellipsoid3Model::ALL, |&m| {
-        let result = if m == fit.model && fit_is_base {
-            Ok(fit.clone())
+/// The fit of `base` to `points` (and the seconds it took), with every
+/// base model's row of the table: the three fits at once, on every core,
+/// the others' rms and r alone.
+fn fit_base_models3(
+    points: &[[f64; 3]],
+    base: Ellipsoid3Model,
+) -> (Result<Ellipsoid3Fit, Ellipsoid3Error>, f64, Vec<ModelRms>) {
+    enum Outcome {
+        Base(Result<Ellipsoid3Fit, Ellipsoid3Error>, f64),
+        Other(Result<ellipsoid::FitSummary, Ellipsoid3Error>),
+    }
+    let outcomes = fieldcal::parallel::map_in_order(&Ellipsoid3Model::ALL, |&m| {
+        if m == base {
+            let started = Instant::now();
+            let fit = ellipsoid::fit(points, m);
+            Outcome::Base(fit, started.elapsed().as_secs_f64())
         } else {
-            ellipsoid::fit(points, m)
-        };
-        match result {
-            Ok(f) => ModelRms {
-                model: m.name(),
-                rms: Some(f.rms),
-                r: Some(f.r),
-                refused: None,
-            },
-            Err(e) => ModelRms {
-                model: m.name(),
-                rms: None,
-                r: None,
-                refused: Some(e.to_string()),
-            },
+            Outcome::Other(ellipsoid::fit_summary(points, m))
         }
+    });
+    // `base` is one of the models: its outcome replaces this.
+    let mut fit = Err(Ellipsoid3Error::Degenerate);
+    let mut elapsed = 0.0;
+    let mut rows = Vec::with_capacity(outcomes.len());
+    for (outcome, m) in outcomes.into_iter().zip(Ellipsoid3Model::ALL) {
+        rows.push(match outcome {
+            Outcome::Base(result, seconds) => {
+                let row = model_row(
+                    m,
+                    result
+                        .as_ref()
+                        .map(|f| ellipsoid::FitSummary { rms: f.rms, r: f.r })
+                        .map_err(Clone::clone),
+                );
+                (fit, elapsed) = (result, seconds);
+                row
+            }
+            Outcome::Other(result) => model_row(m, result),
+        });
+    }
+    (fit, elapsed, rows)
+}
+
+/// Every base model's rms and r on the fitted samples `points`, or why it
+/// was refused: the three fits at once, on every core.
+fn model_table(points: &[[f64; 3]]) -> Vec<ModelRms> {
+    fieldcal::parallel::map_in_order(&Ellipsoid3Model::ALL, |&m| {
+        model_row(m, ellipsoid::fit_summary(points, m))
     })
+}
+
+/// A model's row of the table: its rms and r, or why it was refused.
+fn model_row(
+    model: Ellipsoid3Model,
+    fitted: Result<ellipsoid::FitSummary, Ellipsoid3Error>,
+) -> ModelRms {
+    match fitted {
+        Ok(s) => ModelRms {
+            model: model.name(),
+            rms: Some(s.rms),
+            r: Some(s.r),
+            refused: None,
+        },
+        Err(e) => ModelRms {
+            model: model.name(),
+            rms: None,
+            r: None,
+            refused: Some(e.to_string()),
+        },
+    }
 }
 
 /// What a fit with extra effects adds to the report: the extras' own
