@@ -237,3 +237,57 @@ pub(super) fn closed_form_scaled(
         Ellipsoid3Model::Full => li_griffiths(p, true),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points about an ellipsoid, a few blocks and a part of one, centred
+    /// and scaled as the fit gives them.
+    fn points(n: usize) -> Vec<Vector3<f64>> {
+        (0..n)
+            .map(|i| {
+                let (u, v) = (i as f64 * 0.618_034, i as f64 * 0.381_966 + 0.1);
+                let e = (2.0 * (v % 1.0) - 1.0).asin();
+                let a = std::f64::consts::TAU * (u % 1.0);
+                Vector3::new(
+                    1.2 * e.cos() * a.cos() + 0.1,
+                    0.9 * e.cos() * a.sin() - 0.05,
+                    e.sin() + 0.01 * (i as f64).sin(),
+                )
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_scatter_matrix_is_the_designs_own_product() {
+        let p = points(3 * BLOCK + 7);
+        let row = |[x, y, z]: [f64; 3]| [x * x, y * z, 2.0 * x, 1.0];
+        let design = DMatrix::from_fn(p.len(), 4, |i, j| row([p[i][0], p[i][1], p[i][2]])[j]);
+        let expected = design.transpose() * &design;
+        let got = scatter(&p, row);
+        assert!((got - &expected).norm() <= 1e-12 * expected.norm());
+    }
+
+    #[test]
+    fn the_streamed_sphere_fit_is_the_whole_designs_least_squares() {
+        for n in [5, BLOCK, 3 * BLOCK + 7] {
+            let p = points(n);
+            let design = DMatrix::from_fn(n, 4, |i, j| if j < 3 { 2.0 * p[i][j] } else { 1.0 });
+            let target = DVector::from_fn(n, |i, _| p[i].norm_squared());
+            let x = design.svd(true, true).solve(&target, 0.0).unwrap();
+            let fitted = sphere_fit(&p).unwrap();
+            for j in 0..3 {
+                assert!((fitted.o[j] - x[j]).abs() <= 1e-12, "n {n}: o {j}");
+            }
+            let radius = (x[3] + fitted.o.norm_squared()).sqrt();
+            assert!((fitted.a[(0, 0)] * radius - 1.0).abs() <= 1e-12, "n {n}: r");
+        }
+        // A plane of points determines no sphere: the rank test refuses it.
+        let flat: Vec<Vector3<f64>> = points(2 * BLOCK)
+            .into_iter()
+            .map(|v| Vector3::new(v[0], v[1], 0.0))
+            .collect();
+        assert!(matches!(sphere_fit(&flat), Err(Ellipsoid3Error::Degenerate)));
+    }
+}
