@@ -441,27 +441,33 @@ fn fit3(args: &FitArgs, z: &str) -> Result<()> {
     let fitted: &Dataset3 = still_data.as_ref().unwrap_or(&data);
     let points = &fitted.points;
 
-    let (fit, effects_fit, elapsed, models) = if extra.is_empty() {
+    // `covered`: the calibrated samples' coverage of the sphere.
+    let (fit, effects_fit, elapsed, models, covered) = if extra.is_empty() {
         let (fit, elapsed, models) = fit_base_models3(points, base);
-        let fit = fit.map_err(|e| refusal(anyhow::Error::new(e), &file, still.as_ref(), &extra))?;
-        (fit, None, elapsed, models)
+        let (fit, covered) =
+            fit.map_err(|e| refusal(anyhow::Error::new(e), &file, still.as_ref(), &extra))?;
+        (fit, None, elapsed, models, covered)
     } else {
         let started = Instant::now();
         let (fit, effects_fit) = fit_effects3(fitted, base, &extra)
             .map_err(|e| refusal(e, &file, still.as_ref(), &extra))?;
         let elapsed = started.elapsed().as_secs_f64();
-        (fit, Some(effects_fit), elapsed, model_table(points))
-    };
-    let covered = match &effects_fit {
         // The samples used (not the flagged ones), with the extras removed.
-        Some(e) => fieldcal::model::sphere::coverage(
-            e.calibrated
+        let covered = fieldcal::model::sphere::coverage(
+            effects_fit
+                .calibrated
                 .iter()
                 .enumerate()
-                .filter(|(i, _)| e.flagged.binary_search(i).is_err())
+                .filter(|(i, _)| effects_fit.flagged.binary_search(i).is_err())
                 .map(|(_, &c)| c),
-        ),
-        None => fieldcal::model::sphere::coverage(points.iter().map(|&p| fit.apply(p))),
+        );
+        (
+            fit,
+            Some(effects_fit),
+            elapsed,
+            model_table(points),
+            covered,
+        )
     };
     let supported: Vec<Ellipsoid3Model> = Ellipsoid3Model::ALL
         .into_iter()
@@ -547,22 +553,29 @@ fn still_selection(
     }
 }
 
-/// The fit of `base` to `points` (and the seconds it took), with every
-/// base model's row of the table: the three fits at once, on every core,
-/// the others' rms and r alone.
+/// The fit of `base` to `points` with the coverage of the points it
+/// calibrates (and the seconds the fit took), and every base model's row
+/// of the table: the three fits at once, on every core, the others' rms
+/// and r alone.
 fn fit_base_models3(
     points: &[[f64; 3]],
     base: Ellipsoid3Model,
-) -> (Result<Ellipsoid3Fit, Ellipsoid3Error>, f64, Vec<ModelRms>) {
+) -> (FitAndCoverage, f64, Vec<ModelRms>) {
     enum Outcome {
-        Base(Result<Ellipsoid3Fit, Ellipsoid3Error>, f64),
+        Base(FitAndCoverage, f64),
         Other(Result<ellipsoid::FitSummary, Ellipsoid3Error>),
     }
     let outcomes = fieldcal::parallel::map_in_order(&Ellipsoid3Model::ALL, |&m| {
         if m == base {
             let started = Instant::now();
             let fit = ellipsoid::fit(points, m);
-            Outcome::Base(fit, started.elapsed().as_secs_f64())
+            let seconds = started.elapsed().as_secs_f64();
+            // Here, while the other core still fits the other models.
+            let fit = fit.map(|f| {
+                let covered = fieldcal::model::sphere::coverage(points.iter().map(|&p| f.apply(p)));
+                (f, covered)
+            });
+            Outcome::Base(fit, seconds)
         } else {
             Outcome::Other(ellipsoid::fit_summary(points, m))
         }
@@ -578,7 +591,7 @@ fn fit_base_models3(
                     m,
                     result
                         .as_ref()
-                        .map(|f| ellipsoid::FitSummary { rms: f.rms, r: f.r })
+                        .map(|(f, _)| ellipsoid::FitSummary { rms: f.rms, r: f.r })
                         .map_err(Clone::clone),
                 );
                 (fit, elapsed) = (result, seconds);
@@ -589,6 +602,10 @@ fn fit_base_models3(
     }
     (fit, elapsed, rows)
 }
+
+/// A base model's fit and its calibrated samples' coverage of the sphere.
+type FitAndCoverage =
+    Result<(Ellipsoid3Fit, fieldcal::model::sphere::SphereCoverage), Ellipsoid3Error>;
 
 /// Every base model's rms and r on the fitted samples `points`, or why it
 /// was refused: the three fits at once, on every core.

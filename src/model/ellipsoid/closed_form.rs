@@ -288,6 +288,9 @@ mod tests {
             .into_iter()
             .map(|v| Vector3::new(v[0], v[1], 0.0))
             .collect();
-        assert!(matches!(sphere_fit(&flat), Err(Ellipsoid3Error::Degenerate)));
+        assert!(matches!(
+            sphere_fit(&flat),
+            Err(Ellipsoid3Error::Degenerate)
+        ));
     }
 }
