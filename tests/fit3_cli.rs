@@ -463,6 +463,28 @@ fn real_magnetometer_tumble_fits_in_3d() {
     ] {
         assert!(text.contains(needle), "{needle:?} not in\n{text}");
     }
+    // The solver's start is named for the model it fits: Li & Griffiths'
+    // ellipsoid, or for `offset` the sphere.
+    assert!(
+        text.contains("from the closed-form ellipsoid (Li & Griffiths)"),
+        "{text}"
+    );
+    let text = run_ok(&[
+        "fit",
+        &file,
+        "--x",
+        "mag_x",
+        "--y",
+        "mag_y",
+        "--z",
+        "mag_z",
+        "--effects",
+        "offset",
+    ]);
+    assert!(
+        text.contains("from the closed-form sphere (linear least squares)"),
+        "{text}"
+    );
 }
 
 #[test]

@@ -335,7 +335,10 @@ fn push_fit_setup(
     line(
         "solver",
         format!("levenberg-marquardt, {} iterations", fit.iterations),
-        "from the closed-form ellipsoid (Li & Griffiths)",
+        match fit.model {
+            Ellipsoid3Model::Offset => "from the closed-form sphere (linear least squares)",
+            _ => "from the closed-form ellipsoid (Li & Griffiths)",
+        },
     );
     match extras {
         Some(e) => line(

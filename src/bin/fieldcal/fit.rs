@@ -554,9 +554,10 @@ fn still_selection(
 }
 
 /// The fit of `base` to `points` with the coverage of the points it
-/// calibrates (and the seconds the fit took), and every base model's row
-/// of the table: the three fits at once, on every core, the others' rms
-/// and r alone.
+/// calibrates (and the seconds the fit took, beside the other fits), and
+/// every base model's row of the table: the three fits at once, on every
+/// core, the others' rms and r alone. A refusal of `base` comes once the
+/// others are done too.
 fn fit_base_models3(
     points: &[[f64; 3]],
     base: Ellipsoid3Model,
@@ -580,9 +581,7 @@ fn fit_base_models3(
             Outcome::Other(ellipsoid::fit_summary(points, m))
         }
     });
-    // `base` is one of the models: its outcome replaces this.
-    let mut fit = Err(Ellipsoid3Error::Degenerate);
-    let mut elapsed = 0.0;
+    let mut base_fit = None;
     let mut rows = Vec::with_capacity(outcomes.len());
     for (outcome, m) in outcomes.into_iter().zip(Ellipsoid3Model::ALL) {
         rows.push(match outcome {
@@ -594,12 +593,13 @@ fn fit_base_models3(
                         .map(|(f, _)| ellipsoid::FitSummary { rms: f.rms, r: f.r })
                         .map_err(Clone::clone),
                 );
-                (fit, elapsed) = (result, seconds);
+                base_fit = Some((result, seconds));
                 row
             }
             Outcome::Other(result) => model_row(m, result),
         });
     }
+    let (fit, elapsed) = base_fit.expect("the base model is one of Ellipsoid3Model::ALL");
     (fit, elapsed, rows)
 }
 

@@ -2,8 +2,8 @@
 //! over the points with memory independent of their number: the sphere
 //! fit by a QR decomposition taken block by block (its rank test on the
 //! design's own singular values, as an SVD of the whole design gives
-//! them), Li & Griffiths' fit by its scatter matrix DᵀD summed row by
-//! row. Neither builds the n-row design matrix (10 columns of 8 bytes for
+//! them), Li & Griffiths' fit by its scatter matrix DᵀD summed block by
+//! block. Neither builds the n-row design matrix (10 columns of 8 bytes for
 //! every point: 160 MB at 2 M points).
 
 use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen, Vector3};
@@ -94,18 +94,11 @@ fn scatter<const K: usize>(p: &[Vector3<f64>], row: impl Fn([f64; 3]) -> [f64; K
     DMatrix::from_fn(K, K, |a, b| if a <= b { total[a][b] } else { total[b][a] })
 }
 
-/// Li & Griffiths' ellipsoid-specific fit. `full` selects the general
-/// quadric (quadratic part a, b, c, d, e, f for x², y², z², 2yz, 2xz, 2xy)
-/// or the axis-aligned one (a, b, c only); linear part 2gx, 2hy, 2iz and
-/// the constant j. Minimises |Dv|² subject to kJ − I² = 1 (I = a + b + c,
-/// J = ab + bc + ca − d² − e² − f²): the generalised eigenproblem
-/// S̃ v1 = λ C1 v1 with S̃ = S11 − S12 S22⁻¹ S21 has exactly one positive
-/// eigenvalue, whose eigenvector is the ellipsoid.
-pub(super) fn li_griffiths(p: &[Vector3<f64>], full: bool) -> Result<Ellipsoid, Ellipsoid3Error> {
-    let q = if full { 6 } else { 3 };
-    // S = DᵀD of the design D, whose row of a point is its quadratic
-    // terms, then 2x, 2y, 2z and 1.
-    let s = if full {
+/// S = DᵀD of Li & Griffiths' design D, whose row of a point is its
+/// quadratic terms (x², y², z², then with `full` 2yz, 2xz, 2xy), then 2x,
+/// 2y, 2z and 1.
+fn li_griffiths_scatter(p: &[Vector3<f64>], full: bool) -> DMatrix<f64> {
+    if full {
         scatter(p, |[x, y, z]| {
             [
                 x * x,
@@ -124,7 +117,19 @@ pub(super) fn li_griffiths(p: &[Vector3<f64>], full: bool) -> Result<Ellipsoid, 
         scatter(p, |[x, y, z]| {
             [x * x, y * y, z * z, 2.0 * x, 2.0 * y, 2.0 * z, 1.0]
         })
-    };
+    }
+}
+
+/// Li & Griffiths' ellipsoid-specific fit. `full` selects the general
+/// quadric (quadratic part a, b, c, d, e, f for x², y², z², 2yz, 2xz, 2xy)
+/// or the axis-aligned one (a, b, c only); linear part 2gx, 2hy, 2iz and
+/// the constant j. Minimises |Dv|² subject to kJ − I² = 1 (I = a + b + c,
+/// J = ab + bc + ca − d² − e² − f²): the generalised eigenproblem
+/// S̃ v1 = λ C1 v1 with S̃ = S11 − S12 S22⁻¹ S21 has exactly one positive
+/// eigenvalue, whose eigenvector is the ellipsoid.
+pub(super) fn li_griffiths(p: &[Vector3<f64>], full: bool) -> Result<Ellipsoid, Ellipsoid3Error> {
+    let q = if full { 6 } else { 3 };
+    let s = li_griffiths_scatter(p, full);
     let s11 = s.view((0, 0), (q, q)).into_owned();
     let s12 = s.view((0, q), (q, 4)).into_owned();
     let s22 = s.view((q, q), (4, 4)).into_owned();
@@ -242,9 +247,10 @@ pub(super) fn closed_form_scaled(
 mod tests {
     use super::*;
 
-    /// Points about an ellipsoid, a few blocks and a part of one, centred
-    /// and scaled as the fit gives them.
-    fn points(n: usize) -> Vec<Vector3<f64>> {
+    /// Points about an ellipsoid off the origin (semi-axes 1.2, 0.9 and 1,
+    /// centre (0.1, −0.05, 0)), z squashed by `flat`, spread over the
+    /// sphere of directions by golden-ratio steps.
+    fn points(n: usize, flat: f64) -> Vec<Vector3<f64>> {
         (0..n)
             .map(|i| {
                 let (u, v) = (i as f64 * 0.618_034, i as f64 * 0.381_966 + 0.1);
@@ -253,44 +259,70 @@ mod tests {
                 Vector3::new(
                     1.2 * e.cos() * a.cos() + 0.1,
                     0.9 * e.cos() * a.sin() - 0.05,
-                    e.sin() + 0.01 * (i as f64).sin(),
+                    flat * (e.sin() + 0.01 * (i as f64).sin()),
                 )
             })
             .collect()
     }
 
     #[test]
-    fn the_scatter_matrix_is_the_designs_own_product() {
-        let p = points(3 * BLOCK + 7);
-        let row = |[x, y, z]: [f64; 3]| [x * x, y * z, 2.0 * x, 1.0];
-        let design = DMatrix::from_fn(p.len(), 4, |i, j| row([p[i][0], p[i][1], p[i][2]])[j]);
-        let expected = design.transpose() * &design;
-        let got = scatter(&p, row);
-        assert!((got - &expected).norm() <= 1e-12 * expected.norm());
+    fn the_scatter_matrix_is_the_old_designs_own_product() {
+        // The design the fit built before it summed the scatter matrix:
+        // its columns in the order the constraint and the quadric read.
+        for (full, q) in [(true, 6), (false, 3)] {
+            let p = points(3 * BLOCK + 7, 1.0);
+            let design = DMatrix::from_fn(p.len(), q + 4, |i, j| {
+                let [x, y, z] = [p[i][0], p[i][1], p[i][2]];
+                let quad = [x * x, y * y, z * z, 2.0 * y * z, 2.0 * x * z, 2.0 * x * y];
+                if j < q {
+                    quad[j]
+                } else {
+                    [2.0 * x, 2.0 * y, 2.0 * z, 1.0][j - q]
+                }
+            });
+            let expected = design.transpose() * &design;
+            let got = li_griffiths_scatter(&p, full);
+            assert!(
+                (got - &expected).norm() <= 1e-12 * expected.norm(),
+                "full {full}"
+            );
+        }
+    }
+
+    /// The whole design's least squares and its rank test, as the sphere
+    /// fit was before it was streamed: None when refused.
+    fn sphere_by_whole_design(p: &[Vector3<f64>]) -> Option<DVector<f64>> {
+        let n = p.len();
+        let design = DMatrix::from_fn(n, 4, |i, j| if j < 3 { 2.0 * p[i][j] } else { 1.0 });
+        let target = DVector::from_fn(n, |i, _| p[i].norm_squared());
+        let svd = design.svd(true, true);
+        if svd.singular_values.min() <= svd.singular_values.max() * super::super::RANK_TOLERANCE {
+            return None;
+        }
+        svd.solve(&target, 0.0).ok()
     }
 
     #[test]
     fn the_streamed_sphere_fit_is_the_whole_designs_least_squares() {
-        for n in [5, BLOCK, 3 * BLOCK + 7] {
-            let p = points(n);
-            let design = DMatrix::from_fn(n, 4, |i, j| if j < 3 { 2.0 * p[i][j] } else { 1.0 });
-            let target = DVector::from_fn(n, |i, _| p[i].norm_squared());
-            let x = design.svd(true, true).solve(&target, 0.0).unwrap();
+        for n in [5, BLOCK, BLOCK + 1, 3 * BLOCK + 7] {
+            let p = points(n, 1.0);
+            let x = sphere_by_whole_design(&p).unwrap();
             let fitted = sphere_fit(&p).unwrap();
             for j in 0..3 {
                 assert!((fitted.o[j] - x[j]).abs() <= 1e-12, "n {n}: o {j}");
             }
-            let radius = (x[3] + fitted.o.norm_squared()).sqrt();
-            assert!((fitted.a[(0, 0)] * radius - 1.0).abs() <= 1e-12, "n {n}: r");
+            let radius = (x[3] + x.rows(0, 3).norm_squared()).sqrt();
+            assert!((1.0 / fitted.a[(0, 0)] - radius).abs() <= 1e-12, "n {n}: r");
         }
-        // A plane of points determines no sphere: the rank test refuses it.
-        let flat: Vec<Vector3<f64>> = points(2 * BLOCK)
-            .into_iter()
-            .map(|v| Vector3::new(v[0], v[1], 0.0))
-            .collect();
-        assert!(matches!(
-            sphere_fit(&flat),
-            Err(Ellipsoid3Error::Degenerate)
-        ));
+        // Flat clouds: a plane determines no sphere, nor does one within
+        // the rank tolerance of a plane; one just outside it does. The
+        // streamed fit refuses exactly where the whole design did.
+        for flat in [0.0, 1e-13, 1e-12, 1e-8, 1e-6] {
+            let p = points(2 * BLOCK + 3, flat);
+            let whole = sphere_by_whole_design(&p).is_some();
+            let streamed = sphere_fit(&p).is_ok();
+            assert_eq!(streamed, whole, "flat {flat}");
+            assert_eq!(streamed, flat >= 1e-8, "flat {flat}");
+        }
     }
 }
