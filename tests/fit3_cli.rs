@@ -469,18 +469,9 @@ fn real_magnetometer_tumble_fits_in_3d() {
         text.contains("from the closed-form ellipsoid (Li & Griffiths)"),
         "{text}"
     );
-    let text = run_ok(&[
-        "fit",
-        &file,
-        "--x",
-        "mag_x",
-        "--y",
-        "mag_y",
-        "--z",
-        "mag_z",
-        "--effects",
-        "offset",
-    ]);
+    let mut args = vec!["fit", file.as_str(), "--x", "mag_x", "--y", "mag_y"];
+    args.extend(["--z", "mag_z", "--effects", "offset"]);
+    let text = run_ok(&args);
     assert!(
         text.contains("from the closed-form sphere (linear least squares)"),
         "{text}"

@@ -657,33 +657,25 @@ fn coverage_about(p: &[Vector3<f64>], e: &Ellipsoid) -> SphereCoverage {
 /// Fits the 3-D `model` to raw readings: closed form, coverage rule,
 /// Levenberg–Marquardt, standard errors.
 pub fn fit(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Ellipsoid3Fit, Ellipsoid3Error> {
-    let refined = refine(points, model)?;
-    let Refined {
-        p,
-        mean,
-        spread,
-        v,
-        out,
-        rss,
-        cov,
-        iterations,
-    } = refined;
+    let r = refine(points, model)?;
     // Standard errors: cov propagated to the reported parameters by
     // central differences of `report`.
-    let cov_out = propagate(&v, cov, out.len(), |v| report(model, v, &mean, spread));
+    let cov_out = propagate(&r.v, r.cov, r.out.len(), |v| {
+        report(model, v, &r.mean, r.spread)
+    });
     let se = base_se(&cov_out);
-    let coverage = coverage_about(&p, &unpack(model, &v));
+    let coverage = coverage_about(&r.p, &unpack(model, &r.v));
     let n = points.len();
     Ok(Ellipsoid3Fit {
         model,
-        offset: [out[0], out[1], out[2]],
-        matrix: reported_matrix(&out),
-        r: out[12],
-        rms: (rss / n as f64).sqrt(),
+        offset: [r.out[0], r.out[1], r.out[2]],
+        matrix: reported_matrix(&r.out),
+        r: r.out[12],
+        rms: (r.rss / n as f64).sqrt(),
         n,
         se,
         coverage,
-        iterations,
+        iterations: r.iterations,
     })
 }
 
