@@ -13,7 +13,9 @@
 //! the field.
 //!
 //! Run: `cargo bench --bench run`; `FIELDCAL_BENCH_SENSORS=1,16,64` and
-//! `FIELDCAL_BENCH_SECONDS=10` choose the runs, `FIELDCAL_BENCH_BIN`
+//! `FIELDCAL_BENCH_SECONDS=10` choose the runs, `FIELDCAL_BENCH_RUNS=3`
+//! how many times each is measured (the daemon and the floor alternated;
+//! the best of each, and the range, are printed), `FIELDCAL_BENCH_BIN`
 //! another build of `fieldcal` to measure.
 
 use std::io::{BufRead, BufReader, Read, Write};
@@ -86,20 +88,51 @@ fn main() {
         "| sensors, 20 Hz each | fieldcal run, CPU per reading | floor (a thread per sensor) | fieldcal / floor | fieldcal RSS |"
     );
     println!("|---|---|---|---|---|");
+    // Best of several alternated runs (the machine's own wake-up costs
+    // move the floor by a third from one run to the next).
+    let runs: usize = std::env::var("FIELDCAL_BENCH_RUNS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(3)
+        .max(1);
     for &n in &sensors {
-        let daemon = measure(n, seconds, Kind::Daemon);
-        let floor = measure(n, seconds, Kind::Floor);
-        match (daemon, floor) {
-            (Ok(d), Ok(f)) => println!(
-                "| {n} | {:.1} µs ({} readings) | {:.1} µs ({} readings) | {:.1}× | {:.1} MB |",
-                d.cpu_per_reading_us,
-                d.readings,
-                f.cpu_per_reading_us,
-                f.readings,
-                d.cpu_per_reading_us / f.cpu_per_reading_us,
-                d.rss_mb,
-            ),
-            (d, f) => println!("| {n} | {:?} | {:?} | – | – |", d.err(), f.err()),
+        let (mut daemon, mut floor) = (Vec::new(), Vec::new());
+        for _ in 0..runs {
+            match (
+                measure(n, seconds, Kind::Daemon),
+                measure(n, seconds, Kind::Floor),
+            ) {
+                (Ok(d), Ok(f)) => {
+                    daemon.push(d);
+                    floor.push(f);
+                }
+                (d, f) => println!("| {n} | {:?} | {:?} | – | – |", d.err(), f.err()),
+            }
+        }
+        let best = |all: &[Measured]| {
+            all.iter()
+                .min_by(|a, b| a.cpu_per_reading_us.total_cmp(&b.cpu_per_reading_us))
+                .map(|m| (m.cpu_per_reading_us, m.readings, m.rss_mb))
+        };
+        let range = |all: &[Measured]| {
+            let (low, high) = all.iter().fold((f64::INFINITY, 0.0f64), |(l, h), m| {
+                (l.min(m.cpu_per_reading_us), h.max(m.cpu_per_reading_us))
+            });
+            format!("{low:.1}–{high:.1}")
+        };
+        if let (Some(d), Some(f)) = (best(&daemon), best(&floor)) {
+            println!(
+                "| {n} | {:.1} µs ({} readings; {} runs {} µs) | {:.1} µs ({} readings; {} µs) | {:.1}× | {:.1} MB |",
+                d.0,
+                d.1,
+                daemon.len(),
+                range(&daemon),
+                f.0,
+                f.1,
+                range(&floor),
+                d.0 / f.0,
+                d.2,
+            );
         }
     }
 }

@@ -563,7 +563,8 @@ fn fit_base_models3(
     base: Ellipsoid3Model,
 ) -> (FitAndCoverage, f64, Vec<ModelRms>) {
     enum Outcome {
-        Base(FitAndCoverage, f64),
+        // Boxed: the base fit is several hundred bytes, the others' two numbers.
+        Base(Box<FitAndCoverage>, f64),
         Other(Result<ellipsoid::FitSummary, Ellipsoid3Error>),
     }
     let outcomes = fieldcal::parallel::map_in_order(&Ellipsoid3Model::ALL, |&m| {
@@ -576,7 +577,7 @@ fn fit_base_models3(
                 let covered = fieldcal::model::sphere::coverage(points.iter().map(|&p| f.apply(p)));
                 (f, covered)
             });
-            Outcome::Base(fit, seconds)
+            Outcome::Base(Box::new(fit), seconds)
         } else {
             Outcome::Other(ellipsoid::fit_summary(points, m))
         }
@@ -586,6 +587,7 @@ fn fit_base_models3(
     for (outcome, m) in outcomes.into_iter().zip(Ellipsoid3Model::ALL) {
         rows.push(match outcome {
             Outcome::Base(result, seconds) => {
+                let result = *result;
                 let row = model_row(
                     m,
                     result
