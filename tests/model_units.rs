@@ -3944,6 +3944,57 @@ mod tilt_moved {
         assert!(heading_series(&[m], &[a], UP, UP, 0.0).is_err());
         assert!(heading_series(&[m], &[a], FORWARD, [1.0, 0.0, 1.0], 0.0).is_err());
     }
+
+    /// A long series is worked out in parts on several cores: each
+    /// sample's figures are still its own, in its own place, to the bit
+    /// (NaN where a sample has none), whatever the part it fell in.
+    #[test]
+    fn a_long_series_in_parts_gives_each_sample_its_own_figures() {
+        let n = 300_001;
+        let sample = |k: usize| {
+            let t = k as f64;
+            let m = if k % 1_009 == 0 {
+                [f64::NAN; 3]
+            } else {
+                [
+                    400.0 * (t * 1e-3).cos(),
+                    380.0 * (t * 1e-3).sin(),
+                    300.0 + (k % 7) as f64,
+                ]
+            };
+            let a = if k % 2_003 == 0 {
+                [0.0; 3]
+            } else {
+                [1000.0 * (t * 3e-4).sin(), 500.0 * (t * 7e-4).cos(), 4000.0]
+            };
+            (m, a)
+        };
+        let (mag, accel): (Vec<_>, Vec<_>) = (0..n).map(sample).unzip();
+        let s = heading_series(&mag, &accel, FORWARD, UP, 4.25).unwrap();
+        assert_eq!(s.heading_deg.len(), n);
+        let bits = |v: f64| if v.is_nan() { u64::MAX } else { v.to_bits() };
+        let mut checked = 0;
+        for k in (0..n)
+            .step_by(101)
+            .chain([n / 2 - 1, n / 2, n / 2 + 1, n - 1])
+        {
+            let one = heading_series(&[mag[k]], &[accel[k]], FORWARD, UP, 4.25).unwrap();
+            for (name, long, alone) in [
+                ("heading", &s.heading_deg, &one.heading_deg),
+                ("level", &s.level_deg, &one.level_deg),
+                ("tilt", &s.tilt_deg, &one.tilt_deg),
+                ("pitch", &s.pitch_deg, &one.pitch_deg),
+                ("inclination", &s.inclination_deg, &one.inclination_deg),
+            ] {
+                assert_eq!(bits(long[k]), bits(alone[0]), "{name} of sample {k}");
+            }
+            checked += 1;
+        }
+        assert!(checked > 2_900);
+        // NaN where a sample has no field or no vertical, and only there.
+        assert!(s.heading_deg[1_009].is_nan() && s.heading_deg[2_003 * 3].is_nan());
+        assert!(s.heading_deg[1_010].is_finite());
+    }
 }
 
 mod gyro3 {
