@@ -3953,7 +3953,7 @@ mod tilt_moved {
         let n = 300_001;
         let sample = |k: usize| {
             let t = k as f64;
-            let m = if k % 1_009 == 0 {
+            let m = if k.is_multiple_of(1_009) {
                 [f64::NAN; 3]
             } else {
                 [
@@ -3962,7 +3962,7 @@ mod tilt_moved {
                     300.0 + (k % 7) as f64,
                 ]
             };
-            let a = if k % 2_003 == 0 {
+            let a = if k.is_multiple_of(2_003) {
                 [0.0; 3]
             } else {
                 [1000.0 * (t * 3e-4).sin(), 500.0 * (t * 7e-4).cos(), 4000.0]
