@@ -34,14 +34,42 @@ fn nonblocking(fd: &OwnedFd) -> bool {
 /// `fieldcal run` replaying `capture` at full speed, its own state, with
 /// `stdout` as its standard output.
 fn start(dir: &Path, capture: &Path, stdout: Stdio) -> Child {
-    let config = replay_config(dir, capture, "\"max\"", "stdout = true");
+    start_with(dir, capture, "\"max\"", stdout, Stdio::null())
+}
+
+fn start_with(dir: &Path, capture: &Path, speed: &str, stdout: Stdio, stderr: Stdio) -> Child {
+    let config = replay_config(dir, capture, speed, "stdout = true");
     common::fieldcal()
         .args(["run", "--config"])
         .arg(&config)
         .stdout(stdout)
-        .stderr(Stdio::null())
+        .stderr(stderr)
         .spawn()
         .expect("fieldcal run starts")
+}
+
+/// Whether the pipe's mode was ever non-blocking while `child` ran (looked
+/// at every 5 ms until it ended).
+fn ever_nonblocking_while_running(child: &mut Child, kept: &OwnedFd) -> bool {
+    let start = Instant::now();
+    let mut seen = false;
+    while child.try_wait().expect("waiting for fieldcal").is_none() {
+        seen |= nonblocking(kept);
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "fieldcal run did not end"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    seen
+}
+
+/// Reads `file` to its end on a thread of its own.
+fn read_all(mut file: File) -> std::thread::JoinHandle<std::io::Result<String>> {
+    std::thread::spawn(move || {
+        let mut text = String::new();
+        file.read_to_string(&mut text).map(|_| text)
+    })
 }
 
 fn wait(child: &mut Child, within: Duration) -> std::process::ExitStatus {
@@ -132,4 +160,58 @@ fn a_pipe_nobody_reads_does_not_keep_the_daemon_from_ending() {
     assert!(status.success(), "{status}");
     assert!(!nonblocking(&kept));
     drop(read_end);
+}
+
+#[test]
+fn a_pipe_is_written_without_blocking_while_the_daemon_runs() {
+    let capture = common::repo_path("tests/data/falcon_garbage.fcap");
+    let dir = tempfile::tempdir().unwrap();
+    let (read_end, write_end) = pipe();
+    let kept = write_end.try_clone().unwrap();
+    let reader = read_all(read_end);
+    // Ten times real time: about two seconds of readings.
+    let mut child = start_with(
+        dir.path(),
+        &capture,
+        "10.0",
+        Stdio::from(write_end),
+        Stdio::null(),
+    );
+    assert!(
+        ever_nonblocking_while_running(&mut child, &kept),
+        "the pipe was never made non-blocking: the writer thread wrote it"
+    );
+    assert!(child.wait().unwrap().success());
+    assert!(!nonblocking(&kept), "the pipe's mode was not put back");
+    drop(kept);
+    let text = reader.join().unwrap().unwrap();
+    assert!(text.lines().filter(|l| l.contains("\"READING\"")).count() > 300);
+}
+
+#[test]
+fn a_pipe_that_is_stderr_too_is_never_made_non_blocking() {
+    // `fieldcal run 2>&1 | …`: its log lines share the pipe, and a
+    // non-blocking pipe would fail them when it is full.
+    let capture = common::repo_path("tests/data/falcon_garbage.fcap");
+    let dir = tempfile::tempdir().unwrap();
+    let (read_end, write_end) = pipe();
+    let kept = write_end.try_clone().unwrap();
+    let stderr = write_end.try_clone().unwrap();
+    let reader = read_all(read_end);
+    let mut child = start_with(
+        dir.path(),
+        &capture,
+        "10.0",
+        Stdio::from(write_end),
+        Stdio::from(stderr),
+    );
+    assert!(!ever_nonblocking_while_running(&mut child, &kept));
+    assert!(child.wait().unwrap().success());
+    drop(kept);
+    let text = reader.join().unwrap().unwrap();
+    assert!(text.lines().filter(|l| l.contains("\"READING\"")).count() > 300);
+    assert!(
+        text.contains("calibration accepted"),
+        "the log shares the pipe"
+    );
 }

@@ -930,16 +930,18 @@ pub struct BoardAxesError {
     pub up: [f64; 3],
 }
 
-/// Samples below which [`heading_series`] works on one core: a thread
-/// costs about what this many samples' trigonometry does.
+/// Samples each thread of [`heading_series`] is given at least (a series
+/// shorter than twice this is worked out on one core): a thread costs
+/// about what this many samples' trigonometry does.
 const SERIES_ROWS_PER_THREAD: usize = 1 << 16;
 
 /// The heading of every sample from calibrated fields `mag` and specific
 /// forces `accel` in the body frame, paired sample by sample (NaN: none),
 /// for a board whose `forward` and `up` axes are given; `declination_deg`
 /// (east positive) is added to give true north. Each sample is a pure
-/// function of its pair, so a long series is worked out in as many parts
-/// as there are cores, each written where the one thread would have.
+/// function of its pair, so a long series is worked out in parts on up to
+/// as many threads as there are cores, each part written where one thread
+/// would have written it.
 pub fn heading_series(
     mag: &[[f64; 3]],
     accel: &[[f64; 3]],

@@ -68,7 +68,8 @@ pub fn run(args: RunArgs) -> Result<()> {
             .map_err(anyhow::Error::from)
     };
     let joined = runtime.block_on(runtime.spawn(daemon));
-    // A writer thread stuck in a write to a pipe nobody reads (its 1 s
+    // A writer thread stuck in a write nobody reads (a socket, a terminal
+    // or a pipe shared with stderr; its 1 s
     // grace is over) does not keep the process from ending, even when the
     // loop panicked (its panic goes on once the runtime is down).
     runtime.shutdown_timeout(std::time::Duration::from_secs(1));

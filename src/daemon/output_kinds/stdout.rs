@@ -54,35 +54,71 @@ impl Kind for Stdout {
 }
 
 /// Standard output when it is a pipe, written without blocking from the
-/// task that polls it. Only a pipe: its non-blocking mode is the pipe's
-/// own (a terminal's would be the shell's too, and a file cannot wait for
-/// room). The mode is set back to blocking when the writer ends, for
-/// whatever writes to standard output after it.
-struct PipeStdout(tokio::net::unix::pipe::Sender);
+/// task that polls it. Only a pipe: a terminal's mode is the shell's too,
+/// and a file cannot wait for room. The non-blocking mode belongs to the
+/// pipe's open description, which other holders of that end share: so
+/// not when standard error is the same pipe (`2>&1`), whose log lines
+/// would then meet a full pipe with EAGAIN. The mode found is put back
+/// when the writer ends (a daemon killed outright cannot put it back; a
+/// second program writing to the same pipe meanwhile sees it too).
+struct PipeStdout {
+    pipe: tokio::net::unix::pipe::Sender,
+    /// The description's flags before: put back on drop.
+    flags: libc::c_int,
+}
+
+/// The identity of a descriptor's file (device and inode), if it is a
+/// pipe (a FIFO).
+fn fifo_identity(fd: std::os::fd::BorrowedFd<'_>) -> Option<(u64, u64)> {
+    use std::os::fd::AsRawFd;
+    use std::os::unix::fs::{FileTypeExt, MetadataExt};
+    // A borrowed descriptor read through a File that is never closed.
+    // SAFETY: `ManuallyDrop` keeps the File from closing a descriptor it
+    // does not own; fstat touches only the metadata it returns.
+    let file = std::mem::ManuallyDrop::new(unsafe {
+        <std::fs::File as std::os::fd::FromRawFd>::from_raw_fd(fd.as_raw_fd())
+    });
+    let meta = file.metadata().ok()?;
+    meta.file_type().is_fifo().then(|| (meta.dev(), meta.ino()))
+}
 
 impl PipeStdout {
-    /// Standard output, if it is a pipe open for writing.
+    /// Standard output, if it is a pipe open for writing that standard
+    /// error is not.
     fn open() -> Option<Self> {
-        use std::os::fd::AsFd;
-        let fd = std::io::stdout().as_fd().try_clone_to_owned().ok()?;
-        tokio::net::unix::pipe::Sender::from_owned_fd(fd)
-            .ok()
-            .map(PipeStdout)
+        use std::os::fd::{AsFd, AsRawFd};
+        let stdout = std::io::stdout();
+        let out = fifo_identity(stdout.as_fd())?;
+        if fifo_identity(std::io::stderr().as_fd()) == Some(out) {
+            return None;
+        }
+        let fd = stdout.as_fd().try_clone_to_owned().ok()?;
+        // SAFETY: fcntl on a descriptor owned here; no memory is touched.
+        let flags = unsafe { libc::fcntl(fd.as_raw_fd(), libc::F_GETFL) };
+        if flags < 0 {
+            return None;
+        }
+        match tokio::net::unix::pipe::Sender::from_owned_fd(fd) {
+            Ok(pipe) => Some(PipeStdout { pipe, flags }),
+            Err(_) => {
+                // It may have been made non-blocking before it failed:
+                // the mode is put back through standard output itself
+                // (the same description; the dup was closed with the
+                // error).
+                // SAFETY: as above, on standard output's own descriptor.
+                unsafe { libc::fcntl(stdout.as_fd().as_raw_fd(), libc::F_SETFL, flags) };
+                None
+            }
+        }
     }
 }
 
 impl Drop for PipeStdout {
     fn drop(&mut self) {
         use std::os::fd::AsRawFd;
-        let fd = self.0.as_raw_fd();
         // SAFETY: fcntl on a descriptor this value owns; no memory is
         // touched. A failure leaves the mode as it is (nothing to undo).
-        unsafe {
-            let flags = libc::fcntl(fd, libc::F_GETFL);
-            if flags >= 0 {
-                libc::fcntl(fd, libc::F_SETFL, flags & !libc::O_NONBLOCK);
-            }
-        }
+        unsafe { libc::fcntl(self.pipe.as_raw_fd(), libc::F_SETFL, self.flags) };
     }
 }
 
@@ -92,30 +128,31 @@ impl tokio::io::AsyncWrite for PipeStdout {
         cx: &mut std::task::Context<'_>,
         buf: &[u8],
     ) -> std::task::Poll<std::io::Result<usize>> {
-        std::pin::Pin::new(&mut self.0).poll_write(cx, buf)
+        std::pin::Pin::new(&mut self.pipe).poll_write(cx, buf)
     }
 
     fn poll_flush(
         mut self: std::pin::Pin<&mut Self>,
         cx: &mut std::task::Context<'_>,
     ) -> std::task::Poll<std::io::Result<()>> {
-        std::pin::Pin::new(&mut self.0).poll_flush(cx)
+        std::pin::Pin::new(&mut self.pipe).poll_flush(cx)
     }
 
     fn poll_shutdown(
         mut self: std::pin::Pin<&mut Self>,
         cx: &mut std::task::Context<'_>,
     ) -> std::task::Poll<std::io::Result<()>> {
-        std::pin::Pin::new(&mut self.0).poll_shutdown(cx)
+        std::pin::Pin::new(&mut self.pipe).poll_shutdown(cx)
     }
 }
 
 /// Standard output written straight from the thread that polls it: for a
-/// writer with a thread of its own, which may block in a write (a pipe
-/// nobody reads) without holding up the runtime's workers. Such a thread
-/// is left behind at exit (`fieldcal run` shuts its runtime down with a
-/// timeout); its writes never wait, so the close grace is checked between
-/// them.
+/// writer with a thread of its own, which may block in a write (a socket
+/// nobody reads, a terminal paused with Ctrl-S, a pipe shared with
+/// standard error) without holding up the runtime's workers. Such a
+/// thread is left behind at exit (`fieldcal run` shuts its runtime down
+/// with a timeout); its writes never return Pending, so the close grace is
+/// checked between them.
 struct BlockingStdout;
 
 impl tokio::io::AsyncWrite for BlockingStdout {

@@ -76,8 +76,8 @@ impl Outputs {
 impl Drop for Outputs {
     /// Outputs dropped unstopped (the daemon failed after they started, or
     /// its loop panicked) are told to stop all the same: the stdout writer
-    /// runs on a thread of the blocking pool, which the runtime waits for
-    /// when it is dropped.
+    /// may run on a thread of the blocking pool (stdout a terminal, a file
+    /// or a socket), which the runtime waits for when it is dropped.
     fn drop(&mut self) {
         let _ = self.stop_tx.send(true);
     }
