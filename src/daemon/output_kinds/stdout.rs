@@ -36,7 +36,8 @@ impl Kind for Stdout {
                 // socket's; no thread is woken for a reading.
                 Some(pipe) => tokio::spawn(hub.serve_writer(pipe, stop)),
                 None => {
-                    // A terminal, a file, a socket: a thread of its own,
+                    // A terminal, a file, a socket, a pipe that is
+                    // stderr too: a thread of its own,
                     // writing each batch of lines with one system call
                     // (tokio's stdout hands every write to a thread of the
                     // blocking pool and waits for it: two wake-ups a batch).
@@ -68,17 +69,12 @@ struct PipeStdout {
 }
 
 /// The identity of a descriptor's file (device and inode), if it is a
-/// pipe (a FIFO).
+/// pipe (a FIFO). Read through a duplicate, closed again here.
 fn fifo_identity(fd: std::os::fd::BorrowedFd<'_>) -> Option<(u64, u64)> {
-    use std::os::fd::AsRawFd;
     use std::os::unix::fs::{FileTypeExt, MetadataExt};
-    // A borrowed descriptor read through a File that is never closed.
-    // SAFETY: `ManuallyDrop` keeps the File from closing a descriptor it
-    // does not own; fstat touches only the metadata it returns.
-    let file = std::mem::ManuallyDrop::new(unsafe {
-        <std::fs::File as std::os::fd::FromRawFd>::from_raw_fd(fd.as_raw_fd())
-    });
-    let meta = file.metadata().ok()?;
+    let meta = std::fs::File::from(fd.try_clone_to_owned().ok()?)
+        .metadata()
+        .ok()?;
     meta.file_type().is_fifo().then(|| (meta.dev(), meta.ino()))
 }
 
