@@ -89,7 +89,8 @@ fn main() {
     );
     println!("|---|---|---|---|---|");
     // Best of several alternated runs (the machine's own wake-up costs
-    // move the floor by a third from one run to the next).
+    // move the floor by a third from one run to the next). A pair that
+    // failed prints its own row; the best-of row says of how many runs.
     let runs: usize = std::env::var("FIELDCAL_BENCH_RUNS")
         .ok()
         .and_then(|s| s.parse().ok())
@@ -122,10 +123,11 @@ fn main() {
         };
         if let (Some(d), Some(f)) = (best(&daemon), best(&floor)) {
             println!(
-                "| {n} | {:.1} µs ({} readings; {} runs {} µs) | {:.1} µs ({} readings; {} µs) | {:.1}× | {:.1} MB |",
+                "| {n} | {:.1} µs ({} readings; {} of {} runs: {} µs) | {:.1} µs ({} readings; {} µs) | {:.1}× | {:.1} MB |",
                 d.0,
                 d.1,
                 daemon.len(),
+                runs,
                 range(&daemon),
                 f.0,
                 f.1,

@@ -162,56 +162,64 @@ fn a_pipe_nobody_reads_does_not_keep_the_daemon_from_ending() {
     drop(read_end);
 }
 
-#[test]
-fn a_pipe_is_written_without_blocking_while_the_daemon_runs() {
+/// What a daemon replaying the garbage capture at ten times real time
+/// (about two seconds of readings) did to a pipe that is read to its end.
+struct PipeRun {
+    /// The pipe was non-blocking at some moment while the daemon ran.
+    nonblocking_while_running: bool,
+    /// The pipe was non-blocking after the daemon ended.
+    nonblocking_after: bool,
+    /// Everything the pipe carried.
+    text: String,
+}
+
+/// Runs that daemon with its stdout a pipe; `stderr_too` gives it the same
+/// pipe as stderr (`2>&1`).
+fn run_into_pipe(stderr_too: bool) -> PipeRun {
     let capture = common::repo_path("tests/data/falcon_garbage.fcap");
     let dir = tempfile::tempdir().unwrap();
     let (read_end, write_end) = pipe();
     let kept = write_end.try_clone().unwrap();
+    let stderr = if stderr_too {
+        Stdio::from(write_end.try_clone().unwrap())
+    } else {
+        Stdio::null()
+    };
     let reader = read_all(read_end);
-    // Ten times real time: about two seconds of readings.
-    let mut child = start_with(
-        dir.path(),
-        &capture,
-        "10.0",
-        Stdio::from(write_end),
-        Stdio::null(),
-    );
-    assert!(
-        ever_nonblocking_while_running(&mut child, &kept),
-        "the pipe was never made non-blocking: the writer thread wrote it"
-    );
+    let mut child = start_with(dir.path(), &capture, "10.0", Stdio::from(write_end), stderr);
+    let nonblocking_while_running = ever_nonblocking_while_running(&mut child, &kept);
     assert!(child.wait().unwrap().success());
-    assert!(!nonblocking(&kept), "the pipe's mode was not put back");
+    let nonblocking_after = nonblocking(&kept);
     drop(kept);
     let text = reader.join().unwrap().unwrap();
-    assert!(text.lines().filter(|l| l.contains("\"READING\"")).count() > 300);
+    let readings = text.lines().filter(|l| l.contains("\"READING\"")).count();
+    assert!(readings > 300, "{readings} readings");
+    PipeRun {
+        nonblocking_while_running,
+        nonblocking_after,
+        text,
+    }
+}
+
+#[test]
+fn a_pipe_is_written_without_blocking_while_the_daemon_runs() {
+    let run = run_into_pipe(false);
+    assert!(
+        run.nonblocking_while_running,
+        "the pipe was never made non-blocking: the writer thread wrote it"
+    );
+    assert!(!run.nonblocking_after, "the pipe's mode was not put back");
 }
 
 #[test]
 fn a_pipe_that_is_stderr_too_is_never_made_non_blocking() {
     // `fieldcal run 2>&1 | …`: its log lines share the pipe, and a
     // non-blocking pipe would fail them when it is full.
-    let capture = common::repo_path("tests/data/falcon_garbage.fcap");
-    let dir = tempfile::tempdir().unwrap();
-    let (read_end, write_end) = pipe();
-    let kept = write_end.try_clone().unwrap();
-    let stderr = write_end.try_clone().unwrap();
-    let reader = read_all(read_end);
-    let mut child = start_with(
-        dir.path(),
-        &capture,
-        "10.0",
-        Stdio::from(write_end),
-        Stdio::from(stderr),
-    );
-    assert!(!ever_nonblocking_while_running(&mut child, &kept));
-    assert!(child.wait().unwrap().success());
-    drop(kept);
-    let text = reader.join().unwrap().unwrap();
-    assert!(text.lines().filter(|l| l.contains("\"READING\"")).count() > 300);
+    let run = run_into_pipe(true);
+    assert!(!run.nonblocking_while_running);
+    assert!(!run.nonblocking_after);
     assert!(
-        text.contains("calibration accepted"),
+        run.text.contains("calibration accepted"),
         "the log shares the pipe"
     );
 }
