@@ -1622,6 +1622,66 @@ mod sphere {
         assert_eq!(BANDS.iter().sum::<usize>(), REGIONS);
     }
 
+    /// The region without the angles is the region by the angles: on
+    /// random directions of every length, and on directions placed on
+    /// each band's bound and each sector's edge and a few units in the
+    /// last place either side (where only the angles can tell).
+    #[test]
+    fn the_region_without_the_angles_is_the_region_by_them() {
+        use fieldcal::model::sphere::region_of_by_angles;
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut checked = 0usize;
+        let mut check = |v: [f64; 3]| {
+            assert_eq!(region_of(v), region_of_by_angles(v), "{v:?}");
+            checked += 1;
+        };
+        for i in 0..400_000 {
+            let v: [f64; 3] = std::array::from_fn(|_| StandardNormal.sample(&mut rng));
+            let scale = 10f64.powi(i % 13 - 6);
+            check(v.map(|c: f64| c * scale));
+        }
+        let mut above = 0usize;
+        for &count in &BANDS {
+            // The band's lower bound (as sin(elevation)), and its sectors' edges.
+            let bound = 1.0 - 2.0 * (above + count) as f64 / REGIONS as f64;
+            above += count;
+            for k in 0..=4 * count {
+                let azimuth = k as f64 * std::f64::consts::TAU / (4 * count) as f64;
+                for z in [bound, bound * 0.5 + 0.25, 0.0] {
+                    let mut z = z.clamp(-1.0, 1.0);
+                    for _ in 0..8 {
+                        let rho = (1.0 - z * z).max(0.0).sqrt();
+                        let mut a = azimuth;
+                        for _ in 0..8 {
+                            check([rho * a.cos(), rho * a.sin(), z]);
+                            a = a.next_up();
+                        }
+                        z = z.next_down();
+                    }
+                }
+            }
+        }
+        for v in [
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [0.0, -0.0, 0.5],
+            [1.0, -0.0, 0.0],
+            [-1.0, 0.0, 0.0],
+            [-1.0, -0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, -1.0, 0.0],
+            [1e-300, -1e-300, 0.0],
+            [0.0, 0.0, 0.0],
+            [f64::NAN, 0.0, 1.0],
+            [f64::INFINITY, 0.0, 1.0],
+        ] {
+            check(v);
+        }
+        assert!(checked > 400_000);
+    }
+
     #[test]
     fn region_centres_lie_in_their_region() {
         for k in 0..REGIONS {
