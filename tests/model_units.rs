@@ -1639,7 +1639,7 @@ mod sphere {
         };
         for i in 0..400_000 {
             let v: [f64; 3] = std::array::from_fn(|_| StandardNormal.sample(&mut rng));
-            let scale = 10f64.powi(i % 13 - 6);
+            let scale = 10f64.powi(i % 61 - 30);
             check(v.map(|c: f64| c * scale));
         }
         let mut above = 0usize;
@@ -1650,15 +1650,41 @@ mod sphere {
             for k in 0..=4 * count {
                 let azimuth = k as f64 * std::f64::consts::TAU / (4 * count) as f64;
                 for z in [bound, bound * 0.5 + 0.25, 0.0] {
+                    // Both sides of the bound and of the edge, by a few
+                    // units in the last place.
                     let mut z = z.clamp(-1.0, 1.0);
+                    for _ in 0..4 {
+                        z = z.next_up().min(1.0);
+                    }
                     for _ in 0..8 {
                         let rho = (1.0 - z * z).max(0.0).sqrt();
                         let mut a = azimuth;
+                        for _ in 0..4 {
+                            a = a.next_down();
+                        }
                         for _ in 0..8 {
                             check([rho * a.cos(), rho * a.sin(), z]);
                             a = a.next_up();
                         }
                         z = z.next_down();
+                    }
+                }
+                // Where the margins themselves lie: the sine 1e-9 from the
+                // bound's, and the azimuth 0.01 rad from an edge (the
+                // arctangent's error, up to 0.0038 rad, on either side).
+                let z_mid = bound * 0.5 + 0.25;
+                let rho_mid = (1.0 - z_mid * z_mid).sqrt();
+                for d in [
+                    0.002, 0.004, 0.006, 0.008, 0.0095, 0.01, 0.0105, 0.012, 0.014,
+                ] {
+                    for a in [azimuth - d, azimuth + d] {
+                        check([rho_mid * a.cos(), rho_mid * a.sin(), z_mid]);
+                    }
+                }
+                for d in [0.5e-9, 0.9e-9, 1e-9, 1.1e-9, 2e-9] {
+                    for z in [bound - d, bound + d] {
+                        let rho = (1.0 - z * z).max(0.0).sqrt();
+                        check([rho * azimuth.cos(), rho * azimuth.sin(), z.clamp(-1.0, 1.0)]);
                     }
                 }
             }
@@ -1673,6 +1699,12 @@ mod sphere {
             [0.0, 1.0, 0.0],
             [0.0, -1.0, 0.0],
             [1e-300, -1e-300, 0.0],
+            // x and y square to nothing: a band of several sectors, and
+            // no azimuth to approximate.
+            [-0.0, 0.0, 3e-162],
+            [0.0, -0.0, 3e-162],
+            [1e154, -1e154, 1e154],
+            [-1e-160, 1e-160, -2e-160],
             [0.0, 0.0, 0.0],
             [f64::NAN, 0.0, 1.0],
             [f64::INFINITY, 0.0, 1.0],
