@@ -92,8 +92,62 @@ pub enum Failure {
 }
 
 /// JᵀWJ, JᵀWe and Σ w e² at `p`, in one pass over the samples (one per
-/// weight).
+/// weight). The fits' own sizes (4, 6 and 9 parameters: the 3-D models)
+/// run with fixed-size accumulators the compiler lays out in full; every
+/// sum is the same, in the same order, as for any other size.
 pub fn normal_equations<P: LeastSquares>(
+    problem: &P,
+    p: &[f64],
+    weights: &[f64],
+    weighting: Weighting,
+) -> NormalEquations {
+    match p.len() {
+        4 => normal_equations_of::<P, 4>(problem, p, weights, weighting),
+        6 => normal_equations_of::<P, 6>(problem, p, weights, weighting),
+        9 => normal_equations_of::<P, 9>(problem, p, weights, weighting),
+        _ => normal_equations_any(problem, p, weights, weighting),
+    }
+}
+
+/// [`normal_equations`] for `K` parameters.
+fn normal_equations_of<P: LeastSquares, const K: usize>(
+    problem: &P,
+    p: &[f64],
+    weights: &[f64],
+    weighting: Weighting,
+) -> NormalEquations {
+    let shared = problem.shared(p);
+    let mut row = [0.0; K];
+    let mut upper = [[0.0; K]; K];
+    let mut gradient = [0.0; K];
+    let mut cost = 0.0;
+    for (i, &w) in weights.iter().enumerate() {
+        if weighting == Weighting::PositiveOnly && w <= 0.0 {
+            continue;
+        }
+        let e = problem.residual(&shared, p, i, Some(&mut row));
+        cost += w * e * e;
+        for u in 0..K {
+            let wu = w * row[u];
+            gradient[u] += wu * e;
+            for v in u..K {
+                upper[u][v] += wu * row[v];
+            }
+        }
+    }
+    let jtj = DMatrix::from_fn(K, K, |u, v| {
+        let (lo, hi) = if u <= v { (u, v) } else { (v, u) };
+        upper[lo][hi]
+    });
+    NormalEquations {
+        jtj,
+        jte: DVector::from_row_slice(&gradient),
+        cost,
+    }
+}
+
+/// [`normal_equations`] for any number of parameters.
+fn normal_equations_any<P: LeastSquares>(
     problem: &P,
     p: &[f64],
     weights: &[f64],
