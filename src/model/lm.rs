@@ -116,17 +116,10 @@ fn normal_equations_of<P: LeastSquares, const K: usize>(
     weights: &[f64],
     weighting: Weighting,
 ) -> NormalEquations {
-    let shared = problem.shared(p);
     let mut row = [0.0; K];
     let mut upper = [[0.0; K]; K];
     let mut gradient = [0.0; K];
-    let mut cost = 0.0;
-    for (i, &w) in weights.iter().enumerate() {
-        if weighting == Weighting::PositiveOnly && w <= 0.0 {
-            continue;
-        }
-        let e = problem.residual(&shared, p, i, Some(&mut row));
-        cost += w * e * e;
+    let cost = each_residual(problem, p, weights, weighting, &mut row, |w, e, row| {
         for u in 0..K {
             let wu = w * row[u];
             gradient[u] += wu * e;
@@ -134,16 +127,8 @@ fn normal_equations_of<P: LeastSquares, const K: usize>(
                 upper[u][v] += wu * row[v];
             }
         }
-    }
-    let jtj = DMatrix::from_fn(K, K, |u, v| {
-        let (lo, hi) = if u <= v { (u, v) } else { (v, u) };
-        upper[lo][hi]
     });
-    NormalEquations {
-        jtj,
-        jte: DVector::from_row_slice(&gradient),
-        cost,
-    }
+    assemble(K, |u, v| upper[u][v], &gradient, cost)
 }
 
 /// [`normal_equations`] for any number of parameters.
@@ -154,19 +139,12 @@ fn normal_equations_any<P: LeastSquares>(
     weighting: Weighting,
 ) -> NormalEquations {
     let k = p.len();
-    let shared = problem.shared(p);
     let mut row = vec![0.0; k];
     // Flat row-major accumulators of the upper triangle: the hot loop of
     // the fits, kept free of matrix indexing and allocation.
     let mut upper = vec![0.0; k * k];
     let mut gradient = vec![0.0; k];
-    let mut cost = 0.0;
-    for (i, &w) in weights.iter().enumerate() {
-        if weighting == Weighting::PositiveOnly && w <= 0.0 {
-            continue;
-        }
-        let e = problem.residual(&shared, p, i, Some(&mut row));
-        cost += w * e * e;
+    let cost = each_residual(problem, p, weights, weighting, &mut row, |w, e, row| {
         for (u, &ru) in row.iter().enumerate() {
             let wu = w * ru;
             gradient[u] += wu * e;
@@ -175,14 +153,46 @@ fn normal_equations_any<P: LeastSquares>(
                 *acc += wu * rv;
             }
         }
-    }
-    let jtj = DMatrix::from_fn(k, k, |u, v| {
-        let (lo, hi) = if u <= v { (u, v) } else { (v, u) };
-        upper[lo * k + hi]
     });
+    assemble(k, |u, v| upper[u * k + v], &gradient, cost)
+}
+
+/// The pass of [`normal_equations`]: each counted sample's residual `e`
+/// and derivatives `row` at `p`, handed to `add` with its weight; returns
+/// Σ w e².
+fn each_residual<P: LeastSquares>(
+    problem: &P,
+    p: &[f64],
+    weights: &[f64],
+    weighting: Weighting,
+    row: &mut [f64],
+    mut add: impl FnMut(f64, f64, &[f64]),
+) -> f64 {
+    let shared = problem.shared(p);
+    let mut cost = 0.0;
+    for (i, &w) in weights.iter().enumerate() {
+        if weighting == Weighting::PositiveOnly && w <= 0.0 {
+            continue;
+        }
+        let e = problem.residual(&shared, p, i, Some(row));
+        cost += w * e * e;
+        add(w, e, row);
+    }
+    cost
+}
+
+/// The normal equations of `k` parameters from the upper triangle of JᵀWJ
+/// (`upper(u, v)`, u ≤ v), JᵀWe and the cost.
+fn assemble(
+    k: usize,
+    upper: impl Fn(usize, usize) -> f64,
+    gradient: &[f64],
+    cost: f64,
+) -> NormalEquations {
+    let jtj = DMatrix::from_fn(k, k, |u, v| if u <= v { upper(u, v) } else { upper(v, u) });
     NormalEquations {
         jtj,
-        jte: DVector::from_vec(gradient),
+        jte: DVector::from_row_slice(gradient),
         cost,
     }
 }
