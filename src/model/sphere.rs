@@ -105,11 +105,17 @@ pub fn region_of(v: [f64; 3]) -> Option<usize> {
     }
     let sectors = count as f64;
     let approximate = approximate_azimuth(v[1], v[0]) / TAU * sectors;
-    let nearest_edge = approximate.round();
-    if approximate.is_finite()
-        && (approximate - nearest_edge).abs() > AZIMUTH_MARGIN / TAU * sectors
-    {
-        return Some(first + (approximate.floor() as usize).min(count - 1));
+    if approximate.is_finite() {
+        // In [0, sectors]: the conversion is its floor, and the distances
+        // to the edges below and above are exact (Sterbenz), the nearer
+        // being |approximate − round(approximate)| (without the library
+        // calls `floor` and `round` are on a baseline x86-64).
+        let below = approximate as usize;
+        let floor = below as f64;
+        let nearest = (approximate - floor).min(floor + 1.0 - approximate);
+        if nearest > AZIMUTH_MARGIN / TAU * sectors {
+            return Some(first + below.min(count - 1));
+        }
     }
     let azimuth = v[1].atan2(v[0]).rem_euclid(TAU);
     Some(first + ((azimuth / TAU * sectors) as usize).min(count - 1))

@@ -3,9 +3,10 @@
 
 use std::path::Path;
 
+use super::records::Records;
 use super::{
-    Back, CsvError, Front, Positional, READ_BYTES, RestError, Role, RowsRead, WATCHED_ROWS, cell,
-    csv_error, first_record, rows_expected, unequal_lengths,
+    Back, CsvError, Front, Positional, RestError, Role, RowsRead, WATCHED_ROWS, cell, first_record,
+    rows_expected,
 };
 use crate::sample::Covariate;
 
@@ -112,7 +113,7 @@ impl Reader<'_> {
     /// core when it can be (see [`super::halves`]), its rows joined after these.
     pub(super) fn read_front<'a: 's, 's>(
         &self,
-        csv: &mut csv::Reader<Front<'a>>,
+        records: &mut Records<'_, Front<'a>>,
         scope: &'s std::thread::Scope<'s, '_>,
         mut roles: Vec<Role>,
         timed: bool,
@@ -133,18 +134,16 @@ impl Reader<'_> {
         // lines, comments and the LF of a CRLF after the last record are
         // not yet counted).
         let mut after_last = 1;
-        while csv
-            .read_byte_record(&mut record)
-            .map_err(|e| csv_error(self.path, e))?
-        {
+        while records.read(&mut record)? {
             let line = record.position().map_or(0, |p| p.line());
             if read.is_empty() {
                 read = first_record(&record, &mut roles, self.names, &mut columns.covariates);
+                records.split_first(split_for(&read));
                 columns.reserve(rows_expected(self.size, &record, read.len()));
-                self.hand_over(csv.get_mut(), scope, &read, &columns, &record);
+                self.hand_over(records.get_mut(), scope, &read, &columns, &record);
             }
             columns.push(&record, &read, self, line)?;
-            after_last = csv.position().line();
+            after_last = records.line();
             if columns.x.len() - shown == WATCHED_ROWS {
                 columns.show(shown, watch);
                 shown = columns.x.len();
@@ -154,7 +153,7 @@ impl Reader<'_> {
         // the cut (its first record on line 1), which follows this half's
         // lines; one reader would number its first record as the line it
         // stood on after this half's last.
-        if let Some(back) = csv.get_mut().take_back() {
+        if let Some(back) = records.get_mut().take_back() {
             let rows = back.rows.map_err(
                 |RestError {
                      error,
@@ -162,7 +161,7 @@ impl Reader<'_> {
                  }| {
                     let lines = match first_record {
                         true => after_last,
-                        false => csv.position().line(),
+                        false => records.line(),
                     };
                     error.moved_down(lines.saturating_sub(1))
                 },
@@ -200,16 +199,12 @@ impl Reader<'_> {
                 &row,
                 read.len(),
             ));
-            let mut csv = csv::ReaderBuilder::new()
-                .has_headers(false)
-                .flexible(true)
-                .comment(Some(b'#'))
-                .buffer_capacity(READ_BYTES)
-                .from_reader(bytes);
-            let rows = reader.read_rest(&mut csv, &read, rest);
+            let fields = names.len();
+            let mut records = Records::headerless(bytes, fields, split_for(&read), &path);
+            let rows = reader.read_rest(&mut records, &read, rest);
             Back {
                 rows,
-                quoted: csv.get_ref().quoted(),
+                quoted: records.get_ref().quoted(),
             }
         });
     }
@@ -217,7 +212,7 @@ impl Reader<'_> {
     /// The rows of the rest of a file (no header), into `columns`.
     fn read_rest(
         &self,
-        csv: &mut csv::Reader<Positional<'_>>,
+        records: &mut Records<'_, Positional<'_>>,
         read: &[(usize, Role)],
         mut columns: Columns,
     ) -> Result<Columns, RestError> {
@@ -227,22 +222,9 @@ impl Reader<'_> {
             error,
             first_record,
         };
-        while csv
-            .read_byte_record(&mut record)
-            .map_err(|e| at(csv_error(self.path, e), first_record))?
-        {
+        // Records check their lengths against the header's.
+        while records.read(&mut record).map_err(|e| at(e, first_record))? {
             let line = record.position().map_or(0, |p| p.line());
-            if record.len() != self.names.len() {
-                // As the first half's reader says it (it checks lengths).
-                let message = unequal_lengths(record.len(), self.names.len());
-                let path = self.path.to_path_buf();
-                let error = CsvError::Malformed {
-                    path,
-                    line,
-                    message,
-                };
-                return Err(at(error, first_record));
-            }
             (columns.push(&record, read, self, line)).map_err(|e| at(e, first_record))?;
             first_record = false;
         }
@@ -250,10 +232,16 @@ impl Reader<'_> {
     }
 }
 
+/// The fields a plain line is split into for the columns `read`: up to
+/// the last of them.
+fn split_for(read: &[(usize, Role)]) -> usize {
+    read.iter().map(|&(i, _)| i + 1).max().unwrap_or(1)
+}
+
 impl CsvError {
     /// The error with its line moved down by `lines` (found in a part of
     /// a file that begins after that many lines).
-    fn moved_down(mut self, lines: u64) -> CsvError {
+    pub(super) fn moved_down(mut self, lines: u64) -> CsvError {
         if let CsvError::Malformed { line, .. } | CsvError::BadValue { line, .. } = &mut self {
             *line += lines;
         }

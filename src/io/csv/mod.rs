@@ -276,7 +276,9 @@ fn cell(
     path: &Path,
     line: u64,
 ) -> Result<f64, CsvError> {
-    parse_number(&record[i]).map_err(|problem| CsvError::BadValue {
+    // A record holds every field a reader reads ([`records::Records::read`]).
+    let field = record.get(i).unwrap_or_default();
+    parse_number(field).map_err(|problem| CsvError::BadValue {
         path: path.to_path_buf(),
         line,
         column: super::excerpt(&names[i]).into_owned(),
@@ -355,9 +357,10 @@ fn parse_dataset_sized(
     size: u64,
     watch: &mut dyn FnMut(RowsRead<'_>),
 ) -> Result<Dataset, CsvError> {
-    let (mut csv, names) = open_with_header(front, path)?;
+    let (csv, names) = open_with_header(records::Tap::new(front), path)?;
     check_unique(&names, path)?;
     let layout = Layout::of(&names, path, spec, wanted)?;
+    let mut records = records::Records::after_header(csv, names.len(), path);
     let columns = std::thread::scope(|scope| {
         let reader = Reader {
             names: &names,
@@ -365,14 +368,14 @@ fn parse_dataset_sized(
             size,
         };
         let read = reader.read_front(
-            &mut csv,
+            &mut records,
             scope,
             layout.roles,
             layout.t_index.is_some(),
             watch,
         );
         // Before the scope waits for the other core.
-        csv.get_ref().stop_rest();
+        records.get_ref().stop_rest();
         read
     })?;
     if columns.x.is_empty() {
@@ -746,6 +749,7 @@ fn unequal_lengths(len: impl std::fmt::Display, expected: impl std::fmt::Display
 
 mod columns;
 mod halves;
+mod records;
 mod stream;
 mod write;
 

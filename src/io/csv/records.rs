@@ -1,0 +1,585 @@
+//! The records of a recording after its header, as one `csv` reader reads
+//! them, but faster on plain lines.
+//!
+//! A plain line is what a recorder writes: fields separated by commas, no
+//! quote, no carriage return, not blank, not a `#` comment, and as many
+//! fields as the header. Such a line is one record and its fields are the
+//! bytes between its commas, so it is split here with a few SIMD scans
+//! (`memchr`) instead of the csv crate's byte-at-a-time state machine, and
+//! only as far as the last column read; the rest of its commas are only
+//! counted. From the first line that is not plain (or a line longer than
+//! the buffer, or a last line with no newline) the csv crate reads the
+//! rest, from that line's first byte, its lines numbered on from the lines
+//! before: every record and every message is the one a single `csv`
+//! reader gives from the header on.
+
+use std::io::{self, Read};
+use std::path::Path;
+
+use super::{CsvError, READ_BYTES, csv_error, unequal_lengths};
+
+/// Bytes held for plain lines: a line longer than this goes to the csv
+/// crate.
+const PLAIN_BYTES: usize = 4 * READ_BYTES;
+
+/// A reader that keeps the bytes read through it: those a csv reader had
+/// buffered past the header, when the header is read through it.
+pub(super) struct Tap<R> {
+    inner: R,
+    pulled: Vec<u8>,
+}
+
+impl<R> Tap<R> {
+    pub(super) fn new(inner: R) -> Self {
+        Tap {
+            inner,
+            pulled: Vec::new(),
+        }
+    }
+}
+
+impl<R: Read> Read for Tap<R> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.pulled.extend_from_slice(&buf[..n]);
+        Ok(n)
+    }
+}
+
+/// Bytes held back, then a reader: what the csv crate reads once the
+/// lines stop being plain.
+pub(super) struct Held<R> {
+    held: Vec<u8>,
+    at: usize,
+    inner: R,
+}
+
+impl<R: Read> Read for Held<R> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        if self.at < self.held.len() {
+            let n = (self.held.len() - self.at).min(buf.len());
+            buf[..n].copy_from_slice(&self.held[self.at..self.at + n]);
+            self.at += n;
+            return Ok(n);
+        }
+        self.inner.read(buf)
+    }
+}
+
+/// The records of a file, read on from where a csv reader read its header.
+pub(super) struct Records<'p, R> {
+    /// Plain lines are read through it (while `plain` is some), and the
+    /// rest by it.
+    csv: csv::Reader<Held<R>>,
+    plain: Option<Plain>,
+    /// Lines before the csv crate's first byte.
+    lines_before: u64,
+    /// Fields in every record (the header's).
+    fields: usize,
+    path: &'p Path,
+}
+
+/// Plain lines, split here.
+struct Plain {
+    buf: Vec<u8>,
+    /// The first byte not yet read as a record.
+    start: usize,
+    /// Bytes held.
+    end: usize,
+    /// The first quote or carriage return held: no line is plain from the
+    /// one that holds it.
+    special: Option<usize>,
+    eof: bool,
+    /// The line the reader stands on (the next line's number).
+    line: u64,
+    /// Fields split out of each line; the others are only counted.
+    split: usize,
+}
+
+/// Whether a plain line gave a record.
+enum Next {
+    Record,
+    End,
+    /// The csv crate reads on from here.
+    NotPlain,
+}
+
+impl<'p, R: Read> Records<'p, R> {
+    /// The records after the header `csv` has read (through a [`Tap`]),
+    /// each of `fields` fields; `path` names the file in messages.
+    pub(super) fn after_header(csv: csv::Reader<Tap<R>>, fields: usize, path: &'p Path) -> Self {
+        Records::after_header_holding(csv, fields, path, PLAIN_BYTES)
+    }
+
+    /// [`Records::after_header`] holding plain lines of up to `bytes`.
+    fn after_header_holding(
+        csv: csv::Reader<Tap<R>>,
+        fields: usize,
+        path: &'p Path,
+        bytes: usize,
+    ) -> Self {
+        let consumed = usize::try_from(csv.position().byte()).unwrap_or(usize::MAX);
+        let line = csv.position().line();
+        let tap = csv.into_inner();
+        // A csv reader consumes only bytes it has read.
+        let unread = tap.pulled.get(consumed..).unwrap_or_default();
+        let mut buf = vec![0; bytes.max(unread.len())];
+        buf[..unread.len()].copy_from_slice(unread);
+        let plain = Plain {
+            end: unread.len(),
+            buf,
+            start: 0,
+            special: memchr::memchr2(b'"', b'\r', unread),
+            eof: false,
+            line,
+            split: fields,
+        };
+        Records::new(tap.inner, plain, fields, path)
+    }
+
+    /// The records of `reader` from its first byte (no header), each of
+    /// `fields` fields, of which the first `split` are read.
+    pub(super) fn headerless(reader: R, fields: usize, split: usize, path: &'p Path) -> Self {
+        let plain = Plain {
+            buf: vec![0; PLAIN_BYTES],
+            start: 0,
+            end: 0,
+            special: None,
+            eof: false,
+            line: 1,
+            split: split.min(fields),
+        };
+        Records::new(reader, plain, fields, path)
+    }
+
+    fn new(reader: R, plain: Plain, fields: usize, path: &'p Path) -> Self {
+        let held = Held {
+            held: Vec::new(),
+            at: 0,
+            inner: reader,
+        };
+        let csv = csv::ReaderBuilder::new()
+            .has_headers(false)
+            // Lengths are checked against the header's, as the reader
+            // of the header checks them.
+            .flexible(true)
+            .comment(Some(b'#'))
+            .buffer_capacity(READ_BYTES)
+            .from_reader(held);
+        Records {
+            csv,
+            plain: Some(plain),
+            lines_before: 0,
+            fields,
+            path,
+        }
+    }
+
+    /// Only the first `split` fields of a plain line are read from now on:
+    /// a record read then holds only those (the others are checked to be
+    /// there).
+    pub(super) fn split_first(&mut self, split: usize) {
+        if let Some(plain) = &mut self.plain {
+            plain.split = split.min(self.fields);
+        }
+    }
+
+    /// The next record into `record`, its position the line it starts on
+    /// as a csv reader counts lines; `false` past the last. Its fields are
+    /// the header's number (checked), or, of a plain line, the first
+    /// [`Records::split_first`] of them.
+    pub(super) fn read(&mut self, record: &mut csv::ByteRecord) -> Result<bool, CsvError> {
+        if let Some(plain) = &mut self.plain {
+            let reader = &mut self.csv.get_mut().inner;
+            let next = plain
+                .next(reader, record, self.fields)
+                .map_err(|source| CsvError::Io {
+                    path: self.path.to_path_buf(),
+                    source,
+                })?;
+            match next {
+                Next::Record => return Ok(true),
+                Next::End => return Ok(false),
+                Next::NotPlain => {
+                    // The csv crate reads on from the line's first byte.
+                    let held = self.csv.get_mut();
+                    held.held = plain.buf[plain.start..plain.end].to_vec();
+                    self.lines_before = plain.line - 1;
+                    self.plain = None;
+                }
+            }
+        }
+        let lines_before = self.lines_before;
+        let more = (self.csv)
+            .read_byte_record(record)
+            .map_err(|e| csv_error(self.path, e).moved_down(lines_before))?;
+        if !more {
+            return Ok(false);
+        }
+        let line = record.position().map_or(0, |p| p.line()) + lines_before;
+        set_line(record, line);
+        if record.len() != self.fields {
+            return Err(CsvError::Malformed {
+                path: self.path.to_path_buf(),
+                line,
+                message: unequal_lengths(record.len(), self.fields),
+            });
+        }
+        Ok(true)
+    }
+
+    /// The line the reader stands on, as a csv reader's position counts it.
+    pub(super) fn line(&self) -> u64 {
+        match &self.plain {
+            Some(plain) => plain.line,
+            None => self.csv.position().line() + self.lines_before,
+        }
+    }
+
+    pub(super) fn get_ref(&self) -> &R {
+        &self.csv.get_ref().inner
+    }
+
+    pub(super) fn get_mut(&mut self) -> &mut R {
+        &mut self.csv.get_mut().inner
+    }
+}
+
+impl Plain {
+    /// The next plain line of `reader` as a record of `fields` fields.
+    fn next(
+        &mut self,
+        reader: &mut impl Read,
+        record: &mut csv::ByteRecord,
+        fields: usize,
+    ) -> io::Result<Next> {
+        loop {
+            let held = &self.buf[self.start..self.end];
+            if let Some(length) = memchr::memchr(b'\n', held) {
+                let line = &held[..length];
+                if self.special.is_some_and(|at| at < self.start + length)
+                    || line.first().is_none_or(|&b| b == b'#')
+                    || !split_line(line, self.split, fields, record)
+                {
+                    return Ok(Next::NotPlain);
+                }
+                set_line(record, self.line);
+                self.start += length + 1;
+                self.line += 1;
+                return Ok(Next::Record);
+            }
+            if self.eof {
+                // A last line with no newline is the crate's to read.
+                return Ok(match held.is_empty() {
+                    true => Next::End,
+                    false => Next::NotPlain,
+                });
+            }
+            if self.start > 0 {
+                self.buf.copy_within(self.start..self.end, 0);
+                self.end -= self.start;
+                self.special = self.special.map(|at| at - self.start);
+                self.start = 0;
+            }
+            if self.end == self.buf.len() {
+                // A line longer than the buffer.
+                return Ok(Next::NotPlain);
+            }
+            let n = match reader.read(&mut self.buf[self.end..]) {
+                Ok(n) => n,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(e),
+            };
+            let read = &self.buf[self.end..self.end + n];
+            if self.special.is_none() {
+                self.special = memchr::memchr2(b'"', b'\r', read).map(|at| self.end + at);
+            }
+            self.end += n;
+            self.eof = n == 0;
+        }
+    }
+}
+
+/// `line`'s first `split` fields into `record` (the rest of its `fields`
+/// only counted); `false` (and `record` left to be read again) when it
+/// has another number of fields.
+fn split_line(line: &[u8], split: usize, fields: usize, record: &mut csv::ByteRecord) -> bool {
+    record.clear();
+    let mut from = 0;
+    let mut commas = memchr::memchr_iter(b',', line);
+    while record.len() + 1 < split {
+        let Some(comma) = commas.next() else {
+            return false;
+        };
+        record.push_field(&line[from..comma]);
+        from = comma + 1;
+    }
+    // The field `split` ends at the next comma, or the line's end.
+    let rest = &line[from..];
+    let (last, more) = match memchr::memchr(b',', rest) {
+        Some(comma) => (&rest[..comma], 1 + count_commas(&rest[comma + 1..])),
+        None => (rest, 0),
+    };
+    record.push_field(last);
+    record.len() + more == fields
+}
+
+/// Commas in `bytes`: counted 32 bytes at a time into one byte each,
+/// which the compiler does in a few vector instructions.
+fn count_commas(bytes: &[u8]) -> usize {
+    let mut chunks = bytes.chunks_exact(32);
+    let mut count = 0;
+    for chunk in &mut chunks {
+        let mut in_chunk = 0u8;
+        for &b in chunk {
+            in_chunk += u8::from(b == b',');
+        }
+        count += usize::from(in_chunk);
+    }
+    count + chunks.remainder().iter().filter(|&&b| b == b',').count()
+}
+
+/// Sets the line a record starts on.
+fn set_line(record: &mut csv::ByteRecord, line: u64) {
+    let mut position = csv::Position::new();
+    position.set_line(line);
+    record.set_position(Some(position));
+}
+
+#[cfg(test)]
+mod tests {
+    use proptest::prelude::*;
+
+    use super::super::open_with_header;
+    use super::*;
+
+    /// A reader handing out at most a few bytes at a time.
+    struct Trickle<'a> {
+        bytes: &'a [u8],
+        sizes: Vec<usize>,
+        read: usize,
+    }
+
+    impl Read for Trickle<'_> {
+        fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+            let size = self.sizes[self.read % self.sizes.len()];
+            self.read += 1;
+            let n = size.min(buf.len()).min(self.bytes.len());
+            buf[..n].copy_from_slice(&self.bytes[..n]);
+            self.bytes = &self.bytes[n..];
+            Ok(n)
+        }
+    }
+
+    /// Each record's line and first `split` fields, then the line the
+    /// reader stands on at the end, or the message it stops with: as one
+    /// csv reader reads `text` after its header (lengths checked against
+    /// it), the way the recording readers read before plain lines.
+    fn by_the_crate(text: &[u8], split: usize) -> Vec<String> {
+        let path = Path::new("rec.csv");
+        let (mut csv, names) = match open_with_header(text, path) {
+            Ok(opened) => opened,
+            Err(e) => return vec![e.to_string()],
+        };
+        let mut out = vec![format!("{} fields", names.len())];
+        let mut record = csv::ByteRecord::new();
+        loop {
+            match csv.read_byte_record(&mut record) {
+                Ok(true) => out.push(shown(&record, split.min(names.len()))),
+                Ok(false) => break,
+                Err(e) => {
+                    out.push(csv_error(path, e).to_string());
+                    return out;
+                }
+            }
+        }
+        out.push(format!("end on line {}", csv.position().line()));
+        out
+    }
+
+    /// [`by_the_crate`] by [`Records`], fed by `sizes` bytes at a time and
+    /// holding plain lines of up to `holding` bytes.
+    fn by_records(text: &[u8], split: usize, sizes: Vec<usize>, holding: usize) -> Vec<String> {
+        let path = Path::new("rec.csv");
+        let reader = Trickle {
+            bytes: text,
+            sizes,
+            read: 0,
+        };
+        let (csv, names) = match open_with_header(Tap::new(reader), path) {
+            Ok(opened) => opened,
+            Err(e) => return vec![e.to_string()],
+        };
+        let fields = names.len();
+        let mut out = vec![format!("{fields} fields")];
+        let mut records = Records::after_header_holding(csv, fields, path, holding);
+        let mut record = csv::ByteRecord::new();
+        let mut first = true;
+        loop {
+            match records.read(&mut record) {
+                Ok(true) => {
+                    let split = split.min(fields);
+                    // A plain line holds the fields split, or (the first,
+                    // all read) every field; the crate's hold every one.
+                    assert!(
+                        record.len() == fields || (!first && record.len() == split),
+                        "{} fields of {fields}, split at {split}",
+                        record.len()
+                    );
+                    out.push(shown(&record, split));
+                    if first {
+                        records.split_first(split);
+                        first = false;
+                    }
+                }
+                Ok(false) => break,
+                Err(e) => {
+                    out.push(e.to_string());
+                    return out;
+                }
+            }
+        }
+        out.push(format!("end on line {}", records.line()));
+        out
+    }
+
+    fn shown(record: &csv::ByteRecord, split: usize) -> String {
+        let line = record.position().map_or(0, |p| p.line());
+        let fields: Vec<_> = record
+            .iter()
+            .take(split)
+            .map(String::from_utf8_lossy)
+            .collect();
+        format!("line {line}: {fields:?}")
+    }
+
+    /// The same by both, fed whole and a few bytes at a time, holding
+    /// plain lines of any length and of a few bytes.
+    fn same_by_both(text: &[u8], split: usize) {
+        let want = by_the_crate(text, split);
+        for (sizes, holding) in [
+            (vec![READ_BYTES], PLAIN_BYTES),
+            (vec![1, 3, 7, 2], PLAIN_BYTES),
+            (vec![5, 64, 1], 12),
+        ] {
+            let got = by_records(text, split, sizes.clone(), holding);
+            assert_eq!(
+                got,
+                want,
+                "{:?} split at {split}, {sizes:?} bytes at a time, {holding} held",
+                String::from_utf8_lossy(text)
+            );
+        }
+    }
+
+    #[test]
+    fn plain_lines_are_the_records_the_crate_reads() {
+        let text = b"t,x,y,label\n0,1.5,-2,a\n1,2.5,-3,b\n2,3.5,-4,c\n";
+        for split in 1..=4 {
+            same_by_both(text, split);
+        }
+        // The records and the line the reader ends on; the first record
+        // holds every field, the others those split.
+        let got = by_records(text, 2, vec![READ_BYTES], PLAIN_BYTES);
+        assert_eq!(
+            got,
+            [
+                "4 fields",
+                "line 2: [\"0\", \"1.5\"]",
+                "line 3: [\"1\", \"2.5\"]",
+                "line 4: [\"2\", \"3.5\"]",
+                "end on line 5",
+            ]
+        );
+    }
+
+    #[test]
+    fn from_a_line_that_is_not_plain_the_crate_reads_on() {
+        for text in [
+            // CRLF (the crate counts a record's line before its LF).
+            &b"t,x,y\r\n0,1,2\r\n1,2,3\r\n"[..],
+            b"t,x,y\n0,1,2\n1,2,3\r\n2,3,4\n",
+            // A lone CR ends a record too.
+            b"t,x,y\n0,1,2\n1,2,3\r2,3,4\n3,4,5\n",
+            // Comments and blank lines.
+            b"t,x,y\n0,1,2\n# a note\n\n1,2,3\n\n",
+            // A blank line where a record has one field.
+            b"t\n1\n\n2\n",
+            // A comment with the header's fields.
+            b"t,x,y\n0,1,2\n# a,b,c\n1,2,3\n",
+            b"# before\nt,x,y\n0,1,2\n1,2,3\n",
+            // A newline in quotes; a quote in a field.
+            b"t,x,y,n\n0,1,2,\"a\nb\"\n1,2,3,c\n",
+            b"t,x,y\n0,1,2\n1,2\"x,3\n2,3,4\n",
+            // Too few or too many fields, first or later.
+            b"t,x,y\n0,1\n1,2,3\n",
+            b"t,x,y\n0,1,2\n1,2,3,4\n2,3,4\n",
+            b"t,x,y\n0,1,2\n1,,\n",
+            // No newline at the end; nothing after the header.
+            b"t,x,y\n0,1,2\n1,2,3",
+            b"t,x,y\n",
+            b"t,x,y",
+            // A byte-order mark; one after a newline stays in its field.
+            b"\xEF\xBB\xBFt,x,y\n0,1,2\n",
+            b"t,x,y\n0,1,2\n\xEF\xBB\xBF1,2,3\n",
+            // Bytes that are no UTF-8, and spaces, stay as they are.
+            b"t,x,y\n0, 1 ,\xFF\n",
+            // A line longer than the few bytes held.
+            b"t,x,y\n0,1,2\n1,2222222222222222222222,3\n2,3,4\n",
+        ] {
+            for split in 1..=4 {
+                same_by_both(text, split);
+            }
+        }
+    }
+
+    #[test]
+    fn commas_are_counted_in_every_position_of_a_chunk() {
+        for at in 0..100 {
+            let mut one = vec![b'7'; 100];
+            one[at] = b',';
+            assert_eq!(count_commas(&one), 1, "at {at}");
+            assert_eq!(count_commas(&one[at + 1..]), 0, "after {at}");
+            let upto: Vec<u8> = (0..100)
+                .map(|i| if i <= at { b',' } else { b'7' })
+                .collect();
+            assert_eq!(count_commas(&upto), at + 1, "up to {at}");
+            assert_eq!(count_commas(&upto[..=at]), at + 1, "the first {at}");
+        }
+        // More than a byte can count in a chunk: 255 chunks of commas.
+        assert_eq!(count_commas(&vec![b','; 32 * 300 + 5]), 32 * 300 + 5);
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+        #[test]
+        fn any_text_reads_as_the_crate_reads_it(
+            lines in prop::collection::vec((0u8..14, 0u32..1000), 0..16),
+            split in 1usize..5,
+            end in 0u8..3,
+        ) {
+            let mut text = b"t,x,y,n".to_vec();
+            text.extend_from_slice(match end { 0 => &b"\n"[..], 1 => b"\r\n", _ => b"\r" });
+            for (kind, v) in &lines {
+                let line = match kind {
+                    0 => format!("{v},1.{v},-{v},ok\r\n"),
+                    1 => "# n,o,t,e\n".to_string(),
+                    2 => "\n".to_string(),
+                    3 => format!("{v},{v}\n"),
+                    4 => format!("{v},\"{v}\",1,\"a\nb\"\n"),
+                    5 => format!("{v},?,1,\n"),
+                    6 => format!("{v},1,2,3,4\n"),
+                    7 => format!("{v},{}\n", "9".repeat(*v as usize % 40)),
+                    8 => format!("{v}, {v} ,{v}\t,x\r"),
+                    _ => format!("{v},{v}.5,{},n{v}\n", -f64::from(*v)),
+                };
+                text.extend_from_slice(line.as_bytes());
+            }
+            if end == 2 {
+                // No newline at the end.
+                text.pop();
+            }
+            same_by_both(&text, split);
+        }
+    }
+}
