@@ -478,6 +478,10 @@ const LM_OPTIONS: lm::Options = lm::Options {
     step_tolerance: None,
     positive: None,
     lower_damping_on_stop: true,
+    // From the closed form nearly every trial is accepted: each is judged
+    // by its normal equations (the same cost to the bit), which the next
+    // step and the covariance need anyway.
+    trials_by_equations: true,
 };
 
 /// The reported parameters (o[3], W row-major[9], r) of packed scaled ones.
@@ -740,8 +744,8 @@ fn refine(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Refined, Ellips
     let mut v = pack(model, &start);
     let refinement = Refinement { model, points: &p };
     let weights = vec![1.0; p.len()];
-    let iterations =
-        lm::solve(&refinement, &mut v, &weights, &mut 1e-3, 0, &LM_OPTIONS).map_err(|failure| {
+    let solved = lm::solve_holding(&refinement, &mut v, &weights, &mut 1e-3, 0, &LM_OPTIONS)
+        .map_err(|failure| {
             match failure {
                 lm::Failure::NoConvergence { iterations } => {
                     Ellipsoid3Error::NoConvergence { iterations }
@@ -750,8 +754,11 @@ fn refine(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Refined, Ellips
                 lm::Failure::Undetermined { .. } => Ellipsoid3Error::Degenerate,
             }
         })?;
-    let lm::NormalEquations { jtj, cost: rss, .. } =
-        lm::normal_equations(&refinement, &v, &weights, Weighting::EverySample);
+    let iterations = solved.iterations;
+    // The equations at the end, as computed again here they would be.
+    let lm::NormalEquations { jtj, cost: rss, .. } = solved
+        .equations
+        .unwrap_or_else(|| lm::normal_equations(&refinement, &v, &weights, Weighting::EverySample));
     let n = points.len();
     let k = model.unknowns();
     let out = report(model, &v, &mean, spread).ok_or(Ellipsoid3Error::Degenerate)?;

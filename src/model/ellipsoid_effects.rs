@@ -461,6 +461,7 @@ fn levenberg_marquardt(
         step_tolerance: None,
         positive: None,
         lower_damping_on_stop: true,
+        trials_by_equations: false,
     };
     lm::solve(layout, v, weights, lambda, done, &options).map_err(|failure| match failure {
         lm::Failure::Undetermined { jtj } => Effects3Error::Undetermined {

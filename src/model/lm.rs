@@ -71,6 +71,23 @@ pub struct Options {
     /// Whether the accepted step that meets a stop rule still divides λ by
     /// 10: the damping a later run on the same fit starts from.
     pub lower_damping_on_stop: bool,
+    /// Judge each trial by the normal equations at it, whose Σ w e² is the
+    /// trial cost to the bit with [`Weighting::EverySample`] (the same
+    /// `w·e·e`, in the same order), instead of by the cost alone: an
+    /// accepted trial then needs no second pass for its equations, and
+    /// the run ends holding the equations at its parameters
+    /// ([`Solved::equations`]). Worth it where trials are nearly always
+    /// accepted (from a closed form); ignored with another weighting.
+    pub trials_by_equations: bool,
+}
+
+/// What [`solve`] leaves: the iterations it took, and the normal
+/// equations at the parameters it ends on when it holds them (always with
+/// [`Options::trials_by_equations`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Solved {
+    pub iterations: usize,
+    pub equations: Option<NormalEquations>,
 }
 
 /// JᵀWJ, JᵀWe and Σ w e² at one parameter vector.
@@ -242,6 +259,19 @@ pub fn solve<P: LeastSquares>(
     done: usize,
     options: &Options,
 ) -> Result<usize, Failure> {
+    solve_holding(problem, p, weights, lambda, done, options).map(|solved| solved.iterations)
+}
+
+/// [`solve`], with the normal equations at the end when it holds them.
+pub fn solve_holding<P: LeastSquares>(
+    problem: &P,
+    p: &mut [f64],
+    weights: &[f64],
+    lambda: &mut f64,
+    done: usize,
+    options: &Options,
+) -> Result<Solved, Failure> {
+    let by_equations = options.trials_by_equations && options.weighting == Weighting::EverySample;
     let k = p.len();
     *lambda = lambda.max(1e-6);
     let mut trial = vec![0.0; k];
@@ -261,8 +291,12 @@ pub fn solve<P: LeastSquares>(
             });
         }
         iterations += 1;
+        let held = |jtj: DMatrix<f64>, jte: DVector<f64>, cost: f64| Solved {
+            iterations,
+            equations: Some(NormalEquations { jtj, jte, cost }),
+        };
         if cost == 0.0 {
-            return Ok(iterations);
+            return Ok(held(jtj, jte, cost));
         }
         // Marquardt's scaling: damping proportional to each curvature, so
         // parameters of very different units step alike.
@@ -279,7 +313,12 @@ pub fn solve<P: LeastSquares>(
             for j in 0..k {
                 trial[j] = p[j] + step[j];
             }
-            let new_cost = self::cost(problem, &trial, weights, options.weighting);
+            let at_trial =
+                by_equations.then(|| normal_equations(problem, &trial, weights, options.weighting));
+            let new_cost = match &at_trial {
+                Some(equations) => equations.cost,
+                None => self::cost(problem, &trial, weights, options.weighting),
+            };
             let admissible = options.positive.is_none_or(|j| trial[j] > 0.0);
             if new_cost.is_finite() && admissible && new_cost <= cost {
                 let relative = (cost - new_cost) / cost;
@@ -291,12 +330,21 @@ pub fn solve<P: LeastSquares>(
                 if !stop || options.lower_damping_on_stop {
                     *lambda = (*lambda / 10.0).max(1e-15);
                 }
+                let at_p = match at_trial {
+                    Some(equations) => equations,
+                    None if stop => {
+                        return Ok(Solved {
+                            iterations,
+                            equations: None,
+                        });
+                    }
+                    None => normal_equations(problem, p, weights, options.weighting),
+                };
                 if stop {
-                    return Ok(iterations);
+                    return Ok(held(at_p.jtj, at_p.jte, at_p.cost));
                 }
                 accepted = true;
-                NormalEquations { jtj, jte, cost } =
-                    normal_equations(problem, p, weights, options.weighting);
+                NormalEquations { jtj, jte, cost } = at_p;
             }
         }
         if !accepted {
@@ -304,7 +352,100 @@ pub fn solve<P: LeastSquares>(
             // No step, however short, lowers the cost: p is the minimum to
             // the precision of the arithmetic.
             if *lambda > 1e12 {
-                return Ok(iterations);
+                return Ok(held(jtj, jte, cost));
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A circle through points: centre (p0, p1), radius p2.
+    struct Circle {
+        points: Vec<[f64; 2]>,
+    }
+
+    impl LeastSquares for Circle {
+        type Shared = ();
+
+        fn shared(&self, _: &[f64]) {}
+
+        fn residual(&self, _: &(), p: &[f64], i: usize, row: Option<&mut [f64]>) -> f64 {
+            let [x, y] = self.points[i];
+            let (dx, dy) = (x - p[0], y - p[1]);
+            let d = dx.hypot(dy);
+            if let Some(row) = row {
+                row[0] = -dx / d;
+                row[1] = -dy / d;
+                row[2] = -1.0;
+            }
+            d - p[2]
+        }
+    }
+
+    fn circle() -> (Circle, Vec<f64>) {
+        // An arc, unevenly weighted, with a little deterministic noise.
+        let points = (0..200)
+            .map(|i| {
+                let a = f64::from(i) * 0.02;
+                let wobble = 0.01 * (f64::from(i) * 1.7).sin();
+                [
+                    3.0 + (2.0 + wobble) * a.cos(),
+                    -1.0 + (2.0 - wobble) * a.sin(),
+                ]
+            })
+            .collect();
+        let weights = (0..200).map(|i| 0.5 + f64::from(i % 7) / 4.0).collect();
+        (Circle { points }, weights)
+    }
+
+    fn options(trials_by_equations: bool, weighting: Weighting) -> Options {
+        Options {
+            max_iterations: 500,
+            tolerance: 1e-12,
+            weighting,
+            require_curvature: false,
+            damping_floor: None,
+            step_tolerance: None,
+            positive: None,
+            lower_damping_on_stop: true,
+            trials_by_equations,
+        }
+    }
+
+    #[test]
+    fn trials_judged_by_their_equations_take_the_same_steps() {
+        let (problem, weights) = circle();
+        // Far starts: some trials are refused on the way.
+        for start in [[2.0, 0.0, 1.0], [4.0, -2.5, 3.0], [3.5, -0.5, 2.5]] {
+            for weighting in [Weighting::EverySample, Weighting::PositiveOnly] {
+                let run = |by_equations| {
+                    let mut p = start.to_vec();
+                    let mut lambda = 1e-3;
+                    let options = options(by_equations, weighting);
+                    let solved =
+                        solve_holding(&problem, &mut p, &weights, &mut lambda, 0, &options);
+                    (solved, p, lambda)
+                };
+                let (by_cost, p_cost, lambda_cost) = run(false);
+                let (by_equations, p_eq, lambda_eq) = run(true);
+                let bits = |p: &[f64]| p.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&p_eq), bits(&p_cost), "{start:?} {weighting:?}");
+                assert_eq!(lambda_eq.to_bits(), lambda_cost.to_bits());
+                let (Ok(by_cost), Ok(by_equations)) = (by_cost, by_equations) else {
+                    panic!("{start:?} {weighting:?} did not converge");
+                };
+                assert_eq!(by_equations.iterations, by_cost.iterations);
+                assert!(by_cost.iterations > 3, "{}", by_cost.iterations);
+                // The equations held are those at the end, to the bit;
+                // only the weighting whose trial cost they are holds them.
+                let at_end = normal_equations(&problem, &p_eq, &weights, weighting);
+                match weighting {
+                    Weighting::EverySample => assert_eq!(by_equations.equations, Some(at_end)),
+                    Weighting::PositiveOnly => assert_eq!(by_equations.equations, None),
+                }
             }
         }
     }

@@ -462,6 +462,7 @@ fn lm_options(tolerance: f64) -> lm::Options {
         step_tolerance: Some(1e-12),
         positive: Some(3),
         lower_damping_on_stop: false,
+        trials_by_equations: false,
     }
 }
 
