@@ -82,8 +82,9 @@ pub struct Options {
 }
 
 /// What [`solve`] leaves: the iterations it took, and the normal
-/// equations at the parameters it ends on when it holds them (always with
-/// [`Options::trials_by_equations`]).
+/// equations at the parameters it ends on when it holds them: always with
+/// [`Options::trials_by_equations`] and every sample weighted; otherwise
+/// only when it ends on a zero cost or on a damping past 1e12.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Solved {
     pub iterations: usize,
@@ -440,11 +441,13 @@ mod tests {
                 assert_eq!(by_equations.iterations, by_cost.iterations);
                 assert!(by_cost.iterations > 3, "{}", by_cost.iterations);
                 // The equations held are those at the end, to the bit;
-                // only the weighting whose trial cost they are holds them.
+                // the weighting whose trial cost they are always holds
+                // them (another, ending on a stop rule, does not).
                 let at_end = normal_equations(&problem, &p_eq, &weights, weighting);
-                match weighting {
-                    Weighting::EverySample => assert_eq!(by_equations.equations, Some(at_end)),
-                    Weighting::PositiveOnly => assert_eq!(by_equations.equations, None),
+                match (weighting, by_equations.equations) {
+                    (Weighting::EverySample, held) => assert_eq!(held, Some(at_end)),
+                    (Weighting::PositiveOnly, Some(held)) => assert_eq!(held, at_end),
+                    (Weighting::PositiveOnly, None) => {}
                 }
             }
         }

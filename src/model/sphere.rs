@@ -106,10 +106,12 @@ pub fn region_of(v: [f64; 3]) -> Option<usize> {
     let sectors = count as f64;
     let approximate = approximate_azimuth(v[1], v[0]) / TAU * sectors;
     if approximate.is_finite() {
-        // In [0, sectors]: the conversion is its floor, and the distances
-        // to the edges below and above are exact (Sterbenz), the nearer
-        // being |approximate − round(approximate)| (without the library
-        // calls `floor` and `round` are on a baseline x86-64).
+        // In [0, sectors]: the conversion to an integer is its floor (no
+        // call to the library's `floor` or `round`, which a baseline
+        // x86-64 makes). The nearer of the distances to the edges below
+        // and above is exact (Sterbenz; the farther may round when the
+        // floor is 0, but is then at least 0.5 and not the nearer): it is
+        // |approximate − round(approximate)|.
         let below = approximate as usize;
         let floor = below as f64;
         let nearest = (approximate - floor).min(floor + 1.0 - approximate);

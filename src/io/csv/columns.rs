@@ -241,9 +241,14 @@ fn split_for(read: &[(usize, Role)]) -> usize {
 impl CsvError {
     /// The error with its line moved down by `lines` (found in a part of
     /// a file that begins after that many lines).
-    pub(super) fn moved_down(mut self, lines: u64) -> CsvError {
+    pub(super) fn moved_down(self, lines: u64) -> CsvError {
+        self.relined(|line| line + lines)
+    }
+
+    /// The error with its line (if it names one) `to` of what it was.
+    pub(super) fn relined(mut self, to: impl FnOnce(u64) -> u64) -> CsvError {
         if let CsvError::Malformed { line, .. } | CsvError::BadValue { line, .. } = &mut self {
-            *line += lines;
+            *line = to(*line);
         }
         self
     }

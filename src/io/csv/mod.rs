@@ -277,8 +277,11 @@ fn cell(
     line: u64,
 ) -> Result<f64, CsvError> {
     // A record holds every field a reader reads ([`records::Records::read`]).
-    let field = record.get(i).unwrap_or_default();
-    parse_number(field).map_err(|problem| CsvError::BadValue {
+    let parsed = match record.get(i) {
+        Some(field) => parse_number(field),
+        None => Err("the record was read without this field; please report this".into()),
+    };
+    parsed.map_err(|problem| CsvError::BadValue {
         path: path.to_path_buf(),
         line,
         column: super::excerpt(&names[i]).into_owned(),
@@ -360,7 +363,7 @@ fn parse_dataset_sized(
     let (csv, names) = open_with_header(records::Tap::new(front), path)?;
     check_unique(&names, path)?;
     let layout = Layout::of(&names, path, spec, wanted)?;
-    let mut records = records::Records::after_header(csv, names.len(), path);
+    let mut records = records::Records::after_header(csv, names.len(), path)?;
     let columns = std::thread::scope(|scope| {
         let reader = Reader {
             names: &names,

@@ -22,18 +22,33 @@ use super::{CsvError, READ_BYTES, csv_error, unequal_lengths};
 /// crate.
 const PLAIN_BYTES: usize = 4 * READ_BYTES;
 
-/// A reader that keeps the bytes read through it: those a csv reader had
-/// buffered past the header, when the header is read through it.
+/// What the csv crate reads first, before the bytes it is handed: one
+/// record, on its line 1.
+const PRIMER: &[u8] = b"-\n";
+
+/// The line in the file of the csv crate's `line` (counted from its
+/// [`PRIMER`]), after `lines_before` of the file.
+fn in_file(line: u64, lines_before: u64) -> u64 {
+    line.saturating_sub(1) + lines_before
+}
+
+/// A reader that keeps the last bytes read through it: those a csv reader
+/// had buffered past the header, when the header is read through it (its
+/// buffer reads only once it has used what it held, so the bytes it has
+/// not used are all of its last read).
 pub(super) struct Tap<R> {
     inner: R,
-    pulled: Vec<u8>,
+    /// Bytes read through it.
+    pulled: u64,
+    last: Vec<u8>,
 }
 
 impl<R> Tap<R> {
     pub(super) fn new(inner: R) -> Self {
         Tap {
             inner,
-            pulled: Vec::new(),
+            pulled: 0,
+            last: Vec::new(),
         }
     }
 }
@@ -41,7 +56,9 @@ impl<R> Tap<R> {
 impl<R: Read> Read for Tap<R> {
     fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
         let n = self.inner.read(buf)?;
-        self.pulled.extend_from_slice(&buf[..n]);
+        self.pulled += n as u64;
+        self.last.clear();
+        self.last.extend_from_slice(&buf[..n]);
         Ok(n)
     }
 }
@@ -72,7 +89,8 @@ pub(super) struct Records<'p, R> {
     /// rest by it.
     csv: csv::Reader<Held<R>>,
     plain: Option<Plain>,
-    /// Lines before the csv crate's first byte.
+    /// Lines of the file before the bytes the csv crate reads after its
+    /// [`PRIMER`].
     lines_before: u64,
     /// Fields in every record (the header's).
     fields: usize,
@@ -107,7 +125,11 @@ enum Next {
 impl<'p, R: Read> Records<'p, R> {
     /// The records after the header `csv` has read (through a [`Tap`]),
     /// each of `fields` fields; `path` names the file in messages.
-    pub(super) fn after_header(csv: csv::Reader<Tap<R>>, fields: usize, path: &'p Path) -> Self {
+    pub(super) fn after_header(
+        csv: csv::Reader<Tap<R>>,
+        fields: usize,
+        path: &'p Path,
+    ) -> Result<Self, CsvError> {
         Records::after_header_holding(csv, fields, path, PLAIN_BYTES)
     }
 
@@ -117,12 +139,26 @@ impl<'p, R: Read> Records<'p, R> {
         fields: usize,
         path: &'p Path,
         bytes: usize,
-    ) -> Self {
-        let consumed = usize::try_from(csv.position().byte()).unwrap_or(usize::MAX);
+    ) -> Result<Self, CsvError> {
+        let consumed = csv.position().byte();
         let line = csv.position().line();
         let tap = csv.into_inner();
-        // A csv reader consumes only bytes it has read.
-        let unread = tap.pulled.get(consumed..).unwrap_or_default();
+        let last_from = tap.pulled - tap.last.len() as u64;
+        let unread = consumed
+            .checked_sub(last_from)
+            .and_then(|at| usize::try_from(at).ok())
+            .and_then(|at| tap.last.get(at..));
+        let Some(unread) = unread else {
+            // Not what a csv reader does; never a row lost for it.
+            return Err(CsvError::Io {
+                path: path.to_path_buf(),
+                source: io::Error::other(format!(
+                    "the header's reader stopped at byte {consumed}, outside its last read \
+                     (bytes {last_from} to {}); please report this",
+                    tap.pulled
+                )),
+            });
+        };
         let mut buf = vec![0; bytes.max(unread.len())];
         buf[..unread.len()].copy_from_slice(unread);
         let plain = Plain {
@@ -134,7 +170,7 @@ impl<'p, R: Read> Records<'p, R> {
             line,
             split: fields,
         };
-        Records::new(tap.inner, plain, fields, path)
+        Ok(Records::new(tap.inner, plain, fields, path))
     }
 
     /// The records of `reader` from its first byte (no header), each of
@@ -154,11 +190,11 @@ impl<'p, R: Read> Records<'p, R> {
 
     fn new(reader: R, plain: Plain, fields: usize, path: &'p Path) -> Self {
         let held = Held {
-            held: Vec::new(),
+            held: PRIMER.to_vec(),
             at: 0,
             inner: reader,
         };
-        let csv = csv::ReaderBuilder::new()
+        let mut csv = csv::ReaderBuilder::new()
             .has_headers(false)
             // Lengths are checked against the header's, as the reader
             // of the header checks them.
@@ -166,6 +202,11 @@ impl<'p, R: Read> Records<'p, R> {
             .comment(Some(b'#'))
             .buffer_capacity(READ_BYTES)
             .from_reader(held);
+        // A csv reader strips a byte-order mark from the start of its
+        // first read, which the one reader of a file does only before its
+        // header: the primer is that first read, read here and dropped
+        // (a record of its own, which the reader's lines count).
+        let _ = csv.read_byte_record(&mut csv::ByteRecord::new());
         Records {
             csv,
             plain: Some(plain),
@@ -204,6 +245,7 @@ impl<'p, R: Read> Records<'p, R> {
                     // The csv crate reads on from the line's first byte.
                     let held = self.csv.get_mut();
                     held.held = plain.buf[plain.start..plain.end].to_vec();
+                    held.at = 0;
                     self.lines_before = plain.line - 1;
                     self.plain = None;
                 }
@@ -212,11 +254,11 @@ impl<'p, R: Read> Records<'p, R> {
         let lines_before = self.lines_before;
         let more = (self.csv)
             .read_byte_record(record)
-            .map_err(|e| csv_error(self.path, e).moved_down(lines_before))?;
+            .map_err(|e| csv_error(self.path, e).relined(|line| in_file(line, lines_before)))?;
         if !more {
             return Ok(false);
         }
-        let line = record.position().map_or(0, |p| p.line()) + lines_before;
+        let line = in_file(record.position().map_or(0, |p| p.line()), lines_before);
         set_line(record, line);
         if record.len() != self.fields {
             return Err(CsvError::Malformed {
@@ -232,7 +274,7 @@ impl<'p, R: Read> Records<'p, R> {
     pub(super) fn line(&self) -> u64 {
         match &self.plain {
             Some(plain) => plain.line,
-            None => self.csv.position().line() + self.lines_before,
+            None => in_file(self.csv.position().line(), self.lines_before),
         }
     }
 
@@ -285,11 +327,7 @@ impl Plain {
                 // A line longer than the buffer.
                 return Ok(Next::NotPlain);
             }
-            let n = match reader.read(&mut self.buf[self.end..]) {
-                Ok(n) => n,
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
-                Err(e) => return Err(e),
-            };
+            let n = reader.read(&mut self.buf[self.end..])?;
             let read = &self.buf[self.end..self.end + n];
             if self.special.is_none() {
                 self.special = memchr::memchr2(b'"', b'\r', read).map(|at| self.end + at);
@@ -412,7 +450,10 @@ mod tests {
         };
         let fields = names.len();
         let mut out = vec![format!("{fields} fields")];
-        let mut records = Records::after_header_holding(csv, fields, path, holding);
+        let mut records = match Records::after_header_holding(csv, fields, path, holding) {
+            Ok(records) => records,
+            Err(e) => return vec![e.to_string()],
+        };
         let mut record = csv::ByteRecord::new();
         let mut first = true;
         loop {
@@ -519,9 +560,16 @@ mod tests {
             b"t,x,y\n0,1,2\n1,2,3",
             b"t,x,y\n",
             b"t,x,y",
-            // A byte-order mark; one after a newline stays in its field.
+            // A byte-order mark; one after a newline stays in its field,
+            // on a plain line and on the first line that is not plain
+            // (which a new csv reader would strip).
             b"\xEF\xBB\xBFt,x,y\n0,1,2\n",
             b"t,x,y\n0,1,2\n\xEF\xBB\xBF1,2,3\n",
+            b"t,x,y\n\xEF\xBB\xBF1,2,3",
+            b"t,x,y\n\xEF\xBB\xBF1,2,3\r\n",
+            b"t,x,y\n\xEF\xBB\xBF\n0,1,2\n",
+            b"t,x,y\n\xEF\xBB\xBF# n\n0,1,2\n",
+            b"t,x,y\r\n\xEF\xBB\xBF1,2,3\r\n",
             // Bytes that are no UTF-8, and spaces, stay as they are.
             b"t,x,y\n0, 1 ,\xFF\n",
             // A line longer than the few bytes held.
@@ -571,6 +619,9 @@ mod tests {
                     6 => format!("{v},1,2,3,4\n"),
                     7 => format!("{v},{}\n", "9".repeat(*v as usize % 40)),
                     8 => format!("{v}, {v} ,{v}\t,x\r"),
+                    9 => format!("\u{feff}{v},{v},{v},b\n"),
+                    10 => format!("\u{feff}# {v}\n"),
+                    11 => format!("{v},{v}\r{v},{v}\n"),
                     _ => format!("{v},{v}.5,{},n{v}\n", -f64::from(*v)),
                 };
                 text.extend_from_slice(line.as_bytes());
