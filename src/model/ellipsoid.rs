@@ -744,8 +744,8 @@ fn refine(points: &[[f64; 3]], model: Ellipsoid3Model) -> Result<Refined, Ellips
     let mut v = pack(model, &start);
     let refinement = Refinement { model, points: &p };
     let weights = vec![1.0; p.len()];
-    let solved = lm::solve_holding(&refinement, &mut v, &weights, &mut 1e-3, 0, &LM_OPTIONS)
-        .map_err(|failure| {
+    let solved =
+        lm::solve(&refinement, &mut v, &weights, &mut 1e-3, 0, &LM_OPTIONS).map_err(|failure| {
             match failure {
                 lm::Failure::NoConvergence { iterations } => {
                     Ellipsoid3Error::NoConvergence { iterations }

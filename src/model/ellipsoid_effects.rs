@@ -463,18 +463,21 @@ fn levenberg_marquardt(
         lower_damping_on_stop: true,
         trials_by_equations: false,
     };
-    lm::solve(layout, v, weights, lambda, done, &options).map_err(|failure| match failure {
-        lm::Failure::Undetermined { jtj } => Effects3Error::Undetermined {
-            parameter: (0..v.len())
-                .find(|&j| !(jtj[(j, j)] > 0.0))
-                .map(|j| layout.names[j].clone())
-                .unwrap_or_default(),
-        },
-        lm::Failure::NoConvergence { iterations } => Effects3Error::NoConvergence {
-            iterations,
-            what: "Levenberg–Marquardt",
-        },
-    })
+    let solved = lm::solve(layout, v, weights, lambda, done, &options);
+    solved
+        .map(|solved| solved.iterations)
+        .map_err(|failure| match failure {
+            lm::Failure::Undetermined { jtj } => Effects3Error::Undetermined {
+                parameter: (0..v.len())
+                    .find(|&j| !(jtj[(j, j)] > 0.0))
+                    .map(|j| layout.names[j].clone())
+                    .unwrap_or_default(),
+            },
+            lm::Failure::NoConvergence { iterations } => Effects3Error::NoConvergence {
+                iterations,
+                what: "Levenberg–Marquardt",
+            },
+        })
 }
 
 fn huber_weight(e: f64, scale: f64) -> f64 {

@@ -249,22 +249,11 @@ pub fn reweight(weights: &mut [f64], residuals: &[f64], weight: impl Fn(f64) -> 
 }
 
 /// Runs Levenberg–Marquardt with fixed weights from `p`, in place; returns
-/// the iterations it took. `lambda` is the damping to start from (at least
-/// 1e-6) and is left where the run ended, for a later run on the same fit;
-/// `done` counts iterations already spent towards the cap.
+/// the iterations it took (and the normal equations at the end when it
+/// holds them). `lambda` is the damping to start from (at least 1e-6) and
+/// is left where the run ended, for a later run on the same fit; `done`
+/// counts iterations already spent towards the cap.
 pub fn solve<P: LeastSquares>(
-    problem: &P,
-    p: &mut [f64],
-    weights: &[f64],
-    lambda: &mut f64,
-    done: usize,
-    options: &Options,
-) -> Result<usize, Failure> {
-    solve_holding(problem, p, weights, lambda, done, options).map(|solved| solved.iterations)
-}
-
-/// [`solve`], with the normal equations at the end when it holds them.
-pub fn solve_holding<P: LeastSquares>(
     problem: &P,
     p: &mut [f64],
     weights: &[f64],
@@ -426,8 +415,7 @@ mod tests {
                     let mut p = start.to_vec();
                     let mut lambda = 1e-3;
                     let options = options(by_equations, weighting);
-                    let solved =
-                        solve_holding(&problem, &mut p, &weights, &mut lambda, 0, &options);
+                    let solved = solve(&problem, &mut p, &weights, &mut lambda, 0, &options);
                     (solved, p, lambda)
                 };
                 let (by_cost, p_cost, lambda_cost) = run(false);

@@ -607,6 +607,7 @@ fn fit_weighted(
             iterations,
             &lm_options(tolerance),
         )
+        .map(|solved| solved.iterations)
         .map_err(|failure| match failure {
             lm::Failure::Undetermined { jtj } => undetermined(layout, &jtj),
             lm::Failure::NoConvergence { iterations } => FitError::NoConvergence {
