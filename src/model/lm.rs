@@ -265,13 +265,10 @@ pub fn solve<P: LeastSquares>(
     let k = p.len();
     *lambda = lambda.max(1e-6);
     let mut trial = vec![0.0; k];
-    let NormalEquations {
-        mut jtj,
-        mut jte,
-        mut cost,
-    } = normal_equations(problem, p, weights, options.weighting);
-    if options.require_curvature && (0..k).any(|j| !(jtj[(j, j)] > 0.0)) {
-        return Err(Failure::Undetermined { jtj });
+    // The equations at `p`.
+    let mut at = normal_equations(problem, p, weights, options.weighting);
+    if options.require_curvature && (0..k).any(|j| !(at.jtj[(j, j)] > 0.0)) {
+        return Err(Failure::Undetermined { jtj: at.jtj });
     }
     let mut iterations = 0;
     loop {
@@ -281,25 +278,26 @@ pub fn solve<P: LeastSquares>(
             });
         }
         iterations += 1;
-        let held = |jtj: DMatrix<f64>, jte: DVector<f64>, cost: f64| Solved {
+        let held = |at| Solved {
             iterations,
-            equations: Some(NormalEquations { jtj, jte, cost }),
+            equations: Some(at),
         };
+        let cost = at.cost;
         if cost == 0.0 {
-            return Ok(held(jtj, jte, cost));
+            return Ok(held(at));
         }
         // Marquardt's scaling: damping proportional to each curvature, so
         // parameters of very different units step alike.
-        let mut damped = jtj.clone();
+        let mut damped = at.jtj.clone();
         for j in 0..k {
             let curvature = match options.damping_floor {
-                Some(floor) => jtj[(j, j)].max(floor),
-                None => jtj[(j, j)],
+                Some(floor) => at.jtj[(j, j)].max(floor),
+                None => at.jtj[(j, j)],
             };
             damped[(j, j)] += *lambda * curvature;
         }
         let mut accepted = false;
-        if let Some(step) = damped.cholesky().map(|c| c.solve(&(-&jte))) {
+        if let Some(step) = damped.cholesky().map(|c| c.solve(&(-&at.jte))) {
             for j in 0..k {
                 trial[j] = p[j] + step[j];
             }
@@ -331,10 +329,10 @@ pub fn solve<P: LeastSquares>(
                     None => normal_equations(problem, p, weights, options.weighting),
                 };
                 if stop {
-                    return Ok(held(at_p.jtj, at_p.jte, at_p.cost));
+                    return Ok(held(at_p));
                 }
                 accepted = true;
-                NormalEquations { jtj, jte, cost } = at_p;
+                at = at_p;
             }
         }
         if !accepted {
@@ -342,7 +340,7 @@ pub fn solve<P: LeastSquares>(
             // No step, however short, lowers the cost: p is the minimum to
             // the precision of the arithmetic.
             if *lambda > 1e12 {
-                return Ok(held(jtj, jte, cost));
+                return Ok(held(at));
             }
         }
     }
