@@ -770,9 +770,10 @@ fn read_record(rest: &[u8]) -> Record<'_> {
         return Record::Torn;
     };
     let size = RECORD_OVERHEAD + data.len();
-    if crc32_finish(crc32_update(crc32_update(CRC32_INIT, head), data))
-        != u32::from_le_bytes(stored)
-    {
+    let mut crc = crc32fast::Hasher::new();
+    crc.update(head);
+    crc.update(data);
+    if crc.finalize() != u32::from_le_bytes(stored) {
         return Record::BadChecksum;
     }
     Record::Intact {
@@ -786,38 +787,6 @@ fn read_record(rest: &[u8]) -> Record<'_> {
 /// CRC-32 as in zlib, PNG and Ethernet (CRC-32/ISO-HDLC: reflected
 /// polynomial 0xEDB88320, initial value and final xor 0xFFFFFFFF).
 pub fn crc32(bytes: &[u8]) -> u32 {
-    crc32_finish(crc32_update(CRC32_INIT, bytes))
+    crc32fast::hash(bytes)
 }
 
-const CRC32_INIT: u32 = !0;
-
-const CRC32_TABLE: [u32; 256] = {
-    let mut table = [0u32; 256];
-    let mut i = 0;
-    while i < 256 {
-        let mut c = i as u32;
-        let mut k = 0;
-        while k < 8 {
-            c = if c & 1 != 0 {
-                0xEDB8_8320 ^ (c >> 1)
-            } else {
-                c >> 1
-            };
-            k += 1;
-        }
-        table[i] = c;
-        i += 1;
-    }
-    table
-};
-
-fn crc32_update(mut crc: u32, bytes: &[u8]) -> u32 {
-    for &b in bytes {
-        crc = CRC32_TABLE[usize::from((crc as u8) ^ b)] ^ (crc >> 8);
-    }
-    crc
-}
-
-fn crc32_finish(crc: u32) -> u32 {
-    !crc
-}

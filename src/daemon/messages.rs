@@ -71,15 +71,15 @@ impl ReadingMessage<'_> {
     /// path's line.
     pub fn to_line(&self) -> String {
         let mut line = JsonLine::reading(self.class, self.sensor, self.time);
-        line.field(b"raw", &self.raw);
-        line.optional(b"corrected", self.corrected.as_ref());
-        line.optional(b"heading_deg", self.heading_deg.as_ref());
-        line.optional(b"true_heading_deg", self.true_heading_deg.as_ref());
-        line.optional(b"calibration", self.calibration.as_ref());
-        line.field(b"calibrated", &self.calibrated);
-        line.optional(b"trusted", self.trusted.as_ref());
-        line.optional(b"distrust", self.distrust.as_ref());
-        line.optional(b"columns", self.columns.as_ref());
+        line.field("raw", &self.raw);
+        line.optional("corrected", self.corrected.as_ref());
+        line.optional("heading_deg", self.heading_deg.as_ref());
+        line.optional("true_heading_deg", self.true_heading_deg.as_ref());
+        line.optional("calibration", self.calibration.as_ref());
+        line.field("calibrated", &self.calibrated);
+        line.optional("trusted", self.trusted.as_ref());
+        line.optional("distrust", self.distrust);
+        line.optional("columns", self.columns.as_ref());
         line.end()
     }
 }
@@ -139,64 +139,155 @@ impl Reading3Message<'_> {
     /// directly (as [`ReadingMessage::to_line`]).
     pub fn to_line(&self) -> String {
         let mut line = JsonLine::reading(self.class, self.sensor, self.time);
-        line.field(b"axes", &self.axes);
-        line.field(b"raw", &self.raw);
-        line.optional(b"corrected", self.corrected.as_ref());
-        line.optional(b"magnitude", self.magnitude.as_ref());
-        line.optional(b"calibration", self.calibration.as_ref());
-        line.field(b"calibrated", &self.calibrated);
-        line.optional(b"heading_deg", self.heading_deg.as_ref());
-        line.optional(b"true_heading_deg", self.true_heading_deg.as_ref());
-        line.optional(b"tilt", self.tilt.as_ref());
-        line.optional(b"heading_omitted", self.heading_omitted.as_ref());
-        line.optional(b"trusted", self.trusted.as_ref());
-        line.optional(b"distrust", self.distrust.as_ref());
+        line.field("axes", &self.axes);
+        line.field("raw", &self.raw);
+        line.optional("corrected", self.corrected.as_ref());
+        line.optional("magnitude", self.magnitude.as_ref());
+        line.optional("calibration", self.calibration.as_ref());
+        line.field("calibrated", &self.calibrated);
+        line.optional("heading_deg", self.heading_deg.as_ref());
+        line.optional("true_heading_deg", self.true_heading_deg.as_ref());
+        line.optional("tilt", self.tilt.as_ref());
+        line.optional("heading_omitted", self.heading_omitted.as_ref());
+        line.optional("trusted", self.trusted.as_ref());
+        line.optional("distrust", self.distrust);
         line.end()
     }
 }
 
 /// A message's line written field by field: keys are fixed text (they
 /// need no escapes), each value is written as serde_json writes it.
-struct JsonLine(Vec<u8>);
+struct JsonLine(String);
 
 impl JsonLine {
     /// `{"class":…,"sensor":…,"time":…`, the start of every READING.
     fn reading(class: &str, sensor: &str, time: f64) -> Self {
-        let mut line = JsonLine(Vec::with_capacity(LINE_CAPACITY));
-        line.0.push(b'{');
-        line.value(b"class", class);
-        line.field(b"sensor", sensor);
-        line.field(b"time", &time);
+        let mut line = JsonLine(String::with_capacity(LINE_CAPACITY));
+        line.0.push('{');
+        line.value("class", class);
+        line.field("sensor", sensor);
+        line.field("time", &time);
         line
     }
 
     /// `"key":value`, after a comma.
-    fn field<T: Serialize + ?Sized>(&mut self, key: &[u8], value: &T) {
-        self.0.push(b',');
+    fn field<T: JsonValue + ?Sized>(&mut self, key: &str, value: &T) {
+        self.0.push(',');
         self.value(key, value);
     }
 
     /// [`Self::field`], when there is a value.
-    fn optional<T: Serialize + ?Sized>(&mut self, key: &[u8], value: Option<&T>) {
+    fn optional<T: JsonValue + ?Sized>(&mut self, key: &str, value: Option<&T>) {
         if let Some(value) = value {
             self.field(key, value);
         }
     }
 
-    /// `"key":value`. Writing to a `Vec` cannot fail for the plain values
-    /// of a message (strings, numbers, booleans, arrays and maps with
-    /// string keys).
-    fn value<T: Serialize + ?Sized>(&mut self, key: &[u8], value: &T) {
-        self.0.push(b'"');
-        self.0.extend_from_slice(key);
-        self.0.extend_from_slice(b"\":");
-        let written = serde_json::to_writer(&mut self.0, value);
-        debug_assert!(written.is_ok(), "a message's value did not serialise");
+    /// `"key":value`.
+    fn value<T: JsonValue + ?Sized>(&mut self, key: &str, value: &T) {
+        self.0.push('"');
+        self.0.push_str(key);
+        self.0.push_str("\":");
+        value.write_json(&mut self.0);
     }
 
     fn end(mut self) -> String {
-        self.0.push(b'}');
-        String::from_utf8(self.0).unwrap_or_else(|_| "{}".to_string())
+        self.0.push('}');
+        self.0
+    }
+}
+
+/// A value of a READING line, written as serde_json writes it, byte for
+/// byte: the plain values (strings, numbers, booleans, arrays of numbers)
+/// directly, with serde_json's own float formatter (`zmij`) and integer
+/// formatter (`itoa`) and its escapes; the rest through serde_json.
+trait JsonValue {
+    fn write_json(&self, out: &mut String);
+}
+
+impl JsonValue for str {
+    /// A string: quoted, with serde_json's escapes when it needs any
+    /// (control characters, `"` and `\\`; everything else is written as
+    /// it is).
+    fn write_json(&self, out: &mut String) {
+        if self.bytes().any(|b| b < 0x20 || b == b'"' || b == b'\\') {
+            serialized(self, out);
+        } else {
+            out.push('"');
+            out.push_str(self);
+            out.push('"');
+        }
+    }
+}
+
+impl JsonValue for f64 {
+    /// The shortest digits that read back to the same number; `null` for
+    /// a value that is not finite.
+    fn write_json(&self, out: &mut String) {
+        if self.is_finite() {
+            out.push_str(zmij::Buffer::new().format_finite(*self));
+        } else {
+            out.push_str("null");
+        }
+    }
+}
+
+impl<const N: usize> JsonValue for [f64; N] {
+    fn write_json(&self, out: &mut String) {
+        out.push('[');
+        for (k, value) in self.iter().enumerate() {
+            if k > 0 {
+                out.push(',');
+            }
+            value.write_json(out);
+        }
+        out.push(']');
+    }
+}
+
+impl JsonValue for u64 {
+    fn write_json(&self, out: &mut String) {
+        out.push_str(itoa::Buffer::new().format(*self));
+    }
+}
+
+impl JsonValue for u8 {
+    fn write_json(&self, out: &mut String) {
+        out.push_str(itoa::Buffer::new().format(*self));
+    }
+}
+
+impl JsonValue for bool {
+    fn write_json(&self, out: &mut String) {
+        out.push_str(if *self { "true" } else { "false" });
+    }
+}
+
+impl JsonValue for String {
+    fn write_json(&self, out: &mut String) {
+        self.as_str().write_json(out);
+    }
+}
+
+/// The values written through serde_json.
+macro_rules! json_value_by_serde {
+    ($($t:ty),*) => {$(
+        impl JsonValue for $t {
+            fn write_json(&self, out: &mut String) {
+                serialized(self, out);
+            }
+        }
+    )*};
+}
+json_value_by_serde!([String], ColumnValues<'_>, TiltFields<'_>);
+
+/// `value` as serde_json writes it. Serialising the plain values of a
+/// message cannot fail; nothing is written if it did.
+fn serialized<T: Serialize + ?Sized>(value: &T, out: &mut String) {
+    let written = serde_json::to_string(value);
+    debug_assert!(written.is_ok(), "a message's value did not serialise");
+    if let Ok(text) = written {
+        out.push_str(&text);
     }
 }
 
@@ -629,6 +720,34 @@ mod tests {
                 }),
             };
             prop_assert_eq!(message.to_line(), to_line(&message));
+        }
+
+        /// Each value written directly is serde_json's: any float (every
+        /// bit pattern: subnormals, extremes, not finite), and strings
+        /// with the characters it escapes.
+        #[test]
+        fn a_value_is_written_as_serde_json_writes_it(
+            bits in any::<u64>(),
+            number in number(),
+            text in prop_oneof![".{0,12}", "[\\x00-\\x21\"\\\\a-é\\u{7f}\\u{2028}]{0,12}"],
+            count in any::<u64>(),
+            small in any::<u8>(),
+        ) {
+            let mut out = String::new();
+            for value in [f64::from_bits(bits), number] {
+                out.clear();
+                value.write_json(&mut out);
+                prop_assert_eq!(&out, &serde_json::to_string(&value).unwrap_or_default());
+            }
+            out.clear();
+            text.as_str().write_json(&mut out);
+            prop_assert_eq!(&out, &serde_json::to_string(&text).unwrap_or_default());
+            out.clear();
+            count.write_json(&mut out);
+            prop_assert_eq!(&out, &count.to_string());
+            out.clear();
+            small.write_json(&mut out);
+            prop_assert_eq!(&out, &small.to_string());
         }
 
         /// The same for a 3-axis sensor's READING.
