@@ -789,4 +789,3 @@ fn read_record(rest: &[u8]) -> Record<'_> {
 pub fn crc32(bytes: &[u8]) -> u32 {
     crc32fast::hash(bytes)
 }
-

@@ -136,17 +136,25 @@ pub fn closed_form(x: &[f64], y: &[f64]) -> Result<Theta, FitError> {
     let (my, sy) = mean_and_spread(y);
     let n = x.len();
 
-    let design = DMatrix::from_fn(n, UNKNOWNS, |i, j| {
-        let u = (x[i] - mx) / sx;
-        match j {
-            0 => u * u,
-            1 => u,
-            2 => (y[i] - my) / sy,
-            _ => 1.0,
-        }
-    });
-    let mut target = DVector::from_fn(n, |i, _| ((y[i] - my) / sy).powi(2));
-    let phi = solve_least_squares(design, &mut target)?;
+    let phi = if n <= QR_BLOCK {
+        let design = DMatrix::from_fn(n, UNKNOWNS, |i, j| {
+            let u = (x[i] - mx) / sx;
+            match j {
+                0 => u * u,
+                1 => u,
+                2 => (y[i] - my) / sy,
+                _ => 1.0,
+            }
+        });
+        let mut target = DVector::from_fn(n, |i, _| ((y[i] - my) / sy).powi(2));
+        solve_least_squares(design, &mut target)?
+    } else {
+        solve_by_blocks(n, |i| {
+            let u = (x[i] - mx) / sx;
+            let v = (y[i] - my) / sy;
+            [u * u, u, v, 1.0, v.powi(2)]
+        })?
+    };
 
     // Back to raw units: substitute x = mx + sx*u, y = my + sy*v in
     // v^2 = phi1*u^2 + phi2*u + phi3*v + phi4 and multiply by sy^2.
@@ -245,6 +253,45 @@ pub(crate) fn solve_least_squares(
         return Err(FitError::Degenerate);
     }
     let rhs = Vector4::new(target[0], target[1], target[2], target[3]);
+    r4.solve_upper_triangular(&rhs)
+        .filter(|p| p.iter().all(|v| v.is_finite()))
+        .ok_or(FitError::Degenerate)
+}
+
+/// Rows factored at once by [`closed_form`]: up to this many, the whole
+/// design in one Householder QR; beyond, a block at a time (the design of
+/// one block, 4096 rows of five columns, is 160 KiB: it stays in the
+/// cache, where the whole design of two million rows would be 80 MB
+/// written, faulted in and read five times over).
+pub(crate) const QR_BLOCK: usize = 4096;
+
+/// [`solve_least_squares`] of `n` rows `[x², x, y, 1 | target]` made by
+/// `row`, a block of [`QR_BLOCK`] at a time: each block is stacked under
+/// the triangle R (of the design and the target beside it) of the rows
+/// before and factored again by Householder QR (a tall-skinny QR: as
+/// backward stable as one QR of all the rows, and R the same up to the
+/// signs of its rows). The solution and the degeneracy test are those of
+/// [`solve_least_squares`], on the last R.
+fn solve_by_blocks(n: usize, row: impl Fn(usize) -> [f64; 5]) -> Result<Vector4<f64>, FitError> {
+    const COLUMNS: usize = UNKNOWNS + 1;
+    let mut r = nalgebra::SMatrix::<f64, COLUMNS, COLUMNS>::zeros();
+    let mut start = 0;
+    while start < n {
+        let end = (start + QR_BLOCK).min(n);
+        let stacked = DMatrix::from_fn(COLUMNS + end - start, COLUMNS, |i, j| match i {
+            i if i < COLUMNS => r[(i, j)],
+            i => row(start + i - COLUMNS)[j],
+        });
+        let triangle = stacked.qr().r();
+        r = triangle.fixed_view::<COLUMNS, COLUMNS>(0, 0).into_owned();
+        start = end;
+    }
+    let r4: Matrix4<f64> = r.fixed_view::<4, 4>(0, 0).into_owned();
+    let largest = (0..4).map(|i| r4[(i, i)].abs()).fold(0.0, f64::max);
+    if (0..4).any(|i| !(r4[(i, i)].abs() > largest * 1e-10)) {
+        return Err(FitError::Degenerate);
+    }
+    let rhs: Vector4<f64> = r.fixed_view::<4, 1>(0, UNKNOWNS).into_owned();
     r4.solve_upper_triangular(&rhs)
         .filter(|p| p.iter().all(|v| v.is_finite()))
         .ok_or(FitError::Degenerate)
@@ -369,4 +416,71 @@ pub fn gradient_descent(
         last_step: step,
         tolerance: options.tolerance,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// Scaled rows `[u², u, v, 1 | v²]` of a noisy ellipse turned `n`
+    /// samples, as `closed_form` makes them.
+    fn rows(n: usize, seed: u64) -> Vec<[f64; 5]> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        (0..n)
+            .map(|i| {
+                let angle = i as f64 * 0.0137;
+                let u = 0.83 * angle.cos() - 0.2 + rng.random_range(-1e-3..1e-3);
+                let v = angle.sin() + 0.1 + rng.random_range(-1e-3..1e-3);
+                [u * u, u, v, 1.0, v * v]
+            })
+            .collect()
+    }
+
+    /// The same rows in one Householder QR.
+    fn whole(rows: &[[f64; 5]]) -> Result<Vector4<f64>, FitError> {
+        let design = DMatrix::from_fn(rows.len(), UNKNOWNS, |i, j| rows[i][j]);
+        let mut target = DVector::from_fn(rows.len(), |i, _| rows[i][UNKNOWNS]);
+        solve_least_squares(design, &mut target)
+    }
+
+    /// A block at a time is the least squares of all the rows: the same
+    /// solution as one QR to 1e-12 (an R that lost the blocks before, or
+    /// the last block, would be far off), at one block, a block and a
+    /// row, and several blocks and a part.
+    #[test]
+    fn blocks_solve_the_whole_least_squares() {
+        for (n, seed) in [(QR_BLOCK, 1), (QR_BLOCK + 1, 2), (3 * QR_BLOCK + 17, 3)] {
+            let rows = rows(n, seed);
+            let blocks = solve_by_blocks(n, |i| rows[i]).expect("an ellipse");
+            let one = whole(&rows).expect("an ellipse");
+            for k in 0..UNKNOWNS {
+                assert!(
+                    (blocks[k] - one[k]).abs() <= 1e-12 * one[k].abs().max(1.0),
+                    "n = {n}: phi[{k}] {} by blocks, {} at once",
+                    blocks[k],
+                    one[k]
+                );
+            }
+        }
+    }
+
+    /// Rows on a line (v = u) do not determine the conic, by blocks as at
+    /// once.
+    #[test]
+    fn blocks_find_a_degenerate_design() {
+        let n = 2 * QR_BLOCK + 5;
+        let line: Vec<[f64; 5]> = (0..n)
+            .map(|i| {
+                let u = i as f64 / n as f64 - 0.5;
+                [u * u, u, u, 1.0, u * u]
+            })
+            .collect();
+        assert!(matches!(whole(&line), Err(FitError::Degenerate)));
+        assert!(matches!(
+            solve_by_blocks(n, |i| line[i]),
+            Err(FitError::Degenerate)
+        ));
+    }
 }
