@@ -17,7 +17,7 @@ use crate::daemon::source_kinds::Csv;
 use crate::sample::Reading;
 use crate::source::csv::{CsvPlayback, check_csv, play_csv};
 use crate::source::replay::{ReplayError, ReplaySummary, Speed, replay_playable};
-use crate::source::{SourceCounters, SourceEvent};
+use crate::source::{CountersSnapshot, SourceCounters, SourceEvent};
 
 /// STATUS lines due at once after a gap in a recording, at most: a longer
 /// gap gets one STATUS (at the last interval before the reading), so a
@@ -72,7 +72,7 @@ impl Pipeline {
         &mut self,
         time: f64,
         event: SourceEvent,
-        counters: &SourceCounters,
+        counters: CountersSnapshot,
         out: &mut dyn Write,
         stop: &AtomicBool,
     ) {
@@ -96,7 +96,7 @@ impl Pipeline {
             let statuses = [SourceStatus {
                 source: &self.source_name,
                 connected: true,
-                counters: counters.snapshot(),
+                counters,
             }];
             self.lines
                 .push(self.sensors.status_line(*k * interval, &statuses, None));
@@ -161,11 +161,20 @@ pub fn replay_through_pipeline(
 
 /// A replay: plays its readings into the callback, with the stop flag
 /// and the counters it keeps.
-type Play<'a> = &'a mut dyn FnMut(
+type Play<'a> = &'a mut (
+            dyn FnMut(
     &AtomicBool,
     &SourceCounters,
     &mut dyn FnMut(Reading),
-) -> Result<ReplaySummary, ReplayError>;
+) -> Result<ReplaySummary, ReplayError>
+                + Send
+        );
+
+/// Readings a replay at full speed hands from its reading thread to the
+/// pipeline at once, and batches of them on their way at most: what is
+/// decoded ahead is bounded (a few hundred kilobytes).
+const BATCH: usize = 512;
+const BATCHES_AHEAD: usize = 4;
 
 fn through_pipeline(
     config: &Config,
@@ -176,18 +185,73 @@ fn through_pipeline(
 ) -> Result<ReplaySummary, DaemonError> {
     let mut pipeline = Pipeline::new(config, source, speed)?;
     let stop = AtomicBool::new(false);
+    if matches!(speed, Speed::Max) {
+        let summary = played_ahead(&mut pipeline, &stop, out, play)?;
+        pipeline.finish(out)?;
+        return Ok(summary);
+    }
     let counters = SourceCounters::default();
     let summary = play(&stop, &counters, &mut |reading| {
         pipeline.handle(
             reading.time,
             SourceEvent::Reading(reading),
-            &counters,
+            counters.snapshot(),
             out,
             &stop,
         );
     })?;
     pipeline.finish(out)?;
     Ok(summary)
+}
+
+/// A replay at full speed on two cores: the capture is read and decoded
+/// on a thread of its own, a batch of readings ahead of the pipeline,
+/// each reading with the source's counters as they stood when it was
+/// handed on (so a STATUS made on it counts what it would have counted
+/// on one thread: the output is the same to the byte). A failed write
+/// stops the reading as before; the readings already decoded are dropped.
+fn played_ahead(
+    pipeline: &mut Pipeline,
+    stop: &AtomicBool,
+    out: &mut dyn Write,
+    play: Play,
+) -> Result<ReplaySummary, ReplayError> {
+    let (send, receive) =
+        std::sync::mpsc::sync_channel::<Vec<(Reading, CountersSnapshot)>>(BATCHES_AHEAD);
+    std::thread::scope(|scope| {
+        let player = scope.spawn(move || {
+            let counters = SourceCounters::default();
+            let mut batch = Vec::with_capacity(BATCH);
+            let played = play(stop, &counters, &mut |reading| {
+                batch.push((reading, counters.snapshot()));
+                if batch.len() == BATCH {
+                    let full = std::mem::replace(&mut batch, Vec::with_capacity(BATCH));
+                    if send.send(full).is_err() {
+                        stop.store(true, Ordering::Relaxed);
+                    }
+                }
+            });
+            if !batch.is_empty() {
+                // The pipeline is gone only when it panicked.
+                let _ = send.send(batch);
+            }
+            played
+        });
+        for batch in &receive {
+            for (reading, counters) in batch {
+                pipeline.handle(
+                    reading.time,
+                    SourceEvent::Reading(reading),
+                    counters,
+                    out,
+                    stop,
+                );
+            }
+        }
+        player
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+    })
 }
 
 /// [`replay_through_pipeline`] for a CSV recording (`path`) standing in for
@@ -240,7 +304,13 @@ pub fn replay_csv_through_pipeline(
         &stop,
         &counters,
         &mut |row| {
-            pipeline.handle(row.time, SourceEvent::Row(row), &counters, out, &stop);
+            pipeline.handle(
+                row.time,
+                SourceEvent::Row(row),
+                counters.snapshot(),
+                out,
+                &stop,
+            );
         },
     )?;
     pipeline.finish(out)?;
