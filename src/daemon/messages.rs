@@ -23,6 +23,14 @@ use crate::model::paper::PaperCalibration;
 use crate::model::rotation::Progress;
 use crate::source::CountersSnapshot;
 
+/// `,"name":`, the fixed text before a field's value in a line written
+/// directly.
+macro_rules! key {
+    ($name:literal) => {
+        concat!(",\"", $name, "\":")
+    };
+}
+
 /// A sample of one sensor, raw and (once calibrated) corrected.
 #[derive(Debug, Clone, Serialize)]
 pub struct ReadingMessage<'a> {
@@ -71,15 +79,15 @@ impl ReadingMessage<'_> {
     /// path's line.
     pub fn to_line(&self) -> String {
         let mut line = JsonLine::reading(self.class, self.sensor, self.time);
-        line.field("raw", &self.raw);
-        line.optional("corrected", self.corrected.as_ref());
-        line.optional("heading_deg", self.heading_deg.as_ref());
-        line.optional("true_heading_deg", self.true_heading_deg.as_ref());
-        line.optional("calibration", self.calibration.as_ref());
-        line.field("calibrated", &self.calibrated);
-        line.optional("trusted", self.trusted.as_ref());
-        line.optional("distrust", self.distrust);
-        line.optional("columns", self.columns.as_ref());
+        line.field(key!("raw"), &self.raw);
+        line.optional(key!("corrected"), self.corrected.as_ref());
+        line.optional(key!("heading_deg"), self.heading_deg.as_ref());
+        line.optional(key!("true_heading_deg"), self.true_heading_deg.as_ref());
+        line.optional(key!("calibration"), self.calibration.as_ref());
+        line.field(key!("calibrated"), &self.calibrated);
+        line.optional(key!("trusted"), self.trusted.as_ref());
+        line.optional(key!("distrust"), self.distrust);
+        line.optional(key!("columns"), self.columns.as_ref());
         line.end()
     }
 }
@@ -139,18 +147,18 @@ impl Reading3Message<'_> {
     /// directly (as [`ReadingMessage::to_line`]).
     pub fn to_line(&self) -> String {
         let mut line = JsonLine::reading(self.class, self.sensor, self.time);
-        line.field("axes", &self.axes);
-        line.field("raw", &self.raw);
-        line.optional("corrected", self.corrected.as_ref());
-        line.optional("magnitude", self.magnitude.as_ref());
-        line.optional("calibration", self.calibration.as_ref());
-        line.field("calibrated", &self.calibrated);
-        line.optional("heading_deg", self.heading_deg.as_ref());
-        line.optional("true_heading_deg", self.true_heading_deg.as_ref());
-        line.optional("tilt", self.tilt.as_ref());
-        line.optional("heading_omitted", self.heading_omitted.as_ref());
-        line.optional("trusted", self.trusted.as_ref());
-        line.optional("distrust", self.distrust);
+        line.field(key!("axes"), &self.axes);
+        line.field(key!("raw"), &self.raw);
+        line.optional(key!("corrected"), self.corrected.as_ref());
+        line.optional(key!("magnitude"), self.magnitude.as_ref());
+        line.optional(key!("calibration"), self.calibration.as_ref());
+        line.field(key!("calibrated"), &self.calibrated);
+        line.optional(key!("heading_deg"), self.heading_deg.as_ref());
+        line.optional(key!("true_heading_deg"), self.true_heading_deg.as_ref());
+        line.optional(key!("tilt"), self.tilt.as_ref());
+        line.optional(key!("heading_omitted"), self.heading_omitted.as_ref());
+        line.optional(key!("trusted"), self.trusted.as_ref());
+        line.optional(key!("distrust"), self.distrust);
         line.end()
     }
 }
@@ -163,17 +171,17 @@ impl JsonLine {
     /// `{"class":…,"sensor":…,"time":…`, the start of every READING.
     fn reading(class: &str, sensor: &str, time: f64) -> Self {
         let mut line = JsonLine(String::with_capacity(LINE_CAPACITY));
-        line.0.push('{');
-        line.value("class", class);
-        line.field("sensor", sensor);
-        line.field("time", &time);
+        line.0.push_str("{\"class\":");
+        class.write_json(&mut line.0);
+        line.field(key!("sensor"), sensor);
+        line.field(key!("time"), &time);
         line
     }
 
-    /// `"key":value`, after a comma.
+    /// `key` (a [`key!`]: `,"name":`), then the value.
     fn field<T: JsonValue + ?Sized>(&mut self, key: &str, value: &T) {
-        self.0.push(',');
-        self.value(key, value);
+        self.0.push_str(key);
+        value.write_json(&mut self.0);
     }
 
     /// [`Self::field`], when there is a value.
@@ -181,14 +189,6 @@ impl JsonLine {
         if let Some(value) = value {
             self.field(key, value);
         }
-    }
-
-    /// `"key":value`.
-    fn value<T: JsonValue + ?Sized>(&mut self, key: &str, value: &T) {
-        self.0.push('"');
-        self.0.push_str(key);
-        self.0.push_str("\":");
-        value.write_json(&mut self.0);
     }
 
     fn end(mut self) -> String {
