@@ -7,9 +7,9 @@
 //! program must do for the same answer, in Rust, in this process: the
 //! `csv` crate's `ByteRecord`, `str::parse`, one pass that accumulates the
 //! normal equations, and `ryu` for output; for replay, the Falcon-GX
-//! decoder and the same line per reading, formatted into a reused buffer. Peers (Python with polars,
-//! pandas and numpy) run when they are installed, interpreter start
-//! included.
+//! decoder and the line replay writes for each calibrated reading,
+//! formatted into a reused buffer. Peers (Python with polars, pandas and
+//! numpy) run when they are installed, interpreter start included.
 //!
 //! Run: `cargo bench --bench commands` (sizes: `FIELDCAL_BENCH_ROWS`,
 //! default `200000,2000000`; runs of each: `FIELDCAL_BENCH_RUNS`, default
