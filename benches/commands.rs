@@ -184,8 +184,8 @@ fn floor_heading(path: &Path) {
 /// each the line `replay --config` writes for a calibrated reading (the
 /// raw axes, the corrected ones, the heading, the calibration's id and the
 /// flags), formatted into a reused buffer with serde_json's own formatters.
-/// `raw_only`: the time and the raw axes alone (the floor before
-/// 2026-11-29, kept for comparison).
+/// `raw_only`: the floor before 2026-11-29, as it was (the time and the
+/// three raw axes, with ryu and itoa), kept for comparison.
 fn floor_replay(path: &Path, raw_only: bool) -> u64 {
     use fieldcal::capture::{Playable, open_capture};
     use fieldcal::protocol::falcon::FalconDecoder;
@@ -196,24 +196,34 @@ fn floor_replay(path: &Path, raw_only: bool) -> u64 {
     let mut line = Vec::with_capacity(256);
     let mut sink = std::io::sink();
     let (mut floats, mut ints) = (zmij::Buffer::new(), itoa::Buffer::new());
+    let mut ryu = ryu::Buffer::new();
     let (a, b, d) = (1.000_018, 0.010_25, -0.002_07);
     let mut readings = 0;
     while let Some(chunk) = stream.next_chunk() {
         let time = chunk.time;
         decoder.decode(chunk.bytes, |frame| {
             line.clear();
-            line.extend_from_slice(b"{\"class\":\"READING\",\"sensor\":\"compass\",\"time\":");
-            line.extend_from_slice(floats.format(time).as_bytes());
-            let [x, y] = [f64::from(frame.mag[0]), f64::from(frame.mag[1])];
-            line.extend_from_slice(b",\"raw\":[");
-            line.extend_from_slice(floats.format(x).as_bytes());
-            line.push(b',');
-            line.extend_from_slice(floats.format(y).as_bytes());
             if raw_only {
+                line.extend_from_slice(b"{\"class\":\"READING\",\"time\":");
+                line.extend_from_slice(ryu.format(time).as_bytes());
+                line.extend_from_slice(b",\"raw\":[");
+                for (k, v) in frame.mag.iter().enumerate() {
+                    if k > 0 {
+                        line.push(b',');
+                    }
+                    line.extend_from_slice(ints.format(*v).as_bytes());
+                }
                 line.extend_from_slice(b"]}\n");
             } else {
+                let [x, y] = [f64::from(frame.mag[0]), f64::from(frame.mag[1])];
                 let (cx, cy) = (a * x + b, y + d);
                 let heading = cy.atan2(cx).to_degrees().rem_euclid(360.0);
+                line.extend_from_slice(b"{\"class\":\"READING\",\"sensor\":\"compass\",\"time\":");
+                line.extend_from_slice(floats.format(time).as_bytes());
+                line.extend_from_slice(b",\"raw\":[");
+                line.extend_from_slice(floats.format(x).as_bytes());
+                line.push(b',');
+                line.extend_from_slice(floats.format(y).as_bytes());
                 line.extend_from_slice(b"],\"corrected\":[");
                 line.extend_from_slice(floats.format(cx).as_bytes());
                 line.push(b',');

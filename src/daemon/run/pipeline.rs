@@ -186,7 +186,13 @@ fn through_pipeline(
     let mut pipeline = Pipeline::new(config, source, speed)?;
     let stop = AtomicBool::new(false);
     if matches!(speed, Speed::Max) {
-        let summary = played_ahead(&mut pipeline, &stop, out, play)?;
+        let played = played_ahead(&mut pipeline, &stop, out, play);
+        // A failed write stopped the reading: it is the error, as on one
+        // thread, even when the reading (further on here) also failed.
+        if let Some(e) = pipeline.failed.take() {
+            return Err(DaemonError::Output(e));
+        }
+        let summary = played?;
         pipeline.finish(out)?;
         return Ok(summary);
     }
@@ -237,7 +243,10 @@ fn played_ahead(
             }
             played
         });
-        for batch in &receive {
+        // Owned here, so a panic in the pipeline drops it: the reading
+        // thread's next send fails and it stops, and the panic goes on.
+        let receive = receive;
+        for batch in receive {
             for (reading, counters) in batch {
                 pipeline.handle(
                     reading.time,
@@ -315,4 +324,119 @@ pub fn replay_csv_through_pipeline(
     )?;
     pipeline.finish(out)?;
     Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::mpsc;
+    use std::time::Duration;
+
+    fn config() -> Config {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/pipeline.toml");
+        let text = std::fs::read_to_string(&path).expect("tests/data/pipeline.toml");
+        crate::daemon::config::parse(&text, &path).expect("the pipeline's configuration")
+    }
+
+    /// A replay of `readings` readings of a turning magnetometer, 50 ms
+    /// apart, which stops when asked; `then` is what it returns.
+    fn player(
+        readings: u32,
+        then: fn() -> Result<(), ReplayError>,
+    ) -> impl FnMut(
+        &AtomicBool,
+        &SourceCounters,
+        &mut dyn FnMut(Reading),
+    ) -> Result<ReplaySummary, ReplayError>
+    + Send {
+        move |stop, _, emit| {
+            let mut summary = ReplaySummary::default();
+            for k in 0..readings {
+                if stop.load(Ordering::Relaxed) {
+                    summary.stopped = true;
+                    break;
+                }
+                let angle = f64::from(k) * 0.03;
+                emit(Reading {
+                    time: f64::from(k) * 0.05,
+                    mag: Some([
+                        (1000.0 * angle.cos()) as i16,
+                        (1000.0 * angle.sin()) as i16,
+                        0,
+                    ]),
+                    ..Reading::default()
+                });
+                summary.readings += 1;
+            }
+            then().map(|()| summary)
+        }
+    }
+
+    /// An output that panics when written (a defect in what writes it).
+    struct Panics;
+
+    impl Write for Panics {
+        fn write(&mut self, _: &[u8]) -> std::io::Result<usize> {
+            panic!("the output broke")
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// An output that refuses every write (a full disk).
+    struct Full;
+
+    impl Write for Full {
+        fn write(&mut self, _: &[u8]) -> std::io::Result<usize> {
+            Err(std::io::Error::new(
+                std::io::ErrorKind::StorageFull,
+                "disk full",
+            ))
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// A panic while the pipeline writes ends the replay at full speed
+    /// with that panic, though the reading thread has far more to hand on
+    /// than the batches on their way hold (it does not wait on them for
+    /// ever).
+    #[test]
+    fn a_panic_in_the_pipeline_ends_a_full_speed_replay() {
+        let (done, finished) = mpsc::channel();
+        std::thread::spawn(move || {
+            let config = config();
+            let mut play = player(100_000, || Ok(()));
+            let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                through_pipeline(&config, None, Speed::Max, &mut Panics, &mut play)
+            }));
+            let _ = done.send(outcome.is_err());
+        });
+        assert_eq!(
+            finished.recv_timeout(Duration::from_secs(60)),
+            Ok(true),
+            "the replay did not end with the pipeline's panic"
+        );
+    }
+
+    /// A failed write is the replay's error, as on one thread, even when
+    /// the reading, which ran on ahead of it, failed as well.
+    #[test]
+    fn a_failed_write_is_the_error_of_a_full_speed_replay() {
+        let config = config();
+        let mut play = player(10_000, || {
+            Err(ReplayError::Read {
+                name: "long.fcap".into(),
+                source: std::io::Error::other("the disk went away"),
+            })
+        });
+        let outcome = through_pipeline(&config, None, Speed::Max, &mut Full, &mut play);
+        assert!(
+            matches!(&outcome, Err(DaemonError::Output(e)) if e.kind() == std::io::ErrorKind::StorageFull),
+            "{outcome:?}"
+        );
+    }
 }
