@@ -218,18 +218,21 @@ fn floor_replay(path: &Path, raw_only: bool) -> u64 {
                 let [x, y] = [f64::from(frame.mag[0]), f64::from(frame.mag[1])];
                 let (cx, cy) = (a * x + b, y + d);
                 let heading = cy.atan2(cx).to_degrees().rem_euclid(360.0);
-                line.extend_from_slice(b"{\"class\":\"READING\",\"sensor\":\"compass\",\"time\":");
-                line.extend_from_slice(floats.format(time).as_bytes());
-                line.extend_from_slice(b",\"raw\":[");
-                line.extend_from_slice(floats.format(x).as_bytes());
-                line.push(b',');
-                line.extend_from_slice(floats.format(y).as_bytes());
-                line.extend_from_slice(b"],\"corrected\":[");
-                line.extend_from_slice(floats.format(cx).as_bytes());
-                line.push(b',');
-                line.extend_from_slice(floats.format(cy).as_bytes());
-                line.extend_from_slice(b"],\"heading_deg\":");
-                line.extend_from_slice(floats.format(heading).as_bytes());
+                let texts: [(&[u8], f64); 6] = [
+                    (
+                        b"{\"class\":\"READING\",\"sensor\":\"compass\",\"time\":",
+                        time,
+                    ),
+                    (b",\"raw\":[", x),
+                    (b",", y),
+                    (b"],\"corrected\":[", cx),
+                    (b",", cy),
+                    (b"],\"heading_deg\":", heading),
+                ];
+                for (text, value) in texts {
+                    line.extend_from_slice(text);
+                    line.extend_from_slice(floats.format(value).as_bytes());
+                }
                 line.extend_from_slice(b",\"calibration\":");
                 line.extend_from_slice(ints.format(1u64).as_bytes());
                 line.extend_from_slice(b",\"calibrated\":true,\"trusted\":true}\n");
