@@ -207,7 +207,7 @@ trait JsonValue {
 
 impl JsonValue for str {
     /// A string: quoted, with serde_json's escapes when it needs any
-    /// (control characters, `"` and `\\`; everything else is written as
+    /// (control characters, `"` and `\`; everything else is written as
     /// it is).
     fn write_json(&self, out: &mut String) {
         if self.bytes().any(|b| b < 0x20 || b == b'"' || b == b'\\') {
