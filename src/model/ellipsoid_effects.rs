@@ -463,8 +463,7 @@ fn levenberg_marquardt(
         lower_damping_on_stop: true,
         trials_by_equations: false,
     };
-    let solved = lm::solve(layout, v, weights, lambda, done, &options);
-    solved
+    lm::solve(layout, v, weights, lambda, done, &options)
         .map(|solved| solved.iterations)
         .map_err(|failure| match failure {
             lm::Failure::Undetermined { jtj } => Effects3Error::Undetermined {

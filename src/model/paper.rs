@@ -244,16 +244,21 @@ pub(crate) fn solve_least_squares(
 ) -> Result<Vector4<f64>, FitError> {
     let qr = design.qr();
     qr.q_tr_mul(target);
-    let r = qr.r();
-    let r4: Matrix4<f64> = r.fixed_view::<4, 4>(0, 0).into_owned();
+    let r4: Matrix4<f64> = qr.r().fixed_view::<4, 4>(0, 0).into_owned();
+    let rhs = Vector4::new(target[0], target[1], target[2], target[3]);
+    solve_triangle(&r4, &rhs)
+}
+
+/// Solves the triangle R of a QR of the scaled design for its right-hand
+/// side (Qᵀ target). Columns are scaled to unit spread, so a tiny pivot
+/// means a column is a combination of the others: the points do not
+/// determine the conic.
+fn solve_triangle(r4: &Matrix4<f64>, rhs: &Vector4<f64>) -> Result<Vector4<f64>, FitError> {
     let largest = (0..4).map(|i| r4[(i, i)].abs()).fold(0.0, f64::max);
-    // Columns are scaled to unit spread, so a tiny pivot means a column is a
-    // combination of the others: the points do not determine the conic.
     if (0..4).any(|i| !(r4[(i, i)].abs() > largest * 1e-10)) {
         return Err(FitError::Degenerate);
     }
-    let rhs = Vector4::new(target[0], target[1], target[2], target[3]);
-    r4.solve_upper_triangular(&rhs)
+    r4.solve_upper_triangular(rhs)
         .filter(|p| p.iter().all(|v| v.is_finite()))
         .ok_or(FitError::Degenerate)
 }
@@ -278,23 +283,24 @@ fn solve_by_blocks(n: usize, row: impl Fn(usize) -> [f64; 5]) -> Result<Vector4<
     let mut start = 0;
     while start < n {
         let end = (start + QR_BLOCK).min(n);
-        let stacked = DMatrix::from_fn(COLUMNS + end - start, COLUMNS, |i, j| match i {
-            i if i < COLUMNS => r[(i, j)],
-            i => row(start + i - COLUMNS)[j],
-        });
-        let triangle = stacked.qr().r();
-        r = triangle.fixed_view::<COLUMNS, COLUMNS>(0, 0).into_owned();
+        let mut stacked = DMatrix::zeros(COLUMNS + end - start, COLUMNS);
+        stacked.rows_mut(0, COLUMNS).copy_from(&r);
+        for (i, at) in (start..end).enumerate() {
+            // Each row made once, its five values placed.
+            for (j, value) in row(at).into_iter().enumerate() {
+                stacked[(COLUMNS + i, j)] = value;
+            }
+        }
+        r = stacked
+            .qr()
+            .r()
+            .fixed_view::<COLUMNS, COLUMNS>(0, 0)
+            .into_owned();
         start = end;
     }
     let r4: Matrix4<f64> = r.fixed_view::<4, 4>(0, 0).into_owned();
-    let largest = (0..4).map(|i| r4[(i, i)].abs()).fold(0.0, f64::max);
-    if (0..4).any(|i| !(r4[(i, i)].abs() > largest * 1e-10)) {
-        return Err(FitError::Degenerate);
-    }
     let rhs: Vector4<f64> = r.fixed_view::<4, 1>(0, UNKNOWNS).into_owned();
-    r4.solve_upper_triangular(&rhs)
-        .filter(|p| p.iter().all(|v| v.is_finite()))
-        .ok_or(FitError::Degenerate)
+    solve_triangle(&r4, &rhs)
 }
 
 /// Settings of the paper's gradient descent.
