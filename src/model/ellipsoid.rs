@@ -632,7 +632,7 @@ pub fn supports_covered(model: Ellipsoid3Model, covered: &sphere::SphereCoverage
 /// The rule of [`supports`] for one model alone.
 fn determines(model: Ellipsoid3Model, covered: &sphere::SphereCoverage) -> bool {
     let centres: Vec<Vector3<f64>> = (0..sphere::REGIONS)
-        .filter(|&k| covered.counts[k] > 0)
+        .filter(|&k| covered.reached[k])
         .map(|k| Vector3::from(sphere::region(k).centre))
         .collect();
     let Some(v) = variances(model, &centres) else {

@@ -262,9 +262,9 @@ pub struct SphereCoverage {
     pub covered: usize,
     /// `covered / regions`.
     pub fraction: f64,
-    /// Points per region, by region index.
+    /// Whether a region holds a direction, by region index.
     #[serde(skip)]
-    pub counts: Vec<usize>,
+    pub reached: [bool; REGIONS],
     /// The missing regions merged into ranges, largest first.
     pub missing: Vec<MissingDirections>,
 }
@@ -281,8 +281,8 @@ impl SphereCoverage {
         if self.missing.is_empty() {
             return "nothing missing".to_string();
         }
-        if self.covered * 3 < self.regions && self.counts.len() == REGIONS {
-            let covered: Vec<usize> = (0..REGIONS).filter(|&k| self.counts[k] > 0).collect();
+        if self.covered * 3 < self.regions {
+            let covered: Vec<usize> = (0..REGIONS).filter(|&k| self.reached[k]).collect();
             if covered.is_empty() {
                 return "no direction covered".to_string();
             }
@@ -300,21 +300,29 @@ impl SphereCoverage {
 }
 
 /// Coverage of the sphere by a set of direction vectors (need not be unit;
-/// zero or non-finite ones are skipped).
+/// zero or non-finite ones are skipped). Once every region holds one,
+/// nothing more can change it: the rest are not looked at (a tumble of
+/// millions of samples reaches them all within its first thousands).
 pub fn coverage(directions: impl IntoIterator<Item = [f64; 3]>) -> SphereCoverage {
-    let mut counts = vec![0usize; REGIONS];
+    let mut reached = [false; REGIONS];
+    let mut covered = 0;
     for v in directions {
-        if let Some(k) = region_of(v) {
-            counts[k] += 1;
+        if let Some(k) = region_of(v)
+            && !reached[k]
+        {
+            reached[k] = true;
+            covered += 1;
+            if covered == REGIONS {
+                break;
+            }
         }
     }
-    let covered = counts.iter().filter(|&&c| c > 0).count();
-    let missing_regions: Vec<usize> = (0..REGIONS).filter(|&k| counts[k] == 0).collect();
+    let missing_regions: Vec<usize> = (0..REGIONS).filter(|&k| !reached[k]).collect();
     SphereCoverage {
         regions: REGIONS,
         covered,
         fraction: covered as f64 / REGIONS as f64,
-        counts,
+        reached,
         missing: merge(&missing_regions),
     }
 }

@@ -222,8 +222,8 @@ impl SphereBuffer {
             covered: self.coverage.covered,
             missing_text: self.coverage.missing_text(),
             missing: self.coverage.missing.clone(),
-            missing_regions: (0..self.coverage.counts.len())
-                .filter(|&k| self.coverage.counts[k] == 0)
+            missing_regions: (0..self.coverage.reached.len())
+                .filter(|&k| !self.coverage.reached[k])
                 .collect(),
             model: self.model.name(),
             supported: self.supported.map(Ellipsoid3Model::name),

@@ -29,7 +29,7 @@ pub fn report3_data(
         None
     };
     let shown = after.as_ref().unwrap_or(&before);
-    let counts = sphere::coverage(shown.calibrated.iter().copied()).counts;
+    let reached = sphere::coverage(shown.calibrated.iter().copied()).reached;
     Ok(Report3Data {
         title: title.to_string(),
         summary_html: preformatted(summary),
@@ -53,7 +53,7 @@ pub fn report3_data(
                 .join("+")
         }),
         time: data.t.clone(),
-        covered: counts.iter().map(|&c| c > 0).collect(),
+        covered: reached.to_vec(),
         noise_floor: diagnosis.noise_floor.rms,
         ladder: ladder_bars(&diagnosis.ladder, |s| (&s.model, s.rms)),
     })
