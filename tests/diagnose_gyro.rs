@@ -18,6 +18,7 @@ fn with_gyro(run: &str, file: &str, x: &str, y: &str, gyro: &str) -> Diagnosis {
         x: x.into(),
         y: y.into(),
         t: None,
+        read_time: true,
     };
     let mut data = read_dataset(&dir.join(file), &spec).expect("the recording reads");
     data.covariates.retain(|c| c.name != gyro);

@@ -17,6 +17,7 @@ fn real(run: &str, file: &str, x: &str, y: &str) -> Diagnosis {
         x: x.into(),
         y: y.into(),
         t: None,
+        read_time: true,
     };
     let data = read_dataset(&path, &spec).expect("the shared recording reads");
     diagnose(&data, &[], None).expect("diagnosis")

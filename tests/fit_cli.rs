@@ -330,6 +330,45 @@ fn non_finite_value_names_line_and_column() {
     assert!(fitted.contains("\"n\":40"), "{fitted}");
 }
 
+/// The model's fit has no use for the times, and reads the axes alone (as
+/// polars' `columns=` or pandas' `usecols=` would); a fit that writes or
+/// integrates the times reads them, and refuses a bad one where it is.
+#[test]
+fn a_bad_time_stops_only_a_fit_that_uses_the_times() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut lines: Vec<String> = circle_csv(40, 360.0).lines().map(String::from).collect();
+    lines[5] = "0.2s,30,5,20".into();
+    let f = write(&dir, "late.csv", &(lines.join("\n") + "\n"));
+    let fitted = run_ok(&["fit", &f, "--json"]);
+    assert!(fitted.contains("\"n\":40"), "{fitted}");
+    let out = dir.path().join("out.csv");
+    let msg = run_err(&["fit", &f, "--output", out.to_str().unwrap()]);
+    assert!(
+        msg.contains("late.csv:6: column 't' (field 1): '0.2s' is not a number"),
+        "{msg}"
+    );
+    // In 3-D too: the axes alone, unless --output writes the times.
+    let mut lines = vec!["t,x,y,z".to_string()];
+    for i in 0..400 {
+        let (a, b) = (i as f64 * 0.37, i as f64 * 0.071);
+        let (x, y, z) = (b.cos() * a.cos(), b.cos() * a.sin(), b.sin());
+        lines.push(format!(
+            "{},{},{},{}",
+            i as f64 * 0.05,
+            30.0 + 500.0 * x,
+            450.0 * y,
+            480.0 * z
+        ));
+    }
+    lines[7] = lines[7].replacen(|c: char| c.is_ascii_digit(), "x", 1);
+    let f = write(&dir, "late3.csv", &(lines.join("\n") + "\n"));
+    let fitted = run_ok(&["fit", &f, "--json"]);
+    assert!(fitted.contains("\"n\":400"), "{fitted}");
+    let out = dir.path().join("out3.csv");
+    let msg = run_err(&["fit", &f, "--output", out.to_str().unwrap()]);
+    assert!(msg.contains("late3.csv:8: column 't' (field 1)"), "{msg}");
+}
+
 #[test]
 fn fewer_samples_than_unknowns() {
     let dir = tempfile::tempdir().unwrap();

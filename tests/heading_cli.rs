@@ -526,6 +526,7 @@ fn read3(path: &Path, cols: [&str; 3]) -> Vec<[f64; 3]> {
         x: cols[0].into(),
         y: cols[1].into(),
         t: None,
+        read_time: true,
     };
     fieldcal::io::csv::read_dataset3(path, &spec, cols[2])
         .unwrap()

@@ -375,6 +375,7 @@ fn check_three(args: &CheckArgs, root: &serde_json::Value) -> Result<()> {
             .clone()
             .unwrap_or_else(|| stored_column(1, "y")),
         t: args.input.t.clone(),
+        read_time: true,
     };
     let z = args
         .input

@@ -31,7 +31,14 @@ use fieldcal::sample::{Covariate, Dataset3};
 use crate::FitArgs;
 use crate::output::write_stdout;
 
-pub fn fit(args: FitArgs) -> Result<()> {
+pub fn fit(mut args: FitArgs) -> Result<()> {
+    // The times are written with --output, integrate the --gyro, find
+    // the still poses and may drive an effect; the model's fit alone has
+    // no use for them, and does not parse them.
+    args.input.times_unused = args.output.is_none()
+        && args.input.gyro.is_none()
+        && args.effects.is_none()
+        && !args.still;
     if let Some(z) = args.input.z_column()? {
         return fit3(&args, &z);
     }

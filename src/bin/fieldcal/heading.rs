@@ -156,6 +156,7 @@ fn read_columns(
         x: columns[0].clone(),
         y: columns[1].clone(),
         t: None,
+        read_time: true,
     };
     let other = fieldcal::io::csv::read_dataset3(&file, &spec, &columns[2])?;
     let Some(t) = other.t.as_deref() else {

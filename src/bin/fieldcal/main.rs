@@ -148,6 +148,10 @@ struct CsvInput {
     /// Units of the --gyro column.
     #[arg(long, value_enum, value_name = "UNITS", default_value_t = GyroUnits::DegPerSecond)]
     gyro_units: GyroUnits,
+    /// Set by a command that has no use for the times (not an option):
+    /// the time column is not parsed ([`fieldcal::io::csv::ColumnSpec::read_time`]).
+    #[arg(skip)]
+    times_unused: bool,
 }
 
 impl CsvInput {
@@ -191,6 +195,7 @@ impl CsvInput {
             x: self.x_column().to_string(),
             y: self.y_column().to_string(),
             t: self.t.clone(),
+            read_time: !self.times_unused,
         }
     }
 

@@ -23,6 +23,12 @@ pub struct ColumnSpec {
     /// `None`: use the first of [`DEFAULT_TIME_COLUMNS`] present, if any.
     /// `Some(name)`: that column must exist.
     pub t: Option<String>,
+    /// Whether the time column's values are read. `false` for a command
+    /// that does not use them: the column is still found (and is no
+    /// covariate), its values are not parsed, and the dataset has no times
+    /// (as for a column of other numbers the command does not read, a
+    /// value there that is not a number is not its concern).
+    pub read_time: bool,
 }
 
 impl Default for ColumnSpec {
@@ -31,6 +37,7 @@ impl Default for ColumnSpec {
             x: "x".into(),
             y: "y".into(),
             t: None,
+            read_time: true,
         }
     }
 }
@@ -374,7 +381,7 @@ fn parse_dataset_sized(
             &mut records,
             scope,
             layout.roles,
-            layout.t_index.is_some(),
+            layout.t_index.is_some() && spec.read_time,
             watch,
         );
         // Before the scope waits for the other core.
@@ -457,7 +464,8 @@ impl Layout {
             .map(|i| match i {
                 _ if i == x_index => Role::X,
                 _ if i == y_index => Role::Y,
-                _ if Some(i) == t_index => Role::T,
+                _ if Some(i) == t_index && spec.read_time => Role::T,
+                _ if Some(i) == t_index => Role::Ignored,
                 _ if !wanted.wants(&names[i]) => Role::Ignored,
                 _ => Role::Covariate(usize::MAX), // numbered once the first row shows it is numeric
             })
@@ -785,7 +793,7 @@ mod tests {
         let spec = ColumnSpec {
             x: "mx".into(),
             y: "my".into(),
-            t: None,
+            ..ColumnSpec::default()
         };
         let d = parse_dataset3(text.as_bytes(), Path::new("a.csv"), &spec, "mz").unwrap();
         assert_eq!(d.points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
