@@ -36,7 +36,7 @@ impl Coverage {
 pub fn coverage(headings: impl IntoIterator<Item = f64>) -> Coverage {
     let mut deg: Vec<f64> = headings
         .into_iter()
-        .map(|h| h.to_degrees().rem_euclid(360.0))
+        .map(|h| wrap_degrees(h.to_degrees()))
         .filter(|h| h.is_finite())
         .collect();
     if deg.is_empty() {
@@ -46,12 +46,85 @@ pub fn coverage(headings: impl IntoIterator<Item = f64>) -> Coverage {
             gap_start_deg: 0.0,
         };
     }
-    let largest = largest_gap_by_buckets(&deg).unwrap_or_else(|| largest_gap_by_sorting(&mut deg));
+    let largest = largest_gap_by_few_buckets(&deg)
+        .or_else(|| largest_gap_by_buckets(&deg))
+        .unwrap_or_else(|| largest_gap_by_sorting(&mut deg));
     Coverage {
         covered_deg: 360.0 - largest.0,
         largest_gap_deg: largest.0,
         gap_start_deg: largest.1,
     }
+}
+
+/// `deg.rem_euclid(360.0)`, the same to the bit, without the library's
+/// `fmod` for an angle within a turn of zero (an `atan2` in degrees):
+/// there the remainder is the angle itself, exactly.
+fn wrap_degrees(deg: f64) -> f64 {
+    if deg.abs() < 360.0 {
+        if deg < 0.0 { deg + 360.0 } else { deg }
+    } else {
+        deg.rem_euclid(360.0)
+    }
+}
+
+/// The smallest and the largest of `deg` (by `total_cmp`), in one pass.
+fn lowest_and_highest(deg: &[f64]) -> Option<(f64, f64)> {
+    let first = *deg.first()?;
+    Some(deg.iter().fold((first, first), |(lo, hi), &h| {
+        (
+            if h.total_cmp(&lo).is_lt() { h } else { lo },
+            if h.total_cmp(&hi).is_gt() { h } else { hi },
+        )
+    }))
+}
+
+/// Buckets of the first try: 2¹⁵, whose smallest and largest (512 KiB)
+/// stay in the cache while the headings are put in them in one pass.
+const FEW_BUCKETS: usize = 1 << 15;
+
+/// [`largest_gap_by_buckets`] with at most [`FEW_BUCKETS`] buckets: the
+/// same rule (a bucket's span below the largest gap between buckets
+/// decides it, the same result to the bit) in one pass over the headings,
+/// for any number of them. A turn's largest gap, a degree or more, is many
+/// times a bucket's 0.011°; headings so dense that it is not are left to
+/// the bucket per heading (`None`).
+fn largest_gap_by_few_buckets(deg: &[f64]) -> Option<(f64, f64)> {
+    let n = deg.len();
+    if n < BUCKETS_FROM {
+        return None;
+    }
+    let buckets = n.min(FEW_BUCKETS);
+    let (lo, hi) = lowest_and_highest(deg)?;
+    let per_degree = (buckets - 1) as f64 / (hi - lo);
+    if !(per_degree.is_finite() && per_degree > 0.0) {
+        return None;
+    }
+    // Smallest and largest heading of each bucket (NaN: empty).
+    let mut bucket = vec![[f64::NAN; 2]; buckets];
+    for &h in deg {
+        let b = &mut bucket[(((h - lo) * per_degree) as usize).min(buckets - 1)];
+        if b[0].is_nan() {
+            *b = [h, h];
+        } else if h.total_cmp(&b[0]).is_lt() {
+            b[0] = h;
+        } else if h.total_cmp(&b[1]).is_gt() {
+            b[1] = h;
+        }
+    }
+    let mut largest = (lo + 360.0 - hi, hi);
+    let mut widest_bucket = 0.0f64;
+    let mut previous_top: Option<f64> = None;
+    for b in bucket.iter().filter(|b| !b[0].is_nan()) {
+        if let Some(top) = previous_top {
+            let gap = b[0] - top;
+            if gap > largest.0 {
+                largest = (gap, top);
+            }
+        }
+        widest_bucket = widest_bucket.max(b[1] - b[0]);
+        previous_top = Some(b[1]);
+    }
+    (widest_bucket < largest.0).then_some(largest)
 }
 
 /// The largest gap between neighbouring headings (degrees in [0, 360],
@@ -88,9 +161,7 @@ fn largest_gap_by_buckets(deg: &[f64]) -> Option<(f64, f64)> {
     if n < BUCKETS_FROM {
         return None;
     }
-    let by = |a: &f64, b: &f64| a.total_cmp(b);
-    let lo = deg.iter().copied().min_by(by)?;
-    let hi = deg.iter().copied().max_by(by)?;
+    let (lo, hi) = lowest_and_highest(deg)?;
     let per_degree = (n - 1) as f64 / (hi - lo);
     if !(per_degree.is_finite() && per_degree > 0.0) {
         return None;
@@ -232,11 +303,19 @@ mod tests {
         /// leave it to the sort.
         #[test]
         fn buckets_find_the_largest_gap_the_sort_finds(deg in headings()) {
-            if let Some(found) = largest_gap_by_buckets(&deg) {
-                let sorted = largest_gap_by_sorting(&mut deg.clone());
+            let sorted = largest_gap_by_sorting(&mut deg.clone());
+            for found in [largest_gap_by_buckets(&deg), largest_gap_by_few_buckets(&deg)].into_iter().flatten() {
                 prop_assert_eq!(found.0.to_bits(), sorted.0.to_bits());
                 prop_assert_eq!(found.1.to_bits(), sorted.1.to_bits());
             }
+        }
+
+        /// The wrap without `fmod` is `rem_euclid`'s, to the bit.
+        #[test]
+        fn headings_wrap_as_rem_euclid_wraps_them(
+            deg in prop_oneof![-400.0f64..400.0, -1e6f64..1e6, Just(-0.0), Just(-360.0), Just(360.0), Just(-180.0)]
+        ) {
+            prop_assert_eq!(wrap_degrees(deg).to_bits(), deg.rem_euclid(360.0).to_bits());
         }
     }
 
@@ -251,5 +330,30 @@ mod tests {
         let sorted = largest_gap_by_sorting(&mut deg.clone());
         assert_eq!(found, sorted);
         assert!((found.0 - 60.0).abs() < 0.5, "{found:?}");
+        let few = largest_gap_by_few_buckets(&deg).expect("a few buckets decide a turn");
+        assert_eq!(few, sorted);
+    }
+
+    /// Past [`FEW_BUCKETS`] headings the few buckets decide a turn alone,
+    /// to the bit; headings spread too evenly for them go on to a bucket
+    /// per heading, which decides them.
+    #[test]
+    fn a_few_buckets_decide_a_long_turn_and_leave_an_even_spread() {
+        let n = 3 * FEW_BUCKETS + 17;
+        let turn: Vec<f64> = (0..n)
+            .map(|i| wrap_degrees((i as f64 * 0.0173 + (i as f64 * 0.37).sin()) % 355.0))
+            .collect();
+        let sorted = largest_gap_by_sorting(&mut turn.clone());
+        assert_eq!(largest_gap_by_few_buckets(&turn), Some(sorted));
+        // Evenly spaced but for one gap a little wider than the spacing:
+        // within a coarse bucket's span, not within a fine one's.
+        let step = 360.0 / n as f64;
+        let even: Vec<f64> = (0..n)
+            .map(|i| i as f64 * step + if i > n / 2 { 0.5 * step } else { 0.0 })
+            .filter(|&h| h < 360.0)
+            .collect();
+        assert_eq!(largest_gap_by_few_buckets(&even), None);
+        let sorted = largest_gap_by_sorting(&mut even.clone());
+        assert_eq!(largest_gap_by_buckets(&even), Some(sorted));
     }
 }

@@ -35,10 +35,8 @@ pub fn fit(mut args: FitArgs) -> Result<()> {
     // The times are written with --output, integrate the --gyro, find
     // the still poses and may drive an effect; the model's fit alone has
     // no use for them, and does not parse them.
-    args.input.times_unused = args.output.is_none()
-        && args.input.gyro.is_none()
-        && args.effects.is_none()
-        && !args.still;
+    args.input.times_unused =
+        args.output.is_none() && args.input.gyro.is_none() && args.effects.is_none() && !args.still;
     if let Some(z) = args.input.z_column()? {
         return fit3(&args, &z);
     }
