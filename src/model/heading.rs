@@ -78,15 +78,15 @@ fn lowest_and_highest(deg: &[f64]) -> Option<(f64, f64)> {
     }))
 }
 
-/// Buckets of the first try: 2¹⁵, whose smallest and largest (512 KiB)
-/// stay in the cache while the headings are put in them in one pass.
-const FEW_BUCKETS: usize = 1 << 15;
+/// Buckets of the first try: 2¹¹, whose smallest and largest (32 KiB)
+/// stay in the first-level cache while the headings are put in them in one pass.
+const FEW_BUCKETS: usize = 1 << 11;
 
 /// [`largest_gap_by_buckets`] with at most [`FEW_BUCKETS`] buckets: the
 /// same rule (a bucket's span below the largest gap between buckets
 /// decides it, the same result to the bit) in one pass over the headings,
-/// for any number of them. A turn's largest gap, a degree or more, is many
-/// times a bucket's 0.011°; headings so dense that it is not are left to
+/// for any number of them. A turn's largest gap, a degree or more, is
+/// several times a bucket's 0.18°; headings so dense that it is not are left to
 /// the bucket per heading (`None`).
 fn largest_gap_by_few_buckets(deg: &[f64]) -> Option<(f64, f64)> {
     let n = deg.len();
