@@ -367,6 +367,10 @@ fn a_bad_time_stops_only_a_fit_that_uses_the_times() {
     let out = dir.path().join("out3.csv");
     let msg = run_err(&["fit", &f, "--output", out.to_str().unwrap()]);
     assert!(msg.contains("late3.csv:8: column 't' (field 1)"), "{msg}");
+    // A time column named with --t is among the columns a missing z is
+    // told from, read or not.
+    let msg = run_err(&["fit", &f, "--z", "zz", "--t", "t"]);
+    assert!(msg.contains("(columns: x, y, t, z)"), "{msg}");
 }
 
 #[test]

@@ -263,8 +263,9 @@ pub fn median(values: &[f64]) -> f64 {
     median_mut(&mut values.to_vec())
 }
 
-/// The median of `values` (reordered), in linear time: the same value a
-/// sort would give (the middle one, or the mean of the two middle ones).
+/// The median of `values` (which may be reordered), in linear time: the
+/// same value a sort would give (the middle one, or the mean of the two
+/// middle ones).
 pub(crate) fn median_mut(values: &mut [f64]) -> f64 {
     if values.is_empty() {
         return 0.0;
@@ -379,7 +380,7 @@ pub fn robust_sd(values: &[f64]) -> f64 {
 }
 
 /// The median absolute deviation from the median of `values` (0 for
-/// none), in place: they are left as the deviations, reordered.
+/// none), in place: they are left as the deviations (perhaps reordered).
 pub(crate) fn mad(values: &mut [f64]) -> f64 {
     if values.is_empty() {
         return 0.0;

@@ -601,7 +601,8 @@ fn dataset3_of(
     }
     let dataset = parse_dataset_sized(front, path, spec, covariates, size, watch)?;
     let names: Vec<String> = dataset.covariates.iter().map(|c| c.name.clone()).collect();
-    let time_name = dataset.t.as_ref().and(spec.t.clone());
+    // A time column named with --t is there (it was looked for), read or not.
+    let time_name = spec.t.clone();
     Dataset3::from_dataset(dataset, z).ok_or_else(|| {
         let mut available = vec![spec.x.clone(), spec.y.clone()];
         available.extend(time_name);
