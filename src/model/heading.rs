@@ -102,29 +102,64 @@ fn largest_gap_by_few_buckets(deg: &[f64]) -> Option<(f64, f64)> {
     // Smallest and largest heading of each bucket (NaN: empty).
     let mut bucket = vec![[f64::NAN; 2]; buckets];
     for &h in deg {
-        let b = &mut bucket[(((h - lo) * per_degree) as usize).min(buckets - 1)];
-        if b[0].is_nan() {
-            *b = [h, h];
-        } else if h.total_cmp(&b[0]).is_lt() {
-            b[0] = h;
-        } else if h.total_cmp(&b[1]).is_gt() {
-            b[1] = h;
+        widen(
+            &mut bucket[(((h - lo) * per_degree) as usize).min(buckets - 1)],
+            h,
+        );
+    }
+    let mut walk = GapWalk::new(lo, hi);
+    walk.along(&bucket);
+    walk.decided()
+}
+
+/// Widens `bucket` (its smallest and largest heading; NaN: empty) to hold `h`.
+fn widen(bucket: &mut [f64; 2], h: f64) {
+    if bucket[0].is_nan() {
+        *bucket = [h, h];
+    } else if h.total_cmp(&bucket[0]).is_lt() {
+        bucket[0] = h;
+    } else if h.total_cmp(&bucket[1]).is_gt() {
+        bucket[1] = h;
+    }
+}
+
+/// The buckets of headings in order, walked for the largest gap between
+/// neighbouring ones (from the wrap-around gap) and the widest bucket.
+struct GapWalk {
+    largest: (f64, f64),
+    widest_bucket: f64,
+    previous_top: Option<f64>,
+}
+
+impl GapWalk {
+    /// Before the first bucket: the gap from the highest heading `hi` round
+    /// to the lowest `lo`.
+    fn new(lo: f64, hi: f64) -> GapWalk {
+        GapWalk {
+            largest: (lo + 360.0 - hi, hi),
+            widest_bucket: 0.0,
+            previous_top: None,
         }
     }
-    let mut largest = (lo + 360.0 - hi, hi);
-    let mut widest_bucket = 0.0f64;
-    let mut previous_top: Option<f64> = None;
-    for b in bucket.iter().filter(|b| !b[0].is_nan()) {
-        if let Some(top) = previous_top {
-            let gap = b[0] - top;
-            if gap > largest.0 {
-                largest = (gap, top);
+
+    /// The next buckets in order (NaN: empty, skipped).
+    fn along(&mut self, buckets: &[[f64; 2]]) {
+        for b in buckets.iter().filter(|b| !b[0].is_nan()) {
+            if let Some(top) = self.previous_top {
+                let gap = b[0] - top;
+                if gap > self.largest.0 {
+                    self.largest = (gap, top);
+                }
             }
+            self.widest_bucket = self.widest_bucket.max(b[1] - b[0]);
+            self.previous_top = Some(b[1]);
         }
-        widest_bucket = widest_bucket.max(b[1] - b[0]);
-        previous_top = Some(b[1]);
     }
-    (widest_bucket < largest.0).then_some(largest)
+
+    /// The largest gap and where it starts, when no bucket is as wide.
+    fn decided(&self) -> Option<(f64, f64)> {
+        (self.widest_bucket < self.largest.0).then_some(self.largest)
+    }
 }
 
 /// The largest gap between neighbouring headings (degrees in [0, 360],
@@ -187,36 +222,18 @@ fn largest_gap_by_buckets(deg: &[f64]) -> Option<(f64, f64)> {
         by_block[next[k]] = h;
         next[k] += 1;
     }
-    let mut largest = (lo + 360.0 - hi, hi);
-    let mut widest_bucket = 0.0f64;
-    let mut previous_top: Option<f64> = None;
+    let mut walk = GapWalk::new(lo, hi);
     // Smallest and largest heading of each bucket of a block (NaN: empty).
     let mut bucket = [[f64::NAN; 2]; BUCKET_BLOCK];
     for k in 0..blocks {
         bucket.fill([f64::NAN; 2]);
         let first = k * BUCKET_BLOCK;
         for &h in &by_block[start[k]..start[k + 1]] {
-            let b = &mut bucket[fine(h) - first];
-            if b[0].is_nan() {
-                *b = [h, h];
-            } else if h.total_cmp(&b[0]).is_lt() {
-                b[0] = h;
-            } else if h.total_cmp(&b[1]).is_gt() {
-                b[1] = h;
-            }
+            widen(&mut bucket[fine(h) - first], h);
         }
-        for b in bucket.iter().filter(|b| !b[0].is_nan()) {
-            if let Some(top) = previous_top {
-                let gap = b[0] - top;
-                if gap > largest.0 {
-                    largest = (gap, top);
-                }
-            }
-            widest_bucket = widest_bucket.max(b[1] - b[0]);
-            previous_top = Some(b[1]);
-        }
+        walk.along(&bucket);
     }
-    (widest_bucket < largest.0).then_some(largest)
+    walk.decided()
 }
 
 /// Most sweeps of the SVD in [`circle_centre`]. Golub-Kahan SVD converges

@@ -768,6 +768,20 @@ impl ResidualCommon {
     }
 }
 
+/// The median by a sort: what every median found by selection must give
+/// (for the tests).
+#[cfg(test)]
+pub(crate) fn sorted_median(values: &[f64]) -> f64 {
+    let mut v = values.to_vec();
+    v.sort_unstable_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -822,16 +836,6 @@ mod tests {
     /// a quantised axis with many repeats (left to the selection).
     #[test]
     fn a_long_median_is_the_sorted_one() {
-        let sorted_median = |values: &[f64]| {
-            let mut v = values.to_vec();
-            v.sort_unstable_by(f64::total_cmp);
-            let n = v.len();
-            if n % 2 == 1 {
-                v[n / 2]
-            } else {
-                0.5 * (v[n / 2 - 1] + v[n / 2])
-            }
-        };
         let noise = gaussian(3 * SAMPLED_FROM + 1, 1e-6, 7);
         let radii: Vec<f64> = noise.iter().map(|e| 1.0 + e).collect();
         assert!(middle_by_sample(&radii, middle_sample(radii.len())).is_some());

@@ -395,19 +395,9 @@ fn quantum(values: &[f64]) -> f64 {
 
 #[cfg(test)]
 mod tests {
+    use super::super::residuals::sorted_median;
     use super::*;
     use proptest::prelude::*;
-
-    fn sorted_median(values: &[f64]) -> f64 {
-        let mut v = values.to_vec();
-        v.sort_unstable_by(f64::total_cmp);
-        let n = v.len();
-        if n % 2 == 1 {
-            v[n / 2]
-        } else {
-            0.5 * (v[n / 2 - 1] + v[n / 2])
-        }
-    }
 
     proptest! {
         #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
