@@ -287,8 +287,14 @@ pub(crate) fn median_mut(values: &mut [f64]) -> f64 {
 /// value), by `total_cmp`: by selection.
 fn middle_by_selection(values: &mut [f64]) -> (f64, f64) {
     let n = values.len();
-    let (lower, &mut upper, _) = values.select_nth_unstable_by(n / 2, f64::total_cmp);
-    // The largest of the lower half is the sorted values' [n/2 - 1].
+    ranks_up_to(values, n / 2)
+}
+
+/// The sorted values' `[rank - 1]` and `[rank]` (the same one at rank 0),
+/// by `total_cmp`: `values` partitioned about `[rank]`, and the largest of
+/// those before it.
+fn ranks_up_to(values: &mut [f64], rank: usize) -> (f64, f64) {
+    let (lower, &mut upper, _) = values.select_nth_unstable_by(rank, f64::total_cmp);
     let below = lower
         .iter()
         .copied()
@@ -364,13 +370,7 @@ fn middle_by_sample(values: &[f64], sample: usize) -> Option<(f64, f64)> {
     if below + 1 > rank || rank >= below + between.len() {
         return None;
     }
-    let (lower, &mut upper, _) = between.select_nth_unstable_by(rank - below, f64::total_cmp);
-    let below = lower
-        .iter()
-        .copied()
-        .max_by(f64::total_cmp)
-        .unwrap_or(upper);
-    Some((below, upper))
+    Some(ranks_up_to(&mut between, rank - below))
 }
 
 /// 1.4826 · median absolute deviation: the SD for Gaussian data, barely

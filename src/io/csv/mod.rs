@@ -377,13 +377,7 @@ fn parse_dataset_sized(
             path,
             size,
         };
-        let read = reader.read_front(
-            &mut records,
-            scope,
-            layout.roles,
-            layout.t_index.is_some() && spec.read_time,
-            watch,
-        );
+        let read = reader.read_front(&mut records, scope, layout.roles, layout.timed, watch);
         // Before the scope waits for the other core.
         records.get_ref().stop_rest();
         read
@@ -416,7 +410,8 @@ fn parse_dataset_sized(
 struct Layout {
     x_index: usize,
     y_index: usize,
-    t_index: Option<usize>,
+    /// Whether a time column is read (one is found, and the times are wanted).
+    timed: bool,
     /// Each column's role, the covariates not yet numbered.
     roles: Vec<Role>,
 }
@@ -465,6 +460,7 @@ impl Layout {
                 _ if i == x_index => Role::X,
                 _ if i == y_index => Role::Y,
                 _ if Some(i) == t_index && spec.read_time => Role::T,
+                // Found, and so no covariate; not read.
                 _ if Some(i) == t_index => Role::Ignored,
                 _ if !wanted.wants(&names[i]) => Role::Ignored,
                 _ => Role::Covariate(usize::MAX), // numbered once the first row shows it is numeric
@@ -473,7 +469,7 @@ impl Layout {
         Ok(Layout {
             x_index,
             y_index,
-            t_index,
+            timed: t_index.is_some() && spec.read_time,
             roles,
         })
     }
