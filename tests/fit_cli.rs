@@ -374,6 +374,47 @@ fn a_bad_time_stops_only_a_fit_that_uses_the_times() {
 }
 
 #[test]
+fn a_message_names_the_line_the_bad_value_is_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut lines: Vec<String> = circle_csv(40, 360.0).lines().map(String::from).collect();
+    // Line 6 of the file: the header, then rows 1 to 4.
+    lines[5] = "0.25,oops,5,20".into();
+    // A recorder's CRLF, on the plain path and after a quoted field (the
+    // csv crate's path).
+    let f = write(&dir, "crlf.csv", &(lines.join("\r\n") + "\r\n"));
+    let msg = run_err(&["fit", &f]);
+    assert!(
+        msg.contains("crlf.csv:6: column 'x' (field 2): 'oops'"),
+        "{msg}"
+    );
+    let mut quoted = lines.clone();
+    quoted[2] = quoted[2].replace(",20", ",\"20\"");
+    assert!(quoted[2].ends_with(",\"20\""), "{}", quoted[2]);
+    let f = write(&dir, "quoted.csv", &(quoted.join("\r\n") + "\r\n"));
+    let msg = run_err(&["fit", &f]);
+    assert!(msg.contains("quoted.csv:6: column 'x'"), "{msg}");
+    // Blank lines and comments before it are lines of the file.
+    let mut noted = lines.clone();
+    noted.insert(3, String::new());
+    noted.insert(4, "# the sensor was bumped here".into());
+    let f = write(&dir, "noted.csv", &(noted.join("\n") + "\n"));
+    let msg = run_err(&["fit", &f]);
+    assert!(msg.contains("noted.csv:8: column 'x'"), "{msg}");
+    // And in a second file, the gyro's, joined by time.
+    let mut gyro = vec!["t,gyro".to_string()];
+    gyro.extend((0..40).map(|i| format!("{},{}", f64::from(i) * 0.05, 360.0)));
+    gyro.insert(2, String::new());
+    gyro[6] = "0.2,fast".into();
+    let g = write(&dir, "gyro.csv", &(gyro.join("\r\n") + "\r\n"));
+    let f = write(&dir, "turn.csv", &(circle_csv(40, 360.0)));
+    let msg = run_err(&["fit", &f, "--gyro", &format!("{g}:gyro")]);
+    assert!(
+        msg.contains("gyro.csv:7: column 'gyro' (field 2): 'fast'"),
+        "{msg}"
+    );
+}
+
+#[test]
 fn fewer_samples_than_unknowns() {
     let dir = tempfile::tempdir().unwrap();
     let f = write(&dir, "few.csv", "x,y\n1,0\n0,1\n-1,0\n");

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use super::records::Records;
 use super::{
-    Back, CsvError, Front, Positional, RestError, Role, RowsRead, WATCHED_ROWS, cell, first_record,
+    Back, CsvError, Front, Positional, Role, RowsRead, WATCHED_ROWS, cell, first_record,
     rows_expected,
 };
 use crate::sample::Covariate;
@@ -129,11 +129,6 @@ impl Reader<'_> {
         // The columns read, in the order of the record's fields.
         let mut read: Vec<(usize, Role)> = Vec::new();
         let mut shown = 0;
-        // The line the reader counts once past the last record (csv counts
-        // the line a record starts on from where the reader stood: blank
-        // lines, comments and the LF of a CRLF after the last record are
-        // not yet counted).
-        let mut after_last = 1;
         while records.read(&mut record)? {
             let line = record.position().map_or(0, |p| p.line());
             if read.is_empty() {
@@ -143,30 +138,17 @@ impl Reader<'_> {
                 self.hand_over(records.get_mut(), scope, &read, &columns, &record);
             }
             columns.push(&record, &read, self, line)?;
-            after_last = records.line();
             if columns.x.len() - shown == WATCHED_ROWS {
                 columns.show(shown, watch);
                 shown = columns.x.len();
             }
         }
         // The other core's rows, after these. Its lines are counted from
-        // the cut (its first record on line 1), which follows this half's
-        // lines; one reader would number its first record as the line it
-        // stood on after this half's last.
+        // the cut (its first line is line 1), which follows this half's
+        // lines, all read.
         if let Some(back) = records.get_mut().take_back() {
-            let rows = back.rows.map_err(
-                |RestError {
-                     error,
-                     first_record,
-                 }| {
-                    let lines = match first_record {
-                        true => after_last,
-                        false => records.line(),
-                    };
-                    error.moved_down(lines.saturating_sub(1))
-                },
-            );
-            columns.append(rows?);
+            let lines_before = records.line().saturating_sub(1);
+            columns.append(back.rows.map_err(|error| error.moved_down(lines_before))?);
         }
         columns.show(shown, watch);
         Ok(columns)
@@ -215,18 +197,12 @@ impl Reader<'_> {
         records: &mut Records<'_, Positional<'_>>,
         read: &[(usize, Role)],
         mut columns: Columns,
-    ) -> Result<Columns, RestError> {
+    ) -> Result<Columns, CsvError> {
         let mut record = csv::ByteRecord::new();
-        let mut first_record = true;
-        let at = |error, first_record| RestError {
-            error,
-            first_record,
-        };
         // Records check their lengths against the header's.
-        while records.read(&mut record).map_err(|e| at(e, first_record))? {
+        while records.read(&mut record)? {
             let line = record.position().map_or(0, |p| p.line());
-            (columns.push(&record, read, self, line)).map_err(|e| at(e, first_record))?;
-            first_record = false;
+            columns.push(&record, read, self, line)?;
         }
         Ok(columns)
     }

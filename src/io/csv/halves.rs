@@ -113,16 +113,9 @@ impl Read for Positional<'_> {
 /// What the other core hands back: its rows (or its first error), and
 /// whether it met a quote.
 pub(super) struct Back {
-    pub rows: Result<Columns, RestError>,
+    /// Its first error's line is counted from the cut (its line 1).
+    pub rows: Result<Columns, CsvError>,
     pub quoted: bool,
-}
-
-/// The other core's first error: its line is counted from the cut, and
-/// whether it is in the first record there says from where to count it
-/// in the file.
-pub(super) struct RestError {
-    pub error: CsvError,
-    pub first_record: bool,
 }
 
 /// Where the calling thread is with the cut.
@@ -348,6 +341,14 @@ mod tests {
             let text = format!("t,x,y\n# first\n{rows}{bad}\n{rows}");
             let (one, _) = one_and_every_cut(&text);
             assert!(one.starts_with("rec.csv:15: "), "{one}");
+            same_at_every_cut(&text);
+        }
+        // The same in CRLF, after a blank line: the line it is on.
+        let crlf = rows.replace('\n', "\r\n");
+        for bad in ["7,x,8\r\n", "7,1\r\n"] {
+            let text = format!("t,x,y\r\n# first\r\n\r\n{crlf}{bad}\r\n{crlf}");
+            let (one, _) = one_and_every_cut(&text);
+            assert!(one.starts_with("rec.csv:16: "), "{one}");
             same_at_every_cut(&text);
         }
         // Both halves wrong: the first one's error, whatever the cut.

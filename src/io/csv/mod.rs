@@ -658,7 +658,7 @@ pub fn parse_series<R: Read>(
     role: &'static str,
     flag: &'static str,
 ) -> Result<Series, CsvError> {
-    let (mut csv, names) = open_with_header(reader, path)?;
+    let (csv, names) = open_with_header(records::Tap::new(reader), path)?;
     let find = |name: &str| names.iter().position(|n| n == name);
     let value_index = find(column).ok_or_else(|| CsvError::MissingColumn {
         path: path.to_path_buf(),
@@ -686,11 +686,9 @@ pub fn parse_series<R: Read>(
     }
     let mut t = Vec::new();
     let mut values = Vec::new();
+    let mut records = records::Records::after_header(csv, names.len(), path)?;
     let mut record = csv::ByteRecord::new();
-    while csv
-        .read_byte_record(&mut record)
-        .map_err(|e| csv_error(path, e))?
-    {
+    while records.read(&mut record)? {
         let line = record.position().map_or(0, |p| p.line());
         for (i, out) in [(t_index, &mut t), (value_index, &mut values)] {
             out.push(cell(&record, i, &names, path, line)?);
@@ -777,7 +775,7 @@ mod stream;
 mod write;
 
 use columns::{Columns, Reader};
-use halves::{Back, Front, Positional, RestError};
+use halves::{Back, Front, Positional};
 
 pub use stream::*;
 pub use write::*;

@@ -1,17 +1,22 @@
 //! The records of a recording after its header, as one `csv` reader reads
-//! them, but faster on plain lines.
+//! them, but faster on plain lines, and each on the line it starts on.
 //!
 //! A plain line is what a recorder writes: fields separated by commas, no
-//! quote, no carriage return, not blank, not a `#` comment, and as many
-//! fields as the header. Such a line is one record and its fields are the
-//! bytes between its commas, so it is split here with a few SIMD scans
+//! quote, no carriage return but one before its LF, and as many fields as
+//! the header. Such a line is one record and its fields are the bytes
+//! between its commas, so it is split here with a few SIMD scans
 //! (`memchr`) instead of the csv crate's byte-at-a-time state machine, and
 //! only as far as the last column read; the rest of its commas are only
-//! counted. From the first line that is not plain (or a line longer than
-//! the buffer, or a last line with no newline) the csv crate reads the
-//! rest, from that line's first byte, its lines numbered on from the lines
-//! before: every record and every message is the one a single `csv`
-//! reader gives from the header on.
+//! counted. Blank lines and `#` comments are skipped here too. From the
+//! first line that is not plain (or a line longer than the buffer, or a
+//! last line with no newline) the csv crate reads the rest, from that
+//! line's first byte: every record and every message is the one a single
+//! `csv` reader gives from the header on.
+//!
+//! Lines are those of the file: the one a record starts on, counting
+//! every LF before it. (The csv crate's own `position` is where its reader
+//! stood before the blank lines, comments or the LF of a CRLF it skipped
+//! first; its records are given the line they start on instead.)
 
 use std::io::{self, Read};
 use std::path::Path;
@@ -64,22 +69,77 @@ impl<R: Read> Read for Tap<R> {
 }
 
 /// Bytes held back, then a reader: what the csv crate reads once the
-/// lines stop being plain.
+/// lines stop being plain. It keeps what it last handed out, so that the
+/// byte a record ended on can be looked up ([`Held::ended_on_newline`]).
 pub(super) struct Held<R> {
     held: Vec<u8>,
     at: usize,
     inner: R,
+    /// Bytes handed out.
+    pulled: u64,
+    /// The last bytes handed out (a copy of the last read), and the byte
+    /// before them.
+    last: Vec<u8>,
+    before: Option<u8>,
+    /// Whether a read has given no bytes: the end.
+    eof: bool,
+}
+
+impl<R> Held<R> {
+    fn new(held: Vec<u8>, inner: R) -> Self {
+        Held {
+            held,
+            at: 0,
+            inner,
+            pulled: 0,
+            last: Vec::new(),
+            before: None,
+            eof: false,
+        }
+    }
+
+    /// Whether a record that the csv crate read up to byte `end` (its
+    /// position after it) ended on the newline it consumed: not at the end
+    /// of the bytes (a last line with no newline, a quote left open), and
+    /// not on a CR (whose LF, if any, the crate takes with what follows).
+    /// A reader buffered as the crate's reads again only once it has used
+    /// what it held, so `end` lies within the last read or just past the
+    /// read before.
+    fn ended_on_newline(&self, end: u64) -> bool {
+        if self.eof && end == self.pulled {
+            return false;
+        }
+        let first = self.pulled - self.last.len() as u64;
+        let byte = match end.checked_sub(1) {
+            Some(at) if at >= first => usize::try_from(at - first)
+                .ok()
+                .and_then(|i| self.last.get(i).copied()),
+            Some(at) if at + 1 == first => self.before,
+            _ => None,
+        };
+        byte == Some(b'\n')
+    }
 }
 
 impl<R: Read> Read for Held<R> {
     fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        if self.at < self.held.len() {
+        let n = if self.at < self.held.len() {
             let n = (self.held.len() - self.at).min(buf.len());
             buf[..n].copy_from_slice(&self.held[self.at..self.at + n]);
             self.at += n;
-            return Ok(n);
+            n
+        } else {
+            self.inner.read(buf)?
+        };
+        if n == 0 {
+            self.eof = !buf.is_empty();
+            return Ok(0);
         }
-        self.inner.read(buf)
+        self.before = self.last.last().copied().or(self.before);
+        self.last.clear();
+        self.last.extend_from_slice(&buf[..n]);
+        self.pulled += n as u64;
+        Ok(n)
     }
 }
 
@@ -189,11 +249,7 @@ impl<'p, R: Read> Records<'p, R> {
     }
 
     fn new(reader: R, plain: Plain, fields: usize, path: &'p Path) -> Self {
-        let held = Held {
-            held: PRIMER.to_vec(),
-            at: 0,
-            inner: reader,
-        };
+        let held = Held::new(PRIMER.to_vec(), reader);
         let mut csv = csv::ReaderBuilder::new()
             .has_headers(false)
             // Lengths are checked against the header's, as the reader
@@ -226,7 +282,7 @@ impl<'p, R: Read> Records<'p, R> {
     }
 
     /// The next record into `record`, its position the line it starts on
-    /// as a csv reader counts lines; `false` past the last. Its fields are
+    /// in the file; `false` past the last. Its fields are
     /// the header's number (checked), or, of a plain line, the first
     /// [`Records::split_first`] of them.
     pub(super) fn read(&mut self, record: &mut csv::ByteRecord) -> Result<bool, CsvError> {
@@ -258,7 +314,15 @@ impl<'p, R: Read> Records<'p, R> {
         if !more {
             return Ok(false);
         }
-        let line = in_file(record.position().map_or(0, |p| p.line()), lines_before);
+        // The line the record starts on: the crate's `position` is where
+        // it stood before the blank lines, comments or the LF of a CRLF it
+        // skipped first, so the line is counted back from where the record
+        // ended, past the newlines within its fields and the one it ended
+        // on.
+        let end = self.csv.position();
+        let within = record.as_slice().iter().filter(|&&b| b == b'\n').count() as u64;
+        let ended_on = u64::from(self.csv.get_ref().ended_on_newline(end.byte()));
+        let line = in_file(end.line().saturating_sub(within + ended_on), lines_before);
         set_line(record, line);
         if record.len() != self.fields {
             return Err(CsvError::Malformed {
@@ -270,7 +334,7 @@ impl<'p, R: Read> Records<'p, R> {
         Ok(true)
     }
 
-    /// The line the reader stands on, as a csv reader's position counts it.
+    /// The line the reader stands on: one past the LFs it has read.
     pub(super) fn line(&self) -> u64 {
         match &self.plain {
             Some(plain) => plain.line,
@@ -298,16 +362,31 @@ impl Plain {
         loop {
             let held = &self.buf[self.start..self.end];
             if let Some(length) = memchr::memchr(b'\n', held) {
-                let line = &held[..length];
-                if self.special.is_some_and(|at| at < self.start + length)
-                    || line.first().is_none_or(|&b| b == b'#')
-                    || !split_line(line, self.split, fields, record)
-                {
+                // The line without its LF, or the CRLF that ends it.
+                let line = held[..length]
+                    .strip_suffix(b"\r")
+                    .unwrap_or(&held[..length]);
+                // A comment runs to its LF, whatever it holds.
+                let comment = line.first() == Some(&b'#');
+                if !comment && self.special.is_some_and(|at| at < self.start + line.len()) {
                     return Ok(Next::NotPlain);
                 }
-                set_line(record, self.line);
+                if !line.is_empty() && !comment {
+                    if !split_line(line, self.split, fields, record) {
+                        return Ok(Next::NotPlain);
+                    }
+                    set_line(record, self.line);
+                }
                 self.start += length + 1;
                 self.line += 1;
+                if self.special.is_some_and(|at| at < self.start) {
+                    let rest = &self.buf[self.start..self.end];
+                    self.special = memchr::memchr2(b'"', b'\r', rest).map(|at| self.start + at);
+                }
+                if line.is_empty() || comment {
+                    // Blank lines and comments are no records.
+                    continue;
+                }
                 return Ok(Next::Record);
             }
             if self.eof {
@@ -409,24 +488,92 @@ mod tests {
         }
     }
 
+    /// The line of `text` each record starts on, the header's first: the
+    /// records as csv-core splits them (a CR, an LF or a CRLF ends one
+    /// outside quotes; blank lines, and lines that start with `#`, up to
+    /// their LF, are none (but the last with no LF is one); a field that starts with a quote runs to
+    /// the quote that closes it, a doubled quote within it), written
+    /// here byte by byte and counting every LF before it.
+    fn record_lines(text: &[u8]) -> Vec<u64> {
+        let (mut lines, mut line, mut i) = (Vec::new(), 1, 0);
+        let n = text.len();
+        while i < n {
+            match text[i] {
+                b'\n' => line += 1,
+                b'\r' => {}
+                b'#' => {
+                    while i + 1 < n && text[i + 1] != b'\n' {
+                        i += 1;
+                    }
+                    if i + 1 == n {
+                        // csv-core reads a last comment with no LF as a
+                        // record of one empty field.
+                        lines.push(line);
+                    }
+                }
+                _ => {
+                    lines.push(line);
+                    let (mut quoted, mut field_start) = (false, true);
+                    while i < n {
+                        match (quoted, text[i]) {
+                            (true, b'"') if text.get(i + 1) == Some(&b'"') => i += 1,
+                            (true, b'"') => quoted = false,
+                            (true, b'\n') => line += 1,
+                            (true, _) => {}
+                            (false, b'"') if field_start => quoted = true,
+                            (false, b'\r' | b'\n') => break,
+                            (false, b',') => {
+                                field_start = true;
+                                i += 1;
+                                continue;
+                            }
+                            (false, _) => {}
+                        }
+                        field_start = false;
+                        i += 1;
+                    }
+                    continue;
+                }
+            }
+            i += 1;
+        }
+        lines
+    }
+
     /// Each record's line and first `split` fields, then the line the
     /// reader stands on at the end, or the message it stops with: as one
     /// csv reader reads `text` after its header (lengths checked against
-    /// it), the way the recording readers read before plain lines.
+    /// it), the way the recording readers read before plain lines, with
+    /// the line each record truly starts on ([`record_lines`]).
     fn by_the_crate(text: &[u8], split: usize) -> Vec<String> {
         let path = Path::new("rec.csv");
         let (mut csv, names) = match open_with_header(text, path) {
             Ok(opened) => opened,
             Err(e) => return vec![e.to_string()],
         };
+        let lines = record_lines(text);
         let mut out = vec![format!("{} fields", names.len())];
         let mut record = csv::ByteRecord::new();
-        loop {
+        for k in 1.. {
+            let line = lines.get(k).copied().unwrap_or(0);
             match csv.read_byte_record(&mut record) {
-                Ok(true) => out.push(shown(&record, split.min(names.len()))),
+                Ok(true) => {
+                    set_line(&mut record, line);
+                    out.push(shown(&record, split.min(names.len())));
+                }
                 Ok(false) => break,
                 Err(e) => {
-                    out.push(csv_error(path, e).to_string());
+                    let e = match e.kind() {
+                        csv::ErrorKind::UnequalLengths {
+                            expected_len, len, ..
+                        } => CsvError::Malformed {
+                            path: path.to_path_buf(),
+                            line,
+                            message: unequal_lengths(len, expected_len),
+                        },
+                        _ => csv_error(path, e),
+                    };
+                    out.push(e.to_string());
                     return out;
                 }
             }
@@ -537,15 +684,25 @@ mod tests {
     #[test]
     fn from_a_line_that_is_not_plain_the_crate_reads_on() {
         for text in [
-            // CRLF (the crate counts a record's line before its LF).
+            // CRLF (the crate numbers a record from before the LF it skips).
             &b"t,x,y\r\n0,1,2\r\n1,2,3\r\n"[..],
+            b"t,x,y\r\n0,1,2\r\n\r\n1,2,3\r\n",
+            b"t,x,y\r\n0,1,2\r\n\"1\",2,3\r\n2,3,4\r\n3,4\r\n",
             b"t,x,y\n0,1,2\n1,2,3\r\n2,3,4\n",
             // A lone CR ends a record too.
             b"t,x,y\n0,1,2\n1,2,3\r2,3,4\n3,4,5\n",
-            // Comments and blank lines.
+            // Comments and blank lines, before a plain line, a quoted
+            // one and one of too few fields.
             b"t,x,y\n0,1,2\n# a note\n\n1,2,3\n\n",
+            b"t,x,y\n0,1,2\n\n# a \"note\"\n1,2,3\n\"2\",3,4\n\n# n\n3,4,5\n\n4,5\n",
+            b"t,x,y\n0,1,2\n# a\rnote\n1,2,3\n",
+            b"t,x,y\n0,1,\"2\n\n\"\n\n1,2,3\n\n2,3\n",
             // A blank line where a record has one field.
             b"t\n1\n\n2\n",
+            // A last comment with no LF (a record of one empty field to
+            // the crate).
+            b"t,x,y\n0,1,2\n# last",
+            b"t,x,y,n\r# n,o,t,e",
             // A comment with the header's fields.
             b"t,x,y\n0,1,2\n# a,b,c\n1,2,3\n",
             b"# before\nt,x,y\n0,1,2\n1,2,3\n",
@@ -602,7 +759,7 @@ mod tests {
         #![proptest_config(ProptestConfig::with_cases(256))]
         #[test]
         fn any_text_reads_as_the_crate_reads_it(
-            lines in prop::collection::vec((0u8..14, 0u32..1000), 0..16),
+            lines in prop::collection::vec((0u8..16, 0u32..1000), 0..16),
             split in 1usize..5,
             end in 0u8..3,
         ) {
@@ -622,6 +779,8 @@ mod tests {
                     9 => format!("\u{feff}{v},{v},{v},b\n"),
                     10 => format!("\u{feff}# {v}\n"),
                     11 => format!("{v},{v}\r{v},{v}\n"),
+                    12 => "\r\n".to_string(),
+                    13 => format!("# \"{v}\r\"\r\n"),
                     _ => format!("{v},{v}.5,{},n{v}\n", -f64::from(*v)),
                 };
                 text.extend_from_slice(line.as_bytes());
