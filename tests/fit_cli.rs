@@ -395,8 +395,8 @@ fn a_message_names_the_line_the_bad_value_is_on() {
     assert!(msg.contains("quoted.csv:6: column 'x'"), "{msg}");
     // Blank lines and comments before it are lines of the file.
     let mut noted = lines.clone();
-    noted.insert(3, String::new());
-    noted.insert(4, "# the sensor was bumped here".into());
+    noted.insert(5, String::new());
+    noted.insert(6, "# the sensor was bumped here".into());
     let f = write(&dir, "noted.csv", &(noted.join("\n") + "\n"));
     let msg = run_err(&["fit", &f]);
     assert!(msg.contains("noted.csv:8: column 'x'"), "{msg}");

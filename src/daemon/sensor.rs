@@ -171,9 +171,10 @@ pub trait Geometry: Send {
         life.readings += 1;
         let line = self.reading_line(life, sample, row);
         emit.line(Lane::Reading, line);
-        life.gate.feed(sample, sample.raw);
+        // Nearly every sample is kept at once, and queues nothing.
+        let mut at_once = life.gate.feed_at_once(sample, sample.raw).map(Gated::Kept);
         let mut accepted = None;
-        while let Some(gated) = life.gate.decided() {
+        while let Some(gated) = at_once.take().or_else(|| life.gate.decided()) {
             match gated {
                 Gated::Kept(kept) => {
                     if let Some(c) = self.push(life, kept, emit) {

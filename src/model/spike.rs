@@ -259,13 +259,38 @@ fn median_of(values: &mut [f64]) -> Option<f64> {
     Some(0.5 * (lower + upper))
 }
 
+/// The last [`WINDOW`] samples, oldest first, in one array (a new one
+/// shifts the others down: a few vector moves, where a ring's every look-up
+/// works out where its index wraps).
+#[derive(Debug, Clone, Default)]
+struct Recent {
+    samples: [[f64; 3]; WINDOW],
+    len: usize,
+}
+
+impl Recent {
+    fn push(&mut self, raw: [f64; 3]) {
+        if self.len == WINDOW {
+            self.samples.copy_within(1.., 0);
+            self.samples[WINDOW - 1] = raw;
+        } else {
+            self.samples[self.len] = raw;
+            self.len += 1;
+        }
+    }
+
+    fn as_slice(&self) -> &[[f64; 3]] {
+        &self.samples[..self.len]
+    }
+}
+
 /// The gate of one sensor's stream of samples (`T`: what travels with
 /// each; `raw` gives its axes, NaN for one it does not have).
 #[derive(Debug, Clone)]
 pub struct SpikeGate<T> {
     /// The last samples kept, up to a window, oldest first: the left half
     /// of a centred window, and what a new sample is predicted from.
-    kept: VecDeque<[f64; 3]>,
+    kept: Recent,
     /// Samples not yet decided, oldest first (at most `HALF_WINDOW + 1`).
     held: VecDeque<(T, [f64; 3])>,
     /// Whether the oldest held sample broke the bound of its prediction:
@@ -283,7 +308,7 @@ pub struct SpikeGate<T> {
 impl<T> Default for SpikeGate<T> {
     fn default() -> Self {
         SpikeGate {
-            kept: VecDeque::with_capacity(WINDOW),
+            kept: Recent::default(),
             held: VecDeque::with_capacity(HALF_WINDOW + 1),
             suspect: false,
             out: VecDeque::with_capacity(HALF_WINDOW + 1),
@@ -304,8 +329,30 @@ impl<T> SpikeGate<T> {
     /// Feeds one sample; its decision, and those of any held before it it
     /// settles, come out of [`SpikeGate::decided`] in order.
     pub fn feed(&mut self, item: T, raw: [f64; 3]) {
+        if let Some(item) = self.feed_at_once(item, raw) {
+            self.out.push_back(Gated::Kept(item));
+        }
+    }
+
+    /// [`SpikeGate::feed`], giving the sample straight back when it is
+    /// kept at once: nothing held or waiting in [`SpikeGate::decided`]
+    /// before it, and within the bound of its prediction (nearly every
+    /// sample). It is then the next decision in order, and queues nothing;
+    /// otherwise `None`, and its decision comes out of
+    /// [`SpikeGate::decided`] as after [`SpikeGate::feed`].
+    pub fn feed_at_once(&mut self, item: T, raw: [f64; 3]) -> Option<T> {
+        // What `settle` decides of a lone held sample, without holding it.
+        if self.held.is_empty()
+            && self.out.is_empty()
+            && !self.suspect
+            && self.surely_within_prediction(raw)
+        {
+            self.remember(raw);
+            return Some(item);
+        }
         self.held.push_back((item, raw));
         self.settle(false);
+        None
     }
 
     /// The stream has ended: what is still held is judged on the samples
@@ -333,10 +380,7 @@ impl<T> SpikeGate<T> {
     /// the bound it is judged by).
     fn remember(&mut self, raw: [f64; 3]) {
         self.noise.observe(raw);
-        if self.kept.len() == WINDOW {
-            self.kept.pop_front();
-        }
-        self.kept.push_back(raw);
+        self.kept.push(raw);
     }
 
     /// Decides what can be decided: the oldest held sample once the
@@ -350,12 +394,13 @@ impl<T> SpikeGate<T> {
             let verdict = if self.held.len() > HALF_WINDOW || ended {
                 // Centred: the last HALF_WINDOW kept, it, and the
                 // HALF_WINDOW after it (fewer at an end).
-                let before = self.kept.len().min(HALF_WINDOW);
-                window.extend(self.kept.iter().skip(self.kept.len() - before));
+                let kept = self.kept.as_slice();
+                window.extend_from_slice(&kept[kept.len().saturating_sub(HALF_WINDOW)..]);
+                let before = window.len();
                 window.extend(self.held.iter().take(HALF_WINDOW + 1).map(|(_, r)| *r));
                 let all = 0..window.len();
                 Ok(self.judge(&window, all.clone(), all, before, None))
-            } else if self.suspect || self.kept.len() < HALF_WINDOW {
+            } else if self.suspect || self.kept.len < HALF_WINDOW {
                 // Waits for the samples after it (the first ones of a
                 // stream have nothing before them to be predicted from).
                 Err(())
@@ -364,7 +409,7 @@ impl<T> SpikeGate<T> {
                 // prediction; else held for the samples after it.
                 Ok(None)
             } else {
-                window.extend(self.kept.iter().copied());
+                window.extend_from_slice(self.kept.as_slice());
                 let at = window.len();
                 window.push(raw);
                 let prediction = at - HALF_WINDOW..at;
@@ -403,9 +448,9 @@ impl<T> SpikeGate<T> {
     /// not yet full, an axis whose noise is not yet known, a value that is
     /// not finite, or a sample beyond its bound): judge it.
     fn surely_within_prediction(&self, raw: [f64; 3]) -> bool {
-        if self.kept.len() != WINDOW {
+        let Ok(kept) = <&[[f64; 3]; WINDOW]>::try_from(self.kept.as_slice()) else {
             return false;
-        }
+        };
         let at = WINDOW as f64;
         for (axis, &value) in raw.iter().enumerate() {
             if !value.is_finite() {
@@ -414,7 +459,7 @@ impl<T> SpikeGate<T> {
             if !self.noise.known(axis) {
                 return false;
             }
-            let k: [f64; WINDOW] = std::array::from_fn(|i| self.kept[i][axis]);
+            let k: [f64; WINDOW] = std::array::from_fn(|i| kept[i][axis]);
             let mut steps: [f64; WINDOW - 1] = std::array::from_fn(|i| k[i + 1] - k[i]);
             if !steps.iter().all(|d| d.is_finite()) {
                 return false;
@@ -544,7 +589,9 @@ pub fn refused_rows(points: impl IntoIterator<Item = [f64; 3]>) -> Vec<(usize, S
     let mut gate = SpikeGate::default();
     let mut refused = Vec::new();
     for (i, raw) in points.into_iter().enumerate() {
-        gate.feed(i, raw);
+        if gate.feed_at_once(i, raw).is_some() {
+            continue;
+        }
         while let Some(decided) = gate.decided() {
             if let Gated::Refused(i, spike) = decided {
                 refused.push((i, spike));
@@ -819,8 +866,8 @@ mod tests {
                 if i == 1500 {
                     raw[1] += 50.0;
                 }
-                if gate.held.is_empty() && !gate.suspect && gate.kept.len() == WINDOW {
-                    let mut window: Vec<[f64; 3]> = gate.kept.iter().copied().collect();
+                if gate.held.is_empty() && !gate.suspect && gate.kept.len == WINDOW {
+                    let mut window: Vec<[f64; 3]> = gate.kept.as_slice().to_vec();
                     let at = window.len();
                     window.push(raw);
                     let prediction = at - HALF_WINDOW..at;
@@ -841,5 +888,64 @@ mod tests {
         // judgement holds.
         assert!(quick > 6_000, "{quick}");
         assert!(agreed > 100, "{agreed}");
+    }
+
+    #[test]
+    fn samples_kept_at_once_come_in_order_with_the_others() {
+        // Spikes and bursts in a noisy turn; decisions taken after every
+        // sample, or only every few (so that some wait in the queue when
+        // the next is fed).
+        let mut noise = normals(11);
+        let samples: Vec<[f64; 3]> = turn(4000, 1.5)
+            .into_iter()
+            .enumerate()
+            .map(|(i, mut raw)| {
+                raw[0] += 2.0 * noise();
+                if i % 53 < 1 + i % 3 {
+                    raw[i % 2] += 500.0;
+                }
+                raw
+            })
+            .collect();
+        let by_feed = |every: usize| {
+            let mut gate = SpikeGate::default();
+            let mut order = Vec::new();
+            for (i, &raw) in samples.iter().enumerate() {
+                gate.feed(i, raw);
+                if i % every == 0 {
+                    while let Some(g) = gate.decided() {
+                        order.push(g);
+                    }
+                }
+            }
+            gate.finish();
+            order.extend(std::iter::from_fn(|| gate.decided()));
+            order
+        };
+        let want = by_feed(1);
+        assert!(
+            want.iter()
+                .filter(|g| matches!(g, Gated::Refused(..)))
+                .count()
+                > 100
+        );
+        for every in [1, 2, 5] {
+            assert_eq!(by_feed(every), want, "decided every {every}");
+            let mut gate = SpikeGate::default();
+            let (mut order, mut at_once) = (Vec::new(), 0);
+            for (i, &raw) in samples.iter().enumerate() {
+                if let Some(i) = gate.feed_at_once(i, raw) {
+                    order.push(Gated::Kept(i));
+                    at_once += 1;
+                }
+                if i % every == 0 {
+                    order.extend(std::iter::from_fn(|| gate.decided()));
+                }
+            }
+            gate.finish();
+            order.extend(std::iter::from_fn(|| gate.decided()));
+            assert_eq!(order, want, "decided every {every}");
+            assert!(at_once > 3000, "{at_once}");
+        }
     }
 }

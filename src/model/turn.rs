@@ -108,17 +108,49 @@ pub struct TurnCheck {
 /// Checks that `(x, y)` trace a turn; `x` and `y` are named "x" and "y" in
 /// the messages. See [`check_turn_of`] for a recording's own column names.
 pub fn check_turn(x: &[f64], y: &[f64], min_coverage_deg: f64) -> Result<TurnCheck, FitError> {
-    check_named(x, y, ["x", "y"], min_coverage_deg)
+    check_named(x, y, ["x", "y"], min_coverage_deg, || {
+        second_difference_noise(x, y)
+    })
 }
 
 /// [`check_turn`] on a recording, naming its columns in the messages.
 pub fn check_turn_of(data: &Dataset, min_coverage_deg: f64) -> Result<TurnCheck, FitError> {
+    check_turn_of_with(data, min_coverage_deg, || {
+        second_difference_noise(&data.x, &data.y)
+    })
+}
+
+/// [`check_turn_of`], the noise of the readings' second differences
+/// ([`second_difference_noise`]) given by `noise` when it is needed
+/// (worked out on another core meanwhile, say).
+pub fn check_turn_of_with(
+    data: &Dataset,
+    min_coverage_deg: f64,
+    noise: impl FnOnce() -> f64,
+) -> Result<TurnCheck, FitError> {
     check_named(
         &data.x,
         &data.y,
         [&data.x_name, &data.y_name],
         min_coverage_deg,
+        noise,
     )
+}
+
+/// The one scale that brings every value of `x` and `y` into [-1, 1].
+fn common_scale(x: &[f64], y: &[f64]) -> f64 {
+    x.iter()
+        .chain(y)
+        .fold(0.0f64, |m, v| m.max(v.abs()))
+        .max(f64::MIN_POSITIVE)
+}
+
+/// The readings' noise per axis from their second differences (in the
+/// turn check's scaled units: `x` and `y` over [`common_scale`]): a steady
+/// turn cancels out of them.
+pub fn second_difference_noise(x: &[f64], y: &[f64]) -> f64 {
+    let scale = common_scale(x, y);
+    (0.5 * (second_difference_sd(x, scale).powi(2) + second_difference_sd(y, scale).powi(2))).sqrt()
 }
 
 fn check_named(
@@ -126,6 +158,7 @@ fn check_named(
     y: &[f64],
     names: [&str; 2],
     min_coverage_deg: f64,
+    noise_diff: impl FnOnce() -> f64,
 ) -> Result<TurnCheck, FitError> {
     let n = x.len().min(y.len());
     // Gate A.
@@ -159,11 +192,7 @@ fn check_named(
     // One common scale brings every value into [-1, 1]: nothing below can
     // overflow (a difference of two values near f64::MAX would), the solvers
     // see well-conditioned inputs, and the aspect ratio is kept.
-    let scale = x
-        .iter()
-        .chain(y)
-        .fold(0.0f64, |m, v| m.max(v.abs()))
-        .max(f64::MIN_POSITIVE);
+    let scale = common_scale(x, y);
     let u: Vec<f64> = x.iter().map(|v| v / scale).collect();
     let v: Vec<f64> = y.iter().map(|v| v / scale).collect();
 
@@ -178,8 +207,7 @@ fn check_named(
         .sqrt();
 
     let ring = Ring::about_centre(&u, &v, (mu, mv));
-    let noise_diff =
-        (0.5 * (second_difference_sd(&u).powi(2) + second_difference_sd(&v).powi(2))).sqrt();
+    let noise_diff = noise_diff();
     let noise =
         at_least_quantisation(noise_diff.min(ring.radial_noise), &u, &v).max(ROUNDING_FLOOR);
     let ratio = if noise > 0.0 {
@@ -342,11 +370,12 @@ fn centre_from_fit(from: CentreFrom) -> bool {
 
 /// Robust SD of white noise from second differences: the difference
 /// x[i+1] - 2 x[i] + x[i-1] cancels a steady motion (a turn sampled densely
-/// moves almost linearly between neighbours) and has variance 6σ².
-fn second_difference_sd(values: &[f64]) -> f64 {
+/// moves almost linearly between neighbours) and has variance 6σ². Of
+/// `values / scale`, each divided as the turn check divides it.
+fn second_difference_sd(values: &[f64], scale: f64) -> f64 {
     let mut d: Vec<f64> = values
         .windows(3)
-        .map(|w| w[2] - 2.0 * w[1] + w[0])
+        .map(|w| w[2] / scale - 2.0 * (w[1] / scale) + w[0] / scale)
         .collect();
     if d.is_empty() {
         return 0.0;
@@ -429,6 +458,27 @@ mod tests {
             let (u, v) = (axis(0.0), axis(1.0));
             let whole = noise.max(quantum(&u).max(quantum(&v)) / 12f64.sqrt());
             prop_assert_eq!(at_least_quantisation(noise, &u, &v).to_bits(), whole.to_bits());
+        }
+
+        /// The noise of the second differences, worked out from the raw
+        /// readings (on the fit's core), is that of the check's scaled
+        /// copies to the bit.
+        #[test]
+        fn the_second_difference_noise_is_that_of_the_scaled_readings(
+            xy in proptest::collection::vec((-1e6f64..1e6, -1e6f64..1e6), 0..300),
+            exponent in -200i32..200,
+        ) {
+            let magnitude = 2f64.powi(exponent) / 3.0;
+            let x: Vec<f64> = xy.iter().map(|p| p.0 * magnitude).collect();
+            let y: Vec<f64> = xy.iter().map(|p| p.1 * magnitude).collect();
+            let scale = common_scale(&x, &y);
+            let sd = |values: &[f64]| {
+                let u: Vec<f64> = values.iter().map(|v| v / scale).collect();
+                let mut d: Vec<f64> = u.windows(3).map(|w| w[2] - 2.0 * w[1] + w[0]).collect();
+                if d.is_empty() { 0.0 } else { mad_sd(&mut d) / 6f64.sqrt() }
+            };
+            let want = (0.5 * (sd(&x).powi(2) + sd(&y).powi(2))).sqrt();
+            prop_assert_eq!(second_difference_noise(&x, &y).to_bits(), want.to_bits());
         }
     }
 }

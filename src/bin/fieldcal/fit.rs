@@ -21,7 +21,7 @@ use fieldcal::model::gyro::{HeadingCheck, HeadingReference};
 use fieldcal::model::heading::coverage;
 use fieldcal::model::paper::{GradientDescentOptions, GradientDescentProgress, closed_form_se};
 use fieldcal::model::still::find_still;
-use fieldcal::model::turn::check_turn_of;
+use fieldcal::model::turn::{check_turn_of, check_turn_of_with, second_difference_noise};
 use fieldcal::report::fit::{FitJson, FitSource, ModelFitJson, render_model_text, render_text};
 use fieldcal::report::fit3::{
     Extras3, Fit3Json, Fit3Source, ModelRms, StillSummary, infer_units, render_text3,
@@ -62,20 +62,29 @@ pub fn fit(mut args: FitArgs) -> Result<()> {
     let file = args.input.file.display().to_string();
     // The paper's closed form and its standard errors run beside the turn
     // gate, on the other core: the gate decides whether they are told.
+    // Then the gate's noise of the second differences, which it needs
+    // last (the gate's own work is the longer).
     let beside = args.effects.is_none() && args.solver == Solver::Lsq;
     let (turn, early) = std::thread::scope(|s| {
-        let early = beside.then(|| {
+        let Some(fit) = beside.then(|| {
             s.spawn(|| {
                 let report = fit_paper_turned(&data.x, &data.y, &options, &mut |_| {});
                 let se = report
                     .as_ref()
                     .ok()
                     .and_then(|r| closed_form_se(&data.x, &data.y, &r.theta));
-                (report, se)
+                let noise = second_difference_noise(&data.x, &data.y);
+                (report, se, noise)
             })
+        }) else {
+            return (check_turn_of(&data, args.min_coverage), None);
+        };
+        let mut early = None;
+        let turn = check_turn_of_with(&data, args.min_coverage, || {
+            let (report, se, noise) = fit.join().unwrap_or_else(|e| std::panic::resume_unwind(e));
+            early = Some((report, se));
+            noise
         });
-        let turn = check_turn_of(&data, args.min_coverage);
-        let early = early.map(|fit| fit.join().unwrap_or_else(|e| std::panic::resume_unwind(e)));
         (turn, early)
     });
     // A turn, or no calibration: the same gate for both models, naming the

@@ -384,7 +384,7 @@ mod tests {
         #![proptest_config(ProptestConfig::with_cases(64))]
         #[test]
         fn any_recording_reads_the_same_on_two_cores(
-            rows in prop::collection::vec((-1e3f64..1e3, 0u8..12), 1..12),
+            rows in prop::collection::vec((-1e3f64..1e3, 0u8..13), 1..12),
         ) {
             let mut text = String::from("t,x,y\n");
             for (i, (v, kind)) in rows.iter().enumerate() {
@@ -395,6 +395,8 @@ mod tests {
                     3 => format!("{i},{v}\n"),
                     4 => format!("{i},\"{v}\",1\n"),
                     5 => format!("{i},?,1\n"),
+                    // A lone CR: the crate reads from here.
+                    6 => format!("{i},{v},1\r{i},{v},2\n"),
                     _ => format!("{i},{v},{}\n", -v),
                 };
                 text.push_str(&line);
