@@ -464,7 +464,7 @@ fn main() {
             })
             .collect();
         println!(
-            "| {} | {} | {:.3} s | {:.3} s | {:.1}× | {} | {:.1} MB | `{}` |",
+            "| {} | {} | {:.3} s | {:.3} s | {:.2}× | {} | {:.1} MB | `{}` |",
             line.path,
             line.rows,
             line.ours.seconds,
