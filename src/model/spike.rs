@@ -907,11 +907,18 @@ mod tests {
                 raw
             })
             .collect();
-        let by_feed = |every: usize| {
+        // Every sample held and settled, as the gate did before it kept
+        // any at once; or by `feed`.
+        let by_feed = |every: usize, held: bool| {
             let mut gate = SpikeGate::default();
             let mut order = Vec::new();
             for (i, &raw) in samples.iter().enumerate() {
-                gate.feed(i, raw);
+                if held {
+                    gate.held.push_back((i, raw));
+                    gate.settle(false);
+                } else {
+                    gate.feed(i, raw);
+                }
                 if i % every == 0 {
                     while let Some(g) = gate.decided() {
                         order.push(g);
@@ -922,7 +929,7 @@ mod tests {
             order.extend(std::iter::from_fn(|| gate.decided()));
             order
         };
-        let want = by_feed(1);
+        let want = by_feed(1, true);
         assert!(
             want.iter()
                 .filter(|g| matches!(g, Gated::Refused(..)))
@@ -930,7 +937,7 @@ mod tests {
                 > 100
         );
         for every in [1, 2, 5] {
-            assert_eq!(by_feed(every), want, "decided every {every}");
+            assert_eq!(by_feed(every, false), want, "decided every {every}");
             let mut gate = SpikeGate::default();
             let (mut order, mut at_once) = (Vec::new(), 0);
             for (i, &raw) in samples.iter().enumerate() {

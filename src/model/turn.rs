@@ -122,7 +122,9 @@ pub fn check_turn_of(data: &Dataset, min_coverage_deg: f64) -> Result<TurnCheck,
 
 /// [`check_turn_of`], the noise of the readings' second differences
 /// ([`second_difference_noise`]) given by `noise` when it is needed
-/// (worked out on another core meanwhile, say).
+/// (worked out on another core meanwhile, say): called once, after the
+/// readings' count and values are checked, and not at all when those
+/// checks refuse them.
 pub fn check_turn_of_with(
     data: &Dataset,
     min_coverage_deg: f64,

@@ -79,12 +79,23 @@ pub fn fit(mut args: FitArgs) -> Result<()> {
         }) else {
             return (check_turn_of(&data, args.min_coverage), None);
         };
-        let mut early = None;
-        let turn = check_turn_of_with(&data, args.min_coverage, || {
-            let (report, se, noise) = fit.join().unwrap_or_else(|e| std::panic::resume_unwind(e));
-            early = Some((report, se));
-            noise
+        let join = |fit: std::thread::ScopedJoinHandle<'_, _>| {
+            fit.join().unwrap_or_else(|e| std::panic::resume_unwind(e))
+        };
+        let (mut fit, mut early) = (Some(fit), None);
+        let turn = check_turn_of_with(&data, args.min_coverage, || match fit.take() {
+            Some(fit) => {
+                let (report, se, noise) = join(fit);
+                early = Some((report, se));
+                noise
+            }
+            None => second_difference_noise(&data.x, &data.y),
         });
+        // Readings the gate refused before it needed the noise: the fit
+        // is joined all the same (a panic there is its own).
+        if let Some(fit) = fit {
+            let _ = join(fit);
+        }
         (turn, early)
     });
     // A turn, or no calibration: the same gate for both models, naming the

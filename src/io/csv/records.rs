@@ -561,17 +561,8 @@ mod tests {
                 }
                 Ok(false) => break,
                 Err(e) => {
-                    let e = match e.kind() {
-                        csv::ErrorKind::UnequalLengths {
-                            expected_len, len, ..
-                        } => CsvError::Malformed {
-                            path: path.to_path_buf(),
-                            line,
-                            message: unequal_lengths(len, expected_len),
-                        },
-                        _ => csv_error(path, e),
-                    };
-                    out.push(e.to_string());
+                    // (A ragged line's message, on the line it is on.)
+                    out.push(csv_error(path, e).relined(|_| line).to_string());
                     return out;
                 }
             }
