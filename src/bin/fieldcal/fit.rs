@@ -60,44 +60,8 @@ pub fn fit(mut args: FitArgs) -> Result<()> {
         min_coverage_deg: args.min_coverage,
     };
     let file = args.input.file.display().to_string();
-    // The paper's closed form and its standard errors run beside the turn
-    // gate, on the other core: the gate decides whether they are told.
-    // Then the gate's noise of the second differences, which it needs
-    // last (the gate's own work is the longer).
     let beside = args.effects.is_none() && args.solver == Solver::Lsq;
-    let (turn, early) = std::thread::scope(|s| {
-        let Some(fit) = beside.then(|| {
-            s.spawn(|| {
-                let report = fit_paper_turned(&data.x, &data.y, &options, &mut |_| {});
-                let se = report
-                    .as_ref()
-                    .ok()
-                    .and_then(|r| closed_form_se(&data.x, &data.y, &r.theta));
-                let noise = second_difference_noise(&data.x, &data.y);
-                (report, se, noise)
-            })
-        }) else {
-            return (check_turn_of(&data, args.min_coverage), None);
-        };
-        let join = |fit: std::thread::ScopedJoinHandle<'_, _>| {
-            fit.join().unwrap_or_else(|e| std::panic::resume_unwind(e))
-        };
-        let (mut fit, mut early) = (Some(fit), None);
-        let turn = check_turn_of_with(&data, args.min_coverage, || match fit.take() {
-            Some(fit) => {
-                let (report, se, noise) = join(fit);
-                early = Some((report, se));
-                noise
-            }
-            None => second_difference_noise(&data.x, &data.y),
-        });
-        // Readings the gate refused before it needed the noise: the fit
-        // is joined all the same (a panic there is its own).
-        if let Some(fit) = fit {
-            let _ = join(fit);
-        }
-        (turn, early)
-    });
+    let (turn, early) = turn_and_fit(&data, &options, args.min_coverage, beside);
     // A turn, or no calibration: the same gate for both models, naming the
     // recording's columns.
     if let Err(err) = turn {
@@ -188,6 +152,61 @@ pub fn fit(mut args: FitArgs) -> Result<()> {
         render_text(&report, se.as_ref(), heading.as_ref(), source)
     };
     write_stdout(text.as_bytes())
+}
+
+/// The paper's fit that the turn gate said may be told: its report and
+/// standard errors.
+type EarlyFit = (
+    Result<fieldcal::model::fit::FitReport, FitError>,
+    Option<fieldcal::model::paper::PaperCalibration>,
+);
+
+/// The turn gate of `data`, and (`beside`) the paper's closed form and its
+/// standard errors, run beside it on the other core: the gate decides
+/// whether they are told. Then the gate's noise of the second
+/// differences, which it needs last (the gate's own work is the longer).
+fn turn_and_fit(
+    data: &fieldcal::sample::Dataset,
+    options: &FitOptions,
+    min_coverage: f64,
+    beside: bool,
+) -> (
+    Result<fieldcal::model::turn::TurnCheck, FitError>,
+    Option<EarlyFit>,
+) {
+    std::thread::scope(|s| {
+        let Some(fit) = beside.then(|| {
+            s.spawn(|| {
+                let report = fit_paper_turned(&data.x, &data.y, options, &mut |_| {});
+                let se = report
+                    .as_ref()
+                    .ok()
+                    .and_then(|r| closed_form_se(&data.x, &data.y, &r.theta));
+                let noise = second_difference_noise(&data.x, &data.y);
+                (report, se, noise)
+            })
+        }) else {
+            return (check_turn_of(data, min_coverage), None);
+        };
+        let join = |fit: std::thread::ScopedJoinHandle<'_, _>| {
+            fit.join().unwrap_or_else(|e| std::panic::resume_unwind(e))
+        };
+        let (mut fit, mut early) = (Some(fit), None);
+        let turn = check_turn_of_with(data, min_coverage, || match fit.take() {
+            Some(fit) => {
+                let (report, se, noise) = join(fit);
+                early = Some((report, se));
+                noise
+            }
+            None => second_difference_noise(&data.x, &data.y),
+        });
+        // Readings the gate refused before it needed the noise: the fit
+        // is joined all the same (a panic there is its own).
+        if let Some(fit) = fit {
+            let _ = join(fit);
+        }
+        (turn, early)
+    })
 }
 
 /// `fit --effects`: the general model by Levenberg-Marquardt.
