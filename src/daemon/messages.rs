@@ -78,7 +78,15 @@ impl ReadingMessage<'_> {
     /// goes out for every sample, so this is the replay's and the reading
     /// path's line.
     pub fn to_line(&self) -> String {
-        let mut line = JsonLine::reading(self.class, self.sensor, self.time);
+        let mut line = String::with_capacity(LINE_CAPACITY);
+        self.write_line(&mut line);
+        line
+    }
+
+    /// [`Self::to_line`], appended to `out` (a buffer used again for each
+    /// line).
+    pub fn write_line(&self, out: &mut String) {
+        let mut line = JsonLine::reading(out, self.class, self.sensor, self.time);
         line.field(key!("raw"), &self.raw);
         line.optional(key!("corrected"), self.corrected.as_ref());
         line.optional(key!("heading_deg"), self.heading_deg.as_ref());
@@ -88,7 +96,44 @@ impl ReadingMessage<'_> {
         line.optional(key!("trusted"), self.trusted.as_ref());
         line.optional(key!("distrust"), self.distrust);
         line.optional(key!("columns"), self.columns.as_ref());
-        line.end()
+        line.end();
+    }
+}
+
+/// A 2-axis READING's values, owned (all but the sensor's name and a csv
+/// row's columns), so that its line can be written later and elsewhere:
+/// a replay at full speed writes its lines on a thread of its own.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReadingValues {
+    pub time: f64,
+    pub raw: [f64; 2],
+    pub corrected: Option<[f64; 2]>,
+    pub heading_deg: Option<f64>,
+    pub true_heading_deg: Option<f64>,
+    pub calibration: Option<u64>,
+    pub calibrated: bool,
+    pub trusted: Option<bool>,
+    /// Why not trusted; none when there is no reason.
+    pub distrust: Option<Vec<String>>,
+}
+
+impl ReadingValues {
+    /// The READING of sensor `sensor` with these values.
+    pub fn message<'a>(&'a self, sensor: &'a str) -> ReadingMessage<'a> {
+        ReadingMessage {
+            class: "READING",
+            sensor,
+            time: self.time,
+            raw: self.raw,
+            corrected: self.corrected,
+            heading_deg: self.heading_deg,
+            true_heading_deg: self.true_heading_deg,
+            calibration: self.calibration,
+            calibrated: self.calibrated,
+            trusted: self.trusted,
+            distrust: self.distrust.as_deref(),
+            columns: None,
+        }
     }
 }
 
@@ -146,7 +191,8 @@ impl Reading3Message<'_> {
     /// The line [`to_line`] writes for this message, byte for byte, written
     /// directly (as [`ReadingMessage::to_line`]).
     pub fn to_line(&self) -> String {
-        let mut line = JsonLine::reading(self.class, self.sensor, self.time);
+        let mut out = String::with_capacity(LINE_CAPACITY);
+        let mut line = JsonLine::reading(&mut out, self.class, self.sensor, self.time);
         line.field(key!("axes"), &self.axes);
         line.field(key!("raw"), &self.raw);
         line.optional(key!("corrected"), self.corrected.as_ref());
@@ -159,20 +205,22 @@ impl Reading3Message<'_> {
         line.optional(key!("heading_omitted"), self.heading_omitted.as_ref());
         line.optional(key!("trusted"), self.trusted.as_ref());
         line.optional(key!("distrust"), self.distrust);
-        line.end()
+        line.end();
+        out
     }
 }
 
 /// A message's line written field by field: keys are fixed text (they
 /// need no escapes), each value is written as serde_json writes it.
-struct JsonLine(String);
+/// It is appended to the buffer it holds.
+struct JsonLine<'a>(&'a mut String);
 
-impl JsonLine {
+impl<'a> JsonLine<'a> {
     /// `{"class":…,"sensor":…,"time":…`, the start of every READING.
-    fn reading(class: &str, sensor: &str, time: f64) -> Self {
-        let mut line = JsonLine(String::with_capacity(LINE_CAPACITY));
+    fn reading(out: &'a mut String, class: &str, sensor: &str, time: f64) -> Self {
+        let mut line = JsonLine(out);
         line.0.push_str("{\"class\":");
-        class.write_json(&mut line.0);
+        class.write_json(line.0);
         line.field(key!("sensor"), sensor);
         line.field(key!("time"), &time);
         line
@@ -181,7 +229,7 @@ impl JsonLine {
     /// `key` (a [`key!`]: `,"name":`), then the value.
     fn field<T: JsonValue + ?Sized>(&mut self, key: &str, value: &T) {
         self.0.push_str(key);
-        value.write_json(&mut self.0);
+        value.write_json(self.0);
     }
 
     /// [`Self::field`], when there is a value.
@@ -191,9 +239,8 @@ impl JsonLine {
         }
     }
 
-    fn end(mut self) -> String {
+    fn end(self) {
         self.0.push('}');
-        self.0
     }
 }
 

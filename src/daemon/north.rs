@@ -154,7 +154,7 @@ impl North {
 
     /// The true heading of a magnetic heading, in [0, 360).
     pub fn true_heading(&self, magnetic_deg: f64) -> f64 {
-        let h = (magnetic_deg + self.declination_deg).rem_euclid(360.0);
+        let h = crate::model::heading::wrap_degrees(magnetic_deg + self.declination_deg);
         // rem_euclid of a tiny negative number rounds to 360.
         if h >= 360.0 { 0.0 } else { h }
     }

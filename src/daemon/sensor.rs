@@ -13,7 +13,7 @@ use std::sync::Arc;
 use super::Calibration;
 use super::config::{SensorConfig, SensorGeometry};
 use super::lifecycle::Lifecycle;
-use super::messages::{CalibrationEvent, SensorState, SensorStatus};
+use super::messages::{CalibrationEvent, ReadingValues, SensorState, SensorStatus};
 use super::north::North;
 use super::plane::Plane;
 use super::publish::Lane;
@@ -32,12 +32,21 @@ pub type Emit<'a> = dyn FnMut(Lane, String) + 'a;
 pub struct Emitter<'a> {
     lines: &'a mut Emit<'a>,
     fits: Option<&'a mut dyn FnMut(CalibrationEvent)>,
+    readings: Option<&'a mut EmitReading<'a>>,
 }
+
+/// A 2-axis sensor's READING, as its values, with the sensor's name: its
+/// line is written later ([`ReadingValues::message`]).
+pub type EmitReading<'a> = dyn FnMut(&str, ReadingValues) + 'a;
 
 impl<'a> Emitter<'a> {
     /// Lines only: nobody watches the fits.
     pub fn new(lines: &'a mut Emit<'a>) -> Self {
-        Emitter { lines, fits: None }
+        Emitter {
+            lines,
+            fits: None,
+            readings: None,
+        }
     }
 
     /// Lines to `lines`, each fit's outcome to `fits` as well.
@@ -45,12 +54,33 @@ impl<'a> Emitter<'a> {
         Emitter {
             lines,
             fits: Some(fits),
+            readings: None,
+        }
+    }
+
+    /// Lines to `lines`, but a 2-axis sensor's READINGs (without a csv
+    /// row's columns) to `readings` as their values, in the same order
+    /// with the lines: whoever takes them writes their lines.
+    pub fn deferred(lines: &'a mut Emit<'a>, readings: &'a mut EmitReading<'a>) -> Self {
+        Emitter {
+            lines,
+            fits: None,
+            readings: Some(readings),
         }
     }
 
     /// Publishes a line on its lane.
     pub fn line(&mut self, lane: Lane, line: String) {
         (self.lines)(lane, line);
+    }
+
+    /// Publishes the READING of sensor `sensor` with `values` on the
+    /// reading lane: its line, or its values where they are deferred.
+    pub fn reading(&mut self, sensor: &str, values: ReadingValues) {
+        match &mut self.readings {
+            Some(readings) => readings(sensor, values),
+            None => (self.lines)(Lane::Reading, values.message(sensor).to_line()),
+        }
     }
 
     /// Publishes a `CALIBRATION` line on the control lane, after handing
@@ -144,6 +174,19 @@ pub trait Geometry: Send {
     /// The `READING` line of a sample (corrected when a calibration
     /// exists), with the other columns of its csv row, if any.
     fn reading_line(&mut self, life: &Lifecycle, sample: Sample, row: Option<&CsvRow>) -> String;
+    /// Publishes the `READING` of a sample: its line
+    /// ([`Geometry::reading_line`]), or (a plane) its values, for the
+    /// emitter to write.
+    fn emit_reading(
+        &mut self,
+        life: &Lifecycle,
+        sample: Sample,
+        row: Option<&CsvRow>,
+        emit: &mut Emitter<'_>,
+    ) {
+        let line = self.reading_line(life, sample, row);
+        emit.line(Lane::Reading, line);
+    }
     /// Collects a published sample while collecting, and fits when the
     /// samples are complete. Returns a newly accepted calibration, to store.
     fn push(
@@ -169,8 +212,7 @@ pub trait Geometry: Send {
         emit: &mut Emitter<'_>,
     ) -> Option<Calibration> {
         life.readings += 1;
-        let line = self.reading_line(life, sample, row);
-        emit.line(Lane::Reading, line);
+        self.emit_reading(life, sample, row, emit);
         // Nearly every sample is kept at once, and queues nothing.
         let mut at_once = life.gate.feed_at_once(sample, sample.raw).map(Gated::Kept);
         let mut accepted = None;

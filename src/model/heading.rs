@@ -58,10 +58,14 @@ pub fn coverage(headings: impl IntoIterator<Item = f64>) -> Coverage {
 
 /// `deg.rem_euclid(360.0)`, the same to the bit, without the library's
 /// `fmod` for an angle within a turn of zero (an `atan2` in degrees):
-/// there the remainder is the angle itself, exactly.
-fn wrap_degrees(deg: f64) -> f64 {
+/// there the remainder is the angle itself, exactly; and from one turn to
+/// two it is `deg − 360`, also exact (the two are within a factor of two
+/// of each other).
+pub fn wrap_degrees(deg: f64) -> f64 {
     if deg.abs() < 360.0 {
         if deg < 0.0 { deg + 360.0 } else { deg }
+    } else if (360.0..720.0).contains(&deg) {
+        deg - 360.0
     } else {
         deg.rem_euclid(360.0)
     }
@@ -330,7 +334,7 @@ mod tests {
         /// The wrap without `fmod` is `rem_euclid`'s, to the bit.
         #[test]
         fn headings_wrap_as_rem_euclid_wraps_them(
-            deg in prop_oneof![-400.0f64..400.0, -1e6f64..1e6, Just(-0.0), Just(-360.0), Just(360.0), Just(-180.0)]
+            deg in prop_oneof![-400.0f64..400.0, 300.0f64..800.0, -1e6f64..1e6, Just(-0.0), Just(-360.0), Just(360.0), Just(-180.0), Just(720.0), Just(720.0f64.next_down()), Just(360.0f64.next_down())]
         ) {
             prop_assert_eq!(wrap_degrees(deg).to_bits(), deg.rem_euclid(360.0).to_bits());
         }

@@ -634,7 +634,7 @@ pub fn monitor_of(
 
 /// An angle in (−180, 180].
 fn wrap180(deg: f64) -> f64 {
-    let w = deg.rem_euclid(360.0);
+    let w = crate::model::heading::wrap_degrees(deg);
     if w > 180.0 { w - 360.0 } else { w }
 }
 

@@ -97,8 +97,9 @@ fn replay_with_config(args: &ReplayArgs, config: &Config, name: &str) -> Result<
         .or_else(|| source.and_then(|s| s.kind.speed()))
         .unwrap_or(Speed::Times(1.0));
     let is_csv_source = source.is_some_and(|s| matches!(s.kind, SourceKind::Csv(_)));
-    let stdout = std::io::stdout();
-    let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
+    // Stdout itself (not its lock, which stays on this thread): a replay
+    // at full speed writes its lines on a thread of its own.
+    let mut out = BufWriter::with_capacity(1 << 16, std::io::stdout());
     let result = if is_csv_source {
         fieldcal::daemon::run::replay_csv_through_pipeline(
             config,

@@ -23,8 +23,9 @@ use super::config::{
 };
 use super::lifecycle::Lifecycle;
 use super::messages::{
-    CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, to_line,
+    CalibrationEvent, CalibrationMessage, ColumnValues, ReadingMessage, ReadingValues, to_line,
 };
+use super::publish::Lane;
 use super::sensor::{Emitter, Geometry, Sample};
 use super::sensor3::{MAX_TILT_AGE_S, finite3, pick};
 use super::{Calibration, Terms};
@@ -36,7 +37,7 @@ use crate::model::effects::{Effect, parse_list};
 use crate::model::fit::{FitOptions, FitReport, Solver, fit_paper, fit_paper_turned};
 use crate::model::gyro::HeadingCheck;
 use crate::model::gyro::{GyroUnits, HeadingReference};
-use crate::model::heading::coverage;
+use crate::model::heading::{coverage, wrap_degrees};
 use crate::model::level::angle_between_deg;
 use crate::model::nonlinear::{cubic_scale, turn_frame};
 use crate::model::rotation::{Progress, RotationBuffer, RotationEvent};
@@ -159,18 +160,17 @@ impl Plane {
         }
     }
 
-    /// The READING line of a sample, calibrated and judged by the trust
-    /// monitor when the sensor has a calibration.
-    fn line_xy(
+    /// The READING of a sample, calibrated and judged by the trust monitor
+    /// when the sensor has a calibration.
+    fn reading_values(
         &mut self,
         life: &Lifecycle,
         time: f64,
         [x, y, across]: [f64; 3],
-        row: Option<&CsvRow>,
-    ) -> String {
+    ) -> ReadingValues {
         let corrected = life.current.as_ref().map(|c| {
             let (sx, sy) = c.apply(x, y);
-            (c.id, [sx, sy], sy.atan2(sx).to_degrees().rem_euclid(360.0))
+            (c.id, [sx, sy], wrap_degrees(sy.atan2(sx).to_degrees()))
         });
         let gyro_deg_s = self.gyro.as_ref().and_then(GyroTrack::latest_deg_s);
         let accel = self.fresh_accel(time);
@@ -199,16 +199,7 @@ impl Plane {
                     life.stale.as_deref().as_slice(),
                 )
             });
-        let columns = row
-            .zip(self.csv.as_ref())
-            .map(|(row, binding)| ColumnValues {
-                names: &binding.layout.names,
-                indices: &binding.others,
-                values: &row.values,
-            });
-        ReadingMessage {
-            class: "READING",
-            sensor: &self.config.name,
+        ReadingValues {
             time,
             raw: [x, y],
             corrected: corrected.map(|c| c.1),
@@ -219,13 +210,8 @@ impl Plane {
             calibration: corrected.map(|c| c.0),
             calibrated: corrected.is_some(),
             trusted: verdict.as_ref().map(|v| v.trusted),
-            distrust: verdict
-                .as_ref()
-                .map(|v| v.reasons.as_slice())
-                .filter(|r| !r.is_empty()),
-            columns: columns.filter(|c| !c.is_empty()),
+            distrust: verdict.map(|v| v.reasons).filter(|r| !r.is_empty()),
         }
-        .to_line()
     }
 
     /// A sample of the plane at `time`, with the accelerometer and the
@@ -679,7 +665,35 @@ impl Geometry for Plane {
         Some(self.sample(reading.time, [x, y, across]))
     }
     fn reading_line(&mut self, life: &Lifecycle, sample: Sample, row: Option<&CsvRow>) -> String {
-        self.line_xy(life, sample.time, sample.raw, row)
+        let values = self.reading_values(life, sample.time, sample.raw);
+        let columns = row
+            .zip(self.csv.as_ref())
+            .map(|(row, binding)| ColumnValues {
+                names: &binding.layout.names,
+                indices: &binding.others,
+                values: &row.values,
+            })
+            .filter(|c| !c.is_empty());
+        ReadingMessage {
+            columns,
+            ..values.message(&self.config.name)
+        }
+        .to_line()
+    }
+    fn emit_reading(
+        &mut self,
+        life: &Lifecycle,
+        sample: Sample,
+        row: Option<&CsvRow>,
+        emit: &mut Emitter<'_>,
+    ) {
+        if row.is_some() {
+            let line = self.reading_line(life, sample, row);
+            emit.line(Lane::Reading, line);
+        } else {
+            let values = self.reading_values(life, sample.time, sample.raw);
+            emit.reading(&self.config.name, values);
+        }
     }
     fn axis_name(&self, axis: usize) -> &'static str {
         ["x", "y", "the field across the turn"]

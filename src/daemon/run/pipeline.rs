@@ -2,6 +2,7 @@
 //! `fieldcal replay --config`: every line `run` would publish, in order, on
 //! the recording's clock.
 
+use std::cell::RefCell;
 use std::io::Write;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -10,7 +11,7 @@ use super::DaemonError;
 use super::sensors::Sensors;
 use crate::capture::Playable;
 use crate::daemon::config::{Config, SourceKind};
-use crate::daemon::messages::SourceStatus;
+use crate::daemon::messages::{ReadingValues, SourceStatus};
 use crate::daemon::publish::Lane;
 use crate::daemon::sensor::Emitter;
 use crate::daemon::source_kinds::Csv;
@@ -24,6 +25,48 @@ use crate::source::{CountersSnapshot, SourceCounters, SourceEvent};
 /// time column that jumps cannot make the output unbounded.
 pub const MAX_STATUS_CATCH_UP: u32 = 10;
 
+/// What the pipeline publishes, in order: a line, or a 2-axis sensor's
+/// READING as its values (its line is written with the others, on the
+/// writer's thread at full speed).
+enum Out {
+    Line(String),
+    /// The READING of the sensor named by the `Name` at that place.
+    Reading(usize, ReadingValues),
+    /// A sensor's name, first seen: the next place in the writer's names.
+    Name(String),
+}
+
+/// Writes the pipeline's output: each [`Out`] as its line.
+#[derive(Default)]
+struct LineWriter {
+    /// The sensors' names, in the order they were first seen.
+    names: Vec<String>,
+    /// A READING's line, written again for each.
+    line: String,
+}
+
+impl LineWriter {
+    fn write(&mut self, item: Out, out: &mut dyn Write) -> std::io::Result<()> {
+        match item {
+            Out::Line(line) => {
+                out.write_all(line.as_bytes())?;
+                out.write_all(b"\n")
+            }
+            Out::Reading(sensor, values) => {
+                self.line.clear();
+                let name = self.names.get(sensor).map_or("", String::as_str);
+                values.message(name).write_line(&mut self.line);
+                self.line.push('\n');
+                out.write_all(self.line.as_bytes())
+            }
+            Out::Name(name) => {
+                self.names.push(name);
+                Ok(())
+            }
+        }
+    }
+}
+
 /// The daemon's sensors run on a recording for `fieldcal replay --config`:
 /// every line `run` would publish, in order, on the recording's clock.
 struct Pipeline {
@@ -36,7 +79,11 @@ struct Pipeline {
     /// drift by rounding).
     next_status: Option<f64>,
     realtime: bool,
-    lines: Vec<String>,
+    /// What is published and not yet written.
+    pending: Vec<Out>,
+    /// The sensors' names given to the writer, in order.
+    names: Vec<String>,
+    writer: LineWriter,
     failed: Option<std::io::Error>,
 }
 
@@ -61,13 +108,16 @@ impl Pipeline {
             interval: config.daemon.status_interval.as_secs_f64(),
             next_status: None,
             realtime: !matches!(speed, Speed::Max),
-            lines: Vec::new(),
+            pending: Vec::new(),
+            names: Vec::new(),
+            writer: LineWriter::default(),
             failed: None,
         })
     }
 
-    /// Publishes the STATUS lines due before `time`, then the event's lines;
-    /// on a write error, keeps it and asks the source to stop.
+    /// Publishes the STATUS lines due before `time`, then the event's lines,
+    /// and writes them; on a write error, keeps it and asks the source to
+    /// stop.
     fn handle(
         &mut self,
         time: f64,
@@ -79,6 +129,23 @@ impl Pipeline {
         if self.failed.is_some() {
             return;
         }
+        self.publish(time, event, counters);
+        for item in self.pending.drain(..) {
+            let written = self
+                .writer
+                .write(item, out)
+                .and_then(|()| if self.realtime { out.flush() } else { Ok(()) });
+            if let Err(e) = written {
+                self.failed = Some(e);
+                stop.store(true, Ordering::Relaxed);
+                return;
+            }
+        }
+    }
+
+    /// Publishes the STATUS lines due before `time`, then the event's
+    /// lines, to [`Self::pending`].
+    fn publish(&mut self, time: f64, event: SourceEvent, counters: CountersSnapshot) {
         let interval = self.interval;
         let k = self
             .next_status
@@ -98,14 +165,28 @@ impl Pipeline {
                 connected: true,
                 counters,
             }];
-            self.lines
-                .push(self.sensors.status_line(*k * interval, &statuses, None));
+            self.pending.push(Out::Line(self.sensors.status_line(
+                *k * interval,
+                &statuses,
+                None,
+            )));
             let next = *k + 1.0;
             *k = if next > *k { next } else { k.next_up() };
         }
-        let lines = &mut self.lines;
-        let mut emit = |_: Lane, line: String| lines.push(line);
-        let mut sensor_out = Emitter::new(&mut emit);
+        // The lines and the READINGs' values go to one list, in order.
+        let pending = RefCell::new(std::mem::take(&mut self.pending));
+        let names = &mut self.names;
+        let mut emit = |_: Lane, line: String| pending.borrow_mut().push(Out::Line(line));
+        let mut readings = |sensor: &str, values: ReadingValues| {
+            let mut pending = pending.borrow_mut();
+            let place = names.iter().position(|n| n == sensor).unwrap_or_else(|| {
+                names.push(sensor.to_string());
+                pending.push(Out::Name(sensor.to_string()));
+                names.len() - 1
+            });
+            pending.push(Out::Reading(place, values));
+        };
+        let mut sensor_out = Emitter::deferred(&mut emit, &mut readings);
         match event {
             SourceEvent::Reading(reading) => {
                 self.sensors
@@ -117,17 +198,7 @@ impl Pipeline {
             }
             _ => {}
         }
-        for line in self.lines.drain(..) {
-            let written = out
-                .write_all(line.as_bytes())
-                .and_then(|()| out.write_all(b"\n"))
-                .and_then(|()| if self.realtime { out.flush() } else { Ok(()) });
-            if let Err(e) = written {
-                self.failed = Some(e);
-                stop.store(true, Ordering::Relaxed);
-                return;
-            }
-        }
+        self.pending = pending.into_inner();
     }
 
     fn finish(self, out: &mut dyn Write) -> Result<(), DaemonError> {
@@ -152,7 +223,7 @@ pub fn replay_through_pipeline(
     name: &str,
     source: Option<&str>,
     speed: Speed,
-    out: &mut dyn Write,
+    out: &mut (dyn Write + Send),
 ) -> Result<ReplaySummary, DaemonError> {
     let play: Play =
         &mut |stop, counters, emit| replay_playable(capture, name, speed, stop, counters, emit);
@@ -180,7 +251,7 @@ fn through_pipeline(
     config: &Config,
     source: Option<&str>,
     speed: Speed,
-    out: &mut dyn Write,
+    out: &mut (dyn Write + Send),
     play: Play,
 ) -> Result<ReplaySummary, DaemonError> {
     let mut pipeline = Pipeline::new(config, source, speed)?;
@@ -214,16 +285,22 @@ fn through_pipeline(
 /// on a thread of its own, a batch of readings ahead of the pipeline,
 /// each reading with the source's counters as they stood when it was
 /// handed on (so a STATUS made on it counts what it would have counted
-/// on one thread: the output is the same to the byte). A failed write
-/// stops the reading as before; the readings already decoded are dropped.
+/// on one thread: the output is the same to the byte); the pipeline's
+/// output is written on a third, its READINGs' lines made there from
+/// their values. A failed write stops the reading and the pipeline as
+/// before; the readings already decoded are dropped.
 fn played_ahead(
     pipeline: &mut Pipeline,
     stop: &AtomicBool,
-    out: &mut dyn Write,
+    out: &mut (dyn Write + Send),
     play: Play,
 ) -> Result<ReplaySummary, ReplayError> {
     let (send, receive) =
         std::sync::mpsc::sync_channel::<Vec<(Reading, CountersSnapshot)>>(BATCHES_AHEAD);
+    let (to_writer, written) = std::sync::mpsc::sync_channel::<Vec<Out>>(BATCHES_AHEAD);
+    // The writer's emptied batches, for the pipeline to fill again.
+    let (give_back, given_back) = std::sync::mpsc::sync_channel::<Vec<Out>>(BATCHES_AHEAD + 1);
+    let mut writer = std::mem::take(&mut pipeline.writer);
     std::thread::scope(|scope| {
         let player = scope.spawn(move || {
             let counters = SourceCounters::default();
@@ -243,20 +320,38 @@ fn played_ahead(
             }
             played
         });
-        // Owned here, so a panic in the pipeline drops it: the reading
-        // thread's next send fails and it stops, and the panic goes on.
-        let receive = receive;
+        let lines = scope.spawn(move || {
+            for mut batch in written {
+                for item in batch.drain(..) {
+                    if let Err(e) = writer.write(item, out) {
+                        stop.store(true, Ordering::Relaxed);
+                        return Some(e);
+                    }
+                }
+                let _ = give_back.try_send(batch);
+            }
+            None
+        });
+        // Owned here, so a panic in the pipeline drops them: the reading
+        // thread's next send fails and it stops, the writer's batches end,
+        // and the panic goes on.
+        let (receive, to_writer) = (receive, to_writer);
         for batch in receive {
             for (reading, counters) in batch {
-                pipeline.handle(
-                    reading.time,
-                    SourceEvent::Reading(reading),
-                    counters,
-                    out,
-                    stop,
-                );
+                pipeline.publish(reading.time, SourceEvent::Reading(reading), counters);
+            }
+            let empty = given_back.try_recv().unwrap_or_default();
+            let full = std::mem::replace(&mut pipeline.pending, empty);
+            // The writer is gone only when it failed (or panicked).
+            if to_writer.send(full).is_err() {
+                stop.store(true, Ordering::Relaxed);
+                break;
             }
         }
+        drop(to_writer);
+        pipeline.failed = lines
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
         player
             .join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic))

@@ -4,6 +4,7 @@
 //! Used by the rotation buffer ([`super::RotationBuffer`]).
 
 use super::RING_BAND;
+use crate::model::heading::wrap_degrees;
 
 /// The running centre and radius samples are counted around.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -37,14 +38,14 @@ impl Frame {
         if !(RING_BAND.0..=RING_BAND.1).contains(&rho) {
             return None;
         }
-        let h = dv.atan2(du).to_degrees().rem_euclid(360.0);
+        let h = wrap_degrees(dv.atan2(du).to_degrees());
         h.is_finite().then_some(h)
     }
 }
 
 /// `d` degrees wrapped to [-180, 180).
 pub(super) fn wrap_deg(d: f64) -> f64 {
-    (d + 540.0).rem_euclid(360.0) - 180.0
+    wrap_degrees(d + 540.0) - 180.0
 }
 
 /// Running sums for Kåsa's circle fit, in coordinates relative to the

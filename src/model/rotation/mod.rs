@@ -519,10 +519,13 @@ impl RotationBuffer {
     /// The samples held (t, x, y) — on `Complete`, those of the rotation —
     /// and the buffer restarts empty.
     pub fn take(&mut self) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        // Room for a rotation like this one: the next grows without
+        // copying itself over and over.
+        let room = self.t.len();
         let taken = (
-            std::mem::take(&mut self.t),
-            std::mem::take(&mut self.x),
-            std::mem::take(&mut self.y),
+            std::mem::replace(&mut self.t, Vec::with_capacity(room)),
+            std::mem::replace(&mut self.x, Vec::with_capacity(room)),
+            std::mem::replace(&mut self.y, Vec::with_capacity(room)),
         );
         self.clear();
         taken
