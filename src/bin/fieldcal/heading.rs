@@ -140,7 +140,7 @@ fn read_columns(
                     }
                 );
             };
-            cols.push(c.values.clone());
+            cols.push(c.values.as_slice());
         }
         return Ok(Triplet {
             file: mag_file.to_path_buf(),

@@ -242,9 +242,11 @@ type Play<'a> = &'a mut (
         );
 
 /// Readings a replay at full speed hands from its reading thread to the
-/// pipeline at once, and batches of them on their way at most: what is
-/// decoded ahead is bounded (a few hundred kilobytes).
-const BATCH: usize = 512;
+/// pipeline at once, and batches of them on their way at most (and as
+/// many of the pipeline's output to its writer): what is decoded ahead
+/// and not yet written is bounded (a few megabytes; a larger batch wakes
+/// the other threads less often).
+const BATCH: usize = 2048;
 const BATCHES_AHEAD: usize = 4;
 
 fn through_pipeline(
