@@ -335,3 +335,50 @@ pub struct Reading {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub timer: Option<u16>,
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn with_x(x: Vec<f64>) -> Result<Dataset, DatasetError> {
+        let y = vec![0.0; x.len()];
+        Dataset::new("x", "y", None, x, y, Vec::new())
+    }
+
+    /// The one-pass check lets through what the two passes let through,
+    /// and refuses the same row for the same reason: a value that is not
+    /// finite before one too large, wherever each lies in the column.
+    #[test]
+    fn the_check_finds_the_row_the_passes_find() {
+        let mut x = vec![1.0; 200];
+        x[199] = MAX_MAGNITUDE;
+        x[0] = -MAX_MAGNITUDE;
+        assert!(with_x(x.clone()).is_ok());
+        x[70] = 2.0 * MAX_MAGNITUDE;
+        assert!(
+            matches!(
+                with_x(x.clone()),
+                Err(DatasetError::TooLarge { row: 70, .. })
+            ),
+            "{:?}",
+            with_x(x.clone()).err()
+        );
+        x[150] = f64::NAN;
+        assert!(
+            matches!(
+                with_x(x.clone()),
+                Err(DatasetError::NonFinite { row: 150, .. })
+            ),
+            "{:?}",
+            with_x(x.clone()).err()
+        );
+        for bad in [f64::INFINITY, f64::NEG_INFINITY, f64::NAN] {
+            let mut x = vec![1.0; 130];
+            x[129] = bad;
+            assert!(
+                matches!(with_x(x), Err(DatasetError::NonFinite { row: 129, .. })),
+                "{bad}"
+            );
+        }
+    }
+}
