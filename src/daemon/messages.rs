@@ -75,8 +75,8 @@ impl ReadingMessage<'_> {
     /// directly: the keys are fixed text and each value is serde_json's
     /// own (the same digits, the same escapes, `null` for a value that is
     /// not finite), without the serializer's work for each key. A READING
-    /// goes out for every sample, so this is the replay's and the reading
-    /// path's line.
+    /// goes out for every sample, so this is the reading path's line (and,
+    /// through [`Self::write_line`], the replay's).
     pub fn to_line(&self) -> String {
         let mut line = String::with_capacity(LINE_CAPACITY);
         self.write_line(&mut line);

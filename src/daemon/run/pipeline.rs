@@ -283,8 +283,8 @@ fn through_pipeline(
     Ok(summary)
 }
 
-/// A replay at full speed on two cores: the capture is read and decoded
-/// on a thread of its own, a batch of readings ahead of the pipeline,
+/// A replay at full speed on three threads (two cores): the capture is
+/// read and decoded on a thread of its own, a batch of readings ahead of the pipeline,
 /// each reading with the source's counters as they stood when it was
 /// handed on (so a STATUS made on it counts what it would have counted
 /// on one thread: the output is the same to the byte); the pipeline's
@@ -317,7 +317,8 @@ fn played_ahead(
                 }
             });
             if !batch.is_empty() {
-                // The pipeline is gone only when it panicked.
+                // The pipeline is gone only when it panicked, or stopped
+                // because the writer failed: the rest is not wanted.
                 let _ = send.send(batch);
             }
             played
@@ -497,10 +498,10 @@ mod tests {
         }
     }
 
-    /// A panic while the pipeline writes ends the replay at full speed
-    /// with that panic, though the reading thread has far more to hand on
-    /// than the batches on their way hold (it does not wait on them for
-    /// ever).
+    /// A panic while the output is written (on the writer's thread) ends
+    /// the replay at full speed with that panic, though the reading thread
+    /// has far more to hand on than the batches on their way hold (neither
+    /// it nor the pipeline waits on them for ever).
     #[test]
     fn a_panic_in_the_pipeline_ends_a_full_speed_replay() {
         let (done, finished) = mpsc::channel();
@@ -516,6 +517,38 @@ mod tests {
             finished.recv_timeout(Duration::from_secs(60)),
             Ok(true),
             "the replay did not end with the pipeline's panic"
+        );
+    }
+
+    /// A panic on the reading thread ends the replay at full speed with
+    /// that panic: the pipeline and the writer do not wait for batches
+    /// that will never come.
+    #[test]
+    fn a_panic_in_the_reading_ends_a_full_speed_replay() {
+        let (done, finished) = mpsc::channel();
+        std::thread::spawn(move || {
+            let config = config();
+            let mut inner = player(10_000, || Ok(()));
+            let mut play = move |stop: &AtomicBool,
+                                 counters: &SourceCounters,
+                                 emit: &mut dyn FnMut(Reading)|
+                  -> Result<ReplaySummary, ReplayError> {
+                let mut n = 0;
+                inner(stop, counters, &mut |reading| {
+                    n += 1;
+                    assert!(n < 5_000, "the capture broke");
+                    emit(reading);
+                })
+            };
+            let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                through_pipeline(&config, None, Speed::Max, &mut std::io::sink(), &mut play)
+            }));
+            let _ = done.send(outcome.is_err());
+        });
+        assert_eq!(
+            finished.recv_timeout(Duration::from_secs(60)),
+            Ok(true),
+            "the replay did not end with the reading's panic"
         );
     }
 

@@ -519,9 +519,11 @@ impl RotationBuffer {
     /// The samples held (t, x, y) — on `Complete`, those of the rotation —
     /// and the buffer restarts empty.
     pub fn take(&mut self) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-        // Room for a rotation like this one: the next grows without
-        // copying itself over and over.
-        let room = self.t.len();
+        // Room for a rotation like this one (up to ROOM samples: a buffer
+        // that may never collect again keeps little), so the next grows
+        // without copying itself over and over.
+        const ROOM: usize = 4096;
+        let room = self.t.len().min(ROOM);
         let taken = (
             std::mem::replace(&mut self.t, Vec::with_capacity(room)),
             std::mem::replace(&mut self.x, Vec::with_capacity(room)),
