@@ -30,16 +30,14 @@ pub const MAX_STATUS_CATCH_UP: u32 = 10;
 /// writer's thread at full speed).
 enum Out {
     Line(String),
-    /// The READING of the sensor named by the `Name` at that place.
+    /// The READING of the configuration's sensor at that place.
     Reading(usize, ReadingValues),
-    /// A sensor's name, first seen: the next place in the writer's names.
-    Name(String),
 }
 
 /// Writes the pipeline's output: each [`Out`] as its line.
 #[derive(Default)]
 struct LineWriter {
-    /// The sensors' names, in the order they were first seen.
+    /// The configuration's sensors' names, in its order.
     names: Vec<String>,
     /// A READING's line, written again for each.
     line: String,
@@ -59,10 +57,6 @@ impl LineWriter {
                 self.line.push('\n');
                 out.write_all(self.line.as_bytes())
             }
-            Out::Name(name) => {
-                self.names.push(name);
-                Ok(())
-            }
         }
     }
 }
@@ -81,7 +75,7 @@ struct Pipeline {
     realtime: bool,
     /// What is published and not yet written.
     pending: Vec<Out>,
-    /// The sensors' names given to the writer, in order.
+    /// The configuration's sensors' names, as the writer has them.
     names: Vec<String>,
     writer: LineWriter,
     failed: Option<std::io::Error>,
@@ -97,6 +91,7 @@ impl Pipeline {
                 .ok_or_else(|| DaemonError::NoSuchSource(wanted.to_string()))?,
             None => 0,
         };
+        let names: Vec<String> = config.sensors.iter().map(|s| s.name.clone()).collect();
         Ok(Pipeline {
             sensors: Sensors::build(config, None).0,
             index,
@@ -109,8 +104,11 @@ impl Pipeline {
             next_status: None,
             realtime: !matches!(speed, Speed::Max),
             pending: Vec::new(),
-            names: Vec::new(),
-            writer: LineWriter::default(),
+            writer: LineWriter {
+                names: names.clone(),
+                line: String::new(),
+            },
+            names,
             failed: None,
         })
     }
@@ -175,16 +173,15 @@ impl Pipeline {
         }
         // The lines and the READINGs' values go to one list, in order.
         let pending = RefCell::new(std::mem::take(&mut self.pending));
-        let names = &mut self.names;
+        let names = &self.names;
         let mut emit = |_: Lane, line: String| pending.borrow_mut().push(Out::Line(line));
         let mut readings = |sensor: &str, values: ReadingValues| {
-            let mut pending = pending.borrow_mut();
-            let place = names.iter().position(|n| n == sensor).unwrap_or_else(|| {
-                names.push(sensor.to_string());
-                pending.push(Out::Name(sensor.to_string()));
-                names.len() - 1
-            });
-            pending.push(Out::Reading(place, values));
+            // Every sensor is the configuration's; the line at once if not.
+            let out = match names.iter().position(|n| n == sensor) {
+                Some(place) => Out::Reading(place, values),
+                None => Out::Line(values.message(sensor).to_line()),
+            };
+            pending.borrow_mut().push(out);
         };
         let mut sensor_out = Emitter::deferred(&mut emit, &mut readings);
         match event {
