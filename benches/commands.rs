@@ -13,7 +13,8 @@
 //!
 //! Run: `cargo bench --bench commands` (sizes: `FIELDCAL_BENCH_ROWS`,
 //! default `200000,2000000`; runs of each: `FIELDCAL_BENCH_RUNS`, default
-//! 5, the best kept).
+//! 5, the best kept; which paths: `FIELDCAL_BENCH_PATHS`, e.g.
+//! `replay,fit 2-D`, default all).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -330,10 +331,22 @@ fn main() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(5)
         .max(1);
+    // Which paths to measure (`FIELDCAL_BENCH_PATHS`, names begun as in the
+    // table, comma-separated, e.g. `replay,fit 2-D`); default all.
+    let only: Vec<String> = std::env::var("FIELDCAL_BENCH_PATHS")
+        .map(|s| s.split(',').map(|p| p.trim().to_owned()).collect())
+        .unwrap_or_default();
+    let wanted = |path: &str| only.is_empty() || only.iter().any(|p| path.starts_with(p.as_str()));
     let dir = tempfile::tempdir().expect("tempdir");
     let mut lines = Vec::new();
     let mut raw_floor = None;
     for &n in &rows {
+        if !["fit 2-D", "fit 3-D", "diagnose 2-D", "heading --json"]
+            .iter()
+            .any(|p| wanted(p))
+        {
+            continue;
+        }
         // 200 samples a turn.
         let turns = (n / 200).max(1).to_string();
         let two = simulate(
@@ -395,6 +408,9 @@ fn main() {
                 vec![("polars+numpy", POLARS_HEADING)],
             ),
         ] {
+            if !wanted(path) {
+                continue;
+            }
             let Some(ours) = best(runs, BIN, &args) else {
                 continue;
             };
@@ -414,7 +430,7 @@ fn main() {
         }
     }
     // Replay: a capture of as many frames as the largest size, five times.
-    if let Some(&n) = rows.iter().max() {
+    if let Some(&n) = rows.iter().max().filter(|_| wanted("replay")) {
         let frames = 5 * n;
         let turns = (frames / 200).max(1).to_string();
         let capture = simulate(
