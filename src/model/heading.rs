@@ -57,17 +57,46 @@ pub fn coverage(headings: impl IntoIterator<Item = f64>) -> Coverage {
 }
 
 /// `deg.rem_euclid(360.0)`, the same to the bit, without the library's
-/// `fmod` for an angle within a turn of zero (an `atan2` in degrees):
-/// there the remainder is the angle itself, exactly; and from one turn to
-/// two it is `deg − 360`, also exact (the two are within a factor of two
-/// of each other).
+/// `fmod` (a loop over the bits of the quotient) below 2⁵² degrees:
+/// - within a turn of zero (an `atan2` in degrees) the remainder is the
+///   angle itself, exactly; from one turn to two it is `deg − 360`, also
+///   exact (the two are within a factor of two of each other);
+/// - beyond (an angle followed over many turns) by one division: see
+///   [`wrap_by_division`].
 pub fn wrap_degrees(deg: f64) -> f64 {
     if deg.abs() < 360.0 {
         if deg < 0.0 { deg + 360.0 } else { deg }
     } else if (360.0..720.0).contains(&deg) {
         deg - 360.0
+    } else if deg.abs() < DIVIDED_BELOW {
+        wrap_by_division(deg)
     } else {
         deg.rem_euclid(360.0)
+    }
+}
+
+/// Magnitudes up to which [`wrap_by_division`] is exact: 2⁵².
+const DIVIDED_BELOW: f64 = 4_503_599_627_370_496.0;
+
+/// The remainder of `deg` (at least 360 and below 2⁵² in magnitude) by
+/// 360 in [0, 360), exact as `fmod`'s: with q = ⌊deg / 360⌋ (below 2⁴⁴ in
+/// magnitude), q·360 is exact, and deg − q·360 is exact too (the two lie
+/// within a factor of two of each other, deg being a turn or more from
+/// zero). Where the quotient rounds up to the next whole number q is one
+/// too many and the difference falls below zero by less than a turn;
+/// adding 360 is then exact, the remainder being a multiple of deg's ulp
+/// below 512. A zero remainder keeps deg's sign, as `fmod`'s does.
+fn wrap_by_division(deg: f64) -> f64 {
+    let q = (deg / 360.0).floor();
+    let r = deg - q * 360.0;
+    if r == 0.0 {
+        0.0f64.copysign(deg)
+    } else if r < 0.0 {
+        r + 360.0
+    } else if r >= 360.0 {
+        r - 360.0
+    } else {
+        r
     }
 }
 
@@ -334,9 +363,68 @@ mod tests {
         /// The wrap without `fmod` is `rem_euclid`'s, to the bit.
         #[test]
         fn headings_wrap_as_rem_euclid_wraps_them(
-            deg in prop_oneof![-400.0f64..400.0, 300.0f64..800.0, -1e6f64..1e6, Just(-0.0), Just(-360.0), Just(360.0), Just(-180.0), Just(720.0), Just(720.0f64.next_down()), Just(360.0f64.next_down())]
+            deg in prop_oneof![
+                -400.0f64..400.0,
+                300.0f64..800.0,
+                -1e6f64..1e6,
+                // Every magnitude, to 2⁶⁰ (past the division's bound).
+                (-60.0f64..60.0, any::<bool>()).prop_map(|(e, neg)| if neg { -(2f64.powf(e)) } else { 2f64.powf(e) }),
+                // Whole turns and their neighbours, each side of zero.
+                (-(1i64 << 40)..(1i64 << 40), -2i32..=2).prop_map(|(k, ulps)| {
+                    let mut d = k as f64 * 360.0;
+                    for _ in 0..ulps.abs() {
+                        d = if ulps > 0 { d.next_up() } else { d.next_down() };
+                    }
+                    d
+                }),
+                Just(-0.0), Just(-360.0), Just(360.0), Just(-180.0), Just(720.0), Just(-720.0),
+                Just(720.0f64.next_down()), Just(360.0f64.next_down()),
+                Just(4_503_599_627_370_496.0), Just(4_503_599_627_370_496.0f64.next_down()),
+                Just(-4_503_599_627_370_496.0f64.next_down()),
+            ]
         ) {
             prop_assert_eq!(wrap_degrees(deg).to_bits(), deg.rem_euclid(360.0).to_bits());
+        }
+    }
+
+    /// The wrap by one division is `rem_euclid`'s to the bit on a million
+    /// angles of every size up to 2⁶⁰ (random mantissas), and next to
+    /// whole turns (where the quotient rounds to the next whole number).
+    #[test]
+    fn the_division_wraps_as_fmod_does_at_every_size() {
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for _ in 0..1_000_000 {
+            let bits = next();
+            // Exponents 2⁸ .. 2⁶⁰, either sign, any mantissa.
+            let exponent = 1023 + 8 + (bits >> 52) % 53;
+            let deg =
+                f64::from_bits((bits & (1 << 63)) | (exponent << 52) | (bits & ((1 << 52) - 1)));
+            assert_eq!(
+                wrap_degrees(deg).to_bits(),
+                deg.rem_euclid(360.0).to_bits(),
+                "{deg:e}"
+            );
+            let turn = (next() % (1 << 43)) as f64 * 360.0;
+            for d in [
+                turn,
+                turn.next_up(),
+                turn.next_down(),
+                -turn,
+                (-turn).next_up(),
+                (-turn).next_down(),
+            ] {
+                assert_eq!(
+                    wrap_degrees(d).to_bits(),
+                    d.rem_euclid(360.0).to_bits(),
+                    "{d:e}"
+                );
+            }
         }
     }
 

@@ -24,6 +24,30 @@ impl Frame {
         if d.is_nan() { f64::INFINITY } else { d }
     }
 
+    /// `self.distance(other) <= limit`, the same decision, without
+    /// `hypot` where the squares decide the centres' shift by a margin
+    /// (see [`Frame::surely_on_ring`]).
+    pub(super) fn within(&self, other: &Frame, limit: f64) -> bool {
+        const MARGIN: f64 = 1e-9;
+        let scale = (other.radius / self.radius - 1.0).abs();
+        let (dx, dy) = (self.cx - other.cx, self.cy - other.cy);
+        let bound = limit * self.radius;
+        if scale.is_finite()
+            && (1e-100..1e100).contains(&self.radius)
+            && (1e-3..1e3).contains(&limit)
+        {
+            let s2 = dx * dx + dy * dy;
+            if s2 < bound * bound * (1.0 - MARGIN) {
+                // The shift is within: the scale decides.
+                return scale <= limit;
+            }
+            if s2 > bound * bound * (1.0 + MARGIN) && s2.is_finite() {
+                return false;
+            }
+        }
+        self.distance(other) <= limit
+    }
+
     /// How far the centre lies from the zero reading, in radii.
     pub(super) fn offset_ratio(&self) -> f64 {
         let r = self.cx.hypot(self.cy) / self.radius;
@@ -34,12 +58,30 @@ impl Frame {
     /// it lies too far inside or outside it to have a meaningful heading.
     pub(super) fn heading_deg(&self, x: f64, y: f64) -> Option<f64> {
         let (du, dv) = (x - self.cx, y - self.cy);
-        let rho = du.hypot(dv) / self.radius;
-        if !(RING_BAND.0..=RING_BAND.1).contains(&rho) {
-            return None;
+        if !self.surely_on_ring(du * du + dv * dv) {
+            let rho = du.hypot(dv) / self.radius;
+            if !(RING_BAND.0..=RING_BAND.1).contains(&rho) {
+                return None;
+            }
         }
         let h = wrap_degrees(dv.atan2(du).to_degrees());
         h.is_finite().then_some(h)
+    }
+
+    /// Whether a sample `d2` (its squared distance from the centre) lies
+    /// on the ring ([`RING_BAND`]) whatever the last bits of its distance:
+    /// within the band by a margin (1e-9 of it) far beyond the few ulp
+    /// between √d2 and `hypot`'s distance. Only near an edge of the band
+    /// (or at sizes where squares leave the range of f64) is the exact
+    /// test (`hypot`) needed; it decides the same as here everywhere else.
+    fn surely_on_ring(&self, d2: f64) -> bool {
+        const MARGIN: f64 = 1e-9;
+        let r = self.radius;
+        if !(1e-100..1e100).contains(&r) {
+            return false;
+        }
+        let (inner, outer) = (RING_BAND.0 * r, RING_BAND.1 * r);
+        d2 > inner * inner * (1.0 + MARGIN) && d2 < outer * outer * (1.0 - MARGIN)
     }
 }
 
@@ -105,4 +147,109 @@ impl Moments {
         (cu.is_finite() && cv.is_finite() && radius.is_finite() && radius > 0.0)
             .then_some((cu, cv, radius))
     }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Where the squares put a sample on the ring, `hypot`'s distance
+    /// does too: on samples at every scale, most of them within a few ulp
+    /// of an edge of the band.
+    #[test]
+    fn the_squares_put_on_the_ring_only_what_hypot_puts_there() {
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut unit = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut on, mut near_edges) = (0, 0);
+        for _ in 0..200_000 {
+            let radius = 10f64.powf(unit() * 240.0 - 120.0);
+            let frame = Frame {
+                cx: (unit() - 0.5) * radius * 3.0,
+                cy: (unit() - 0.5) * radius * 3.0,
+                radius,
+            };
+            let edge = if unit() < 0.5 {
+                RING_BAND.0
+            } else {
+                RING_BAND.1
+            };
+            // Half of them within 1e-8 of an edge, the rest anywhere.
+            let rho = if unit() < 0.5 {
+                edge * (1.0 + (unit() - 0.5) * 2e-8)
+            } else {
+                unit() * 2.0
+            };
+            let angle = unit() * std::f64::consts::TAU;
+            let (du, dv) = (rho * radius * angle.cos(), rho * radius * angle.sin());
+            let exact = (RING_BAND.0..=RING_BAND.1).contains(&(du.hypot(dv) / radius));
+            if frame.surely_on_ring(du * du + dv * dv) {
+                assert!(exact, "{du:e} {dv:e} r {radius:e}");
+                on += 1;
+            } else if exact {
+                near_edges += 1;
+            }
+        }
+        // The quick test decides most samples on the ring itself.
+        assert!(on > 50_000 && near_edges < on, "{on} {near_edges}");
+    }
+
+    /// `within` decides as `distance` does, on frames at every scale whose
+    /// centres moved by about the limit (many within a few ulp of it), and
+    /// on frames that are not finite.
+    #[test]
+    fn within_decides_as_the_distance_does() {
+        let mut state = 0x853c_49e6_748f_ea9b_u64;
+        let mut unit = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut quick = 0;
+        for i in 0..200_000 {
+            let radius = 10f64.powf(unit() * 240.0 - 120.0);
+            let limit = if unit() < 0.5 {
+                RECOUNT_MOVE_FOR_TEST
+            } else {
+                0.01
+            };
+            let a = Frame {
+                cx: (unit() - 0.5) * radius,
+                cy: (unit() - 0.5) * radius,
+                radius,
+            };
+            let shift = if unit() < 0.5 {
+                limit * (1.0 + (unit() - 0.5) * 1e-8)
+            } else {
+                unit() * 2.0 * limit
+            };
+            let angle = unit() * std::f64::consts::TAU;
+            let mut b = Frame {
+                cx: a.cx + shift * radius * angle.cos(),
+                cy: a.cy + shift * radius * angle.sin(),
+                radius: radius * (1.0 + (unit() - 0.5) * 4.0 * limit),
+            };
+            match i % 50 {
+                0 => b.cx = f64::NAN,
+                1 => b.radius = f64::INFINITY,
+                2 => b.cy = f64::INFINITY,
+                _ => {}
+            }
+            assert_eq!(
+                a.within(&b, limit),
+                a.distance(&b) <= limit,
+                "{a:?} {b:?} {limit}"
+            );
+            let s2 = (a.cx - b.cx).powi(2) + (a.cy - b.cy).powi(2);
+            quick += usize::from((s2 - (limit * radius).powi(2)).abs() > 1e-6 * s2);
+        }
+        assert!(quick > 50_000, "{quick}");
+    }
+
+    const RECOUNT_MOVE_FOR_TEST: f64 = super::super::RECOUNT_MOVE;
 }

@@ -613,9 +613,10 @@ impl RotationBuffer {
             return;
         }
         match self.reference {
+            // (The count first: it is cheaper, and nearly always decides.)
             Some(reference)
-                if reference.distance(&frame) <= RECOUNT_MOVE
-                    || self.since_recount < (self.t.len() / 8).max(16) =>
+                if self.since_recount < (self.t.len() / 8).max(16)
+                    || reference.within(&frame, RECOUNT_MOVE) =>
             {
                 self.place(&reference, x, y);
             }
@@ -790,9 +791,7 @@ impl RotationBuffer {
         let Some(frame) = self.frame() else {
             return false;
         };
-        let exact = self
-            .reference
-            .is_some_and(|r| r.distance(&frame) <= EXACT_MOVE);
+        let exact = self.reference.is_some_and(|r| r.within(&frame, EXACT_MOVE));
         if exact {
             return true;
         }
@@ -815,12 +814,15 @@ impl RotationBuffer {
     /// The rule of the module documentation, on the counts around the
     /// reference; the O(360) gap last, once the O(1) parts hold.
     fn complete_around_reference(&self) -> bool {
-        self.reference
-            .is_some_and(|r| r.offset_ratio() <= MAX_CENTRE_OVER_RADIUS)
-            && self.on_ring >= MIN_TURN_SAMPLES
+        // The counts first: they are cheaper, and until the turn is done
+        // they decide.
+        self.on_ring >= MIN_TURN_SAMPLES
             && self.on_ring as f64 >= MIN_RING_FRACTION * self.t.len() as f64
             && self.net_deg.abs() >= self.config.turn_needed_deg()
             && self.swept().abs() >= self.config.turn_needed_deg()
+            && self
+                .reference
+                .is_some_and(|r| r.offset_ratio() <= MAX_CENTRE_OVER_RADIUS)
             && self.gyro_agrees()
             && bin_gaps(&self.bins)
                 .iter()
