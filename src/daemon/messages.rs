@@ -704,7 +704,14 @@ pub struct StatusMessage<'a> {
 pub fn to_line<T: Serialize>(message: &T) -> String {
     // Room for a calibrated READING (about 150 to 250 bytes) at once:
     // serde_json's own start of 128 bytes would grow, and copy, for most.
-    let mut line = Vec::with_capacity(LINE_CAPACITY);
+    to_line_in(message, LINE_CAPACITY)
+}
+
+/// [`to_line`] into a line with room for `capacity` bytes at once (a
+/// STATUS line, some hundreds of bytes a sensor and a source, grows
+/// and is copied three or four times from the room of a READING's).
+pub fn to_line_in<T: Serialize>(message: &T, capacity: usize) -> String {
+    let mut line = Vec::with_capacity(capacity);
     match serde_json::to_writer(&mut line, message) {
         Ok(()) => String::from_utf8(line).unwrap_or_else(|_| "{}".to_string()),
         Err(_) => "{}".to_string(),

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use crate::daemon::Calibration;
 use crate::daemon::config::Config;
-use crate::daemon::messages::{SourceStatus, StatusMessage, to_line};
+use crate::daemon::messages::{SourceStatus, StatusMessage, to_line_in};
 use crate::daemon::publish::Hub;
 use crate::daemon::sensor::{Emitter, Sensor};
 use crate::daemon::state::StateStore;
@@ -159,14 +159,19 @@ impl Sensors {
         hub: Option<&Hub>,
     ) -> String {
         let stats = hub.map(Hub::stats).unwrap_or_default();
-        to_line(&StatusMessage {
-            class: "STATUS",
-            time,
-            sensors: self.sensors.iter().map(|(_, s)| s.status()).collect(),
-            sources: sources.to_vec(),
-            subscribers: stats.subscribers,
-            dropped: stats.dropped,
-        })
+        // About 250 bytes a sensor and 200 a source.
+        let room = 128 + 384 * (self.sensors.len() + sources.len());
+        to_line_in(
+            &StatusMessage {
+                class: "STATUS",
+                time,
+                sensors: self.sensors.iter().map(|(_, s)| s.status()).collect(),
+                sources: sources.to_vec(),
+                subscribers: stats.subscribers,
+                dropped: stats.dropped,
+            },
+            room,
+        )
     }
 }
 
