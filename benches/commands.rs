@@ -334,7 +334,12 @@ fn main() {
     // Which paths to measure (`FIELDCAL_BENCH_PATHS`, names begun as in the
     // table, comma-separated, e.g. `replay,fit 2-D`); default all.
     let only: Vec<String> = std::env::var("FIELDCAL_BENCH_PATHS")
-        .map(|s| s.split(',').map(|p| p.trim().to_owned()).collect())
+        .map(|s| {
+            s.split(',')
+                .map(|p| p.trim().to_owned())
+                .filter(|p| !p.is_empty())
+                .collect()
+        })
         .unwrap_or_default();
     let wanted = |path: &str| only.is_empty() || only.iter().any(|p| path.starts_with(p.as_str()));
     let dir = tempfile::tempdir().expect("tempdir");
@@ -430,7 +435,7 @@ fn main() {
         }
     }
     // Replay: a capture of as many frames as the largest size, five times.
-    if let Some(&n) = rows.iter().max().filter(|_| wanted("replay")) {
+    if let Some(&n) = rows.iter().max().filter(|_| wanted("replay --config")) {
         let frames = 5 * n;
         let turns = (frames / 200).max(1).to_string();
         let capture = simulate(

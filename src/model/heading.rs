@@ -93,8 +93,6 @@ fn wrap_by_division(deg: f64) -> f64 {
         0.0f64.copysign(deg)
     } else if r < 0.0 {
         r + 360.0
-    } else if r >= 360.0 {
-        r - 360.0
     } else {
         r
     }
