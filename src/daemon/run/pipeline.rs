@@ -501,17 +501,13 @@ mod tests {
     /// it nor the pipeline waits on them for ever).
     #[test]
     fn a_panic_in_the_pipeline_ends_a_full_speed_replay() {
-        let (done, finished) = mpsc::channel();
-        std::thread::spawn(move || {
+        let ended = ends_in_a_panic(|| {
             let config = config();
             let mut play = player(100_000, || Ok(()));
-            let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                through_pipeline(&config, None, Speed::Max, &mut Panics, &mut play)
-            }));
-            let _ = done.send(outcome.is_err());
+            let _ = through_pipeline(&config, None, Speed::Max, &mut Panics, &mut play);
         });
         assert_eq!(
-            finished.recv_timeout(Duration::from_secs(60)),
+            ended,
             Ok(true),
             "the replay did not end with the pipeline's panic"
         );
@@ -522,8 +518,7 @@ mod tests {
     /// that will never come.
     #[test]
     fn a_panic_in_the_reading_ends_a_full_speed_replay() {
-        let (done, finished) = mpsc::channel();
-        std::thread::spawn(move || {
+        let ended = ends_in_a_panic(|| {
             let config = config();
             let mut inner = player(10_000, || Ok(()));
             let mut play = move |stop: &AtomicBool,
@@ -537,16 +532,27 @@ mod tests {
                     emit(reading);
                 })
             };
-            let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                through_pipeline(&config, None, Speed::Max, &mut std::io::sink(), &mut play)
-            }));
-            let _ = done.send(outcome.is_err());
+            let _ = through_pipeline(&config, None, Speed::Max, &mut std::io::sink(), &mut play);
         });
         assert_eq!(
-            finished.recv_timeout(Duration::from_secs(60)),
+            ended,
             Ok(true),
             "the replay did not end with the reading's panic"
         );
+    }
+
+    /// Runs `replay` on a thread of its own: whether it ended in a panic,
+    /// or a timeout when it has not ended within a minute (a replay that
+    /// waits for ever).
+    fn ends_in_a_panic(
+        replay: impl FnOnce() + Send + 'static,
+    ) -> Result<bool, mpsc::RecvTimeoutError> {
+        let (done, finished) = mpsc::channel();
+        std::thread::spawn(move || {
+            let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(replay));
+            let _ = done.send(outcome.is_err());
+        });
+        finished.recv_timeout(Duration::from_secs(60))
     }
 
     /// A failed write is the replay's error, as on one thread, even when
