@@ -122,13 +122,87 @@ pub enum Gated<T> {
 struct NoiseFloor {
     /// The last two samples.
     last: [Option<[f64; 3]>; 2],
-    /// The last |Δ²| per axis, oldest first.
-    second_diffs: [VecDeque<f64>; 3],
-    /// The same values in ascending order, so that their median costs
-    /// nothing to look up (a sample is judged against it on every axis).
-    sorted: [Vec<f64>; 3],
+    /// The last |Δ²| per axis.
+    second_diffs: [Window; 3],
     /// The smallest non-zero |Δ| seen, per axis.
     quantum: [f64; 3],
+}
+
+/// The last [`NOISE_WINDOW`] values of one axis, in the order they came
+/// and in ascending order, both in place (no heap, a fixed length once
+/// full: the count and the shift below are the gate's inner loop).
+#[derive(Debug, Clone)]
+struct Window {
+    /// The values as they came, a ring: the oldest at `head` once full.
+    ring: [f64; NOISE_WINDOW],
+    head: usize,
+    len: usize,
+    /// The same values ascending, so that their median costs nothing to
+    /// look up (a sample is judged against it on every axis).
+    sorted: [f64; NOISE_WINDOW],
+}
+
+impl Default for Window {
+    fn default() -> Self {
+        Window {
+            ring: [0.0; NOISE_WINDOW],
+            head: 0,
+            len: 0,
+            sorted: [0.0; NOISE_WINDOW],
+        }
+    }
+}
+
+impl Window {
+    /// The values ascending.
+    fn sorted(&self) -> &[f64] {
+        &self.sorted[..self.len]
+    }
+
+    /// The values oldest first.
+    #[cfg(test)]
+    fn in_order(&self) -> impl Iterator<Item = f64> + '_ {
+        let (start, len) = if self.len == NOISE_WINDOW {
+            (self.head, NOISE_WINDOW)
+        } else {
+            (0, self.len)
+        };
+        (0..len).map(move |i| self.ring[(start + i) % NOISE_WINDOW])
+    }
+
+    /// Takes in `value` (finite, not negative), the oldest leaving when
+    /// the window is full.
+    fn push(&mut self, value: f64) {
+        if self.len < NOISE_WINDOW {
+            self.ring[self.len] = value;
+            let (at, _) = below(self.sorted(), value, f64::NAN);
+            self.sorted.copy_within(at..self.len, at + 1);
+            self.sorted[at] = value;
+            self.len += 1;
+            return;
+        }
+        let gone = std::mem::replace(&mut self.ring[self.head], value);
+        self.head = (self.head + 1) % NOISE_WINDOW;
+        // Where the new value goes in, and where the oldest is: one count
+        // of both, over the whole (fixed) window.
+        let (at, out) = below(&self.sorted, value, gone);
+        let sorted = &mut self.sorted;
+        if sorted.get(out) != Some(&gone) {
+            // Not reached (every value that leaves came in): sorted again.
+            sorted.copy_from_slice(&self.ring);
+            sorted.sort_unstable_by(f64::total_cmp);
+            return;
+        }
+        if at <= out {
+            // The oldest leaves where the new one comes in: one shift of
+            // the values between.
+            sorted.copy_within(at..out, at + 1);
+            sorted[at] = value;
+        } else {
+            sorted.copy_within(out + 1..at, out);
+            sorted[at - 1] = value;
+        }
+    }
 }
 
 impl NoiseFloor {
@@ -143,30 +217,7 @@ impl NoiseFloor {
                 if let Some(before) = self.last[0] {
                     let d2 = (raw[axis] - 2.0 * prev[axis] + before[axis]).abs();
                     if d2.is_finite() {
-                        let window = &mut self.second_diffs[axis];
-                        let sorted = &mut self.sorted[axis];
-                        let full = window.len() == NOISE_WINDOW;
-                        let gone = if full { window.pop_front() } else { None };
-                        window.push_back(d2);
-                        // Where the new value goes in, and where the oldest
-                        // (when the window is full) is: one count of both.
-                        let (at, first) = below(sorted, d2, gone.unwrap_or(f64::NAN));
-                        let out = gone
-                            .filter(|&old| sorted.get(first) == Some(&old))
-                            .map(|_| first);
-                        match out {
-                            // The oldest value leaves where the new one
-                            // comes in: one shift of the values between.
-                            Some(out) if at <= out => {
-                                sorted.copy_within(at..out, at + 1);
-                                sorted[at] = d2;
-                            }
-                            Some(out) => {
-                                sorted.copy_within(out + 1..at, out);
-                                sorted[at - 1] = d2;
-                            }
-                            None => sorted.insert(at, d2),
-                        }
+                        self.second_diffs[axis].push(d2);
                     }
                 }
             }
@@ -176,12 +227,13 @@ impl NoiseFloor {
 
     /// Whether enough is known of `axis`'s noise to bound a sample by it.
     fn known(&self, axis: usize) -> bool {
-        self.second_diffs[axis].len() >= MIN_SECOND_DIFFS
+        self.second_diffs[axis].len >= MIN_SECOND_DIFFS
     }
 
     /// σ of the noise on `axis`; 0 before anything is known.
     fn sigma(&self, axis: usize) -> f64 {
-        let measured = sorted_median(&self.sorted[axis]).map_or(0.0, |m| m * SECOND_DIFF_TO_SIGMA);
+        let measured = sorted_median(self.second_diffs[axis].sorted())
+            .map_or(0.0, |m| m * SECOND_DIFF_TO_SIGMA);
         measured.max(self.quantum[axis])
     }
 }
@@ -796,28 +848,38 @@ mod tests {
         assert!(gate.decided().is_none());
     }
 
-    /// The sorted copy of the noise window gives the median of the window
-    /// itself, to the bit, as values come and go (repeats and a quantised
-    /// axis among them).
+    /// The noise window holds the last [`NOISE_WINDOW`] |Δ²| of each axis
+    /// (counted here from the samples fed), in order and ascending, and
+    /// its median is theirs to the bit, as values come and go (repeats and
+    /// a quantised axis among them).
     #[test]
     fn the_noise_floor_keeps_its_window_sorted() {
         let mut noise = normals(7);
         let mut floor = NoiseFloor::default();
+        let mut fed: Vec<[f64; 3]> = Vec::new();
         for i in 0..2000 {
             let x = noise() * 3.0;
             let quantised = (x * 0.5).round();
             let constant = if i % 500 < 200 { 1.0 } else { x };
             floor.observe([x, quantised, constant]);
+            fed.push([x, quantised, constant]);
             for axis in 0..3 {
-                let mut window: Vec<f64> = floor.second_diffs[axis].iter().copied().collect();
+                let last: Vec<f64> = fed
+                    .windows(3)
+                    .map(|w| (w[2][axis] - 2.0 * w[1][axis] + w[0][axis]).abs())
+                    .collect();
+                let mut window = last[last.len().saturating_sub(NOISE_WINDOW)..].to_vec();
+                let held: Vec<f64> = floor.second_diffs[axis].in_order().collect();
+                assert_eq!(held, window, "sample {i}, axis {axis}");
                 let expected = median_of(&mut window);
-                let found = sorted_median(&floor.sorted[axis]);
+                let found = sorted_median(floor.second_diffs[axis].sorted());
                 assert_eq!(
                     found.map(f64::to_bits),
                     expected.map(f64::to_bits),
                     "sample {i}, axis {axis}"
                 );
-                assert_eq!(floor.sorted[axis].len(), floor.second_diffs[axis].len());
+                window.sort_unstable_by(f64::total_cmp);
+                assert_eq!(floor.second_diffs[axis].sorted(), &window[..]);
             }
         }
     }
