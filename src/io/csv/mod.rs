@@ -238,14 +238,26 @@ fn read_file(
     covariates: &Covariates,
     watch: Option<&mut dyn FnMut(RowsRead<'_>)>,
 ) -> Result<Dataset, CsvError> {
+    read_whole(path, watch, |front, size, watch| {
+        parse_dataset_sized(front, path, spec, covariates, size, watch)
+    })
+}
+
+/// `parse` given the file at `path` (cut in two halves when [`read_file`]
+/// reads on two cores), its size and the watcher (one that looks at
+/// nothing when there is none).
+fn read_whole<T>(
+    path: &Path,
+    watch: Option<&mut dyn FnMut(RowsRead<'_>)>,
+    parse: impl FnOnce(Front<'_>, u64, &mut dyn FnMut(RowsRead<'_>)) -> Result<T, CsvError>,
+) -> Result<T, CsvError> {
     let (file, size) = open_sized(path)?;
     let front = Front::file(
         &file,
         watch.is_none().then(|| halves::cut(&file, size)).flatten(),
     );
     let mut unwatched = |_: RowsRead<'_>| {};
-    let watch = watch.unwrap_or(&mut unwatched);
-    parse_dataset_sized(front, path, spec, covariates, size, watch)
+    parse(front, size, watch.unwrap_or(&mut unwatched))
 }
 
 /// A regular file, open, and its size in bytes (0 when unknown).
@@ -538,7 +550,6 @@ fn read_file3(
     covariates: &Covariates,
     watch: Option<&mut dyn FnMut(RowsRead<'_>)>,
 ) -> Result<Dataset3, CsvError> {
-    let (file, size) = open_sized(path)?;
     // z travels as a covariate until the dataset is built.
     let covariates = match covariates {
         Covariates::All => Covariates::All,
@@ -546,13 +557,10 @@ fn read_file3(
             Covariates::Only(names.iter().cloned().chain([z.to_string()]).collect())
         }
     };
-    let front = Front::file(
-        &file,
-        watch.is_none().then(|| halves::cut(&file, size)).flatten(),
-    );
-    let mut unwatched = |_: RowsRead<'_>| {};
-    let watch = watch.unwrap_or(&mut unwatched);
-    match dataset3_of(front, path, spec, z, &covariates, size, watch) {
+    let read = read_whole(path, watch, |front, size, watch| {
+        dataset3_of(front, path, spec, z, &covariates, size, watch)
+    });
+    match read {
         // The message lists every column z could have been: read them.
         Err(CsvError::MissingColumn { .. }) if covariates != Covariates::All => {
             read_dataset3(path, spec, z)
