@@ -229,9 +229,10 @@ pub fn read_dataset_watched(
     read_file(path, spec, covariates, Some(watch))
 }
 
-/// A file read whole: on two cores when it is large and nobody `watch`es
-/// (a watcher, the spike gate, has the other core already: a second
-/// reader would only leave it the rest of the file to judge alone, after).
+/// A file read whole ([`read_whole`]): on two cores when it is large and
+/// nobody `watch`es (a watcher, the spike gate, has the other core
+/// already: a second reader would only leave it the rest of the file to
+/// judge alone, after).
 fn read_file(
     path: &Path,
     spec: &ColumnSpec,
@@ -243,9 +244,9 @@ fn read_file(
     })
 }
 
-/// `parse` given the file at `path` (cut in two halves when [`read_file`]
-/// reads on two cores), its size and the watcher (one that looks at
-/// nothing when there is none).
+/// `parse` given the file at `path` (cut in two halves, to be read on two
+/// cores, when it is large and there is no watcher), its size and the
+/// watcher (one that looks at nothing when there is none).
 fn read_whole<T>(
     path: &Path,
     watch: Option<&mut dyn FnMut(RowsRead<'_>)>,
