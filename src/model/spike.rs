@@ -868,11 +868,13 @@ mod tests {
             floor.observe([x, quantised, constant]);
             fed.push([x, quantised, constant]);
             for axis in 0..3 {
-                let last: Vec<f64> = fed
+                // The last NOISE_WINDOW second differences need the last
+                // NOISE_WINDOW + 2 samples.
+                let from = fed.len().saturating_sub(NOISE_WINDOW + 2);
+                let mut window: Vec<f64> = fed[from..]
                     .windows(3)
                     .map(|w| (w[2][axis] - 2.0 * w[1][axis] + w[0][axis]).abs())
                     .collect();
-                let mut window = last[last.len().saturating_sub(NOISE_WINDOW)..].to_vec();
                 let held: Vec<f64> = floor.second_diffs[axis].in_order().collect();
                 assert_eq!(held, window, "sample {i}, axis {axis}");
                 let expected = median_of(&mut window);
