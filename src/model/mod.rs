@@ -61,6 +61,7 @@ pub mod still;
 pub mod still_stream;
 pub mod tilt;
 pub mod trust;
+pub(crate) mod tsqr;
 pub mod turn;
 pub mod validity;
 pub mod vertical;

@@ -149,10 +149,13 @@ pub fn closed_form(x: &[f64], y: &[f64]) -> Result<Theta, FitError> {
         let mut target = DVector::from_fn(n, |i, _| ((y[i] - my) / sy).powi(2));
         solve_least_squares(design, &mut target)?
     } else {
+        // (A product by the reciprocal: a division per value would be most
+        // of the time of the rows.)
+        let (to_u, to_v) = (1.0 / sx, 1.0 / sy);
         solve_by_blocks(n, |i| {
-            let u = (x[i] - mx) / sx;
-            let v = (y[i] - my) / sy;
-            [u * u, u, v, 1.0, v.powi(2)]
+            let u = (x[i] - mx) * to_u;
+            let v = (y[i] - my) * to_v;
+            [u * u, u, v, 1.0, v * v]
         })?
     };
 
@@ -268,38 +271,23 @@ fn solve_triangle(r4: &Matrix4<f64>, rhs: &Vector4<f64>) -> Result<Vector4<f64>,
 /// one block, 4096 rows of five columns, is 160 KiB: it stays in the
 /// cache, where the whole design of two million rows would be 80 MB
 /// written, faulted in and read five times over).
-pub(crate) const QR_BLOCK: usize = 4096;
+pub(crate) const QR_BLOCK: usize = super::tsqr::BLOCK;
 
 /// [`solve_least_squares`] of `n` rows `[x², x, y, 1 | target]` made by
-/// `row`, a block of [`QR_BLOCK`] at a time: each block is stacked under
-/// the triangle R (of the design and the target beside it) of the rows
-/// before and factored again by Householder QR (a tall-skinny QR: as
-/// backward stable as one QR of all the rows, and R the same up to the
-/// signs of its rows). The solution and the degeneracy test are those of
-/// [`solve_least_squares`], on the last R.
+/// `row`, a block of [`QR_BLOCK`] at a time ([`super::tsqr::StreamedR`]):
+/// each block is stacked under the triangle R (of the design and the
+/// target beside it) of the rows before and reduced again by Householder
+/// reflections (a tall-skinny QR: as backward stable as one QR of all the
+/// rows, and R the same up to the signs of its rows). The solution and the
+/// degeneracy test are those of [`solve_least_squares`], on the last R.
 fn solve_by_blocks(n: usize, row: impl Fn(usize) -> [f64; 5]) -> Result<Vector4<f64>, FitError> {
-    const COLUMNS: usize = UNKNOWNS + 1;
-    let mut r = nalgebra::SMatrix::<f64, COLUMNS, COLUMNS>::zeros();
-    let mut start = 0;
-    while start < n {
-        let end = (start + QR_BLOCK).min(n);
-        let mut stacked = DMatrix::zeros(COLUMNS + end - start, COLUMNS);
-        stacked.rows_mut(0, COLUMNS).copy_from(&r);
-        for (i, at) in (start..end).enumerate() {
-            // Each row made once, its five values placed.
-            for (j, value) in row(at).into_iter().enumerate() {
-                stacked[(COLUMNS + i, j)] = value;
-            }
-        }
-        r = stacked
-            .qr()
-            .r()
-            .fixed_view::<COLUMNS, COLUMNS>(0, 0)
-            .into_owned();
-        start = end;
+    let mut streamed = super::tsqr::StreamedR::<{ UNKNOWNS + 1 }>::default();
+    for at in 0..n {
+        streamed.push(row(at));
     }
-    let r4: Matrix4<f64> = r.fixed_view::<4, 4>(0, 0).into_owned();
-    let rhs: Vector4<f64> = r.fixed_view::<4, 1>(0, UNKNOWNS).into_owned();
+    let r = streamed.finish();
+    let r4 = Matrix4::from_fn(|i, j| r[i][j]);
+    let rhs = Vector4::from_fn(|i, _| r[i][UNKNOWNS]);
     solve_triangle(&r4, &rhs)
 }
 
