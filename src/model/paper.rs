@@ -149,8 +149,12 @@ pub fn closed_form(x: &[f64], y: &[f64]) -> Result<Theta, FitError> {
         let mut target = DVector::from_fn(n, |i, _| ((y[i] - my) / sy).powi(2));
         solve_least_squares(design, &mut target)?
     } else {
-        // (A product by the reciprocal: a division per value would be most
-        // of the time of the rows.)
+        // A product by the reciprocal: a division per value would be most
+        // of the time of the rows. The reciprocal is a normal number: a
+        // spread is 0 or the square root of a variance of at least the
+        // least subnormal (so at least 2.2e-162), and at most the root of
+        // the largest f64; a spread of 0 gives what dividing by it gives
+        // (NaN where the value is the mean, an infinity elsewhere).
         let (to_u, to_v) = (1.0 / sx, 1.0 / sy);
         solve_by_blocks(n, |i| {
             let u = (x[i] - mx) * to_u;
@@ -278,8 +282,9 @@ pub(crate) const QR_BLOCK: usize = super::tsqr::BLOCK;
 /// each block is stacked under the triangle R (of the design and the
 /// target beside it) of the rows before and reduced again by Householder
 /// reflections (a tall-skinny QR: as backward stable as one QR of all the
-/// rows, and R the same up to the signs of its rows). The solution and the
-/// degeneracy test are those of [`solve_least_squares`], on the last R.
+/// rows, and R the same up to the signs of its rows for a design of full
+/// rank). The solution and the degeneracy test are those of
+/// [`solve_least_squares`], on the last R.
 fn solve_by_blocks(n: usize, row: impl Fn(usize) -> [f64; 5]) -> Result<Vector4<f64>, FitError> {
     let mut streamed = super::tsqr::StreamedR::<{ UNKNOWNS + 1 }>::default();
     for at in 0..n {

@@ -51,7 +51,7 @@ impl<const K: usize> StreamedR<K> {
     }
 
     /// R of every row pushed (its rows' signs are those the reflections
-    /// gave: R is unique up to them).
+    /// gave: for columns of full rank, R is unique up to them).
     pub fn finish(mut self) -> [[f64; K]; K] {
         self.absorb();
         self.r

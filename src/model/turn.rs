@@ -309,7 +309,7 @@ impl Ring {
                     Some(c) => (sx / c.a, sy),
                     None => (sx, sy),
                 };
-                (length(sx, sy), length(raw.0, raw.1))
+                (sx.hypot(sy), raw.0.hypot(raw.1))
             })
             .unzip();
         // One scratch copy serves each median in turn (a fresh one each
@@ -363,21 +363,6 @@ impl Ring {
             ring_samples: in_band.len(),
             coverage: coverage(in_band),
         }
-    }
-}
-
-/// |(a, b)|: the square root of the sum of squares where that sum is a
-/// normal number (no overflow, no underflow: within about an ulp of
-/// `hypot`, at a tenth of its time, on the gate's every reading twice);
-/// `hypot` beyond.
-fn length(a: f64, b: f64) -> f64 {
-    /// About 2⁻⁹⁰⁰: a sum of squares above it lost no bits to underflow.
-    const SMALLEST: f64 = 1.2e-271;
-    let squares = a * a + b * b;
-    if squares.is_finite() && squares >= SMALLEST {
-        squares.sqrt()
-    } else {
-        a.hypot(b)
     }
 }
 
@@ -444,25 +429,6 @@ mod tests {
     use super::super::residuals::sorted_median;
     use super::*;
     use proptest::prelude::*;
-
-    /// The gate's length is hypot's to within two ulps at every scale: by
-    /// the sum of squares in the normal range, by hypot where the squares
-    /// would overflow or underflow (a sum of squares there is infinite, or
-    /// zero, or lost its bits).
-    #[test]
-    fn the_length_is_hypot_at_every_scale() {
-        for exponent in (-320..=307).step_by(7) {
-            let scale = 10f64.powi(exponent);
-            for (a, b) in [(3.0, 4.0), (1.0, 1e-9), (-0.7, 0.2), (1e-3, -1.0)] {
-                let (a, b) = (a * scale, b * scale);
-                let (got, want) = (length(a, b), a.hypot(b));
-                assert!(
-                    (got - want).abs() <= 2.0 * f64::EPSILON * want,
-                    "|({a:e}, {b:e})|: {got:e}, hypot {want:e}"
-                );
-            }
-        }
-    }
 
     proptest! {
         #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
