@@ -150,11 +150,12 @@ pub fn closed_form(x: &[f64], y: &[f64]) -> Result<Theta, FitError> {
         solve_least_squares(design, &mut target)?
     } else {
         // A product by the reciprocal: a division per value would be most
-        // of the time of the rows. The reciprocal is a normal number: a
-        // spread is 0 or the square root of a variance of at least the
-        // least subnormal (so at least 2.2e-162), and at most the root of
-        // the largest f64; a spread of 0 gives what dividing by it gives
-        // (NaN where the value is the mean, an infinity elsewhere).
+        // of the time of the rows. The reciprocal of a finite, non-zero
+        // spread is a normal number: the spread is the square root of a
+        // variance of at least the least subnormal (so at least 2.2e-162)
+        // and at most the largest f64 (so at most 1.3e154). A spread of 0,
+        // of ∞ or NaN gives what dividing by it gives (NaN or ∞ for 0, 0
+        // or NaN for ∞, NaN for NaN).
         let (to_u, to_v) = (1.0 / sx, 1.0 / sy);
         solve_by_blocks(n, |i| {
             let u = (x[i] - mx) * to_u;
