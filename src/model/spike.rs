@@ -128,18 +128,32 @@ struct NoiseFloor {
     quantum: [f64; 3],
 }
 
-/// The last [`NOISE_WINDOW`] values of one axis, in the order they came
-/// and in ascending order, both in place (no heap, a fixed length once
-/// full: the count and the shift below are the gate's inner loop).
+/// The last [`NOISE_WINDOW`] values of one axis (magnitudes: finite, +0
+/// rather than −0), in the order they came, and a value their median is
+/// known to be at least, kept as values come and go by two counts (no
+/// heap, nothing sorted per value: the gate's inner loop). Nearly every
+/// sample is decided on that bound; the median itself, from a sorted copy
+/// brought up to date only then, decides the rest.
 #[derive(Debug, Clone)]
 struct Window {
     /// The values as they came, a ring: the oldest at `head` once full.
     ring: [f64; NOISE_WINDOW],
     head: usize,
     len: usize,
-    /// The same values ascending, so that their median costs nothing to
-    /// look up (a sample is judged against it on every axis).
-    sorted: [f64; NOISE_WINDOW],
+    /// The median is at least `floor` while at least [`Window::middle`]
+    /// of the values are: `at_least_floor` counts them.
+    floor: f64,
+    at_least_floor: usize,
+    /// When [`Window::middle`] of the values reach `lift`, the floor is
+    /// raised: counted by `at_least_lift`.
+    lift: f64,
+    at_least_lift: usize,
+    /// The values ascending, as they were before the `behind` last came.
+    sorted: Sorted,
+    /// Those values, each with the one it pushed out of a full window, up
+    /// to [`BEHIND_AT_MOST`]; more, and the copy is sorted anew.
+    came: [(f64, Option<f64>); BEHIND_AT_MOST],
+    behind: usize,
 }
 
 impl Default for Window {
@@ -148,15 +162,39 @@ impl Default for Window {
             ring: [0.0; NOISE_WINDOW],
             head: 0,
             len: 0,
-            sorted: [0.0; NOISE_WINDOW],
+            floor: 0.0,
+            at_least_floor: 0,
+            lift: f64::MIN_POSITIVE,
+            at_least_lift: 0,
+            sorted: Sorted::default(),
+            came: [(0.0, None); BEHIND_AT_MOST],
+            behind: 0,
         }
     }
 }
 
+/// The fraction of the value a new floor is set at (see
+/// [`Window::set_floor`]): the median of Gaussian noise's |Δ²| may fall by
+/// about 40 % before the floor is set anew, and the bound it gives a
+/// sample is about 0.6 of the noise's: 7 σ, where the prediction's spread
+/// is about 1.9 σ.
+const FLOOR_OF_MIDDLE: f64 = 0.75;
+
+/// Ranks between the lower middle value and those the floor and the lift
+/// are set from: the counts must move by more than that many values
+/// before either is set anew (a quantised axis whose median sits between
+/// two counts would otherwise set them at nearly every value).
+const RANKS_APART: usize = 4;
+
+/// Values the sorted copy may fall behind by and still be brought up to
+/// date one at a time (a count over the window and a shift each); beyond,
+/// it is sorted anew, which costs about as much as a dozen of those.
+const BEHIND_AT_MOST: usize = 16;
+
 impl Window {
-    /// The values ascending.
-    fn sorted(&self) -> &[f64] {
-        &self.sorted[..self.len]
+    /// The values, in no particular order.
+    fn values(&self) -> &[f64] {
+        &self.ring[..self.len]
     }
 
     /// The values oldest first.
@@ -170,31 +208,144 @@ impl Window {
         (0..len).map(move |i| self.ring[(start + i) % NOISE_WINDOW])
     }
 
-    /// Takes in `value` (finite, not negative), the oldest leaving when
-    /// the window is full.
+    /// How many of `len` values must be at least a value for their median
+    /// to be: those from the lower middle one up (the median is the
+    /// middle one, or the mean of the two middle ones).
+    fn middle(len: usize) -> usize {
+        len - len.saturating_sub(1) / 2
+    }
+
+    /// Takes in `value` (a magnitude), the oldest leaving when the window
+    /// is full.
     fn push(&mut self, value: f64) {
-        if self.len < NOISE_WINDOW {
+        let gone = if self.len < NOISE_WINDOW {
             self.ring[self.len] = value;
-            let (at, _) = below(self.sorted(), value, f64::NAN);
-            self.sorted.copy_within(at..self.len, at + 1);
-            self.sorted[at] = value;
             self.len += 1;
-            return;
+            None
+        } else {
+            let gone = std::mem::replace(&mut self.ring[self.head], value);
+            self.head = (self.head + 1) % NOISE_WINDOW;
+            self.at_least_floor -= usize::from(gone >= self.floor);
+            self.at_least_lift -= usize::from(gone >= self.lift);
+            Some(gone)
+        };
+        if let Some(slot) = self.came.get_mut(self.behind) {
+            *slot = (value, gone);
         }
-        let gone = std::mem::replace(&mut self.ring[self.head], value);
-        self.head = (self.head + 1) % NOISE_WINDOW;
+        self.behind = self.behind.saturating_add(1);
+        self.at_least_floor += usize::from(value >= self.floor);
+        self.at_least_lift += usize::from(value >= self.lift);
+        let middle = Window::middle(self.len);
+        if self.at_least_floor < middle || self.at_least_lift >= middle {
+            self.set_floor();
+        }
+    }
+
+    /// Sets the floor at [`FLOOR_OF_MIDDLE`] of the value [`RANKS_APART`]
+    /// ranks below the lower middle one (so it is at most that one, as
+    /// are the values above: enough of them), and the lift above the value
+    /// as many ranks above it, and at least at twice the floor.
+    fn set_floor(&mut self) {
+        let n = self.len;
+        let Some(lower) = n.checked_sub(1).map(|last| last / 2) else {
+            return;
+        };
+        let mut values = [0.0; NOISE_WINDOW];
+        let values = &mut values[..n];
+        values.copy_from_slice(self.values());
+        let (below, above) = (
+            lower.saturating_sub(RANKS_APART),
+            (lower + RANKS_APART).min(n - 1),
+        );
+        let (before, &mut high, _) = values.select_nth_unstable_by(above, f64::total_cmp);
+        // (`before` holds the `above` values at or below `high`.)
+        let low = if below < above {
+            *before.select_nth_unstable_by(below, f64::total_cmp).1
+        } else {
+            high
+        };
+        self.floor = FLOOR_OF_MIDDLE * low;
+        self.lift = (2.0 * self.floor)
+            .max(high.next_up())
+            .max(f64::MIN_POSITIVE);
+        let (floor, lift) = (self.floor, self.lift);
+        (self.at_least_floor, self.at_least_lift) =
+            self.values().iter().fold((0, 0), |(f, l), &v| {
+                (f + usize::from(v >= floor), l + usize::from(v >= lift))
+            });
+    }
+
+    /// The values' median, None when there are none.
+    fn median(&mut self) -> Option<f64> {
+        if self.behind > BEHIND_AT_MOST {
+            self.sorted.set(&self.ring[..self.len]);
+        } else {
+            for &(value, gone) in &self.came[..self.behind] {
+                self.sorted.replace(value, gone, &self.ring[..self.len]);
+            }
+        }
+        self.behind = 0;
+        sorted_median(self.sorted.values())
+    }
+
+    /// A value the median is at least (0 when there are no values).
+    fn median_at_least(&self) -> f64 {
+        self.floor
+    }
+}
+
+/// A window's values ascending (no heap: a fixed array).
+#[derive(Debug, Clone)]
+struct Sorted {
+    values: [f64; NOISE_WINDOW],
+    len: usize,
+}
+
+impl Default for Sorted {
+    fn default() -> Self {
+        Sorted {
+            values: [0.0; NOISE_WINDOW],
+            len: 0,
+        }
+    }
+}
+
+impl Sorted {
+    fn values(&self) -> &[f64] {
+        &self.values[..self.len]
+    }
+
+    /// `values`, sorted.
+    fn set(&mut self, values: &[f64]) {
+        self.len = values.len().min(NOISE_WINDOW);
+        self.values[..self.len].copy_from_slice(&values[..self.len]);
+        self.values[..self.len].sort_unstable_by(f64::total_cmp);
+    }
+
+    /// Takes in `value` for `gone` (None: nothing left, the window was not
+    /// full); `all`, the window's values now, should `gone` not be found.
+    fn replace(&mut self, value: f64, gone: Option<f64>, all: &[f64]) {
+        let Some(gone) = gone else {
+            if self.len < NOISE_WINDOW {
+                let (at, _) = below(self.values(), value, f64::NAN);
+                self.values.copy_within(at..self.len, at + 1);
+                self.values[at] = value;
+                self.len += 1;
+            }
+            return;
+        };
         // Where the new value goes in, and where the oldest is: one count
-        // of both, over the whole (fixed) window.
-        let (at, out) = below(&self.sorted, value, gone);
-        let sorted = &mut self.sorted;
-        let found = sorted.get(out) == Some(&gone);
+        // of both, over the whole (fixed) window: a value leaves only a
+        // full one.
+        let sorted = &mut self.values;
+        let (at, out) = below(sorted, value, gone);
+        let found = self.len == NOISE_WINDOW && sorted.get(out) == Some(&gone);
         // Every value that leaves came in, with the same bits: tests fail
         // here should that ever not hold.
         debug_assert!(found, "{gone} left the noise window but was not in it");
         if !found {
             // Not reached: sorted again, rather than a wrong median.
-            sorted.copy_from_slice(&self.ring);
-            sorted.sort_unstable_by(f64::total_cmp);
+            self.set(all);
             return;
         }
         if at <= out {
@@ -207,6 +358,18 @@ impl Window {
             sorted[at - 1] = value;
         }
     }
+}
+
+/// How many of the ascending `sorted` lie below `value`, and below
+/// `other` (none below NaN): where `value` goes in, and the place of the
+/// first value equal to `other`. The values are magnitudes (finite, and +0
+/// rather than −0), so `<` orders them as `total_cmp` does. A count over
+/// the window's 64 values, not a binary search: no chain of loads that
+/// each wait for the one before.
+fn below(sorted: &[f64], value: f64, other: f64) -> (usize, usize) {
+    sorted.iter().fold((0, 0), |(a, b), &v| {
+        (a + usize::from(v < value), b + usize::from(v < other))
+    })
 }
 
 impl NoiseFloor {
@@ -235,23 +398,18 @@ impl NoiseFloor {
     }
 
     /// σ of the noise on `axis`; 0 before anything is known.
-    fn sigma(&self, axis: usize) -> f64 {
-        let measured = sorted_median(self.second_diffs[axis].sorted())
+    fn sigma(&mut self, axis: usize) -> f64 {
+        let measured = self.second_diffs[axis]
+            .median()
             .map_or(0.0, |m| m * SECOND_DIFF_TO_SIGMA);
         measured.max(self.quantum[axis])
     }
-}
 
-/// How many of the ascending `sorted` lie below `value`, and below
-/// `other` (none below NaN): where `value` goes in, and the place of the
-/// first value equal to `other`. The values are magnitudes (finite, and +0
-/// rather than −0), so `<` orders them as `total_cmp` does. A count over
-/// the window's 64 values, not a binary search: no chain of loads that
-/// each wait for the one before.
-fn below(sorted: &[f64], value: f64, other: f64) -> (usize, usize) {
-    sorted.iter().fold((0, 0), |(a, b), &v| {
-        (a + usize::from(v < value), b + usize::from(v < other))
-    })
+    /// A value [`NoiseFloor::sigma`] is at least, at once: what the floor
+    /// under the median gives (rounding keeps the order of the products).
+    fn sigma_at_least(&self, axis: usize) -> f64 {
+        (self.second_diffs[axis].median_at_least() * SECOND_DIFF_TO_SIGMA).max(self.quantum[axis])
+    }
 }
 
 /// Sorts six finite values ascending: a network of 12 compare-exchanges,
@@ -503,7 +661,7 @@ impl<T> SpikeGate<T> {
     /// the same values a sort gives). `false`: not decided here (a window
     /// not yet full, an axis whose noise is not yet known, a value that is
     /// not finite, or a sample beyond its bound): judge it.
-    fn surely_within_prediction(&self, raw: [f64; 3]) -> bool {
+    fn surely_within_prediction(&mut self, raw: [f64; 3]) -> bool {
         let Ok(kept) = <&[[f64; 3]; WINDOW]>::try_from(self.kept.as_slice()) else {
             return false;
         };
@@ -527,9 +685,11 @@ impl<T> SpikeGate<T> {
             if ![a, b, c].iter().all(|v| v.is_finite()) {
                 return false;
             }
-            let reference = median3(a, b, c);
-            let sigma = self.noise.sigma(axis);
-            if !((value - reference).abs() <= THRESHOLD_SIGMAS * PREDICTION_MARGIN * sigma) {
+            let off = (value - median3(a, b, c)).abs();
+            let within = |sigma: f64| off <= THRESHOLD_SIGMAS * PREDICTION_MARGIN * sigma;
+            // The bound under σ decides nearly every sample; σ itself the
+            // rest (a sample within the first is within the second).
+            if !(within(self.noise.sigma_at_least(axis)) || within(self.noise.sigma(axis))) {
                 return false;
             }
         }
@@ -853,20 +1013,28 @@ mod tests {
     }
 
     /// The noise window holds the last [`NOISE_WINDOW`] |Δ²| of each axis
-    /// (counted here from the samples fed), in order and ascending, and
-    /// its median is theirs to the bit, as values come and go (repeats and
-    /// a quantised axis among them).
+    /// (counted here from the samples fed), in order; its median is
+    /// theirs to the bit, asked for after every value or only after
+    /// several (its sorted copy brought up to date one value at a time, or
+    /// sorted anew), and its floor is never above it, as values come and
+    /// go (repeats, a quantised axis, a constant stretch and a noise that
+    /// grows and shrinks tenfold among them).
     #[test]
-    fn the_noise_floor_keeps_its_window_sorted() {
+    fn the_noise_floor_keeps_its_window_and_a_floor_under_its_median() {
         let mut noise = normals(7);
         let mut floor = NoiseFloor::default();
         let mut fed: Vec<[f64; 3]> = Vec::new();
-        for i in 0..2000 {
-            let x = noise() * 3.0;
+        let mut floors_set = [0usize; 3];
+        let mut last_floor = [0.0f64; 3];
+        for i in 0..6000 {
+            let x = noise() * if (i / 700) % 2 == 0 { 3.0 } else { 30.0 };
             let quantised = (x * 0.5).round();
             let constant = if i % 500 < 200 { 1.0 } else { x };
             floor.observe([x, quantised, constant]);
             fed.push([x, quantised, constant]);
+            // The median asked for after every value, or after more than
+            // the sorted copy keeps up with one by one.
+            let every = [1, 2, 5, BEHIND_AT_MOST, BEHIND_AT_MOST + 1, 40][(i / 1000) % 6];
             for axis in 0..3 {
                 // The last NOISE_WINDOW second differences need the last
                 // NOISE_WINDOW + 2 samples.
@@ -877,17 +1045,58 @@ mod tests {
                     .collect();
                 let held: Vec<f64> = floor.second_diffs[axis].in_order().collect();
                 assert_eq!(held, window, "sample {i}, axis {axis}");
-                let expected = median_of(&mut window);
-                let found = sorted_median(floor.second_diffs[axis].sorted());
-                assert_eq!(
-                    found.map(f64::to_bits),
-                    expected.map(f64::to_bits),
-                    "sample {i}, axis {axis}"
-                );
                 window.sort_unstable_by(f64::total_cmp);
-                assert_eq!(floor.second_diffs[axis].sorted(), &window[..]);
+                let expected = sorted_median(&window);
+                let under = floor.second_diffs[axis].median_at_least();
+                assert!(
+                    under <= expected.unwrap_or(0.0),
+                    "sample {i}, axis {axis}: floor {under} above the median {expected:?}"
+                );
+                if under != last_floor[axis] {
+                    floors_set[axis] += 1;
+                    last_floor[axis] = under;
+                }
+                if i % every == 0 {
+                    let found = floor.second_diffs[axis].median();
+                    assert_eq!(
+                        found.map(f64::to_bits),
+                        expected.map(f64::to_bits),
+                        "sample {i}, axis {axis}"
+                    );
+                    assert_eq!(floor.second_diffs[axis].sorted.values(), &window[..]);
+                    assert!(floor.sigma_at_least(axis) <= floor.sigma(axis));
+                }
             }
         }
+        // The floor follows the noise down and up, and is not set anew at
+        // every value (then it would save nothing).
+        for (axis, set) in floors_set.into_iter().enumerate() {
+            assert!(
+                (8..600).contains(&set),
+                "axis {axis}: the floor was set {set} times"
+            );
+        }
+    }
+
+    /// A quantised axis whose median |Δ²| sits between two counts (half
+    /// its second differences 0) does not set its floor anew at every
+    /// value.
+    #[test]
+    fn a_median_between_two_counts_keeps_its_floor() {
+        let mut noise = normals(3);
+        let mut floor = NoiseFloor::default();
+        let mut set = 0;
+        let mut last = 0.0;
+        for _ in 0..5000 {
+            let x = (0.4 * noise()).round();
+            floor.observe([x, 0.0, 0.0]);
+            let now = floor.second_diffs[0].median_at_least();
+            if now != last {
+                set += 1;
+                last = now;
+            }
+        }
+        assert!(set < 50, "the floor was set {set} times in 5000 values");
     }
 
     /// The network sorts every order of six values (0-1 principle: every
