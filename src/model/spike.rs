@@ -145,15 +145,22 @@ struct Window {
     floor: f64,
     at_least_floor: usize,
     /// When [`Window::middle`] of the values reach `lift`, the floor is
-    /// raised: counted by `at_least_lift`.
+    /// set anew (most often higher): counted by `at_least_lift`.
     lift: f64,
     at_least_lift: usize,
-    /// The values ascending, as they were before the `behind` last came.
+    /// The values ascending, as they were the last time the median was
+    /// asked for (when `sorted_is_last`).
     sorted: Sorted,
-    /// Those values, each with the one it pushed out of a full window, up
-    /// to [`BEHIND_AT_MOST`]; more, and the copy is sorted anew.
+    /// The `behind` values that came since, each with the one it pushed
+    /// out of a full window, up to [`BEHIND_AT_MOST`].
     came: [(f64, Option<f64>); BEHIND_AT_MOST],
     behind: usize,
+    /// Whether the sorted copy holds the values of the last time the
+    /// median was asked for.
+    sorted_is_last: bool,
+    /// Times the floor was set (for the tests).
+    #[cfg(test)]
+    floors_set: usize,
 }
 
 impl Default for Window {
@@ -169,6 +176,9 @@ impl Default for Window {
             sorted: Sorted::default(),
             came: [(0.0, None); BEHIND_AT_MOST],
             behind: 0,
+            sorted_is_last: true,
+            #[cfg(test)]
+            floors_set: 0,
         }
     }
 }
@@ -181,9 +191,10 @@ impl Default for Window {
 const FLOOR_OF_MIDDLE: f64 = 0.75;
 
 /// Ranks between the lower middle value and those the floor and the lift
-/// are set from: the counts must move by more than that many values
-/// before either is set anew (a quantised axis whose median sits between
-/// two counts would otherwise set them at nearly every value).
+/// are set from: in a full window the counts must move by more than that
+/// many values before either is set anew (a quantised axis whose median
+/// sits between two counts would otherwise set them at nearly every
+/// value); a short one's ranks are clamped to its ends.
 const RANKS_APART: usize = 4;
 
 /// Values the sorted copy may fall behind by and still be brought up to
@@ -246,6 +257,10 @@ impl Window {
     /// are the values above: enough of them), and the lift above the value
     /// as many ranks above it, and at least at twice the floor.
     fn set_floor(&mut self) {
+        #[cfg(test)]
+        {
+            self.floors_set += 1;
+        }
         let n = self.len;
         let Some(lower) = n.checked_sub(1).map(|last| last / 2) else {
             return;
@@ -275,16 +290,29 @@ impl Window {
             });
     }
 
-    /// The values' median, None when there are none.
+    /// The values' median, None when there are none. Asked for again
+    /// within [`BEHIND_AT_MOST`] values, it comes from the sorted copy,
+    /// brought up to date (or sorted anew when it is not the window's of
+    /// the last time); asked for seldom, from a selection of the values,
+    /// and the copy is left as it was.
     fn median(&mut self) -> Option<f64> {
-        if self.behind > BEHIND_AT_MOST {
-            self.sorted.set(&self.ring[..self.len]);
-        } else {
-            for &(value, gone) in &self.came[..self.behind] {
-                self.sorted.replace(value, gone, &self.ring[..self.len]);
-            }
+        let all = &self.ring[..self.len];
+        let behind = std::mem::take(&mut self.behind);
+        if behind > BEHIND_AT_MOST {
+            self.sorted_is_last = false;
+            let mut values = [0.0; NOISE_WINDOW];
+            let values = &mut values[..all.len()];
+            values.copy_from_slice(all);
+            return median_of(values);
         }
-        self.behind = 0;
+        let caught_up = self.sorted_is_last
+            && self.came[..behind]
+                .iter()
+                .all(|&(value, gone)| self.sorted.replace(value, gone));
+        if !caught_up {
+            self.sorted.set(all);
+        }
+        self.sorted_is_last = true;
         sorted_median(self.sorted.values())
     }
 
@@ -323,16 +351,20 @@ impl Sorted {
     }
 
     /// Takes in `value` for `gone` (None: nothing left, the window was not
-    /// full); `all`, the window's values now, should `gone` not be found.
-    fn replace(&mut self, value: f64, gone: Option<f64>, all: &[f64]) {
+    /// full). `false`, changing nothing, when the values cannot be those
+    /// of such a window (`gone` not among them, or no room for `value`):
+    /// not reached, and the caller sorts the window anew rather than give
+    /// a wrong median.
+    fn replace(&mut self, value: f64, gone: Option<f64>) -> bool {
         let Some(gone) = gone else {
-            if self.len < NOISE_WINDOW {
-                let (at, _) = below(self.values(), value, f64::NAN);
-                self.values.copy_within(at..self.len, at + 1);
-                self.values[at] = value;
-                self.len += 1;
+            if self.len == NOISE_WINDOW {
+                return false;
             }
-            return;
+            let (at, _) = below(self.values(), value, f64::NAN);
+            self.values.copy_within(at..self.len, at + 1);
+            self.values[at] = value;
+            self.len += 1;
+            return true;
         };
         // Where the new value goes in, and where the oldest is: one count
         // of both, over the whole (fixed) window: a value leaves only a
@@ -340,13 +372,11 @@ impl Sorted {
         let sorted = &mut self.values;
         let (at, out) = below(sorted, value, gone);
         let found = self.len == NOISE_WINDOW && sorted.get(out) == Some(&gone);
-        // Every value that leaves came in, with the same bits: tests fail
-        // here should that ever not hold.
+        // Every value that leaves a full window came in, with the same
+        // bits: tests fail here should that ever not hold.
         debug_assert!(found, "{gone} left the noise window but was not in it");
         if !found {
-            // Not reached: sorted again, rather than a wrong median.
-            self.set(all);
-            return;
+            return false;
         }
         if at <= out {
             // The oldest leaves where the new one comes in: one shift of
@@ -357,6 +387,7 @@ impl Sorted {
             sorted.copy_within(out + 1..at, out);
             sorted[at - 1] = value;
         }
+        true
     }
 }
 
@@ -1012,6 +1043,46 @@ mod tests {
         assert!(gate.decided().is_none());
     }
 
+    /// Checks `floor`'s windows against the last [`NOISE_WINDOW`] |Δ²| of
+    /// `fed` (the samples it observed): their order, the floor at most
+    /// their median, and (`ask`) the median to the bit and the sorted copy.
+    fn check_noise_floor(floor: &mut NoiseFloor, fed: &[[f64; 3]], ask: bool, at: &str) {
+        for axis in 0..3 {
+            // The last NOISE_WINDOW second differences need the last
+            // NOISE_WINDOW + 2 samples.
+            let from = fed.len().saturating_sub(NOISE_WINDOW + 2);
+            let mut window: Vec<f64> = fed[from..]
+                .windows(3)
+                .map(|w| (w[2][axis] - 2.0 * w[1][axis] + w[0][axis]).abs())
+                .collect();
+            let held: Vec<f64> = floor.second_diffs[axis].in_order().collect();
+            assert_eq!(held, window, "{at}, axis {axis}");
+            window.sort_unstable_by(f64::total_cmp);
+            let expected = sorted_median(&window);
+            let under = floor.second_diffs[axis].median_at_least();
+            assert!(
+                under <= expected.unwrap_or(0.0),
+                "{at}, axis {axis}: floor {under} above the median {expected:?}"
+            );
+            if ask {
+                let behind = floor.second_diffs[axis].behind;
+                let found = floor.second_diffs[axis].median();
+                assert_eq!(
+                    found.map(f64::to_bits),
+                    expected.map(f64::to_bits),
+                    "{at}, axis {axis}"
+                );
+                // The copy is kept only when asked for often.
+                let kept = &floor.second_diffs[axis];
+                assert_eq!(kept.sorted_is_last, behind <= BEHIND_AT_MOST, "{at}");
+                if kept.sorted_is_last {
+                    assert_eq!(kept.sorted.values(), &window[..], "{at}, axis {axis}");
+                }
+                assert!(floor.sigma_at_least(axis) <= floor.sigma(axis));
+            }
+        }
+    }
+
     /// The noise window holds the last [`NOISE_WINDOW`] |Δ²| of each axis
     /// (counted here from the samples fed), in order; its median is
     /// theirs to the bit, asked for after every value or only after
@@ -1024,8 +1095,6 @@ mod tests {
         let mut noise = normals(7);
         let mut floor = NoiseFloor::default();
         let mut fed: Vec<[f64; 3]> = Vec::new();
-        let mut floors_set = [0usize; 3];
-        let mut last_floor = [0.0f64; 3];
         for i in 0..6000 {
             let x = noise() * if (i / 700) % 2 == 0 { 3.0 } else { 30.0 };
             let quantised = (x * 0.5).round();
@@ -1034,47 +1103,33 @@ mod tests {
             fed.push([x, quantised, constant]);
             // The median asked for after every value, or after more than
             // the sorted copy keeps up with one by one.
-            let every = [1, 2, 5, BEHIND_AT_MOST, BEHIND_AT_MOST + 1, 40][(i / 1000) % 6];
-            for axis in 0..3 {
-                // The last NOISE_WINDOW second differences need the last
-                // NOISE_WINDOW + 2 samples.
-                let from = fed.len().saturating_sub(NOISE_WINDOW + 2);
-                let mut window: Vec<f64> = fed[from..]
-                    .windows(3)
-                    .map(|w| (w[2][axis] - 2.0 * w[1][axis] + w[0][axis]).abs())
-                    .collect();
-                let held: Vec<f64> = floor.second_diffs[axis].in_order().collect();
-                assert_eq!(held, window, "sample {i}, axis {axis}");
-                window.sort_unstable_by(f64::total_cmp);
-                let expected = sorted_median(&window);
-                let under = floor.second_diffs[axis].median_at_least();
-                assert!(
-                    under <= expected.unwrap_or(0.0),
-                    "sample {i}, axis {axis}: floor {under} above the median {expected:?}"
-                );
-                if under != last_floor[axis] {
-                    floors_set[axis] += 1;
-                    last_floor[axis] = under;
-                }
-                if i % every == 0 {
-                    let found = floor.second_diffs[axis].median();
-                    assert_eq!(
-                        found.map(f64::to_bits),
-                        expected.map(f64::to_bits),
-                        "sample {i}, axis {axis}"
-                    );
-                    assert_eq!(floor.second_diffs[axis].sorted.values(), &window[..]);
-                    assert!(floor.sigma_at_least(axis) <= floor.sigma(axis));
-                }
-            }
+            let every = [5, 1, 2, BEHIND_AT_MOST, BEHIND_AT_MOST + 1, 40][(i / 1000) % 6];
+            check_noise_floor(&mut floor, &fed, i % every == 0, &format!("sample {i}"));
         }
         // The floor follows the noise down and up, and is not set anew at
         // every value (then it would save nothing).
-        for (axis, set) in floors_set.into_iter().enumerate() {
+        for (axis, window) in floor.second_diffs.iter().enumerate() {
             assert!(
-                (8..600).contains(&set),
-                "axis {axis}: the floor was set {set} times"
+                (8..300).contains(&window.floors_set),
+                "axis {axis}: the floor was set {} times",
+                window.floors_set
             );
+        }
+        // A window still filling, its median first asked for after 1 to
+        // 40 values, and then every so many: the copy takes in values
+        // that push none out, one by one or sorted anew.
+        for first in [1, 3, 17, 30, 40] {
+            for every in [1, 4, 16, 17, 23] {
+                let mut floor = NoiseFloor::default();
+                let mut fed: Vec<[f64; 3]> = Vec::new();
+                for i in 0..150 {
+                    let x = noise();
+                    floor.observe([x, x.round(), 1.0]);
+                    fed.push([x, x.round(), 1.0]);
+                    let ask = i + 1 >= first && (i + 1 - first) % every == 0;
+                    check_noise_floor(&mut floor, &fed, ask, &format!("{first}/{every}: {i}"));
+                }
+            }
         }
     }
 
@@ -1085,17 +1140,11 @@ mod tests {
     fn a_median_between_two_counts_keeps_its_floor() {
         let mut noise = normals(3);
         let mut floor = NoiseFloor::default();
-        let mut set = 0;
-        let mut last = 0.0;
         for _ in 0..5000 {
             let x = (0.4 * noise()).round();
             floor.observe([x, 0.0, 0.0]);
-            let now = floor.second_diffs[0].median_at_least();
-            if now != last {
-                set += 1;
-                last = now;
-            }
         }
+        let set = floor.second_diffs[0].floors_set;
         assert!(set < 50, "the floor was set {set} times in 5000 values");
     }
 
