@@ -76,17 +76,17 @@ fn a_capture_recorded_from_the_device_replays_to_the_same_samples() {
         assert_eq!(v["timer"], f.timer);
         assert_eq!(v["accel"][2], f.accel[2]);
     }
-    // Receive times are relative to the start of the recording, one period
-    // apart: the device's own, 50 ms, or longer when a loaded machine
-    // wakes its thread late (108 ms once, with CI's tests beside it).
+    // Receive times are one period apart: the device's own, 50 ms, or
+    // longer when a loaded machine wakes the pty's thread late (CI once
+    // read a mean of 108 ms against the 40-65 ms this test then allowed).
     let t: Vec<f64> = replayed
         .iter()
         .map(|v| v["time"].as_f64().unwrap())
         .collect();
+    assert!(t.windows(2).all(|w| w[1] >= w[0]), "{t:?}");
     let mean = (t[39] - t[0]) / 39.0;
     let sent = |i| pty.sent_at(i).expect("the device sent 40 frames");
     let device = sent(39).duration_since(sent(0)).as_secs_f64() / 39.0;
-    assert!(device >= 0.049, "the device's period {device}");
     assert!(
         (mean - device).abs() < 0.010,
         "mean period {mean}, the device's {device}"
