@@ -66,14 +66,17 @@ impl RecordSummary {
     }
 }
 
-/// Writes every `Raw` event to `writer` (times relative to `started_unix`)
-/// until `stop` turns true, `duration` has passed, or the source ends.
+/// Writes every `Raw` event to `writer` until `stop` turns true, `duration`
+/// has passed, or the source ends. A chunk's record time is the monotonic
+/// time from `started` (the instant the header's `started_unix` was read) to
+/// the chunk's arrival, never the wall clock's difference: a step of the
+/// wall clock during a recording moves no record time and sends none back.
 /// A write error (full disk, pulled USB stick) ends the recording with that
 /// error; what was flushed before it stays readable.
 pub async fn record<W: Write>(
     mut events: mpsc::Receiver<SourceEvent>,
     writer: &mut CaptureWriter<W>,
-    started_unix: f64,
+    started: Instant,
     duration: Option<Duration>,
     mut stop: watch::Receiver<bool>,
 ) -> std::io::Result<RecordSummary> {
@@ -89,11 +92,11 @@ pub async fn record<W: Write>(
         let Some(event) = event else { break };
         match event {
             SourceEvent::Raw {
-                time,
-                stream,
-                bytes,
+                at, stream, bytes, ..
             } => {
-                writer.write_chunk((time - started_unix).max(0.0), stream, &bytes)?;
+                let since = at.saturating_duration_since(started);
+                let ns = u64::try_from(since.as_nanos()).unwrap_or(u64::MAX);
+                writer.write_chunk_ns(ns, stream, &bytes)?;
                 summary.chunks += 1;
                 summary.bytes += bytes.len() as u64;
                 if last_flush.elapsed() >= Duration::from_millis(500) {

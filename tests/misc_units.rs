@@ -363,6 +363,74 @@ mod record {
         assert!(text.starts_with("/dev/ttyUSB0: "), "{text}");
         assert!(text.contains("sent no bytes in 3.0 s"), "{text}");
     }
+
+    /// A wall clock stepped during a recording (NTP setting it an hour back,
+    /// then a minute forward) must not move the record times: they are the
+    /// monotonic intervals from the recording's start, in order.
+    #[test]
+    fn a_wall_clock_step_moves_no_record_time() {
+        use fieldcal::capture::{
+            CaptureFile, CaptureHeader, CaptureWriter, StreamInfo, StreamKind, VERSION,
+            parse_capture,
+        };
+        use fieldcal::source::SourceEvent;
+        use std::time::Instant;
+        use tokio::sync::{mpsc, watch};
+
+        let header = CaptureHeader {
+            version: VERSION,
+            streams: vec![StreamInfo {
+                id: 0,
+                kind: StreamKind::Falcon,
+            }],
+            port: None,
+            baud: None,
+            started_unix: 1_700_000_000.0,
+            nominal_period_s: 0.05,
+            note: None,
+        };
+        let started = Instant::now();
+        // Monotonic arrivals 50 ms apart; the wall clock goes back an hour
+        // before the second and forward a minute before the third.
+        let sent = [
+            (0.05, 1_700_000_000.05),
+            (0.10, 1_699_996_400.10),
+            (0.15, 1_699_996_460.15),
+        ];
+        let (tx, rx) = mpsc::channel(8);
+        for (i, &(after, wall)) in sent.iter().enumerate() {
+            tx.try_send(SourceEvent::Raw {
+                time: wall,
+                at: started + Duration::from_secs_f64(after),
+                stream: 0,
+                bytes: vec![i as u8; 3],
+            })
+            .unwrap();
+        }
+        drop(tx);
+        let (_stop_tx, stop_rx) = watch::channel(false);
+        let mut writer = CaptureWriter::new(Vec::new(), &header).unwrap();
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let summary = runtime
+            .block_on(fieldcal::record::record(
+                rx,
+                &mut writer,
+                started,
+                None,
+                stop_rx,
+            ))
+            .unwrap();
+        assert_eq!(summary.chunks, 3);
+        let bytes = writer.into_inner().unwrap();
+        let Ok(CaptureFile::Capture { chunks, .. }) = parse_capture(&bytes, "test") else {
+            panic!("the recording reads back as a capture");
+        };
+        let times: Vec<f64> = chunks.iter().map(|c| c.time).collect();
+        assert_eq!(times, vec![0.05, 0.10, 0.15]);
+    }
 }
 
 mod fit3 {

@@ -268,6 +268,7 @@ impl Runner {
             for (stream, &(chip, address)) in self.config.chips.iter().enumerate() {
                 read_chip(bus, chip, address, &mut buf)?;
                 let time = unix_time();
+                let at = Instant::now();
                 SourceCounters::add(&self.counters.bytes_read, buf.len() as u64);
                 // `validate` keeps the chip count within u8 streams.
                 let stream = u8::try_from(stream).unwrap_or(u8::MAX);
@@ -277,6 +278,7 @@ impl Runner {
                 };
                 let raw = SourceEvent::Raw {
                     time,
+                    at,
                     stream,
                     bytes: buf.clone(),
                 };

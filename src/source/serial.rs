@@ -195,12 +195,14 @@ async fn stream(
             Ok(Err(e)) => return Ended::DeviceGone(format!("read failed: {e}")),
         };
         let time = unix_now();
+        let at = std::time::Instant::now();
         let bytes = &buf[..n];
         SourceCounters::add(&counters.bytes_read, n as u64);
         if config.raw
             && events
                 .send(SourceEvent::Raw {
                     time,
+                    at,
                     stream: 0,
                     bytes: bytes.to_vec(),
                 })

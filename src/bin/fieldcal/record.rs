@@ -95,7 +95,7 @@ pub fn record(args: RecordArgs) -> Result<()> {
         let duration = args
             .duration
             .and_then(|s| Duration::try_from_secs_f64(s).ok());
-        let result = run_recorder(events_rx, &mut writer, started_unix, duration, stop_rx).await;
+        let result = run_recorder(events_rx, &mut writer, started, duration, stop_rx).await;
         // Stop the source whatever ended the recording; it sends the
         // device's stop command on its way out.
         let _ = stop_tx.send(true);
