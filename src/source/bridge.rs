@@ -23,6 +23,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use serialport::SerialPort;
 use tokio::sync::mpsc::{Sender, error::TrySendError};
 
+use super::clock::LiveClock;
 use super::{SourceCounters, SourceEvent};
 use crate::i2c::I2cBus;
 use crate::i2c::I2cError;
@@ -172,6 +173,9 @@ impl Runner {
         // The last set-up failure logged at warn level, so a device that
         // stays missing does not fill the log with one line per retry.
         let mut last_warning: Option<String> = None;
+        // One clock for the source's life: times keep their order across a
+        // reconnect and a wall clock stepped back.
+        let mut clock = LiveClock::new();
         while !self.stopped() {
             match self.set_up() {
                 Ok(mut bus) => {
@@ -187,7 +191,7 @@ impl Runner {
                     }) {
                         return;
                     }
-                    match self.poll(&mut bus) {
+                    match self.poll(&mut bus, &mut clock) {
                         Ok(End::Stopped | End::ReceiverGone) => return,
                         Err(error) => {
                             drop(bus);
@@ -255,7 +259,7 @@ impl Runner {
     /// due at start + k * period; a poll that runs late makes the source
     /// skip the deadlines it missed (and any closer than half a period to
     /// the poll before), never catch up with a burst.
-    fn poll(&self, bus: &mut Bus) -> Result<End, ChipError> {
+    fn poll(&self, bus: &mut Bus, clock: &mut LiveClock) -> Result<End, ChipError> {
         let period = self.config.period;
         let start = Instant::now();
         let mut k: u64 = 0;
@@ -267,8 +271,8 @@ impl Runner {
             let poll_start = Instant::now();
             for (stream, &(chip, address)) in self.config.chips.iter().enumerate() {
                 read_chip(bus, chip, address, &mut buf)?;
-                let time = unix_time();
                 let at = Instant::now();
+                let time = clock.stamp(unix_time(), at);
                 SourceCounters::add(&self.counters.bytes_read, buf.len() as u64);
                 // `validate` keeps the chip count within u8 streams.
                 let stream = u8::try_from(stream).unwrap_or(u8::MAX);

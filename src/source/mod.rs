@@ -3,6 +3,7 @@
 //! [`crate::protocol`], the file format in [`crate::capture`].
 
 pub mod bridge;
+pub mod clock;
 pub mod csv;
 pub mod replay;
 pub mod serial;

@@ -15,6 +15,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{mpsc, watch};
 use tokio_serial::{SerialPortBuilderExt, SerialStream};
 
+use super::clock::LiveClock;
 use super::{SourceCounters, SourceEvent};
 use crate::protocol::falcon::{
     BAUD, DecoderCounters, FalconDecoder, START_CONTINUOUS, STOP_CONTINUOUS,
@@ -72,6 +73,9 @@ fn open_advice(port: &str, err: &tokio_serial::Error) -> String {
 
 /// Runs the source until `stop` turns true or the receiver of `events` goes
 /// away. Never returns an error: every failure is logged, counted and retried.
+/// Readings are stamped on one [`LiveClock`] for the source's whole life, so
+/// their times keep their order across a reconnect and a wall clock stepped
+/// back.
 pub async fn run_serial_source(
     config: SerialConfig,
     events: mpsc::Sender<SourceEvent>,
@@ -81,6 +85,7 @@ pub async fn run_serial_source(
     let device = config.port.display().to_string();
     let mut connected_before = false;
     let mut last_open_error = String::new();
+    let mut clock = LiveClock::new();
     loop {
         if *stop.borrow() {
             return;
@@ -102,7 +107,7 @@ pub async fn run_serial_source(
                 {
                     return;
                 }
-                match stream(&config, port, &events, &counters, &mut stop).await {
+                match stream(&config, port, &events, &counters, &mut stop, &mut clock).await {
                     Ended::Stopped | Ended::ReceiverGone => return,
                     Ended::DeviceGone(reason) => {
                         tracing::warn!(port = %device, %reason, "device gone; retrying every {:?}", config.retry_interval);
@@ -157,6 +162,7 @@ async fn stream(
     events: &mpsc::Sender<SourceEvent>,
     counters: &SourceCounters,
     stop: &mut watch::Receiver<bool>,
+    clock: &mut LiveClock,
 ) -> Ended {
     if let Err(e) = port.write_all(&START_CONTINUOUS).await {
         return Ended::DeviceGone(format!("cannot send the start command: {e}"));
@@ -194,8 +200,8 @@ async fn stream(
             Ok(Ok(n)) => n,
             Ok(Err(e)) => return Ended::DeviceGone(format!("read failed: {e}")),
         };
-        let time = unix_now();
         let at = std::time::Instant::now();
+        let time = clock.stamp(unix_now(), at);
         let bytes = &buf[..n];
         SourceCounters::add(&counters.bytes_read, n as u64);
         if config.raw
