@@ -18,12 +18,12 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::{self, JoinHandle};
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use serialport::SerialPort;
 use tokio::sync::mpsc::{Sender, error::TrySendError};
 
-use super::clock::LiveClock;
+use super::clock::live_now;
 use super::{SourceCounters, SourceEvent};
 use crate::i2c::I2cBus;
 use crate::i2c::I2cError;
@@ -173,9 +173,6 @@ impl Runner {
         // The last set-up failure logged at warn level, so a device that
         // stays missing does not fill the log with one line per retry.
         let mut last_warning: Option<String> = None;
-        // One clock for the source's life: times keep their order across a
-        // reconnect and a wall clock stepped back.
-        let mut clock = LiveClock::new();
         while !self.stopped() {
             match self.set_up() {
                 Ok(mut bus) => {
@@ -191,7 +188,7 @@ impl Runner {
                     }) {
                         return;
                     }
-                    match self.poll(&mut bus, &mut clock) {
+                    match self.poll(&mut bus) {
                         Ok(End::Stopped | End::ReceiverGone) => return,
                         Err(error) => {
                             drop(bus);
@@ -259,7 +256,7 @@ impl Runner {
     /// due at start + k * period; a poll that runs late makes the source
     /// skip the deadlines it missed (and any closer than half a period to
     /// the poll before), never catch up with a burst.
-    fn poll(&self, bus: &mut Bus, clock: &mut LiveClock) -> Result<End, ChipError> {
+    fn poll(&self, bus: &mut Bus) -> Result<End, ChipError> {
         let period = self.config.period;
         let start = Instant::now();
         let mut k: u64 = 0;
@@ -271,8 +268,9 @@ impl Runner {
             let poll_start = Instant::now();
             for (stream, &(chip, address)) in self.config.chips.iter().enumerate() {
                 read_chip(bus, chip, address, &mut buf)?;
-                let at = Instant::now();
-                let time = clock.stamp(unix_time(), at);
+                // The process's live clock: in order across reconnects and
+                // a wall clock stepped back.
+                let (time, at) = live_now();
                 SourceCounters::add(&self.counters.bytes_read, buf.len() as u64);
                 // `validate` keeps the chip count within u8 streams.
                 let stream = u8::try_from(stream).unwrap_or(u8::MAX);
@@ -281,7 +279,6 @@ impl Runner {
                     ..chip.decode(&buf, time)?
                 };
                 let raw = SourceEvent::Raw {
-                    time,
                     at,
                     stream,
                     bytes: buf.clone(),
@@ -355,13 +352,6 @@ fn periods_until(start: Instant, period: Duration, at: Instant) -> u64 {
     let elapsed = at.saturating_duration_since(start).as_nanos();
     let period = period.as_nanos().max(1);
     u64::try_from(elapsed.div_ceil(period)).unwrap_or(u64::MAX)
-}
-
-/// Seconds since the Unix epoch (0 if the clock is set before it).
-fn unix_time() -> f64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 #[cfg(test)]

@@ -1,5 +1,5 @@
-//! The time a live source stamps on its readings: the host's Unix clock,
-//! except that it never goes back.
+//! The clock of live messages: the host's Unix clock, except that it never
+//! goes back.
 //!
 //! Everything downstream keys on reading times in order: the rotation
 //! buffer and the gyro's track leave out a sample older than the one
@@ -15,11 +15,17 @@
 //! So a stamp is the wall clock's reading, unless that is earlier than
 //! the last stamp plus the monotonic time since it; then the stamps go on
 //! from the last at a rate 500 ppm slower than the monotonic clock (as
-//! `adjtime` slews), until the wall clock catches up with them: never
-//! back, never faster than real time, back on the wall clock after a step
-//! of `s` seconds in `s / 0.0005` (a 0.2 s step in under 7 minutes, an
-//! hour's in 83 days; a restart puts the stamps on the wall clock at once).
+//! `adjtime` slews), until the wall clock catches up with them. While
+//! slewing they never go back and never run faster than real time; after
+//! a step back of `s` seconds they are on the wall clock again after `s /
+//! 0.0005` seconds (a 0.2 s step in 400 s, an hour's in about 83 days; a
+//! restart puts them on the wall clock at once).
+//!
+//! One clock serves the whole process ([`live_now`]): every source's
+//! readings and the daemon's STATUS lines, so that a source plugged in
+//! after a step is on the same clock as one that was reading through it.
 
+use std::sync::Mutex;
 use std::time::Instant;
 
 /// How much slower than the monotonic clock stamps run while they are
@@ -27,55 +33,117 @@ use std::time::Instant;
 /// 500 ppm.
 pub const SLEW: f64 = 0.0005;
 
-/// A step back smaller than this is not worth a warning (a slewing
-/// clock's jitter); larger ones are logged once each.
-const WARN_STEP_S: f64 = 0.1;
+/// A step back of the wall clock smaller than this (against the monotonic
+/// clock, between two stamps) is not logged; each larger one is, once.
+pub const WARN_STEP_S: f64 = 0.1;
 
-/// The stamps of one live source.
+/// The process's live clock.
+static LIVE: Mutex<LiveClock> = Mutex::new(LiveClock::new());
+
+/// The stamp for a message made now, on the process's one live clock, and
+/// the monotonic instant it was taken at.
+pub fn live_now() -> (f64, Instant) {
+    // A panic while holding the lock leaves a clock that is still whole
+    // (`stamp` does not panic part-way): use it.
+    let mut clock = LIVE.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    // Both clocks read under the lock, so stamps are made in the order of
+    // their instants.
+    let wall = super::serial::unix_now();
+    let at = Instant::now();
+    (clock.stamp(wall, at), at)
+}
+
+/// Stamps that follow the wall clock and never go back.
 #[derive(Debug, Default)]
 pub struct LiveClock {
-    /// The last stamp and the monotonic instant it was made at.
-    last: Option<(f64, Instant)>,
-    /// Whether the stamps are ahead of the wall clock (slewing back to it).
-    ahead: bool,
+    /// The last stamp, the wall clock's reading then, and the monotonic
+    /// instant (the latest seen).
+    last: Option<Last>,
+    /// While the stamps are ahead of the wall clock: the stamp and the
+    /// instant the slewing started from (each stamp is measured from
+    /// there, one rounding, so slewing does not gather rounding errors).
+    slewing: Option<(f64, Instant)>,
+    /// How many times the wall clock stepped back by more than
+    /// [`WARN_STEP_S`] (each logged once).
+    steps_back: u64,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Last {
+    stamp: f64,
+    wall: f64,
+    at: Instant,
 }
 
 impl LiveClock {
-    pub fn new() -> Self {
-        LiveClock::default()
+    pub const fn new() -> Self {
+        LiveClock {
+            last: None,
+            slewing: None,
+            steps_back: 0,
+        }
     }
 
-    /// The stamp for a reading that arrives now.
-    pub fn now(&mut self) -> f64 {
-        self.stamp(super::serial::unix_now(), Instant::now())
+    /// How many steps back of the wall clock the stamps have gone on
+    /// through (and the log has said).
+    pub fn steps_back(&self) -> u64 {
+        self.steps_back
     }
 
-    /// The stamp for a reading that arrived at monotonic instant `at` while
-    /// the wall clock read `wall` (seconds since the Unix epoch).
+    /// The stamp for a message made at monotonic instant `at` while the
+    /// wall clock read `wall` (seconds since the Unix epoch).
     pub fn stamp(&mut self, wall: f64, at: Instant) -> f64 {
-        let time = match self.last {
-            Some((last, then)) => {
-                let elapsed = at.saturating_duration_since(then).as_secs_f64();
-                let slewed = last + elapsed * (1.0 - SLEW);
-                if wall >= slewed {
-                    self.ahead = false;
-                    wall
-                } else {
-                    let behind = last + elapsed - wall;
-                    if !self.ahead && behind > WARN_STEP_S {
-                        tracing::warn!(
-                            "the wall clock went back by {behind:.3} s: readings keep their order, stamped on from the last and slewed back to the wall clock at 500 ppm ({:.0} s); restart the daemon to put them on the wall clock at once",
-                            behind / SLEW
-                        );
-                    }
-                    self.ahead = true;
-                    slewed
-                }
-            }
-            None => wall,
+        let Some(last) = self.last else {
+            let stamp = if wall.is_finite() { wall } else { 0.0 };
+            self.last = Some(Last {
+                stamp,
+                wall: stamp,
+                at,
+            });
+            return stamp;
         };
-        self.last = Some((time, at));
-        time
+        // An instant before the last one (not from `Instant::now()` in
+        // order) counts as no time passed, and the later one is kept.
+        let at = at.max(last.at);
+        let elapsed = at.duration_since(last.at).as_secs_f64();
+        let back = last.wall + elapsed - wall;
+        if back > WARN_STEP_S {
+            self.steps_back += 1;
+            tracing::warn!(
+                "the wall clock went back by {back:.3} s: readings keep their order, stamped on from the last one {:.0} ppm slower than real time until the wall clock catches up (in {}); a restart puts them on the wall clock at once",
+                SLEW * 1e6,
+                duration_words(back / SLEW)
+            );
+        }
+        let (from, since) = *self.slewing.get_or_insert((last.stamp, last.at));
+        let slewed = from + at.duration_since(since).as_secs_f64() * (1.0 - SLEW);
+        let stamp = if wall.is_finite() && wall >= slewed {
+            self.slewing = None;
+            wall
+        } else {
+            slewed.max(last.stamp)
+        };
+        self.last = Some(Last {
+            stamp,
+            wall: if wall.is_finite() {
+                wall
+            } else {
+                last.wall + elapsed
+            },
+            at,
+        });
+        stamp
+    }
+}
+
+/// "400 s", "2.5 h", "83 days".
+fn duration_words(seconds: f64) -> String {
+    if seconds < 3600.0 {
+        format!("{seconds:.0} s")
+    } else if seconds < 2.0 * 86_400.0 {
+        format!("{:.1} h", seconds / 3600.0)
+    } else {
+        format!("{:.0} days", seconds / 86_400.0)
     }
 }
 
@@ -87,65 +155,108 @@ mod tests {
     const T0: f64 = 1_700_000_000.0;
 
     /// Stamps for reads 50 ms apart on the monotonic clock, with the wall
-    /// clock `wall(i)` at read `i`.
-    fn stamps(n: u32, wall: impl Fn(u32) -> f64) -> Vec<f64> {
+    /// clock `wall(i)` at read `i`, and the clock after them.
+    fn stamps(n: u32, wall: impl Fn(u32) -> f64) -> (Vec<f64>, LiveClock) {
         let start = Instant::now();
         let mut clock = LiveClock::new();
-        (0..n)
+        let times = (0..n)
             .map(|i| clock.stamp(wall(i), start + Duration::from_millis(50 * u64::from(i))))
-            .collect()
+            .collect();
+        (times, clock)
     }
 
-    #[test]
-    fn a_steady_wall_clock_is_followed_exactly() {
-        let times = stamps(100, |i| T0 + 0.05 * f64::from(i));
-        for (i, t) in times.iter().enumerate() {
-            assert_eq!(*t, T0 + 0.05 * i as f64);
-        }
-    }
-
-    #[test]
-    fn a_wall_clock_stepped_forward_is_followed() {
-        let times = stamps(10, |i| {
-            T0 + 0.05 * f64::from(i) + if i >= 5 { 3600.0 } else { 0.0 }
-        });
-        assert_eq!(times[4], T0 + 0.2);
-        assert_eq!(times[5], T0 + 0.25 + 3600.0);
-    }
-
-    #[test]
-    fn a_wall_clock_stepped_back_an_hour_never_sends_the_stamps_back() {
-        let wall = |i: u32| T0 + 0.05 * f64::from(i) - if i >= 5 { 3600.0 } else { 0.0 };
-        let times = stamps(2000, wall);
+    /// Consecutive stamps 50 ms apart on the monotonic clock: never back,
+    /// never faster than real time, at most 500 ppm slower (to within a
+    /// stamp's rounding, 2.4e-7 s at this epoch).
+    fn slewing_steps(times: &[f64]) {
         for pair in times.windows(2) {
             let step = pair[1] - pair[0];
-            // 50 ms apart, 500 ppm slower: never back, never faster (to
-            // within a stamp's rounding, 2.4e-7 s at this epoch).
             assert!(
                 step > 0.05 * (1.0 - SLEW) - 1e-6 && step <= 0.05 + 1e-6,
                 "{step}"
             );
         }
+    }
+
+    #[test]
+    fn a_steady_wall_clock_is_followed_exactly() {
+        let (times, clock) = stamps(100, |i| T0 + 0.05 * f64::from(i));
+        for (i, t) in times.iter().enumerate() {
+            assert_eq!(*t, T0 + 0.05 * i as f64);
+        }
+        assert_eq!(clock.steps_back(), 0);
+    }
+
+    #[test]
+    fn a_wall_clock_stepped_forward_is_followed() {
+        let (times, clock) = stamps(10, |i| {
+            T0 + 0.05 * f64::from(i) + if i >= 5 { 3600.0 } else { 0.0 }
+        });
+        assert_eq!(times[4], T0 + 0.2);
+        assert_eq!(times[5], T0 + 0.25 + 3600.0);
+        assert_eq!(clock.steps_back(), 0);
+    }
+
+    #[test]
+    fn a_wall_clock_stepped_back_an_hour_never_sends_the_stamps_back() {
+        let wall = |i: u32| T0 + 0.05 * f64::from(i) - if i >= 5 { 3600.0 } else { 0.0 };
+        let (times, clock) = stamps(2000, wall);
+        slewing_steps(&times);
         // Still ahead of the wall clock by about the hour, slewing back.
-        let last = times[1999];
-        let ahead = last - wall(1999);
+        let ahead = times[1999] - wall(1999);
         let slewed = 0.05 * 1995.0 * SLEW;
-        assert!((ahead - (3600.0 - slewed)).abs() < 1e-3, "{ahead}");
+        assert!((ahead - (3600.0 - slewed)).abs() < 1e-5, "{ahead}");
+        assert_eq!(clock.steps_back(), 1);
     }
 
     #[test]
     fn a_small_step_back_is_slewed_out_and_the_wall_clock_followed_again() {
-        // 0.2 s back at read 5: 400 s of slewing at 500 ppm.
+        // 0.2 s back at read 5: 400 s (8,000 reads) of slewing at 500 ppm.
         let wall = |i: u32| T0 + 0.05 * f64::from(i) - if i >= 5 { 0.2 } else { 0.0 };
-        let times = stamps(10_000, wall);
-        assert!(times.windows(2).all(|p| p[1] > p[0]));
-        // After 0.2 / 0.0005 = 400 s (8,000 reads) the wall clock again.
+        let (times, clock) = stamps(10_000, wall);
+        slewing_steps(&times);
+        let ahead = |i: usize| times[i] - wall(i as u32);
         assert!(
-            times[8_010] == wall(8_010),
-            "{} {}",
-            times[8_010],
-            wall(8_010)
+            (ahead(5) - (0.2 - 0.05 * SLEW)).abs() < 1e-6,
+            "{}",
+            ahead(5)
         );
-        assert!(times[7_900] > wall(7_900));
+        assert!(ahead(7_990) > 0.0, "{}", ahead(7_990));
+        assert_eq!(times[8_010], wall(8_010));
+        assert_eq!(clock.steps_back(), 1);
+    }
+
+    #[test]
+    fn every_step_back_is_counted_once_even_while_slewing() {
+        // An hour back at read 5, then a minute more at read 100 (while
+        // the first is still slewed out); a 50 ms step at 200 is jitter.
+        let wall = |i: u32| {
+            T0 + 0.05 * f64::from(i)
+                - if i >= 5 { 3600.0 } else { 0.0 }
+                - if i >= 100 { 60.0 } else { 0.0 }
+                - if i >= 200 { 0.05 } else { 0.0 }
+        };
+        let (times, clock) = stamps(300, wall);
+        slewing_steps(&times);
+        assert_eq!(clock.steps_back(), 2);
+    }
+
+    #[test]
+    fn an_instant_out_of_order_or_a_wall_clock_not_a_number_moves_nothing_back() {
+        let start = Instant::now() + Duration::from_secs(1);
+        let mut clock = LiveClock::new();
+        assert_eq!(clock.stamp(f64::NAN, start), 0.0);
+        let mut clock = LiveClock::new();
+        assert_eq!(clock.stamp(T0, start), T0);
+        // 10 ms before the last instant: no time passed.
+        let early = clock.stamp(T0 + 0.1, start - Duration::from_millis(10));
+        assert_eq!(early, T0 + 0.1);
+        // A wall clock that is not a number: the stamps go on, slewed.
+        let later = start + Duration::from_millis(50);
+        let nan = clock.stamp(f64::NAN, later);
+        assert!(nan >= early && nan <= early + 0.05 + 1e-6, "{nan}");
+        let inf = clock.stamp(f64::INFINITY, later + Duration::from_millis(50));
+        assert!(inf.is_finite() && inf >= nan, "{inf}");
+        assert_eq!(clock.steps_back(), 0);
     }
 }

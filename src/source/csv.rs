@@ -14,8 +14,8 @@ use tokio::sync::mpsc;
 
 use serde::Serialize;
 
+use super::clock::live_now;
 use super::replay::{MAX_GAP_S, Pacer, Speed};
-use super::serial::unix_now;
 use super::{SourceCounters, SourceEvent};
 use crate::io::csv::{CsvError, CsvLayout, CsvRow, CsvScan, open_rows, scan_rows};
 
@@ -414,7 +414,7 @@ pub fn spawn_csv_source(
             let _ = events.blocking_send(SourceEvent::Connected {
                 device: name.clone(),
             });
-            let start = unix_now();
+            let start = live_now().0;
             let mut first: Option<f64> = None;
             let result = play_csv_files(
                 &source.files,

@@ -25,12 +25,10 @@ pub enum SourceEvent {
     Row(CsvRow),
     /// Bytes exactly as they came off the wire, for `record`. `stream`
     /// numbers the byte streams of one source (see [`crate::capture`]).
-    /// `time` is the wall clock (seconds since the Unix epoch) and `at` the
-    /// monotonic clock, both read when the bytes arrived: a capture's record
-    /// times are measured on `at`, so a step of the wall clock (NTP setting
+    /// `at` is the monotonic instant the bytes arrived: a capture's record
+    /// times are measured on it, so a step of the wall clock (NTP setting
     /// it, an operator's `date -s`) cannot move them or send them back.
     Raw {
-        time: f64,
         at: std::time::Instant,
         stream: u8,
         bytes: Vec<u8>,

@@ -15,7 +15,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{mpsc, watch};
 use tokio_serial::{SerialPortBuilderExt, SerialStream};
 
-use super::clock::LiveClock;
+use super::clock::live_now;
 use super::{SourceCounters, SourceEvent};
 use crate::protocol::falcon::{
     BAUD, DecoderCounters, FalconDecoder, START_CONTINUOUS, STOP_CONTINUOUS,
@@ -73,9 +73,8 @@ fn open_advice(port: &str, err: &tokio_serial::Error) -> String {
 
 /// Runs the source until `stop` turns true or the receiver of `events` goes
 /// away. Never returns an error: every failure is logged, counted and retried.
-/// Readings are stamped on one [`LiveClock`] for the source's whole life, so
-/// their times keep their order across a reconnect and a wall clock stepped
-/// back.
+/// Readings are stamped on the process's live clock ([`live_now`]), so their
+/// times keep their order across a reconnect and a wall clock stepped back.
 pub async fn run_serial_source(
     config: SerialConfig,
     events: mpsc::Sender<SourceEvent>,
@@ -85,7 +84,6 @@ pub async fn run_serial_source(
     let device = config.port.display().to_string();
     let mut connected_before = false;
     let mut last_open_error = String::new();
-    let mut clock = LiveClock::new();
     loop {
         if *stop.borrow() {
             return;
@@ -107,7 +105,7 @@ pub async fn run_serial_source(
                 {
                     return;
                 }
-                match stream(&config, port, &events, &counters, &mut stop, &mut clock).await {
+                match stream(&config, port, &events, &counters, &mut stop).await {
                     Ended::Stopped | Ended::ReceiverGone => return,
                     Ended::DeviceGone(reason) => {
                         tracing::warn!(port = %device, %reason, "device gone; retrying every {:?}", config.retry_interval);
@@ -162,7 +160,6 @@ async fn stream(
     events: &mpsc::Sender<SourceEvent>,
     counters: &SourceCounters,
     stop: &mut watch::Receiver<bool>,
-    clock: &mut LiveClock,
 ) -> Ended {
     if let Err(e) = port.write_all(&START_CONTINUOUS).await {
         return Ended::DeviceGone(format!("cannot send the start command: {e}"));
@@ -200,14 +197,12 @@ async fn stream(
             Ok(Ok(n)) => n,
             Ok(Err(e)) => return Ended::DeviceGone(format!("read failed: {e}")),
         };
-        let at = std::time::Instant::now();
-        let time = clock.stamp(unix_now(), at);
+        let (time, at) = live_now();
         let bytes = &buf[..n];
         SourceCounters::add(&counters.bytes_read, n as u64);
         if config.raw
             && events
                 .send(SourceEvent::Raw {
-                    time,
                     at,
                     stream: 0,
                     bytes: bytes.to_vec(),

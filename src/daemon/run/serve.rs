@@ -21,7 +21,7 @@ use crate::daemon::sensor::Emitter;
 use crate::daemon::state::StateStore;
 use crate::daemon::state_writer::{SaveFailure, StateWriter};
 use crate::source::SourceEvent;
-use crate::source::serial::unix_now;
+use crate::source::clock::live_now;
 
 /// Events the loop handles in a row before it looks at commands, failures
 /// and ticks once: one queue's worth of a 1 kHz source is 0.25 s, well
@@ -150,7 +150,7 @@ impl Daemon {
         let sources = self.sources.statuses();
         let line = self
             .sensors
-            .status_line(unix_now(), &sources, Some(&self.hub));
+            .status_line(live_now().0, &sources, Some(&self.hub));
         self.hub.publish(Lane::Control, Arc::from(line));
         self.hub.close().await;
         self.outputs.stop().await;
@@ -159,7 +159,7 @@ impl Daemon {
     fn status_line(&self) -> String {
         let sources = self.sources.statuses();
         self.sensors
-            .status_line(unix_now(), &sources, Some(&self.hub))
+            .status_line(live_now().0, &sources, Some(&self.hub))
     }
 
     /// A source's event: readings and rows to its sensors (an accepted

@@ -11,7 +11,7 @@ use crate::daemon::reload::ReloadError;
 use crate::daemon::run::{DaemonError, SourceTask, Start, Started};
 use crate::source::SourceEvent;
 use crate::source::replay::{Speed, replay_playable};
-use crate::source::serial::unix_now;
+use crate::source::clock::live_now;
 
 /// A capture (or raw Falcon dump) played back.
 #[derive(Debug, Clone, PartialEq)]
@@ -81,7 +81,7 @@ impl Kind for Replay {
             });
             // Capture times count from the capture's start: on the
             // host's clock, from this source's start.
-            let start = unix_now();
+            let start = live_now().0;
             let result =
                 replay_playable(&mut capture, &name, speed, &stop, &counters, &mut |reading| {
                     let reading = crate::sample::Reading {
