@@ -36,7 +36,8 @@
 //! ```
 //!
 //! Record time 0 is the instant `started_unix` (seconds since the Unix
-//! epoch); a recorder sets it when the first byte arrives. Records come in
+//! epoch); `fieldcal record` reads it just before it opens the device, and
+//! each record's time is the monotonic interval since. Records come in
 //! the order they were written, which is not necessarily sorted by time
 //! across streams.
 //!

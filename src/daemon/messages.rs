@@ -4,7 +4,8 @@
 //! it).
 //!
 //! One clock for every message of a run (`time`, in seconds):
-//! - under `fieldcal run`, the host's Unix clock (seconds since the epoch).
+//! - under `fieldcal run`, the host's Unix clock (seconds since the epoch),
+//!   never going back ([`crate::source::clock`]).
 //!   A live source stamps a reading when it arrives; a replay or csv source
 //!   stamps it with the Unix time the source started plus the reading's
 //!   offset in the recording (not divided by the speed, so the time between

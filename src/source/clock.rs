@@ -13,13 +13,14 @@
 //! already take.
 //!
 //! So a stamp is the wall clock's reading, unless that is earlier than
-//! the last stamp plus the monotonic time since it; then the stamps go on
-//! from the last at a rate 500 ppm slower than the monotonic clock (as
-//! `adjtime` slews), until the wall clock catches up with them. While
-//! slewing they never go back and never run faster than real time; after
-//! a step back of `s` seconds they are on the wall clock again after `s /
-//! 0.0005` seconds (a 0.2 s step in 400 s, an hour's in about 83 days; a
-//! restart puts them on the wall clock at once).
+//! the stamps going on from the last one at a rate 500 ppm slower than the
+//! monotonic clock (as `adjtime` slews); then it is that, until the wall
+//! clock catches up with them (a wall clock stepped forward meanwhile is
+//! followed once it passes them). While slewing, stamps never go back and
+//! never run faster than real time; after a step back of `s` seconds they
+//! are on the wall clock again after `s / 0.0005` seconds (a 0.2 s step in
+//! 400 s, an hour's in about 83 days; a restart puts them on the wall
+//! clock at once).
 //!
 //! One clock serves the whole process ([`live_now`]): every source's
 //! readings and the daemon's STATUS lines, so that a source plugged in
@@ -43,14 +44,58 @@ static LIVE: Mutex<LiveClock> = Mutex::new(LiveClock::new());
 /// The stamp for a message made now, on the process's one live clock, and
 /// the monotonic instant it was taken at.
 pub fn live_now() -> (f64, Instant) {
-    // A panic while holding the lock leaves a clock that is still whole
-    // (`stamp` does not panic part-way): use it.
-    let mut clock = LIVE.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-    // Both clocks read under the lock, so stamps are made in the order of
-    // their instants.
-    let wall = super::serial::unix_now();
-    let at = Instant::now();
-    (clock.stamp(wall, at), at)
+    let (stamp, at, step) = {
+        // A panic while holding the lock leaves a clock that is still
+        // whole (`stamp` does not panic part-way): use it.
+        let mut clock = LIVE.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        // Both clocks read under the lock, so stamps are made in the order
+        // of their instants.
+        let (wall, at) = wall_and_instant();
+        let stamp = clock.stamp(wall, at);
+        (stamp, at, clock.take_step())
+    };
+    // Logged after the lock is let go: a slow log must not hold up every
+    // source.
+    if let Some(step) = step {
+        tracing::warn!(
+            "the wall clock went back by {:.3} s: readings keep their order, stamped on from the last one {:.0} ppm slower than real time until the wall clock catches up (in {}); a restart puts them on the wall clock at once",
+            step.back,
+            SLEW * 1e6,
+            duration_words(step.lead / SLEW)
+        );
+    }
+    (stamp, at)
+}
+
+/// The wall clock (seconds since the Unix epoch; NaN when it is set before
+/// the epoch) and the monotonic instant it was read at. A thread held up
+/// between the two reads (a paused VM, a stopped process) would pair a
+/// wall time with a later instant, and the gap would look like a step
+/// back: the wall clock is read between two instants, again (at most 4
+/// times) while they are more than 1 ms apart.
+fn wall_and_instant() -> (f64, Instant) {
+    let mut pair = (f64::NAN, Instant::now());
+    for _ in 0..4 {
+        let before = Instant::now();
+        let wall = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(f64::NAN, |d| d.as_secs_f64());
+        let after = Instant::now();
+        pair = (wall, before);
+        if after.duration_since(before) <= std::time::Duration::from_millis(1) {
+            break;
+        }
+    }
+    pair
+}
+
+/// A step back of the wall clock, for the log.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepBack {
+    /// How far the wall clock went back, seconds.
+    pub back: f64,
+    /// How far the stamps are ahead of it now, seconds.
+    pub lead: f64,
 }
 
 /// Stamps that follow the wall clock and never go back.
@@ -64,8 +109,10 @@ pub struct LiveClock {
     /// there, one rounding, so slewing does not gather rounding errors).
     slewing: Option<(f64, Instant)>,
     /// How many times the wall clock stepped back by more than
-    /// [`WARN_STEP_S`] (each logged once).
+    /// [`WARN_STEP_S`].
     steps_back: u64,
+    /// The last such step, until [`LiveClock::take_step`].
+    step: Option<StepBack>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -81,13 +128,19 @@ impl LiveClock {
             last: None,
             slewing: None,
             steps_back: 0,
+            step: None,
         }
     }
 
-    /// How many steps back of the wall clock the stamps have gone on
-    /// through (and the log has said).
+    /// How many steps back of the wall clock (each more than
+    /// [`WARN_STEP_S`]) the stamps have gone on through.
     pub fn steps_back(&self) -> u64 {
         self.steps_back
+    }
+
+    /// The step back the last stamp found, if any, once.
+    pub fn take_step(&mut self) -> Option<StepBack> {
+        self.step.take()
     }
 
     /// The stamp for a message made at monotonic instant `at` while the
@@ -106,15 +159,6 @@ impl LiveClock {
         // order) counts as no time passed, and the later one is kept.
         let at = at.max(last.at);
         let elapsed = at.duration_since(last.at).as_secs_f64();
-        let back = last.wall + elapsed - wall;
-        if back > WARN_STEP_S {
-            self.steps_back += 1;
-            tracing::warn!(
-                "the wall clock went back by {back:.3} s: readings keep their order, stamped on from the last one {:.0} ppm slower than real time until the wall clock catches up (in {}); a restart puts them on the wall clock at once",
-                SLEW * 1e6,
-                duration_words(back / SLEW)
-            );
-        }
         let (from, since) = *self.slewing.get_or_insert((last.stamp, last.at));
         let slewed = from + at.duration_since(since).as_secs_f64() * (1.0 - SLEW);
         let stamp = if wall.is_finite() && wall >= slewed {
@@ -123,6 +167,14 @@ impl LiveClock {
         } else {
             slewed.max(last.stamp)
         };
+        let back = last.wall + elapsed - wall;
+        if wall.is_finite() && back > WARN_STEP_S {
+            self.steps_back += 1;
+            self.step = Some(StepBack {
+                back,
+                lead: stamp - wall,
+            });
+        }
         self.last = Some(Last {
             stamp,
             wall: if wall.is_finite() {
@@ -236,9 +288,20 @@ mod tests {
                 - if i >= 100 { 60.0 } else { 0.0 }
                 - if i >= 200 { 0.05 } else { 0.0 }
         };
-        let (times, clock) = stamps(300, wall);
+        let (times, mut clock) = stamps(300, wall);
         slewing_steps(&times);
         assert_eq!(clock.steps_back(), 2);
+        // The log's figures are the second step's: a minute back, the
+        // whole lead (an hour and a minute, less what was slewed) ahead.
+        let step = clock
+            .take_step()
+            .expect("the last step is kept for the log");
+        assert!((step.back - 60.0).abs() < 1e-5, "{step:?}");
+        assert!(
+            (step.lead - (3660.0 - 0.05 * 96.0 * SLEW)).abs() < 1e-5,
+            "{step:?}"
+        );
+        assert_eq!(clock.take_step(), None);
     }
 
     #[test]
