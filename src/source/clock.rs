@@ -77,9 +77,7 @@ fn wall_and_instant() -> (f64, Instant) {
     let mut pair = (f64::NAN, Instant::now());
     for _ in 0..4 {
         let before = Instant::now();
-        let wall = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(f64::NAN, |d| d.as_secs_f64());
+        let wall = unix_time().unwrap_or(f64::NAN);
         let after = Instant::now();
         pair = (wall, before);
         if after.duration_since(before) <= std::time::Duration::from_millis(1) {
@@ -87,6 +85,15 @@ fn wall_and_instant() -> (f64, Instant) {
         }
     }
     pair
+}
+
+/// The wall clock in seconds since the Unix epoch; none when it is set
+/// before the epoch.
+pub fn unix_time() -> Option<f64> {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .ok()
+        .map(|d| d.as_secs_f64())
 }
 
 /// A step back of the wall clock, for the log.

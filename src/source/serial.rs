@@ -48,12 +48,11 @@ impl SerialConfig {
     }
 }
 
-/// Seconds since the Unix epoch, the time base of live readings.
+/// The wall clock in seconds since the Unix epoch (0 before it), as a
+/// capture's header records it; live messages are stamped by
+/// [`super::clock::live_now`], which never goes back.
 pub fn unix_now() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs_f64())
-        .unwrap_or(0.0)
+    super::clock::unix_time().unwrap_or(0.0)
 }
 
 /// Why the port could not be opened, in words that say what to do.
