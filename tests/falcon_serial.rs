@@ -147,6 +147,55 @@ async fn frames_from_the_device_come_out_decoded_in_order() {
     }
 }
 
+/// A frame cut short by a line that goes quiet is dropped once nothing
+/// more comes for `idle_timeout`, so it is not glued to the next frame
+/// (which would then fail its checksum and be lost with it).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_partial_frame_is_dropped_when_the_line_goes_quiet() {
+    let frame = |timer: u16| {
+        FalconFrame {
+            mag: [100 + timer as i16, -200, 300],
+            accel: [0, 0, 4096],
+            rate: [0, 0, 0],
+            timer,
+        }
+        .encode()
+        .to_vec()
+    };
+    let cut = frame(2)[..11].to_vec();
+    let chunks = vec![frame(1), cut, frame(3), frame(4)];
+    // A chunk every 400 ms, quiet after 100 ms: the cut frame is dropped
+    // some 300 ms before the next arrives.
+    let pty = FalconPty::plug_in(chunks, Duration::from_millis(400));
+    let (tx, mut events) = mpsc::channel(64);
+    let counters = Arc::new(SourceCounters::default());
+    let (stop, stop_rx) = watch::channel(false);
+    let config = SerialConfig {
+        idle_timeout: Duration::from_millis(100),
+        ..SerialConfig::new(pty.path())
+    };
+    let task = tokio::spawn(run_serial_source(config, tx, counters.clone(), stop_rx));
+    let (mut readings, mut others) = (Vec::new(), Vec::new());
+    collect(
+        &mut events,
+        &mut readings,
+        &mut others,
+        Duration::from_secs(15),
+        |r, _| r.len() >= 3,
+    )
+    .await;
+    stop.send(true).unwrap();
+    task.await.unwrap();
+    let timers: Vec<u16> = readings.iter().map(|r| r.timer.unwrap()).collect();
+    assert_eq!(timers, [1, 3, 4]);
+    let c = counters.snapshot();
+    assert_eq!(
+        (c.frames_good, c.frames_bad, c.bytes_skipped),
+        (3, 0, 11),
+        "{c:?}"
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn unplugged_device_comes_back_and_samples_resume() {
     let (chunks, expected) = simulated(70, 0.0, 11);

@@ -167,8 +167,16 @@ async fn stream(
     let mut reported = DecoderCounters::default();
     let mut buf = vec![0u8; 4096];
     let mut readings: Vec<Reading> = Vec::new();
+    // The quiet timer runs only while the decoder holds part of a frame:
+    // a line that delivers whole frames arms no timer at all (no timer
+    // registered and cancelled on every read).
+    let quiet = tokio::time::sleep(config.idle_timeout);
+    tokio::pin!(quiet);
     loop {
-        let read = tokio::select! {
+        let holding = decoder.pending() > 0;
+        // Bytes waiting are read before the quiet timer is looked at.
+        let n = tokio::select! {
+            biased;
             _ = stop.changed() => {
                 // Best effort: the device may already be gone.
                 let _ = tokio::time::timeout(Duration::from_millis(200), async {
@@ -178,23 +186,20 @@ async fn stream(
                 .await;
                 return Ended::Stopped;
             }
-            read = tokio::time::timeout(config.idle_timeout, port.read(&mut buf)) => read,
-        };
-        let n = match read {
-            Err(_idle) => {
+            read = port.read(&mut buf) => match read {
+                Ok(0) => return Ended::DeviceGone("end of stream".into()),
+                Ok(n) => n,
+                Err(e) => return Ended::DeviceGone(format!("read failed: {e}")),
+            },
+            () = &mut quiet, if holding => {
                 let dropped = decoder.discard_partial();
-                if dropped > 0 {
-                    tracing::debug!(
-                        bytes = dropped,
-                        "dropped a partial frame after the line went quiet"
-                    );
-                    publish_counters(&decoder, &mut reported, counters);
-                }
+                tracing::debug!(
+                    bytes = dropped,
+                    "dropped a partial frame after the line went quiet"
+                );
+                publish_counters(&decoder, &mut reported, counters);
                 continue;
             }
-            Ok(Ok(0)) => return Ended::DeviceGone("end of stream".into()),
-            Ok(Ok(n)) => n,
-            Ok(Err(e)) => return Ended::DeviceGone(format!("read failed: {e}")),
         };
         let (time, at) = live_now();
         let bytes = &buf[..n];
@@ -217,6 +222,15 @@ async fn stream(
             if events.send(SourceEvent::Reading(reading)).await.is_err() {
                 return Ended::ReceiverGone;
             }
+        }
+        if holding || decoder.pending() > 0 {
+            // A partial frame is dropped when nothing more comes for
+            // `idle_timeout` from the next read on (not from this one: a
+            // full queue may have held the readings' hand-over meanwhile).
+            // The timer is made anew, not reset: tokio moves a timer to a
+            // later time lazily, waking at the old deadline to find it
+            // moved; and one no longer needed is let go, not left to wake.
+            quiet.set(tokio::time::sleep(config.idle_timeout));
         }
     }
 }

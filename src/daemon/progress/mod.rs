@@ -101,6 +101,11 @@ impl ProgressFeed {
         }
     }
 
+    /// Whether the lines are drawn live (else the milestones are logged).
+    pub fn is_live(&self) -> bool {
+        !self.log
+    }
+
     /// Lines the daemon publishes on stdout are printed above the live
     /// lines of `multi` (for a stdout on the same terminal).
     pub fn with_stdout_above(self, multi: indicatif::MultiProgress) -> Self {

@@ -28,6 +28,16 @@ use crate::source::clock::live_now;
 /// inside a STATUS interval and the watchdog's half period.
 const EVENT_BURST: u32 = 256;
 
+/// Where only milestones are logged, how long after the progress snapshot
+/// was due the loop wakes for it when nothing else has woken it: a
+/// milestone of the last readings before a quiet line is logged within a
+/// second. Far longer than the 30 to 50 ms between two readings of a serial
+/// or bridge source, so that its timer, made anew at each snapshot, never
+/// comes due (nor wakes
+/// the loop to be moved on, as tokio's timer wheel does with a timer whose
+/// level it must step down) while readings flow.
+const LOGGED_IDLE: Duration = Duration::from_secs(1);
+
 /// Everything the loop owns once the daemon is started.
 pub(super) struct Daemon {
     pub(super) notifier: Notifier,
@@ -55,10 +65,17 @@ impl Daemon {
         let watchdog = self.notifier.watchdog_interval();
         let mut watchdog_tick = interval(watchdog.unwrap_or(Duration::from_secs(3600)));
         // The progress snapshot rides on the loop's own wake-ups (a
-        // reading, a command) at most every REDRAW; the timer only wakes
-        // the loop when nothing else has for half a REDRAW longer.
+        // reading, a command) at most every REDRAW; a timer wakes the loop
+        // when nothing else has for `idle` longer: half a REDRAW where the
+        // lines are drawn live, a second where only milestones are logged
+        // (systemd, a pipe), so that between readings no timer comes due
+        // (each such wake-up costs about as much CPU as a reading).
+        let idle = match &self.progress {
+            Some(feed) if feed.is_live() => REDRAW / 2,
+            _ => LOGGED_IDLE,
+        };
         let mut progress_due = tokio::time::Instant::now();
-        let progress_idle = tokio::time::sleep_until(progress_due + REDRAW / 2);
+        let progress_idle = tokio::time::sleep_until(progress_due + idle);
         tokio::pin!(progress_idle);
 
         // Sensor events come before commands and status ticks (biased), so no
@@ -100,7 +117,10 @@ impl Daemon {
                 if now >= progress_due {
                     progress.update(self.sensors.sensors.iter().map(|(_, s)| s));
                     progress_due = now + REDRAW;
-                    progress_idle.as_mut().reset(progress_due + REDRAW / 2);
+                    // A new timer, not the old one reset: tokio moves a
+                    // reset to a later time lazily, waking the loop at the
+                    // old deadline only to find it moved.
+                    progress_idle.set(tokio::time::sleep_until(progress_due + idle));
                 }
             }
             if events_in_a_row == handled_before {
