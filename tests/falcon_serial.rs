@@ -149,7 +149,8 @@ async fn frames_from_the_device_come_out_decoded_in_order() {
 
 /// A frame cut short by a line that goes quiet is dropped once nothing
 /// more comes for `idle_timeout`, so it is not glued to the next frame
-/// (which would then fail its checksum and be lost with it).
+/// (the two together would fail the checksum: a bad frame counted where
+/// there was none).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_partial_frame_is_dropped_when_the_line_goes_quiet() {
     let frame = |timer: u16| {
@@ -164,9 +165,10 @@ async fn a_partial_frame_is_dropped_when_the_line_goes_quiet() {
     };
     let cut = frame(2)[..11].to_vec();
     let chunks = vec![frame(1), cut, frame(3), frame(4)];
-    // A chunk every 400 ms, quiet after 100 ms: the cut frame is dropped
-    // some 300 ms before the next arrives.
-    let pty = FalconPty::plug_in(chunks, Duration::from_millis(400));
+    // A chunk every 800 ms, quiet after 100 ms: the cut frame is dropped
+    // some 700 ms before the next arrives (the device catches up on a
+    // late chunk, so a stalled test thread narrows that gap).
+    let pty = FalconPty::plug_in(chunks, Duration::from_millis(800));
     let (tx, mut events) = mpsc::channel(64);
     let counters = Arc::new(SourceCounters::default());
     let (stop, stop_rx) = watch::channel(false);

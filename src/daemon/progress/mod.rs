@@ -27,9 +27,11 @@ use super::messages::CalibrationEvent;
 use super::sensor::Sensor;
 
 /// How often the live lines are redrawn, and the least time between the
-/// loop's snapshots (it takes one on its next wake-up after this, or after
-/// half as long again when nothing wakes it): ten times a second is as
-/// fast as a person reads a changing number.
+/// loop's snapshots (it takes one on its next wake-up after this; when
+/// nothing wakes it, after half as long again where the lines are drawn
+/// live, and within a second of the last snapshot where milestones are
+/// only logged): ten times a second is as fast as a person reads a
+/// changing number.
 pub const REDRAW: Duration = Duration::from_millis(100);
 
 /// Most milestone messages kept between two drains (a log that nobody

@@ -29,14 +29,15 @@ use crate::source::clock::live_now;
 const EVENT_BURST: u32 = 256;
 
 /// Where only milestones are logged, how long after the progress snapshot
-/// was due the loop wakes for it when nothing else has woken it: a
-/// milestone of the last readings before a quiet line is logged within a
-/// second. Far longer than the 30 to 50 ms between two readings of a serial
+/// was due the loop wakes for it when nothing else has woken it: with the
+/// REDRAW before it, a second after the last snapshot, so a milestone of
+/// the last readings before a quiet line is logged within a second of
+/// them. Far longer than the 30 to 50 ms between two readings of a serial
 /// or bridge source, so that its timer, made anew at each snapshot, never
 /// comes due (nor wakes
 /// the loop to be moved on, as tokio's timer wheel does with a timer whose
 /// level it must step down) while readings flow.
-const LOGGED_IDLE: Duration = Duration::from_secs(1);
+const LOGGED_IDLE: Duration = Duration::from_millis(900);
 
 /// Everything the loop owns once the daemon is started.
 pub(super) struct Daemon {
@@ -67,7 +68,7 @@ impl Daemon {
         // The progress snapshot rides on the loop's own wake-ups (a
         // reading, a command) at most every REDRAW; a timer wakes the loop
         // when nothing else has for `idle` longer: half a REDRAW where the
-        // lines are drawn live, a second where only milestones are logged
+        // lines are drawn live, LOGGED_IDLE where only milestones are logged
         // (systemd, a pipe), so that between readings no timer comes due
         // (each such wake-up costs about as much CPU as a reading).
         let idle = match &self.progress {
