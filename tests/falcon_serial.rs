@@ -62,13 +62,16 @@ struct Running {
 }
 
 fn start(pty: &FalconPty) -> Running {
+    start_with(SerialConfig {
+        retry_interval: Duration::from_millis(100),
+        ..SerialConfig::new(pty.path())
+    })
+}
+
+fn start_with(config: SerialConfig) -> Running {
     let (tx, events) = mpsc::channel(4096);
     let counters = Arc::new(SourceCounters::default());
     let (stop, stop_rx) = watch::channel(false);
-    let config = SerialConfig {
-        retry_interval: Duration::from_millis(100),
-        ..SerialConfig::new(pty.path())
-    };
     let task = tokio::spawn(run_serial_source(config, tx, counters.clone(), stop_rx));
     Running {
         events,
@@ -169,28 +172,24 @@ async fn a_partial_frame_is_dropped_when_the_line_goes_quiet() {
     // some 700 ms before the next arrives (the device catches up on a
     // late chunk, so a stalled test thread narrows that gap).
     let pty = FalconPty::plug_in(chunks, Duration::from_millis(800));
-    let (tx, mut events) = mpsc::channel(64);
-    let counters = Arc::new(SourceCounters::default());
-    let (stop, stop_rx) = watch::channel(false);
-    let config = SerialConfig {
+    let mut run = start_with(SerialConfig {
         idle_timeout: Duration::from_millis(100),
         ..SerialConfig::new(pty.path())
-    };
-    let task = tokio::spawn(run_serial_source(config, tx, counters.clone(), stop_rx));
+    });
     let (mut readings, mut others) = (Vec::new(), Vec::new());
     collect(
-        &mut events,
+        &mut run.events,
         &mut readings,
         &mut others,
         Duration::from_secs(15),
         |r, _| r.len() >= 3,
     )
     .await;
-    stop.send(true).unwrap();
-    task.await.unwrap();
+    run.stop.send(true).unwrap();
+    run.task.await.unwrap();
     let timers: Vec<u16> = readings.iter().map(|r| r.timer.unwrap()).collect();
     assert_eq!(timers, [1, 3, 4]);
-    let c = counters.snapshot();
+    let c = run.counters.snapshot();
     assert_eq!(
         (c.frames_good, c.frames_bad, c.bytes_skipped),
         (3, 0, 11),

@@ -34,9 +34,8 @@ const EVENT_BURST: u32 = 256;
 /// the last readings before a quiet line is logged within a second of
 /// them. Far longer than the 30 to 50 ms between two readings of a serial
 /// or bridge source, so that its timer, made anew at each snapshot, never
-/// comes due (nor wakes
-/// the loop to be moved on, as tokio's timer wheel does with a timer whose
-/// level it must step down) while readings flow.
+/// comes due (nor wakes the loop to be moved on, as tokio's timer wheel
+/// does with a timer whose level it must step down) while readings flow.
 const LOGGED_IDLE: Duration = Duration::from_millis(900);
 
 /// Everything the loop owns once the daemon is started.
