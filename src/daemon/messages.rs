@@ -633,11 +633,13 @@ pub enum SensorState {
     Recalibrating,
 }
 
-/// One sensor in a `STATUS` message.
+/// One sensor in a `STATUS` message; its texts `S`: borrowed from the
+/// sensor (`&str`), or owned ([`SensorStatus::map`]) to be written on
+/// another thread.
 #[derive(Debug, Clone, Serialize)]
-pub struct SensorStatus<'a> {
-    pub sensor: &'a str,
-    pub source: &'a str,
+pub struct SensorStatus<S> {
+    pub sensor: S,
+    pub source: S,
     pub state: SensorState,
     /// Rotation progress, while collecting.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -659,28 +661,52 @@ pub struct SensorStatus<'a> {
     /// Why the current calibration is stale, while it is (a `STALE` line
     /// said so; `on_stale = "warn"`).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub stale: Option<&'a str>,
+    pub stale: Option<S>,
     pub readings: u64,
     /// Samples refused as spikes ([`crate::model::spike`]): published,
     /// never collected nor fitted; and the last one's sentence.
     #[serde(skip_serializing_if = "is_zero")]
     pub spikes: u64,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub last_spike: Option<&'a str>,
+    pub last_spike: Option<S>,
     pub fits_accepted: u64,
     pub fits_rejected: u64,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub last_rejection: Option<&'a str>,
+    pub last_rejection: Option<S>,
+}
+
+impl<S> SensorStatus<S> {
+    /// The same status with each text `text(…)`.
+    pub fn map<T>(self, text: impl Fn(S) -> T) -> SensorStatus<T> {
+        SensorStatus {
+            sensor: text(self.sensor),
+            source: text(self.source),
+            state: self.state,
+            rotation: self.rotation,
+            sphere: self.sphere,
+            calibration: self.calibration,
+            headings_stale: self.headings_stale,
+            trust: self.trust,
+            stale: self.stale.map(&text),
+            readings: self.readings,
+            spikes: self.spikes,
+            last_spike: self.last_spike.map(&text),
+            fits_accepted: self.fits_accepted,
+            fits_rejected: self.fits_rejected,
+            last_rejection: self.last_rejection.map(&text),
+        }
+    }
 }
 
 fn is_zero(n: &u64) -> bool {
     *n == 0
 }
 
-/// A source in a `STATUS` message: its decoder and connection counters.
+/// A source in a `STATUS` message: its decoder and connection counters;
+/// its name `S` as in [`SensorStatus`].
 #[derive(Debug, Clone, Serialize)]
-pub struct SourceStatus<'a> {
-    pub source: &'a str,
+pub struct SourceStatus<S> {
+    pub source: S,
     pub connected: bool,
     #[serde(flatten)]
     pub counters: CountersSnapshot,
@@ -688,13 +714,13 @@ pub struct SourceStatus<'a> {
 
 /// The periodic `STATUS` message.
 #[derive(Debug, Clone, Serialize)]
-pub struct StatusMessage<'a> {
+pub struct StatusMessage<S> {
     pub class: &'static str,
     /// When it was made: the host's Unix clock under `run`, the recording's
     /// clock under `replay --config` (see the module).
     pub time: f64,
-    pub sensors: Vec<SensorStatus<'a>>,
-    pub sources: Vec<SourceStatus<'a>>,
+    pub sensors: Vec<SensorStatus<S>>,
+    pub sources: Vec<SourceStatus<S>>,
     pub subscribers: usize,
     /// Readings dropped for slow subscribers, in all.
     pub dropped: u64,
@@ -713,9 +739,16 @@ pub fn to_line<T: Serialize>(message: &T) -> String {
 /// and is copied three or four times from the room of a READING's).
 pub fn to_line_in<T: Serialize>(message: &T, capacity: usize) -> String {
     let mut line = Vec::with_capacity(capacity);
-    match serde_json::to_writer(&mut line, message) {
-        Ok(()) => String::from_utf8(line).unwrap_or_else(|_| "{}".to_string()),
-        Err(_) => "{}".to_string(),
+    write_line_to(message, &mut line);
+    String::from_utf8(line).unwrap_or_else(|_| "{}".to_string())
+}
+
+/// [`to_line`] appended to `line`, a buffer used again for each.
+pub fn write_line_to<T: Serialize>(message: &T, line: &mut Vec<u8>) {
+    let start = line.len();
+    if serde_json::to_writer(&mut *line, message).is_err() {
+        line.truncate(start);
+        line.extend_from_slice(b"{}");
     }
 }
 

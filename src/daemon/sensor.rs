@@ -495,7 +495,7 @@ impl Sensor {
         self.geometry.distrust_now()
     }
 
-    pub fn status(&self) -> SensorStatus<'_> {
+    pub fn status(&self) -> SensorStatus<&str> {
         let collecting = self.life.state != SensorState::Calibrated;
         let (sphere, headings_stale) = self.geometry.sphere(collecting);
         SensorStatus {

@@ -8,10 +8,10 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::DaemonError;
-use super::sensors::Sensors;
+use super::sensors::{STATUS_ROOM, Sensors};
 use crate::capture::Playable;
 use crate::daemon::config::{Config, SourceKind};
-use crate::daemon::messages::{ReadingValues, SourceStatus};
+use crate::daemon::messages::{ReadingValues, SourceStatus, StatusMessage, write_line_to};
 use crate::daemon::publish::Lane;
 use crate::daemon::sensor::Emitter;
 use crate::daemon::source_kinds::Csv;
@@ -25,11 +25,12 @@ use crate::source::{CountersSnapshot, SourceCounters, SourceEvent};
 /// time column that jumps cannot make the output unbounded.
 pub const MAX_STATUS_CATCH_UP: u32 = 10;
 
-/// What the pipeline publishes, in order: a line, or a 2-axis sensor's
-/// READING as its values (its line is written with the others, on the
-/// writer's thread at full speed).
+/// What the pipeline publishes, in order: a line, a STATUS as its
+/// message, or a 2-axis sensor's READING as its values (their lines are
+/// written with the others, on the writer's thread at full speed).
 enum Out {
     Line(String),
+    Status(StatusMessage<String>),
     /// The READING of the configuration's sensor at that place.
     Reading(usize, ReadingValues),
 }
@@ -41,6 +42,8 @@ struct LineWriter {
     names: Vec<String>,
     /// A READING's line, written again for each.
     line: String,
+    /// A STATUS line, written again for each.
+    status: Vec<u8>,
 }
 
 impl LineWriter {
@@ -49,6 +52,14 @@ impl LineWriter {
             Out::Line(line) => {
                 out.write_all(line.as_bytes())?;
                 out.write_all(b"\n")
+            }
+            Out::Status(message) => {
+                self.status.clear();
+                let room = 128 + STATUS_ROOM * (message.sensors.len() + message.sources.len());
+                self.status.reserve(room);
+                write_line_to(&message, &mut self.status);
+                self.status.push(b'\n');
+                out.write_all(&self.status)
             }
             Out::Reading(sensor, values) => {
                 self.line.clear();
@@ -106,7 +117,7 @@ impl Pipeline {
             pending: Vec::new(),
             writer: LineWriter {
                 names: names.clone(),
-                line: String::new(),
+                ..LineWriter::default()
             },
             names,
             failed: None,
@@ -158,16 +169,15 @@ impl Pipeline {
             if !(time >= *k * interval) {
                 break;
             }
-            let statuses = [SourceStatus {
-                source: &self.source_name,
+            let statuses = vec![SourceStatus {
+                source: self.source_name.clone(),
                 connected: true,
                 counters,
             }];
-            self.pending.push(Out::Line(self.sensors.status_line(
-                *k * interval,
-                &statuses,
-                None,
-            )));
+            let message = self
+                .sensors
+                .status_message(*k * interval, statuses, str::to_string);
+            self.pending.push(Out::Status(message));
             let next = *k + 1.0;
             *k = if next > *k { next } else { k.next_up() };
         }

@@ -11,6 +11,10 @@ use crate::daemon::sensor::{Emitter, Sensor};
 use crate::daemon::state::StateStore;
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 
+/// Room a STATUS line is given for each sensor and each source at once
+/// (about 250 bytes a sensor and 200 a source).
+pub(super) const STATUS_ROOM: usize = 384;
+
 /// Sensors grouped by the source that feeds them.
 pub(crate) struct Sensors {
     pub(super) sensors: Vec<(usize, Sensor)>,
@@ -152,26 +156,42 @@ impl Sensors {
         n
     }
 
+    /// The STATUS line at `time` of these sensors, `sources` and the
+    /// hub's subscribers (none without one).
     pub(super) fn status_line(
         &self,
         time: f64,
-        sources: &[SourceStatus<'_>],
+        sources: &[SourceStatus<&str>],
         hub: Option<&Hub>,
     ) -> String {
         let stats = hub.map(Hub::stats).unwrap_or_default();
-        // About 250 bytes a sensor and 200 a source.
-        let room = 128 + 384 * (self.sensors.len() + sources.len());
-        to_line_in(
-            &StatusMessage {
-                class: "STATUS",
-                time,
-                sensors: self.sensors.iter().map(|(_, s)| s.status()).collect(),
-                sources: sources.to_vec(),
-                subscribers: stats.subscribers,
-                dropped: stats.dropped,
-            },
-            room,
-        )
+        let room = 128 + STATUS_ROOM * (self.sensors.len() + sources.len());
+        let mut message = self.status_message(time, sources.to_vec(), |s| s);
+        (message.subscribers, message.dropped) = (stats.subscribers, stats.dropped);
+        to_line_in(&message, room)
+    }
+
+    /// The STATUS message at `time` of these sensors and `sources`, each
+    /// text `text(…)` (borrowed, or owned to be written on another
+    /// thread), with no subscribers.
+    pub(super) fn status_message<'a, S>(
+        &'a self,
+        time: f64,
+        sources: Vec<SourceStatus<S>>,
+        text: impl Fn(&'a str) -> S,
+    ) -> StatusMessage<S> {
+        StatusMessage {
+            class: "STATUS",
+            time,
+            sensors: self
+                .sensors
+                .iter()
+                .map(|(_, s)| s.status().map(&text))
+                .collect(),
+            sources,
+            subscribers: 0,
+            dropped: 0,
+        }
     }
 }
 

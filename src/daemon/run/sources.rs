@@ -154,11 +154,11 @@ impl Sources {
     }
 
     /// Each source's name, connection and counters, for STATUS.
-    pub(super) fn statuses(&self) -> Vec<SourceStatus<'_>> {
+    pub(super) fn statuses(&self) -> Vec<SourceStatus<&str>> {
         self.handles
             .iter()
             .map(|s| SourceStatus {
-                source: &s.name,
+                source: s.name.as_str(),
                 connected: s.connected,
                 counters: s.counters.snapshot(),
             })
