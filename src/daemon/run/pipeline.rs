@@ -25,6 +25,42 @@ use crate::source::{CountersSnapshot, SourceCounters, SourceEvent};
 /// time column that jumps cannot make the output unbounded.
 pub const MAX_STATUS_CATCH_UP: u32 = 10;
 
+/// When a recording's STATUS lines are due, on its clock: the first at
+/// the first whole interval after the first reading, then every interval
+/// (counted, so times do not drift by rounding).
+#[derive(Clone, Copy)]
+struct StatusClock {
+    interval: f64,
+    /// The next STATUS is at this multiple of the interval.
+    next: Option<f64>,
+}
+
+impl StatusClock {
+    /// Calls `due` with the time of each STATUS due before a reading at
+    /// `time`, in order: after a gap of more than
+    /// [`MAX_STATUS_CATCH_UP`] intervals, those of the last intervals.
+    fn due_before(&mut self, time: f64, mut due: impl FnMut(f64)) {
+        let interval = self.interval;
+        let k = self
+            .next
+            .get_or_insert_with(|| (time / interval).floor() + 1.0);
+        if time - *k * interval >= f64::from(MAX_STATUS_CATCH_UP) * interval {
+            *k = (time / interval).floor();
+        }
+        // At most the catch-up and one more: a time so far out that one
+        // interval no longer moves the count (1e140 s) steps to the next
+        // number instead, so the loop always ends.
+        for _ in 0..=MAX_STATUS_CATCH_UP {
+            if !(time >= *k * interval) {
+                break;
+            }
+            due(*k * interval);
+            let next = *k + 1.0;
+            *k = if next > *k { next } else { k.next_up() };
+        }
+    }
+}
+
 /// What the pipeline publishes, in order: a line, a STATUS as its
 /// message, or a 2-axis sensor's READING as its values (their lines are
 /// written with the others, on the writer's thread at full speed).
@@ -78,11 +114,8 @@ struct Pipeline {
     sensors: Sensors,
     index: usize,
     source_name: String,
-    interval: f64,
-    /// The next STATUS is at this multiple of the interval: the first after
-    /// the first reading, then every interval (counted, so times do not
-    /// drift by rounding).
-    next_status: Option<f64>,
+    /// When STATUS lines are due (on the reading thread at full speed).
+    clock: StatusClock,
     realtime: bool,
     /// What is published and not yet written.
     pending: Vec<Out>,
@@ -111,8 +144,10 @@ impl Pipeline {
                 .get(index)
                 .map_or("replay", |s| s.name.as_str())
                 .to_string(),
-            interval: config.daemon.status_interval.as_secs_f64(),
-            next_status: None,
+            clock: StatusClock {
+                interval: config.daemon.status_interval.as_secs_f64(),
+                next: None,
+            },
             realtime: !matches!(speed, Speed::Max),
             pending: Vec::new(),
             writer: LineWriter {
@@ -155,32 +190,25 @@ impl Pipeline {
     /// Publishes the STATUS lines due before `time`, then the event's
     /// lines, to [`Self::pending`].
     fn publish(&mut self, time: f64, event: SourceEvent, counters: CountersSnapshot) {
-        let interval = self.interval;
-        let k = self
-            .next_status
-            .get_or_insert_with(|| (time / interval).floor() + 1.0);
-        if time - *k * interval >= f64::from(MAX_STATUS_CATCH_UP) * interval {
-            *k = (time / interval).floor();
-        }
-        // At most the catch-up and one more: a time so far out that one
-        // interval no longer moves the count (1e140 s) steps to the next
-        // number instead, so the loop always ends.
-        for _ in 0..=MAX_STATUS_CATCH_UP {
-            if !(time >= *k * interval) {
-                break;
-            }
-            let statuses = vec![SourceStatus {
-                source: self.source_name.clone(),
-                connected: true,
-                counters,
-            }];
-            let message = self
-                .sensors
-                .status_message(*k * interval, statuses, str::to_string);
-            self.pending.push(Out::Status(message));
-            let next = *k + 1.0;
-            *k = if next > *k { next } else { k.next_up() };
-        }
+        let mut clock = self.clock;
+        clock.due_before(time, |at| self.status(at, counters));
+        self.clock = clock;
+        self.event(event);
+    }
+
+    /// Publishes the STATUS at `time` with the source's `counters`.
+    fn status(&mut self, time: f64, counters: CountersSnapshot) {
+        let statuses = vec![SourceStatus {
+            source: self.source_name.clone(),
+            connected: true,
+            counters,
+        }];
+        let message = self.sensors.status_message(time, statuses, str::to_string);
+        self.pending.push(Out::Status(message));
+    }
+
+    /// Publishes an event's lines to [`Self::pending`].
+    fn event(&mut self, event: SourceEvent) {
         // The lines and the READINGs' values go to one list, in order.
         let pending = RefCell::new(std::mem::take(&mut self.pending));
         let names = &self.names;
@@ -290,12 +318,23 @@ fn through_pipeline(
     Ok(summary)
 }
 
+/// Readings played ahead of the pipeline, and the STATUS lines due
+/// among them: each before the reading at its place, with the source's
+/// counters as they stood when that reading was handed on (so it counts
+/// what it would have counted on one thread: the output is the same to
+/// the byte).
+#[derive(Default)]
+struct Played {
+    readings: Vec<Reading>,
+    /// (place in `readings`, time, counters), in order.
+    statuses: Vec<(usize, f64, CountersSnapshot)>,
+}
+
 /// A replay at full speed on three threads (two cores): the capture is
-/// read and decoded on a thread of its own, a batch of readings ahead of the pipeline,
-/// each reading with the source's counters as they stood when it was
-/// handed on (so a STATUS made on it counts what it would have counted
-/// on one thread: the output is the same to the byte); the pipeline's
-/// output is written on a third, its READINGs' lines made there from
+/// read and decoded on a thread of its own, a batch of readings ahead of
+/// the pipeline, with the STATUS lines due among them (the pipeline's
+/// [`StatusClock`] moves to that thread); the pipeline's output is
+/// written on a third, its READINGs' and STATUS lines made there from
 /// their values. A failed write stops the reading and the pipeline as
 /// before; the readings already decoded are dropped.
 fn played_ahead(
@@ -304,26 +343,37 @@ fn played_ahead(
     out: &mut (dyn Write + Send),
     play: Play,
 ) -> Result<ReplaySummary, ReplayError> {
-    let (send, receive) =
-        std::sync::mpsc::sync_channel::<Vec<(Reading, CountersSnapshot)>>(BATCHES_AHEAD);
+    let (send, receive) = std::sync::mpsc::sync_channel::<Played>(BATCHES_AHEAD);
     let (to_writer, written) = std::sync::mpsc::sync_channel::<Vec<Out>>(BATCHES_AHEAD);
     // The writer's emptied batches, for the pipeline to fill again.
     let (give_back, given_back) = std::sync::mpsc::sync_channel::<Vec<Out>>(BATCHES_AHEAD + 1);
     let mut writer = std::mem::take(&mut pipeline.writer);
+    let mut clock = pipeline.clock;
     std::thread::scope(|scope| {
         let player = scope.spawn(move || {
             let counters = SourceCounters::default();
-            let mut batch = Vec::with_capacity(BATCH);
+            let mut batch = Played {
+                readings: Vec::with_capacity(BATCH),
+                statuses: Vec::new(),
+            };
             let played = play(stop, &counters, &mut |reading| {
-                batch.push((reading, counters.snapshot()));
-                if batch.len() == BATCH {
-                    let full = std::mem::replace(&mut batch, Vec::with_capacity(BATCH));
+                let place = batch.readings.len();
+                clock.due_before(reading.time, |at| {
+                    batch.statuses.push((place, at, counters.snapshot()));
+                });
+                batch.readings.push(reading);
+                if batch.readings.len() == BATCH {
+                    let next = Played {
+                        readings: Vec::with_capacity(BATCH),
+                        statuses: Vec::new(),
+                    };
+                    let full = std::mem::replace(&mut batch, next);
                     if send.send(full).is_err() {
                         stop.store(true, Ordering::Relaxed);
                     }
                 }
             });
-            if !batch.is_empty() {
+            if !batch.readings.is_empty() {
                 // The pipeline is gone only when it panicked, or stopped
                 // because the writer failed: the rest is not wanted.
                 let _ = send.send(batch);
@@ -347,8 +397,12 @@ fn played_ahead(
         // and the panic goes on.
         let (receive, to_writer) = (receive, to_writer);
         for batch in receive {
-            for (reading, counters) in batch {
-                pipeline.publish(reading.time, SourceEvent::Reading(reading), counters);
+            let mut statuses = batch.statuses.into_iter().peekable();
+            for (place, reading) in batch.readings.into_iter().enumerate() {
+                while let Some((_, at, counters)) = statuses.next_if(|s| s.0 == place) {
+                    pipeline.status(at, counters);
+                }
+                pipeline.event(SourceEvent::Reading(reading));
             }
             let empty = given_back.try_recv().unwrap_or_default();
             let full = std::mem::replace(&mut pipeline.pending, empty);
@@ -475,6 +529,77 @@ mod tests {
                 summary.readings += 1;
             }
             then().map(|()| summary)
+        }
+    }
+
+    /// A full-speed replay (three threads, the STATUS times found on the
+    /// reading thread) writes what one thread writes, to the byte: the
+    /// STATUS lines in their places across batches, after gaps of a few
+    /// intervals and of more than the catch-up, after a time that goes
+    /// back, each with the counters as they stood at its reading.
+    #[test]
+    fn a_full_speed_replay_writes_what_one_thread_writes() {
+        let config = config();
+        let times: Vec<f64> = (0..3 * BATCH + 700)
+            .map(|k| {
+                let t = k as f64 * 0.05;
+                match k {
+                    k if k < 1000 => t,
+                    // A gap of 4.5 intervals, then one of 40 (beyond the
+                    // catch-up), then back by 7 s.
+                    k if k < 2100 => t + 4.5,
+                    k if k < 5000 => t + 44.5,
+                    _ => t + 37.5,
+                }
+            })
+            .collect();
+        let replay = |speed: Speed| {
+            let times = times.clone();
+            let mut play = move |stop: &AtomicBool,
+                                 counters: &SourceCounters,
+                                 emit: &mut dyn FnMut(Reading)|
+                  -> Result<ReplaySummary, ReplayError> {
+                let mut summary = ReplaySummary::default();
+                for (k, &time) in times.iter().enumerate() {
+                    if stop.load(Ordering::Relaxed) {
+                        break;
+                    }
+                    counters.bytes_read.fetch_add(22, Ordering::Relaxed);
+                    counters.frames_good.fetch_add(1, Ordering::Relaxed);
+                    let angle = k as f64 * 0.03;
+                    emit(Reading {
+                        time,
+                        mag: Some([
+                            (1000.0 * angle.cos()) as i16,
+                            (1000.0 * angle.sin()) as i16,
+                            0,
+                        ]),
+                        ..Reading::default()
+                    });
+                    summary.readings += 1;
+                }
+                Ok(summary)
+            };
+            let mut out = Vec::new();
+            through_pipeline(&config, None, speed, &mut out, &mut play).expect("the replay");
+            // A fit's own duration is the one thing that differs by run.
+            let text = String::from_utf8(out).expect("lines of text");
+            text.lines()
+                .map(|line| match line.find("\"fit_ms\":") {
+                    Some(at) => {
+                        let end = line[at..].find(',').map_or(line.len(), |e| at + e);
+                        format!("{}{}", &line[..at], &line[end..])
+                    }
+                    None => line.to_string(),
+                })
+                .collect::<Vec<_>>()
+        };
+        let (threads, one) = (replay(Speed::Max), replay(Speed::Times(1.0)));
+        let statuses = one.iter().filter(|l| l.contains("\"STATUS\"")).count();
+        assert!(statuses > 100, "{statuses} STATUS lines");
+        assert_eq!(threads.len(), one.len());
+        for (k, (a, b)) in threads.iter().zip(&one).enumerate() {
+            assert_eq!(a, b, "line {k}");
         }
     }
 
