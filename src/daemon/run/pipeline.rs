@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::DaemonError;
-use super::sensors::{STATUS_ROOM, Sensors};
+use super::sensors::{Sensors, status_room};
 use crate::capture::Playable;
 use crate::daemon::config::{Config, SourceKind};
 use crate::daemon::messages::{ReadingValues, SourceStatus, StatusMessage, write_line_to};
@@ -38,7 +38,8 @@ struct StatusClock {
 impl StatusClock {
     /// Calls `due` with the time of each STATUS due before a reading at
     /// `time`, in order: after a gap of more than
-    /// [`MAX_STATUS_CATCH_UP`] intervals, those of the last intervals.
+    /// [`MAX_STATUS_CATCH_UP`] intervals, only the one at the last whole
+    /// interval.
     fn due_before(&mut self, time: f64, mut due: impl FnMut(f64)) {
         let interval = self.interval;
         let k = self
@@ -91,8 +92,8 @@ impl LineWriter {
             }
             Out::Status(message) => {
                 self.status.clear();
-                let room = 128 + STATUS_ROOM * (message.sensors.len() + message.sources.len());
-                self.status.reserve(room);
+                self.status
+                    .reserve(status_room(message.sensors.len() + message.sources.len()));
                 write_line_to(&message, &mut self.status);
                 self.status.push(b'\n');
                 out.write_all(&self.status)
@@ -114,7 +115,8 @@ struct Pipeline {
     sensors: Sensors,
     index: usize,
     source_name: String,
-    /// When STATUS lines are due (on the reading thread at full speed).
+    /// When STATUS lines are due (at full speed, a copy of it runs on the
+    /// reading thread instead, and this one is not used).
     clock: StatusClock,
     realtime: bool,
     /// What is published and not yet written.
@@ -323,11 +325,21 @@ fn through_pipeline(
 /// counters as they stood when that reading was handed on (so it counts
 /// what it would have counted on one thread: the output is the same to
 /// the byte).
-#[derive(Default)]
 struct Played {
     readings: Vec<Reading>,
     /// (place in `readings`, time, counters), in order.
     statuses: Vec<(usize, f64, CountersSnapshot)>,
+}
+
+impl Played {
+    /// An empty batch, with room for its readings and for the STATUS
+    /// lines of a recording at 20 Hz or slower with a STATUS a second.
+    fn new() -> Self {
+        Played {
+            readings: Vec::with_capacity(BATCH),
+            statuses: Vec::with_capacity(BATCH / 16),
+        }
+    }
 }
 
 /// A replay at full speed on three threads (two cores): the capture is
@@ -352,10 +364,7 @@ fn played_ahead(
     std::thread::scope(|scope| {
         let player = scope.spawn(move || {
             let counters = SourceCounters::default();
-            let mut batch = Played {
-                readings: Vec::with_capacity(BATCH),
-                statuses: Vec::new(),
-            };
+            let mut batch = Played::new();
             let played = play(stop, &counters, &mut |reading| {
                 let place = batch.readings.len();
                 clock.due_before(reading.time, |at| {
@@ -363,11 +372,7 @@ fn played_ahead(
                 });
                 batch.readings.push(reading);
                 if batch.readings.len() == BATCH {
-                    let next = Played {
-                        readings: Vec::with_capacity(BATCH),
-                        statuses: Vec::new(),
-                    };
-                    let full = std::mem::replace(&mut batch, next);
+                    let full = std::mem::replace(&mut batch, Played::new());
                     if send.send(full).is_err() {
                         stop.store(true, Ordering::Relaxed);
                     }
@@ -399,7 +404,7 @@ fn played_ahead(
         for batch in receive {
             let mut statuses = batch.statuses.into_iter().peekable();
             for (place, reading) in batch.readings.into_iter().enumerate() {
-                while let Some((_, at, counters)) = statuses.next_if(|s| s.0 == place) {
+                while let Some((_, at, counters)) = statuses.next_if(|&(p, ..)| p == place) {
                     pipeline.status(at, counters);
                 }
                 pipeline.event(SourceEvent::Reading(reading));
@@ -534,9 +539,11 @@ mod tests {
 
     /// A full-speed replay (three threads, the STATUS times found on the
     /// reading thread) writes what one thread writes, to the byte: the
-    /// STATUS lines in their places across batches, after gaps of a few
-    /// intervals and of more than the catch-up, after a time that goes
-    /// back, each with the counters as they stood at its reading.
+    /// STATUS lines in their places in four batches (some due at a
+    /// batch's first reading), after gaps of a few intervals and of more
+    /// than the catch-up, after a time that goes back, each with the
+    /// counters as they stood at its reading. (The player here does not
+    /// pace itself: `Speed::Times(1.0)` only takes the one-thread path.)
     #[test]
     fn a_full_speed_replay_writes_what_one_thread_writes() {
         let config = config();
@@ -544,10 +551,11 @@ mod tests {
             .map(|k| {
                 let t = k as f64 * 0.05;
                 match k {
-                    k if k < 1000 => t,
-                    // A gap of 4.5 intervals, then one of 40 (beyond the
-                    // catch-up), then back by 7 s.
-                    k if k < 2100 => t + 4.5,
+                    k if k < BATCH => t,
+                    // A gap of 4.5 intervals at the second batch's first
+                    // reading (the interval is 1 s), then one of 40
+                    // (beyond the catch-up), then back by 7 s.
+                    k if k < 4500 => t + 4.5,
                     k if k < 5000 => t + 44.5,
                     _ => t + 37.5,
                 }
@@ -595,12 +603,17 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         let (threads, one) = (replay(Speed::Max), replay(Speed::Times(1.0)));
-        let statuses = one.iter().filter(|l| l.contains("\"STATUS\"")).count();
-        assert!(statuses > 100, "{statuses} STATUS lines");
-        assert_eq!(threads.len(), one.len());
+        let count = |class: &str| one.iter().filter(|l| l.contains(class)).count();
+        assert!(
+            count("\"STATUS\"") > 100,
+            "{} STATUS lines",
+            count("\"STATUS\"")
+        );
+        assert!(count("\"CALIBRATION\"") > 0, "no calibration");
         for (k, (a, b)) in threads.iter().zip(&one).enumerate() {
             assert_eq!(a, b, "line {k}");
         }
+        assert_eq!(threads.len(), one.len());
     }
 
     /// An output that panics when written (a defect in what writes it).

@@ -11,9 +11,11 @@ use crate::daemon::sensor::{Emitter, Sensor};
 use crate::daemon::state::StateStore;
 use crate::io::csv::{CsvError, CsvLayout, CsvRow};
 
-/// Room a STATUS line is given for each sensor and each source at once
+/// Room a STATUS line of `entries` sensors and sources is given at once
 /// (about 250 bytes a sensor and 200 a source).
-pub(super) const STATUS_ROOM: usize = 384;
+pub(super) fn status_room(entries: usize) -> usize {
+    128 + 384 * entries
+}
 
 /// Sensors grouped by the source that feeds them.
 pub(crate) struct Sensors {
@@ -165,7 +167,7 @@ impl Sensors {
         hub: Option<&Hub>,
     ) -> String {
         let stats = hub.map(Hub::stats).unwrap_or_default();
-        let room = 128 + STATUS_ROOM * (self.sensors.len() + sources.len());
+        let room = status_room(self.sensors.len() + sources.len());
         let mut message = self.status_message(time, sources.to_vec(), |s| s);
         (message.subscribers, message.dropped) = (stats.subscribers, stats.dropped);
         to_line_in(&message, room)
