@@ -81,6 +81,29 @@ fn start_with(config: SerialConfig) -> Running {
     }
 }
 
+impl Running {
+    /// The first `n` readings, and the other events before them (fails
+    /// after 15 s).
+    async fn first(&mut self, n: usize) -> (Vec<Reading>, Vec<SourceEvent>) {
+        let (mut readings, mut others) = (Vec::new(), Vec::new());
+        collect(
+            &mut self.events,
+            &mut readings,
+            &mut others,
+            Duration::from_secs(15),
+            |r, _| r.len() >= n,
+        )
+        .await;
+        (readings, others)
+    }
+
+    /// Asks the source to stop, and waits for it to end.
+    async fn stop_and_wait(&mut self) {
+        self.stop.send(true).unwrap();
+        (&mut self.task).await.unwrap();
+    }
+}
+
 /// Collects events until `done` says so, or fails after `timeout`.
 async fn collect(
     events: &mut mpsc::Receiver<SourceEvent>,
@@ -108,17 +131,8 @@ async fn frames_from_the_device_come_out_decoded_in_order() {
     let (chunks, expected) = simulated(60, 0.01, 7);
     let pty = FalconPty::plug_in(chunks, PERIOD);
     let mut run = start(&pty);
-    let (mut readings, mut others) = (Vec::new(), Vec::new());
-    collect(
-        &mut run.events,
-        &mut readings,
-        &mut others,
-        Duration::from_secs(15),
-        |r, _| r.len() >= expected.len(),
-    )
-    .await;
-    run.stop.send(true).unwrap();
-    run.task.await.unwrap();
+    let (readings, others) = run.first(expected.len()).await;
+    run.stop_and_wait().await;
 
     let got: Vec<_> = readings.iter().map(fields).collect();
     let want: Vec<_> = expected.iter().map(frame_fields).collect();
@@ -176,17 +190,8 @@ async fn a_partial_frame_is_dropped_when_the_line_goes_quiet() {
         idle_timeout: Duration::from_millis(100),
         ..SerialConfig::new(pty.path())
     });
-    let (mut readings, mut others) = (Vec::new(), Vec::new());
-    collect(
-        &mut run.events,
-        &mut readings,
-        &mut others,
-        Duration::from_secs(15),
-        |r, _| r.len() >= 3,
-    )
-    .await;
-    run.stop.send(true).unwrap();
-    run.task.await.unwrap();
+    let (readings, _) = run.first(3).await;
+    run.stop_and_wait().await;
     let timers: Vec<u16> = readings.iter().map(|r| r.timer.unwrap()).collect();
     assert_eq!(timers, [1, 3, 4]);
     let c = run.counters.snapshot();
@@ -202,15 +207,7 @@ async fn unplugged_device_comes_back_and_samples_resume() {
     let (chunks, expected) = simulated(70, 0.0, 11);
     let mut pty = FalconPty::plug_in(chunks, PERIOD);
     let mut run = start(&pty);
-    let (mut readings, mut others) = (Vec::new(), Vec::new());
-    collect(
-        &mut run.events,
-        &mut readings,
-        &mut others,
-        Duration::from_secs(15),
-        |r, _| r.len() >= 20,
-    )
-    .await;
+    let (mut readings, mut others) = run.first(20).await;
 
     pty.unplug();
     let sent_before = pty.sent();
@@ -236,8 +233,7 @@ async fn unplugged_device_comes_back_and_samples_resume() {
         |r, _| r.last().and_then(|r| r.timer) == expected.last().map(|f| f.timer),
     )
     .await;
-    run.stop.send(true).unwrap();
-    run.task.await.unwrap();
+    run.stop_and_wait().await;
 
     // Nothing twice, nothing out of order.
     let timers: Vec<u16> = readings.iter().map(|r| r.timer.unwrap()).collect();
