@@ -2886,6 +2886,69 @@ mod trust {
         );
         assert!(m.check(Observation { time: 1.05, ..ok }).trusted);
     }
+
+    /// A 2-axis reading's field ratio for the check, from the squares on
+    /// nearly every reading, gives every verdict and message that
+    /// `hypot`'s ratio gives: across sizes from 1e-3 to 1e6, at ratios
+    /// about each bound to a few ulp, trusted and distrusted; and it is
+    /// `hypot`'s own near a bound, beyond it, and where the squares leave
+    /// f64's range.
+    #[test]
+    fn the_plane_field_ratio_decides_as_hypot_does() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let trusting = TrustMonitor::new(TrustLimits::from_rms(0.01, None, None));
+        let mut distrusting = trusting.clone();
+        let far = Observation {
+            time: 0.0,
+            field_ratio: 1.5,
+            heading_deg: 0.0,
+            gyro_deg_s: None,
+            dip_deg: None,
+            across: None,
+            tilt_deg: None,
+        };
+        assert!(!distrusting.check(far).trusted);
+        let mut near_a_bound = 0;
+        for k in 0..200_000 {
+            let (monitor, bound) = if k % 2 == 0 {
+                (&trusting, ENTER_SIGMAS * 0.01)
+            } else {
+                (&distrusting, LEAVE_SIGMAS * 0.01)
+            };
+            let r = 10f64.powf(rng.random_range(-3.0..6.0));
+            let e = match k % 4 {
+                0 | 1 => bound * (1.0 + f64::from(rng.random_range(-8i32..=8)) * 1e-15),
+                _ => rng.random_range(-2.0 * bound..2.0 * bound),
+            } * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+            let angle = rng.random_range(0.0..std::f64::consts::TAU);
+            let (x, y) = (r * (1.0 + e) * angle.cos(), r * (1.0 + e) * angle.sin());
+            let exact = x.hypot(y) / r;
+            let ratio = monitor.plane_field_ratio([x, y], r);
+            if ((exact - 1.0).abs() - bound).abs() < 1e-9 || (exact - 1.0).abs() > bound {
+                near_a_bound += 1;
+                assert_eq!(ratio.to_bits(), exact.to_bits(), "{x}, {y}, r {r}");
+            }
+            let obs = |field_ratio| Observation {
+                time: 1.0,
+                field_ratio,
+                ..far
+            };
+            let (mut a, mut b) = (monitor.clone(), monitor.clone());
+            assert_eq!(a.check(obs(ratio)), b.check(obs(exact)), "{x}, {y}, r {r}");
+        }
+        assert!(near_a_bound > 100_000, "{near_a_bound}");
+        // Squares that underflow (true ratio 10, beyond a bound of 1.5):
+        // √(x² + y²) would be 0, within it.
+        let wide = TrustMonitor::new(TrustLimits::from_rms(0.3, None, None));
+        let (x, r) = (1e-170, 1e-171);
+        assert_eq!(wide.plane_field_ratio([x, 0.0], r), x.hypot(0.0) / r);
+        // Squares that overflow.
+        assert_eq!(
+            wide.plane_field_ratio([1e200, 1e200], 1.5e200),
+            1e200f64.hypot(1e200) / 1.5e200
+        );
+    }
 }
 
 /// The trust monitor's thresholds on randomised sensors: quiet ones are

@@ -398,12 +398,13 @@ impl Sensor {
     /// row of another file of the source, or a row without numbers in its
     /// axes, is ignored.
     pub fn on_row(&mut self, row: &CsvRow, emit: &mut Emit<'_>) -> Option<Calibration> {
-        self.on_row_to(row, &mut Emitter::new(emit))
+        self.on_row_to(row, &mut Emitter::new(emit)).map(|c| *c)
     }
 
-    /// [`Sensor::on_row`], its output to an [`Emitter`].
-    pub fn on_row_to(&mut self, row: &CsvRow, out: &mut Emitter<'_>) -> Option<Calibration> {
-        let accepted = self.geometry.on_row(&mut self.life, row, out);
+    /// [`Sensor::on_row`], its output to an [`Emitter`]; the calibration
+    /// accepted comes boxed (see [`Sensor::on_reading_to`]).
+    pub fn on_row_to(&mut self, row: &CsvRow, out: &mut Emitter<'_>) -> Option<Box<Calibration>> {
+        let accepted = self.geometry.on_row(&mut self.life, row, out).map(Box::new);
         self.log_spike();
         accepted
     }
@@ -477,15 +478,22 @@ impl Sensor {
     /// rotation is complete. Returns a newly accepted calibration, to store.
     pub fn on_reading(&mut self, reading: &Reading, emit: &mut Emit<'_>) -> Option<Calibration> {
         self.on_reading_to(reading, &mut Emitter::new(emit))
+            .map(|c| *c)
     }
 
-    /// [`Sensor::on_reading`], its output to an [`Emitter`].
+    /// [`Sensor::on_reading`], its output to an [`Emitter`]. The
+    /// calibration accepted (at most once a rotation) comes boxed: an
+    /// `Option<Calibration>` of some 750 bytes was copied twice on its
+    /// way out for every reading, empty or not.
     pub fn on_reading_to(
         &mut self,
         reading: &Reading,
         out: &mut Emitter<'_>,
-    ) -> Option<Calibration> {
-        let accepted = self.geometry.on_reading(&mut self.life, reading, out);
+    ) -> Option<Box<Calibration>> {
+        let accepted = self
+            .geometry
+            .on_reading(&mut self.life, reading, out)
+            .map(Box::new);
         self.log_spike();
         accepted
     }

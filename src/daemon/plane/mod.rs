@@ -179,10 +179,11 @@ impl Plane {
             .as_ref()
             .zip(corrected)
             .map(|(c, (_, s, heading))| {
-                self.trust_of(c).check_under(
+                let monitor = self.trust_of(c);
+                monitor.check_under(
                     Observation {
                         time,
-                        field_ratio: s[0].hypot(s[1]) / c.params.r,
+                        field_ratio: monitor.plane_field_ratio(s, c.params.r),
                         heading_deg: heading,
                         gyro_deg_s,
                         dip_deg: None,
