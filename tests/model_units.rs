@@ -3206,6 +3206,77 @@ mod watch_sweep {
         assert_eq!(false_alarms, 0, "the same sensor called stale");
         assert!(missed <= 3, "{missed} of 300 magnets missed");
     }
+
+    /// The heading error two corrections disagree by, the largest over a
+    /// rotation, is that of both `atan2`s at every sample, to the bit:
+    /// corrections that differ by a little (a later rotation's refit) and
+    /// by more than 90°, at sizes from 1e-3 to 1e6, with samples that are
+    /// not finite.
+    #[test]
+    fn the_heading_error_is_the_largest_of_every_samples_to_the_bit() {
+        fn every_sample(
+            a: impl Fn(f64, f64) -> (f64, f64),
+            b: impl Fn(f64, f64) -> (f64, f64),
+            x: &[f64],
+            y: &[f64],
+        ) -> f64 {
+            x.iter().zip(y).fold(0.0f64, |worst, (&x, &y)| {
+                let ((ax, ay), (bx, by)) = (a(x, y), b(x, y));
+                let d = (ay.atan2(ax) - by.atan2(bx)).to_degrees();
+                let d = (d + 180.0).rem_euclid(360.0) - 180.0;
+                if d.is_finite() {
+                    worst.max(d.abs())
+                } else {
+                    worst
+                }
+            })
+        }
+        let mut rng = Rng(0x5eed_0000_a7a2_0001);
+        let mut wide = 0;
+        for case in 0..3000 {
+            let size = 10f64.powf(rng.uniform(-3.0, 6.0));
+            let n = rng.uniform(20.0, 500.0) as usize;
+            let (x, y): (Vec<f64>, Vec<f64>) = (0..n)
+                .map(|k| {
+                    let t = std::f64::consts::TAU * k as f64 / n as f64;
+                    let r = size * (1.0 + 0.01 * rng.normal());
+                    if case % 7 == 0 && k == n / 3 {
+                        (f64::NAN, r * t.sin())
+                    } else {
+                        (r * t.cos() + 0.3 * size, r * t.sin() - 0.2 * size)
+                    }
+                })
+                .unzip();
+            // A correction, and another off it by a little or by a lot.
+            let g = [rng.uniform(0.8, 1.25), rng.uniform(0.8, 1.25)];
+            let offset = [0.3 * size, -0.2 * size];
+            let turn = if case % 3 == 0 {
+                rng.uniform(-180.0, 180.0)
+            } else {
+                rng.uniform(-2.0, 2.0) * 10f64.powf(rng.uniform(-6.0, 0.0))
+            }
+            .to_radians();
+            let small = [rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05)];
+            let a = |x: f64, y: f64| (g[0] * (x - offset[0]), g[1] * (y - offset[1]));
+            let b = |x: f64, y: f64| {
+                let (u, v) = a(x, y);
+                let (u, v) = (u * (1.0 + small[0]), v * (1.0 + small[1]));
+                (
+                    u * turn.cos() - v * turn.sin(),
+                    u * turn.sin() + v * turn.cos(),
+                )
+            };
+            let fast = watch::heading_error_deg(a, b, &x, &y);
+            let slow = every_sample(a, b, &x, &y);
+            assert_eq!(
+                fast.to_bits(),
+                slow.to_bits(),
+                "case {case}: {fast} against {slow}"
+            );
+            wide += usize::from(slow > 90.0);
+        }
+        assert!(wide > 300, "{wide} cases beyond 90°");
+    }
 }
 
 /// The sphere watch over random 3-axis sensors: a later sphere of the same
