@@ -213,10 +213,13 @@ pub trait Geometry: Send {
     ) -> Option<Calibration> {
         life.readings += 1;
         self.emit_reading(life, sample, row, emit);
-        // Nearly every sample is kept at once, and queues nothing.
-        let mut at_once = life.gate.feed_at_once(sample, sample.raw).map(Gated::Kept);
+        // Nearly every sample is kept at once, and then nothing waits
+        // behind it (`SpikeGate::feed_at_once`): collected as it is.
+        if let Some(kept) = life.gate.feed_at_once(sample, sample.raw) {
+            return self.push(life, kept, emit);
+        }
         let mut accepted = None;
-        while let Some(gated) = at_once.take().or_else(|| life.gate.decided()) {
+        while let Some(gated) = life.gate.decided() {
             match gated {
                 Gated::Kept(kept) => {
                     if let Some(c) = self.push(life, kept, emit) {

@@ -305,6 +305,24 @@ fn bin_gaps(bins: &[u32]) -> Vec<(usize, usize)> {
     gaps
 }
 
+/// Whether every gap of [`bin_gaps`] is at most `max_gap` degrees, the
+/// same answer without building them: one pass over the bins that stops
+/// at the first gap too wide (the rotation's completion asks it often).
+fn gaps_within(bins: &[u32], max_gap: f64) -> bool {
+    let mut covered = (0..bins.len()).filter(|&i| bins[i] > 0);
+    let Some(first) = covered.next() else {
+        return true;
+    };
+    let mut last = first;
+    for i in covered {
+        if (i - last) as f64 > max_gap {
+            return false;
+        }
+        last = i;
+    }
+    (first + bins.len() - last) as f64 <= max_gap
+}
+
 /// Collects one sensor's samples until they make a full rotation.
 #[derive(Debug, Clone)]
 pub struct RotationBuffer {
@@ -824,9 +842,7 @@ impl RotationBuffer {
                 .reference
                 .is_some_and(|r| r.offset_ratio() <= MAX_CENTRE_OVER_RADIUS)
             && self.gyro_agrees()
-            && bin_gaps(&self.bins)
-                .iter()
-                .all(|&(_, gap)| gap as f64 <= self.config.max_gap_deg)
+            && gaps_within(&self.bins, self.config.max_gap_deg)
     }
 
     fn not_turning(&self) -> String {
@@ -951,5 +967,52 @@ impl RotationBuffer {
             previous = Some(h);
         }
         (hi - lo, reversals)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `gaps_within` answers as the gaps `bin_gaps` lists do, on bins
+    /// covered at random (sparse to nearly full, with the covered runs
+    /// touching 0° and 359°), none, and one, at every limit a
+    /// configuration may set and each gap's own width (where `<` and `<=`
+    /// differ).
+    #[test]
+    fn the_gaps_are_within_their_limit_exactly_when_every_listed_gap_is() {
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let mut cases = vec![vec![0u32; HEADING_BINS], {
+            let mut one = vec![0u32; HEADING_BINS];
+            one[0] = 1;
+            one
+        }];
+        for k in 0..4000 {
+            // Coverage from 1 % to all but a few bins.
+            let keep = 1 + (k % 100);
+            cases.push(
+                (0..HEADING_BINS)
+                    .map(|_| u32::from(next() % 100 < keep) * (1 + (next() % 5) as u32))
+                    .collect(),
+            );
+        }
+        let (mut within, mut beyond) = (0, 0);
+        for bins in &cases {
+            let gaps = bin_gaps(bins);
+            let mut limits: Vec<f64> = gaps.iter().map(|&(_, g)| g as f64).collect();
+            limits.extend([2.0, 2.5, 10.0, 45.0, 90.0, 359.0, 360.0]);
+            for limit in limits {
+                let expected = gaps.iter().all(|&(_, g)| g as f64 <= limit);
+                assert_eq!(gaps_within(bins, limit), expected, "{limit}: {gaps:?}");
+                if expected { within += 1 } else { beyond += 1 }
+            }
+        }
+        assert!(within > 10_000 && beyond > 10_000, "{within} {beyond}");
     }
 }
