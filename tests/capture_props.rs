@@ -369,3 +369,68 @@ fn a_long_raw_dump_plays_across_blocks_as_read_whole() {
     assert!(summary.truncated.is_some());
     assert_eq!(whole, streamed);
 }
+
+/// A capture longer than the reader's buffer (64 KiB), its records of
+/// every small length so that heads and records lie across the buffer's
+/// ends, is looked over to its last record before it plays: a record of
+/// an undeclared stream anywhere in it (the first, across a buffer's end,
+/// the last) refuses the file at that record, as read whole; without one,
+/// and with a torn tail, it plays as read whole.
+#[test]
+fn a_long_capture_is_looked_over_across_the_readers_buffer() {
+    let all: Vec<Chunk> = (0..6_000)
+        .map(|k: usize| Chunk {
+            time: 1e-3 * k as f64,
+            stream: IDS[k % 3],
+            bytes: vec![(k % 251) as u8; (k * 7_919) % 61 + 1],
+        })
+        .collect();
+    let mut wider = header(0.0, None, None);
+    wider.streams.push(StreamInfo {
+        id: 7,
+        kind: StreamKind::Falcon,
+    });
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("c.fcap");
+    let mut refused = 0;
+    for at in [
+        None,
+        Some(0),
+        Some(1_400),
+        Some(1_401),
+        Some(2_950),
+        Some(5_999),
+        Some(6_000),
+    ] {
+        let mut chunks = all.clone();
+        if let Some(at) = at {
+            chunks.insert(
+                at,
+                Chunk {
+                    time: 0.5,
+                    stream: 7,
+                    bytes: vec![1, 2],
+                },
+            );
+        }
+        // Written under a header that declares stream 7, then read under one
+        // that does not.
+        let written = write(&wider, &chunks);
+        let mut bytes = write(&header(0.0, None, None), &[]);
+        bytes.extend_from_slice(&written[records_at(&written)..]);
+        assert!(bytes.len() > 4 * (1 << 16));
+        for torn in [0, 5] {
+            std::fs::write(&path, &bytes[..bytes.len() - torn]).unwrap();
+            let (whole, streamed) = play_both(&path);
+            assert_eq!(whole, streamed, "{at:?} {torn}");
+            match (at, &streamed) {
+                // A torn last record of stream 7 is only a torn tail.
+                (Some(6_000), _) if torn > 0 => assert!(streamed.is_ok()),
+                (Some(_), Err(e)) if e.contains("stream 7") => refused += 1,
+                (None, Ok((readings, _))) => assert!(!readings.is_empty()),
+                _ => panic!("{at:?} {torn}: {streamed:?}"),
+            }
+        }
+    }
+    assert_eq!(refused, 11);
+}

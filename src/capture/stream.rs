@@ -90,7 +90,11 @@ pub fn open_capture(path: &Path) -> Result<Playable, CaptureError> {
 }
 
 /// Whether every record whose length fits the file, from `pos`, is of a
-/// declared stream (their data skipped, their CRCs not checked).
+/// declared stream (their data skipped, their CRCs not checked). A head
+/// the reader holds whole is read where it lies, and a record the reader
+/// holds whole is passed over in it: the same file offsets and reads as
+/// `read_exact` and `seek_relative` on each record, a fraction of their
+/// cost on records of a few dozen bytes.
 fn all_declared(
     reader: &mut BufReader<File>,
     mut pos: u64,
@@ -100,7 +104,17 @@ fn all_declared(
     let mut head = [0u8; RECORD_HEAD_LEN];
     // Each pass moves `pos` on by at least a record's overhead.
     while len.saturating_sub(pos) >= RECORD_OVERHEAD as u64 {
-        reader.read_exact(&mut head)?;
+        // How much of the record the reader has passed once `head` is read.
+        let read = match reader.buffer().get(..RECORD_HEAD_LEN) {
+            Some(held) => {
+                head.copy_from_slice(held);
+                0
+            }
+            None => {
+                reader.read_exact(&mut head)?;
+                RECORD_HEAD_LEN as u64
+            }
+        };
         let [.., stream, l0, l1, l2, l3] = head;
         let data = u64::from(u32::from_le_bytes([l0, l1, l2, l3]));
         let size = RECORD_OVERHEAD as u64 + data;
@@ -111,7 +125,11 @@ fn all_declared(
         if !declared[usize::from(stream)] {
             return Ok(false);
         }
-        reader.seek_relative((data + CRC_LEN as u64) as i64)?;
+        let rest = size - read;
+        match usize::try_from(rest) {
+            Ok(held) if held <= reader.buffer().len() => reader.consume(held),
+            _ => reader.seek_relative(rest as i64)?,
+        }
         pos += size;
     }
     Ok(true)
