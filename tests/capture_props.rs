@@ -7,7 +7,7 @@ use fieldcal::capture::{
 };
 use std::sync::atomic::AtomicBool;
 
-use fieldcal::capture::{open_capture, read_capture};
+use fieldcal::capture::{Playable, open_capture, read_capture};
 use fieldcal::protocol::chips::Chip;
 use fieldcal::source::SourceCounters;
 use fieldcal::source::replay::{ReplaySummary, Speed, replay_counted, replay_playable};
@@ -373,9 +373,10 @@ fn a_long_raw_dump_plays_across_blocks_as_read_whole() {
 /// A capture longer than the reader's buffer (64 KiB), its records of
 /// every small length so that heads and records lie across the buffer's
 /// ends, is looked over to its last record before it plays: a record of
-/// an undeclared stream anywhere in it (the first, across a buffer's end,
-/// the last) refuses the file at that record, as read whole; without one,
-/// and with a torn tail, it plays as read whole.
+/// an undeclared stream anywhere in it (the first, the one whose head lies
+/// across the first buffer's end, the one after it, the last) refuses the
+/// file at that record, as read whole; without one, it plays as it is
+/// read, as read whole, and so with a torn tail.
 #[test]
 fn a_long_capture_is_looked_over_across_the_readers_buffer() {
     let all: Vec<Chunk> = (0..6_000)
@@ -390,14 +391,27 @@ fn a_long_capture_is_looked_over_across_the_readers_buffer() {
         id: 7,
         kind: StreamKind::Falcon,
     });
+    // A record is a 13-byte head, its data and a 4-byte CRC; the reader's
+    // first 64 KiB start at the first record. The record inserted before
+    // record `across` starts where it did, its head across that end.
+    let mut start = 0;
+    let across = all
+        .iter()
+        .position(|c| {
+            let head_end = start + 13;
+            start += 13 + c.bytes.len() + 4;
+            head_end > 1 << 16
+        })
+        .unwrap();
+    assert!(start - (13 + all[across].bytes.len() + 4) < 1 << 16);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("c.fcap");
     let mut refused = 0;
     for at in [
         None,
         Some(0),
-        Some(1_400),
-        Some(1_401),
+        Some(across),
+        Some(across + 1),
         Some(2_950),
         Some(5_999),
         Some(6_000),
@@ -427,7 +441,11 @@ fn a_long_capture_is_looked_over_across_the_readers_buffer() {
                 // A torn last record of stream 7 is only a torn tail.
                 (Some(6_000), _) if torn > 0 => assert!(streamed.is_ok()),
                 (Some(_), Err(e)) if e.contains("stream 7") => refused += 1,
-                (None, Ok((readings, _))) => assert!(!readings.is_empty()),
+                (None, Ok((readings, _))) => {
+                    assert!(!readings.is_empty());
+                    // Looked over and cleared, not left to the whole-file reader.
+                    assert!(matches!(open_capture(&path), Ok(Playable::Stream(_))));
+                }
                 _ => panic!("{at:?} {torn}: {streamed:?}"),
             }
         }

@@ -975,10 +975,11 @@ mod tests {
     use super::*;
 
     /// `gaps_within` answers as the gaps `bin_gaps` lists do, on bins
-    /// covered at random (sparse to nearly full, with the covered runs
-    /// touching 0° and 359°), none, and one, at every limit a
-    /// configuration may set and each gap's own width (where `<` and `<=`
-    /// differ).
+    /// covered at random (from 1 % of them to all, the covered runs
+    /// touching 0° and 359°), none, and one: at each gap's own width
+    /// (where `<` and `<=` differ), at the ends of the limits a
+    /// configuration may set (2° and 60°) and between them, and beyond
+    /// them.
     #[test]
     fn the_gaps_are_within_their_limit_exactly_when_every_listed_gap_is() {
         let mut state = 0x9e37_79b9_7f4a_7c15_u64;
@@ -994,7 +995,7 @@ mod tests {
             one
         }];
         for k in 0..4000 {
-            // Coverage from 1 % to all but a few bins.
+            // Coverage from 1 % of the bins to all of them.
             let keep = 1 + (k % 100);
             cases.push(
                 (0..HEADING_BINS)
@@ -1006,7 +1007,7 @@ mod tests {
         for bins in &cases {
             let gaps = bin_gaps(bins);
             let mut limits: Vec<f64> = gaps.iter().map(|&(_, g)| g as f64).collect();
-            limits.extend([2.0, 2.5, 10.0, 45.0, 90.0, 359.0, 360.0]);
+            limits.extend([2.0, 2.5, 10.0, 45.0, 60.0, 90.0, 359.0, 360.0]);
             for limit in limits {
                 let expected = gaps.iter().all(|&(_, g)| g as f64 <= limit);
                 assert_eq!(gaps_within(bins, limit), expected, "{limit}: {gaps:?}");
