@@ -982,13 +982,8 @@ mod tests {
     /// them.
     #[test]
     fn the_gaps_are_within_their_limit_exactly_when_every_listed_gap_is() {
-        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x9e37_79b9);
         let mut cases = vec![vec![0u32; HEADING_BINS], {
             let mut one = vec![0u32; HEADING_BINS];
             one[0] = 1;
@@ -999,7 +994,7 @@ mod tests {
             let keep = 1 + (k % 100);
             cases.push(
                 (0..HEADING_BINS)
-                    .map(|_| u32::from(next() % 100 < keep) * (1 + (next() % 5) as u32))
+                    .map(|_| u32::from(rng.random_range(0..100) < keep) * rng.random_range(1..6))
                     .collect(),
             );
         }
