@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use super::records::Records;
+use super::records::{Records, Row};
 use super::{
     Back, CsvError, Front, Positional, Role, RowsRead, WATCHED_ROWS, cell, first_record,
     rows_expected,
@@ -46,16 +46,16 @@ impl Columns {
         }
     }
 
-    /// The values of `record` (on `line`) in the columns `read`.
+    /// The values of `row` in the columns `read`.
     fn push(
         &mut self,
-        record: &csv::ByteRecord,
+        row: &Row<'_>,
         read: &[(usize, Role)],
         reader: &Reader<'_>,
-        line: u64,
     ) -> Result<(), CsvError> {
+        let line = row.line();
         for &(i, role) in read {
-            let value = cell(record, i, reader.names, reader.path, line)?;
+            let value = cell(row.get(i), i, reader.names, reader.path, line)?;
             match role {
                 Role::X => self.x.push(value),
                 Role::Y => self.y.push(value),
@@ -126,21 +126,24 @@ impl Reader<'_> {
             covariates: Vec::new(),
         };
         let mut record = csv::ByteRecord::new();
-        // The columns read, in the order of the record's fields.
-        let mut read: Vec<(usize, Role)> = Vec::new();
         let mut shown = 0;
-        while records.read(&mut record)? {
-            let line = record.position().map_or(0, |p| p.line());
-            if read.is_empty() {
-                read = first_record(&record, &mut roles, self.names, &mut columns.covariates);
-                records.split_first(split_for(&read));
-                columns.reserve(rows_expected(self.size, &record, read.len()));
-                self.hand_over(records.get_mut(), scope, &read, &columns, &record);
-            }
-            columns.push(&record, &read, self, line)?;
-            if columns.x.len() - shown == WATCHED_ROWS {
-                columns.show(shown, watch);
-                shown = columns.x.len();
+        // The first record whole: its fields tell which columns are read.
+        if records.read(&mut record)? {
+            // The columns read, in the order of the record's fields.
+            let read = first_record(&record, &mut roles, self.names, &mut columns.covariates);
+            records.split_first(split_for(&read));
+            columns.reserve(rows_expected(self.size, &record, read.len()));
+            self.hand_over(records.get_mut(), scope, &read, &columns, &record);
+            columns.push(&Row::Record(&record), &read, self)?;
+            loop {
+                if columns.x.len() - shown == WATCHED_ROWS {
+                    columns.show(shown, watch);
+                    shown = columns.x.len();
+                }
+                let Some(row) = records.read_row(&mut record)? else {
+                    break;
+                };
+                columns.push(&row, &read, self)?;
             }
         }
         // The other core's rows, after these. Its lines are counted from
@@ -200,9 +203,8 @@ impl Reader<'_> {
     ) -> Result<Columns, CsvError> {
         let mut record = csv::ByteRecord::new();
         // Records check their lengths against the header's.
-        while records.read(&mut record)? {
-            let line = record.position().map_or(0, |p| p.line());
-            columns.push(&record, read, self, line)?;
+        while let Some(row) = records.read_row(&mut record)? {
+            columns.push(&row, read, self)?;
         }
         Ok(columns)
     }

@@ -290,14 +290,14 @@ fn rows_expected(size: u64, first: &csv::ByteRecord, columns: usize) -> usize {
 /// The number in field `i` of a record, or an error naming the file, the
 /// line, the column and the field.
 fn cell(
-    record: &csv::ByteRecord,
+    field: Option<&[u8]>,
     i: usize,
     names: &[String],
     path: &Path,
     line: u64,
 ) -> Result<f64, CsvError> {
     // A record holds every field a reader reads ([`records::Records::read`]).
-    let parsed = match record.get(i) {
+    let parsed = match field {
         Some(field) => parse_number(field),
         None => Err("the record was read without this field; please report this".into()),
     };
@@ -697,10 +697,10 @@ pub fn parse_series<R: Read>(
     let mut values = Vec::new();
     let mut records = records::Records::after_header(csv, names.len(), path)?;
     let mut record = csv::ByteRecord::new();
-    while records.read(&mut record)? {
-        let line = record.position().map_or(0, |p| p.line());
+    while let Some(row) = records.read_row(&mut record)? {
+        let line = row.line();
         for (i, out) in [(t_index, &mut t), (value_index, &mut values)] {
-            out.push(cell(&record, i, &names, path, line)?);
+            out.push(cell(row.get(i), i, &names, path, line)?);
         }
     }
     Ok(Series {

@@ -168,6 +168,49 @@ struct Plain {
     line: u64,
     /// Fields split out of each line; the others are only counted.
     split: usize,
+    /// The last plain line split: where it starts in `buf`, its length
+    /// without its newline, its number, and where its fields end in it.
+    row: (usize, usize, u64),
+    ends: Vec<usize>,
+}
+
+/// A record as [`Records::read_row`] gives it: a plain line's fields in
+/// place, or what the csv crate read.
+pub(super) enum Row<'a> {
+    Plain {
+        line: &'a [u8],
+        /// Where each field split out ends in `line` (the next begins one
+        /// byte after, past its comma).
+        ends: &'a [usize],
+        number: u64,
+    },
+    Record(&'a csv::ByteRecord),
+}
+
+impl Row<'_> {
+    /// Field `i`, if the record holds it ([`Records::read`]'s record holds
+    /// the same fields).
+    pub(super) fn get(&self, i: usize) -> Option<&[u8]> {
+        match self {
+            Row::Plain { line, ends, .. } => {
+                let end = *ends.get(i)?;
+                let start = match i.checked_sub(1) {
+                    Some(before) => ends[before] + 1,
+                    None => 0,
+                };
+                line.get(start..end)
+            }
+            Row::Record(record) => record.get(i),
+        }
+    }
+
+    /// The line the record starts on in the file.
+    pub(super) fn line(&self) -> u64 {
+        match self {
+            Row::Plain { number, .. } => *number,
+            Row::Record(record) => record.position().map_or(0, |p| p.line()),
+        }
+    }
 }
 
 /// Whether a plain line gave a record.
@@ -225,6 +268,8 @@ impl<'p, R: Read> Records<'p, R> {
             eof: false,
             line,
             split: fields,
+            row: (0, 0, 0),
+            ends: Vec::new(),
         };
         Ok(Records::new(tap.inner, plain, fields, path))
     }
@@ -240,6 +285,8 @@ impl<'p, R: Read> Records<'p, R> {
             eof: false,
             line: 1,
             split: split.min(fields),
+            row: (0, 0, 0),
+            ends: Vec::new(),
         };
         Records::new(reader, plain, fields, path)
     }
@@ -282,27 +329,84 @@ impl<'p, R: Read> Records<'p, R> {
     /// the header's number (checked), or, of a plain line, the first
     /// [`Records::split_first`] of them.
     pub(super) fn read(&mut self, record: &mut csv::ByteRecord) -> Result<bool, CsvError> {
-        if let Some(plain) = &mut self.plain {
-            let reader = &mut self.csv.get_mut().inner;
-            let next = plain
-                .next(reader, record, self.fields)
-                .map_err(|source| CsvError::Io {
-                    path: self.path.to_path_buf(),
-                    source,
-                })?;
-            match next {
-                Next::Record => return Ok(true),
-                Next::End => return Ok(false),
-                Next::NotPlain => {
-                    // The csv crate reads on from the line's first byte.
-                    let held = self.csv.get_mut();
-                    held.held = plain.buf[plain.start..plain.end].to_vec();
-                    held.at = 0;
-                    self.lines_before = plain.line - 1;
-                    self.plain = None;
+        match self.next_plain()? {
+            Next::Record => {
+                let (line, ends, number) = self.plain_row()?;
+                record.clear();
+                let mut start = 0;
+                for &end in ends {
+                    record.push_field(&line[start..end]);
+                    start = end + 1;
                 }
+                set_line(record, number);
+                Ok(true)
             }
+            Next::End => Ok(false),
+            Next::NotPlain => self.read_by_csv(record),
         }
+    }
+
+    /// [`Records::read`], a plain line's fields given in place (not
+    /// copied into `record`, which holds the csv crate's records).
+    pub(super) fn read_row<'s>(
+        &'s mut self,
+        record: &'s mut csv::ByteRecord,
+    ) -> Result<Option<Row<'s>>, CsvError> {
+        match self.next_plain()? {
+            Next::Record => {
+                let (line, ends, number) = self.plain_row()?;
+                Ok(Some(Row::Plain { line, ends, number }))
+            }
+            Next::End => Ok(None),
+            Next::NotPlain => Ok(self.read_by_csv(record)?.then_some(Row::Record(record))),
+        }
+    }
+
+    /// The next plain line split (`Record`), the end, or (`NotPlain`) the
+    /// csv crate to read the next record: from the first line that is not
+    /// plain, whose bytes it is handed, on.
+    fn next_plain(&mut self) -> Result<Next, CsvError> {
+        let Some(plain) = &mut self.plain else {
+            return Ok(Next::NotPlain);
+        };
+        let reader = &mut self.csv.get_mut().inner;
+        let next = plain
+            .next(reader, self.fields)
+            .map_err(|source| CsvError::Io {
+                path: self.path.to_path_buf(),
+                source,
+            })?;
+        if let Next::NotPlain = next {
+            // The csv crate reads on from the line's first byte.
+            let held = self.csv.get_mut();
+            held.held = plain.buf[plain.start..plain.end].to_vec();
+            held.at = 0;
+            self.lines_before = plain.line - 1;
+            self.plain = None;
+        }
+        Ok(next)
+    }
+
+    /// The plain line last split: its bytes, where its fields end and its
+    /// number.
+    fn plain_row(&self) -> Result<(&[u8], &[usize], u64), CsvError> {
+        let row = self.plain.as_ref().and_then(|plain| {
+            let (start, length, number) = plain.row;
+            Some((
+                plain.buf.get(start..start + length)?,
+                &plain.ends[..],
+                number,
+            ))
+        });
+        row.ok_or_else(|| CsvError::Io {
+            path: self.path.to_path_buf(),
+            source: io::Error::other("a plain line was split but not held; please report this"),
+        })
+    }
+
+    /// The next record by the csv crate, its position the line it starts
+    /// on in the file; `false` past the last.
+    fn read_by_csv(&mut self, record: &mut csv::ByteRecord) -> Result<bool, CsvError> {
         let lines_before = self.lines_before;
         let more = (self.csv)
             .read_byte_record(record)
@@ -349,12 +453,7 @@ impl<'p, R: Read> Records<'p, R> {
 
 impl Plain {
     /// The next plain line of `reader` as a record of `fields` fields.
-    fn next(
-        &mut self,
-        reader: &mut impl Read,
-        record: &mut csv::ByteRecord,
-        fields: usize,
-    ) -> io::Result<Next> {
+    fn next(&mut self, reader: &mut impl Read, fields: usize) -> io::Result<Next> {
         loop {
             let held = &self.buf[self.start..self.end];
             if let Some(length) = memchr::memchr(b'\n', held) {
@@ -368,10 +467,10 @@ impl Plain {
                     return Ok(Next::NotPlain);
                 }
                 if !line.is_empty() && !comment {
-                    if !split_line(line, self.split, fields, record) {
+                    if !split_line(line, self.split, fields, &mut self.ends) {
                         return Ok(Next::NotPlain);
                     }
-                    set_line(record, self.line);
+                    self.row = (self.start, line.len(), self.line);
                 }
                 self.start += length + 1;
                 self.line += 1;
@@ -413,28 +512,26 @@ impl Plain {
     }
 }
 
-/// `line`'s first `split` fields into `record` (the rest of its `fields`
-/// only counted); `false` (and `record` left to be read again) when it
-/// has another number of fields.
-fn split_line(line: &[u8], split: usize, fields: usize, record: &mut csv::ByteRecord) -> bool {
-    record.clear();
-    let mut from = 0;
+/// Where `line`'s first `split` fields end, into `ends` (the rest of its
+/// `fields` only counted); `false` (and the line left to be read again)
+/// when it has another number of fields.
+fn split_line(line: &[u8], split: usize, fields: usize, ends: &mut Vec<usize>) -> bool {
+    ends.clear();
     let mut commas = memchr::memchr_iter(b',', line);
-    while record.len() + 1 < split {
+    while ends.len() + 1 < split {
         let Some(comma) = commas.next() else {
             return false;
         };
-        record.push_field(&line[from..comma]);
-        from = comma + 1;
+        ends.push(comma);
     }
     // The field `split` ends at the next comma, or the line's end.
-    let rest = &line[from..];
-    let (last, more) = match memchr::memchr(b',', rest) {
-        Some(comma) => (&rest[..comma], 1 + count_commas(&rest[comma + 1..])),
-        None => (rest, 0),
+    let from = ends.last().map_or(0, |&end| end + 1);
+    let (end, more) = match memchr::memchr(b',', &line[from..]) {
+        Some(comma) => (from + comma, 1 + count_commas(&line[from + comma + 1..])),
+        None => (line.len(), 0),
     };
-    record.push_field(last);
-    record.len() + more == fields
+    ends.push(end);
+    ends.len() + more == fields
 }
 
 /// Commas in `bytes`: counted 32 bytes at a time into one byte each,
@@ -572,8 +669,16 @@ mod tests {
     }
 
     /// [`by_the_crate`] by [`Records`], fed by `sizes` bytes at a time and
-    /// holding plain lines of up to `holding` bytes.
-    fn by_records(text: &[u8], split: usize, sizes: Vec<usize>, holding: usize) -> Vec<String> {
+    /// holding plain lines of up to `holding` bytes; after the first
+    /// record, by [`Records::read_row`] when `rows` (as the columns are
+    /// read), else by [`Records::read`].
+    fn by_records(
+        text: &[u8],
+        split: usize,
+        sizes: Vec<usize>,
+        holding: usize,
+        rows: bool,
+    ) -> Vec<String> {
         let path = Path::new("rec.csv");
         let reader = Trickle {
             bytes: text,
@@ -592,24 +697,36 @@ mod tests {
         };
         let mut record = csv::ByteRecord::new();
         let mut first = true;
+        let split = split.min(fields);
         loop {
-            match records.read(&mut record) {
-                Ok(true) => {
-                    let split = split.min(fields);
-                    // A plain line holds the fields split, or (the first,
-                    // all read) every field; the crate's hold every one.
-                    assert!(
-                        record.len() == fields || (!first && record.len() == split),
-                        "{} fields of {fields}, split at {split}",
-                        record.len()
-                    );
-                    out.push(shown(&record, split));
+            let next = if rows && !first {
+                let row = records.read_row(&mut record);
+                row.map(|row| row.map(|row| shown_row(&row, split)))
+            } else {
+                let more = records.read(&mut record);
+                more.map(|more| {
+                    more.then(|| {
+                        // A plain line holds the fields split, or (the
+                        // first, all read) every field; the crate's hold
+                        // every one.
+                        assert!(
+                            record.len() == fields || (!first && record.len() == split),
+                            "{} fields of {fields}, split at {split}",
+                            record.len()
+                        );
+                        shown(&record, split)
+                    })
+                })
+            };
+            match next {
+                Ok(Some(shown)) => {
+                    out.push(shown);
                     if first {
                         records.split_first(split);
                         first = false;
                     }
                 }
-                Ok(false) => break,
+                Ok(None) => break,
                 Err(e) => {
                     out.push(e.to_string());
                     return out;
@@ -630,8 +747,19 @@ mod tests {
         format!("line {line}: {fields:?}")
     }
 
+    /// A row's first `split` fields (all it holds, if fewer) and its line,
+    /// as [`shown`] shows a record.
+    fn shown_row(row: &Row<'_>, split: usize) -> String {
+        let fields: Vec<_> = (0..split)
+            .map_while(|i| row.get(i))
+            .map(String::from_utf8_lossy)
+            .collect();
+        format!("line {}: {fields:?}", row.line())
+    }
+
     /// The same by both, fed whole and a few bytes at a time, holding
-    /// plain lines of any length and of a few bytes.
+    /// plain lines of any length and of a few bytes, read as records and
+    /// as rows.
     fn same_by_both(text: &[u8], split: usize) {
         let want = by_the_crate(text, split);
         for (sizes, holding) in [
@@ -639,13 +767,15 @@ mod tests {
             (vec![1, 3, 7, 2], PLAIN_BYTES),
             (vec![5, 64, 1], 12),
         ] {
-            let got = by_records(text, split, sizes.clone(), holding);
-            assert_eq!(
-                got,
-                want,
-                "{:?} split at {split}, {sizes:?} bytes at a time, {holding} held",
-                String::from_utf8_lossy(text)
-            );
+            for rows in [false, true] {
+                let got = by_records(text, split, sizes.clone(), holding, rows);
+                assert_eq!(
+                    got,
+                    want,
+                    "{:?} split at {split}, {sizes:?} bytes at a time, {holding} held, rows {rows}",
+                    String::from_utf8_lossy(text)
+                );
+            }
         }
     }
 
@@ -657,7 +787,7 @@ mod tests {
         }
         // The records and the line the reader ends on; the first record
         // holds every field, the others those split.
-        let got = by_records(text, 2, vec![READ_BYTES], PLAIN_BYTES);
+        let got = by_records(text, 2, vec![READ_BYTES], PLAIN_BYTES, true);
         assert_eq!(
             got,
             [
