@@ -331,14 +331,12 @@ impl<'p, R: Read> Records<'p, R> {
     pub(super) fn read(&mut self, record: &mut csv::ByteRecord) -> Result<bool, CsvError> {
         match self.next_plain()? {
             Next::Record => {
-                let (line, ends, number) = self.plain_row()?;
+                let row = self.plain_row()?;
                 record.clear();
-                let mut start = 0;
-                for &end in ends {
-                    record.push_field(&line[start..end]);
-                    start = end + 1;
-                }
-                set_line(record, number);
+                (0..)
+                    .map_while(|i| row.get(i))
+                    .for_each(|field| record.push_field(field));
+                set_line(record, row.line());
                 Ok(true)
             }
             Next::End => Ok(false),
@@ -353,10 +351,7 @@ impl<'p, R: Read> Records<'p, R> {
         record: &'s mut csv::ByteRecord,
     ) -> Result<Option<Row<'s>>, CsvError> {
         match self.next_plain()? {
-            Next::Record => {
-                let (line, ends, number) = self.plain_row()?;
-                Ok(Some(Row::Plain { line, ends, number }))
-            }
+            Next::Record => self.plain_row().map(Some),
             Next::End => Ok(None),
             Next::NotPlain => Ok(self.read_by_csv(record)?.then_some(Row::Record(record))),
         }
@@ -387,16 +382,15 @@ impl<'p, R: Read> Records<'p, R> {
         Ok(next)
     }
 
-    /// The plain line last split: its bytes, where its fields end and its
-    /// number.
-    fn plain_row(&self) -> Result<(&[u8], &[usize], u64), CsvError> {
+    /// The plain line last split, in place.
+    fn plain_row(&self) -> Result<Row<'_>, CsvError> {
         let row = self.plain.as_ref().and_then(|plain| {
             let (start, length, number) = plain.row;
-            Some((
-                plain.buf.get(start..start + length)?,
-                &plain.ends[..],
+            Some(Row::Plain {
+                line: plain.buf.get(start..start + length)?,
+                ends: &plain.ends,
                 number,
-            ))
+            })
         });
         row.ok_or_else(|| CsvError::Io {
             path: self.path.to_path_buf(),
